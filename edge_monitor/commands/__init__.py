@@ -1,0 +1,1 @@
+"""One module per ``edge-monitor`` subcommand; each exposes ``add_parser(subparsers)``."""

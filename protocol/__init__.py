@@ -1,0 +1,1 @@
+"""Shared wire format: frame catalogue, scaling, E2E protection, DBC, links (docs/PROTOCOL.md)."""

@@ -1,0 +1,1 @@
+"""Simulated robot controller streaming motor torque and speed over CAN."""
