@@ -1,0 +1,262 @@
+"""Constant-speed plateau detection from the motor speed signal (ALGORITHMS.md §2).
+
+The detector needs no status frame: each sample is classified against the configured speed levels
+(magnitude, both directions) with hysteresis, runs of one label form plateaus, the acceleration
+transient at the start (``settle_s``) and a short guard before the end (``guard_s``, the
+deceleration torque starts while the speed is still inside the band) are discarded, and the steady
+part is reduced to running moments. Memory is O(1) per joint; blocks are processed in numpy.
+
+Units: speed rad/s (motor side), torque dimensionless, time in controller ticks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Label of samples at an (apparently) constant speed that matches no configured level.
+UNMATCHED = 10_000
+
+
+@dataclass(frozen=True)
+class PlateauConfig:
+    """Plateau detection settings. Speeds in rad/s, durations in seconds."""
+
+    speeds: tuple[float, ...] = (2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1)
+    rate_hz: float = 500.0
+    tolerance_rel: float = 0.02      # enter a level when |v| is within rel·v + abs of it
+    tolerance_abs: float = 0.3
+    hysteresis: float = 2.0          # stay on a level while within hysteresis × the entry band
+    settle_s: float = 0.25           # discarded at the start of each plateau
+    guard_s: float = 0.02            # discarded at the end of each plateau
+    min_steady_s: float = 0.3        # shorter steady parts are "plateau cut short"
+    unmatched_min_speed: float = 1.0  # |v| above which a steady unmatched run is counted
+
+    def __post_init__(self) -> None:
+        speeds = np.asarray(self.speeds, dtype=float)
+        if speeds.size == 0 or not np.all(np.isfinite(speeds)) or np.any(speeds <= 0):
+            raise ValueError(f"segmentation.speeds: need positive finite speeds in rad/s, got {list(self.speeds)}")
+        if np.any(np.diff(np.sort(speeds)) <= 0):
+            raise ValueError(f"segmentation.speeds: speeds must be distinct, got {list(self.speeds)}")
+        for name in ("rate_hz", "tolerance_rel", "hysteresis", "min_steady_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"segmentation.{name}: must be > 0, got {getattr(self, name)}")
+        for name in ("tolerance_abs", "settle_s", "guard_s"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"segmentation.{name}: must be >= 0, got {getattr(self, name)}")
+
+    def ticks(self, seconds: float) -> int:
+        return int(round(seconds * self.rate_hz))
+
+
+@dataclass
+class PlateauStat:
+    """Moments of the steady part of one constant-speed run (one direction of one level)."""
+
+    level: int            # index into PlateauConfig.speeds
+    direction: int        # +1 or -1
+    n: int
+    mean: float           # mean torque
+    m2: float             # sum of squared deviations
+    lag1: float           # lag-1 autocorrelation of the torque samples (for the standard error)
+    tick_start: int
+    tick_end: int
+    speed_mean: float
+
+    @property
+    def variance(self) -> float:
+        return self.m2 / (self.n - 1) if self.n > 1 else float("nan")
+
+
+@dataclass
+class _RunAccumulator:
+    """Running moments of committed steady samples of the current run."""
+
+    n: int = 0
+    total: float = 0.0
+    total_sq: float = 0.0
+    lag_products: float = 0.0
+    first: float = 0.0
+    last: float = 0.0
+    speed_total: float = 0.0
+
+    def commit(self, torque: NDArray[np.float64], speed: NDArray[np.float64]) -> None:
+        if torque.size == 0:
+            return
+        if self.n == 0:
+            self.first = float(torque[0])
+        else:
+            self.lag_products += self.last * float(torque[0])
+        self.lag_products += float(np.dot(torque[:-1], torque[1:]))
+        self.n += torque.size
+        self.total += float(torque.sum())
+        self.total_sq += float(np.dot(torque, torque))
+        self.last = float(torque[-1])
+        self.speed_total += float(speed.sum())
+
+    def moments(self) -> tuple[float, float, float]:
+        """(mean, M2, lag-1 autocorrelation) of the committed samples."""
+        n = self.n
+        mean = self.total / n
+        m2 = max(self.total_sq - n * mean * mean, 0.0)
+        if n < 3 or m2 <= 0:
+            return mean, m2, 0.0
+        # Σ (x_i − m)(x_{i+1} − m) over n−1 pairs, from raw sums.
+        cross = self.lag_products - mean * (2 * self.total - self.first - self.last) + (n - 1) * mean * mean
+        return mean, m2, float(np.clip(cross / m2, -1.0, 1.0))
+
+
+@dataclass
+class SegmentationCounters:
+    plateaus: int = 0
+    cut_short: int = 0
+    unmatched: int = 0
+    nonfinite_samples: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class PlateauDetector:
+    """Streaming plateau detector for one joint: ``update(block) -> list[PlateauStat]``."""
+
+    config: PlateauConfig = field(default_factory=PlateauConfig)
+    counters: SegmentationCounters = field(default_factory=SegmentationCounters)
+    _label: int = 0
+    _run_len: int = 0
+    _run_tick_start: int = 0
+    _last_tick: int = 0
+    _acc: _RunAccumulator = field(default_factory=_RunAccumulator)
+    _pending_t: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    _pending_v: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+
+    def __post_init__(self) -> None:
+        speeds = np.asarray(self.config.speeds, dtype=float)
+        order = np.argsort(speeds)
+        self._sorted_speeds = speeds[order]
+        self._sorted_index = order
+        self._band = self.config.tolerance_rel * self._sorted_speeds + self.config.tolerance_abs
+        self._settle = self.config.ticks(self.config.settle_s)
+        self._guard = self.config.ticks(self.config.guard_s)
+        self._min_steady = max(self.config.ticks(self.config.min_steady_s), 2)
+
+    # ------------------------------------------------------------------ classification
+    def classify(self, speed: NDArray[np.float64], exclude: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
+        """Label per sample: ±(level+1) on a level, UNMATCHED (steady, no level) or 0, with hysteresis."""
+        a = np.abs(speed)
+        pos = np.clip(np.searchsorted(self._sorted_speeds, a), 1, len(self._sorted_speeds) - 1) \
+            if len(self._sorted_speeds) > 1 else np.zeros(a.shape, dtype=np.int64)
+        if len(self._sorted_speeds) > 1:
+            left, right = pos - 1, pos
+            nearest = np.where(np.abs(a - self._sorted_speeds[left]) <= np.abs(a - self._sorted_speeds[right]),
+                               left, right)
+        else:
+            nearest = pos
+        dist = np.abs(a - self._sorted_speeds[nearest])
+        band = self._band[nearest]
+        level_label = np.sign(speed).astype(np.int64) * (self._sorted_index[nearest] + 1)
+        inner = dist <= band
+        outer = dist <= band * self.config.hysteresis
+        labels = np.where(inner, level_label, 0)
+        # Hysteresis: an outer-band sample keeps the label of the last inner sample if it is the same level.
+        idx = np.where(inner, np.arange(a.size), -1)
+        np.maximum.accumulate(idx, out=idx)
+        carried = np.where(idx >= 0, labels[np.maximum(idx, 0)], self._label)
+        labels = np.where(~inner & outer & (carried == level_label), carried, labels)
+        # Steady but unmatched: small sample-to-sample change at a speed well above standstill.
+        steady = np.abs(np.diff(speed, prepend=speed[:1])) < self.config.tolerance_abs
+        labels = np.where((labels == 0) & steady & (a > self.config.unmatched_min_speed), UNMATCHED, labels)
+        if exclude is not None:
+            labels = np.where(exclude, 0, labels)
+        return labels
+
+    # ------------------------------------------------------------------ streaming
+    def update(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
+               exclude: NDArray[np.bool_] | None = None) -> list[PlateauStat]:
+        """Consume one block of samples of this joint (ordered by tick); return finished plateaus.
+
+        ``exclude`` marks samples that must not be part of a plateau (e.g. the production motion,
+        when the controller's status frame says so).
+        """
+        if tick.size == 0:
+            return []
+        finite = np.isfinite(speed) & np.isfinite(torque)
+        if not finite.all():
+            self.counters.nonfinite_samples += int((~finite).sum())
+            speed = np.where(finite, speed, 0.0)
+            exclude = ~finite if exclude is None else (exclude | ~finite)
+        labels = self.classify(speed, exclude)
+        out: list[PlateauStat] = []
+        change = np.flatnonzero(np.diff(labels, prepend=self._label) != 0)
+        starts = np.unique(np.concatenate([[0], change]))
+        ends = np.append(starts[1:], labels.size)
+        for s, e in zip(starts, ends):
+            label = int(labels[s])
+            if label != self._label:
+                out.extend(self._end_run())
+                self._start_run(label, int(tick[s]))
+            self._extend_run(tick[s:e], speed[s:e], torque[s:e])
+        self._last_tick = int(tick[-1])
+        return out
+
+    def flush(self) -> list[PlateauStat]:
+        """End the current run (end of stream)."""
+        out = self._end_run()
+        self._start_run(0, self._last_tick)
+        return out
+
+    def _start_run(self, label: int, tick_start: int) -> None:
+        self._label = label
+        self._run_len = 0
+        self._run_tick_start = tick_start
+        self._acc = _RunAccumulator()
+        self._pending_t = np.empty(0)
+        self._pending_v = np.empty(0)
+
+    def _extend_run(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64]) -> None:
+        if self._label == 0:
+            self._run_len += tick.size
+            return
+        pos = (tick - self._run_tick_start)
+        steady = pos >= self._settle
+        self._run_len += tick.size
+        if self._label == UNMATCHED:
+            return
+        t = np.concatenate([self._pending_t, torque[steady]])
+        v = np.concatenate([self._pending_v, speed[steady]])
+        keep = min(self._guard, t.size)
+        cut = t.size - keep
+        self._acc.commit(t[:cut], v[:cut])
+        self._pending_t, self._pending_v = t[cut:], v[cut:]
+        self._last_tick = int(tick[-1])
+
+    def _end_run(self) -> list[PlateauStat]:
+        label = self._label
+        if label == 0:
+            return []
+        if label == UNMATCHED:
+            if self._run_len >= self._settle + self._min_steady:
+                self.counters.unmatched += 1
+            return []
+        if self._acc.n < self._min_steady:
+            # Runs much shorter than the settle time are passing crossings, not cut plateaus.
+            if self._run_len > self._settle:
+                self.counters.cut_short += 1
+            return []
+        mean, m2, lag1 = self._acc.moments()
+        self.counters.plateaus += 1
+        return [PlateauStat(level=abs(label) - 1, direction=1 if label > 0 else -1, n=self._acc.n, mean=mean,
+                            m2=m2, lag1=lag1, tick_start=self._run_tick_start, tick_end=self._last_tick,
+                            speed_mean=self._acc.speed_total / self._acc.n)]
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict:
+        """Only configuration and counters persist: a restart begins with no plateau in progress."""
+        return {"counters": self.counters.as_dict()}
+
+    @classmethod
+    def from_state(cls, state: dict, config: PlateauConfig) -> "PlateauDetector":
+        return cls(config=config, counters=SegmentationCounters(**state.get("counters", {})))

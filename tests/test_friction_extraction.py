@@ -1,0 +1,101 @@
+"""Plateau detection and friction extraction on synthetic back-and-forth profiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from edge_monitor.friction_extraction import FrictionExtractor
+from edge_monitor.friction_model import friction_magnitude
+from edge_monitor.segmentation import PlateauConfig, PlateauDetector
+
+RATE = 500.0
+SPEEDS = PlateauConfig().speeds
+
+
+def back_and_forth(speeds, *, hold_s=1.2, ramp_s=0.1, pause_s=0.1, inertia=2e-4, gravity=0.3,
+                   load=0.5, temperature=40.0, wear=0.0, noise=2e-3, seed=0):
+    """Speed and torque of a test cycle: per level ramp → +v hold → ramp → −v hold → ramp → pause."""
+    rng = np.random.default_rng(seed)
+    parts_v = []
+    for v in speeds:
+        ramp = np.linspace(0, v, int(ramp_s * RATE), endpoint=False)
+        hold = np.full(int(hold_s * RATE), v)
+        parts_v += [ramp, hold, ramp[::-1], -ramp, -hold, -ramp[::-1], np.zeros(int(pause_s * RATE))]
+    speed = np.concatenate(parts_v)
+    acc = np.gradient(speed) * RATE
+    torque = (gravity + np.sign(speed) * friction_magnitude(speed, load, temperature, wear)
+              + inertia * acc + rng.normal(0, noise, speed.size))
+    return speed, torque
+
+
+def run_extraction(speed, torque, block=256, config=None):
+    config = config or PlateauConfig()
+    det = PlateauDetector(config)
+    ext = FrictionExtractor(config.speeds)
+    tick = np.arange(speed.size)
+    for s in range(0, speed.size, block):
+        for p in det.update(tick[s:s + block], speed[s:s + block], torque[s:s + block]):
+            ext.update(p)
+    for p in det.flush():
+        ext.update(p)
+    return det, ext.end_cycle()
+
+
+def test_extracts_model_friction_at_every_level():
+    speed, torque = back_and_forth(SPEEDS, wear=20.0)
+    det, curve = run_extraction(speed, torque)
+    assert curve.speeds == sorted(SPEEDS)
+    truth = friction_magnitude(np.array(curve.speeds), 0.5, 40.0, 20.0)
+    err = np.array(curve.torque) - truth
+    se = np.array(curve.stderr)
+    # Noise 2e-3 over ~470 steady samples per direction: stderr ≈ 2e-3/√470/√2 ≈ 6.5e-5. Allow 5 σ.
+    assert np.all(se > 0) and np.all(se < 2e-4)
+    assert np.all(np.abs(err) < 5 * se + 1e-6), err / se
+    assert det.counters.plateaus == 2 * len(SPEEDS)
+    assert det.counters.cut_short == 0
+
+
+@settings(max_examples=15, deadline=None)
+@given(block=st.integers(min_value=1, max_value=2000))
+def test_result_does_not_depend_on_block_size(block):
+    speed, torque = back_and_forth(SPEEDS[:4], seed=3)
+    _, ref = run_extraction(speed, torque, block=len(speed))
+    _, curve = run_extraction(speed, torque, block=block)
+    assert curve.speeds == ref.speeds
+    np.testing.assert_allclose(curve.torque, ref.torque, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(curve.stderr, ref.stderr, rtol=1e-9)
+
+
+def test_missing_reverse_direction_is_skipped_and_counted():
+    speed, torque = back_and_forth([SPEEDS[3]])
+    half = speed.size // 2          # forward half only
+    det, curve = run_extraction(speed[:half], torque[:half])
+    assert curve.n_points == 0
+    assert curve.skipped == {"missing reverse direction": 1}
+
+
+def test_short_plateau_is_cut_short_and_unknown_speed_is_counted():
+    speed_short, torque_short = back_and_forth([SPEEDS[5]], hold_s=0.4)
+    speed_odd, torque_odd = back_and_forth([60.0], hold_s=1.0)
+    det, curve = run_extraction(np.concatenate([speed_short, speed_odd]),
+                                np.concatenate([torque_short, torque_odd]))
+    assert curve.n_points == 0
+    assert det.counters.cut_short == 2
+    assert det.counters.unmatched == 2
+
+
+def test_nonfinite_samples_are_counted_not_averaged():
+    speed, torque = back_and_forth([SPEEDS[7]])
+    torque[300:310] = np.nan
+    det, curve = run_extraction(speed, torque)
+    assert det.counters.nonfinite_samples == 10
+    assert curve.n_points == 1 and np.isfinite(curve.torque[0])
+
+
+def test_config_rejects_bad_speeds():
+    with pytest.raises(ValueError, match="segmentation.speeds"):
+        PlateauConfig(speeds=(1.0, -2.0))
+    with pytest.raises(ValueError, match="segmentation.speeds"):
+        PlateauConfig(speeds=(3.0, 3.0))
