@@ -1,0 +1,352 @@
+"""Zenoh publication of the agent's outputs (key space of SYSTEM.md) and a matching subscriber.
+
+Keys (JSON payloads, encoding ``application/json``):
+
+* ``edge/<robot>/<joint>/symptom`` and ``.../alarm``: advanced publishers (zenoh.ext) with a cache,
+  sample-miss detection and publisher detection, RELIABLE with congestion control BLOCK, so a late or
+  briefly disconnected subscriber recovers recent records and learns about the ones it lost.
+* ``edge/<robot>/<joint>/friction`` and ``edge/<robot>/agent/health``: plain publishers, DROP
+  (telemetry: the newest value matters, old ones may go).
+* ``edge/<robot>/agent``: liveliness token while the agent runs.
+* ``edge/<robot>/<joint>/state``: queryable answering with ``state_provider(joint)`` (read-only).
+
+Publishing never raises: a failure is logged once per kind and counted as undelivered.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable
+
+import numpy as np
+import zenoh
+import zenoh.ext as zext
+
+log = logging.getLogger(__name__)
+
+SYMPTOM = "symptom"
+ALARM = "alarm"
+FRICTION = "friction"
+HEALTH = "health"
+KINDS = (SYMPTOM, ALARM, FRICTION, HEALTH)
+_STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", FRICTION: "friction", HEALTH: "health"}
+
+DEFAULT_CACHE_SIZE = 256          # samples per advanced publisher (≈ 2 h of 30 s cycles)
+HEARTBEAT_S = 0.5                 # sample-miss heartbeat period, s
+
+
+def _clean(value: Any) -> Any:
+    """``value`` with NaN/±inf → None and numpy scalars/arrays → Python types (strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _clean(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        number = float(value)
+        return number if math.isfinite(number) else None
+    return value
+
+
+def to_json(record: Any) -> str:
+    """Strict JSON text of ``record`` (NaN/inf become null; numpy types converted)."""
+    return json.dumps(_clean(record), allow_nan=False, separators=(",", ":"))
+
+
+def symptom_key(robot: str, joint: int | str, kind: str) -> str:
+    """``edge/<robot>/<joint>/<kind>``."""
+    return f"edge/{robot}/{joint}/{kind}"
+
+
+def _check_robot_name(robot: str) -> str:
+    if not robot or any(c in robot for c in "/*$?#"):
+        raise ValueError(f"robot name {robot!r} must be non-empty without '/', '*', '$', '?', '#'; "
+                         "fix the robot name in the config")
+    return robot
+
+
+class SymptomPublisher:
+    """Declares and feeds the agent's Zenoh publishers for one robot.
+
+    ``joints``: joint numbers known at start (others are declared on first use).
+    ``cache_size``: samples kept per symptom/alarm publisher for late subscribers.
+    ``state_provider(joint) -> dict``: answers ``edge/<robot>/<joint>/state`` queries; ``None``: no queryable.
+    """
+
+    def __init__(self, session: zenoh.Session, robot: str, joints: Iterable[int],
+                 cache_size: int = DEFAULT_CACHE_SIZE,
+                 state_provider: Callable[[int], dict] | None = None) -> None:
+        if cache_size < 1:
+            raise ValueError(f"cache_size={cache_size} must be >= 1; fix the zenoh cache size")
+        self.session = session
+        self.robot = _check_robot_name(robot)
+        self.cache_size = int(cache_size)
+        self.state_provider = state_provider
+        self.published = {kind: 0 for kind in KINDS}
+        self.undelivered = {kind: 0 for kind in KINDS}
+        self.queries_answered = 0
+        self._failed_kinds: set[str] = set()
+        self._lock = threading.Lock()
+        self._joint_publishers: dict[int, dict[str, Any]] = {}
+        self._closed = False
+        self._health = session.declare_publisher(
+            f"edge/{robot}/agent/{HEALTH}", encoding=zenoh.Encoding.APPLICATION_JSON,
+            congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE)
+        self._token = session.liveliness().declare_token(f"edge/{robot}/agent")
+        self._queryable = None
+        if state_provider is not None:
+            self._queryable = session.declare_queryable(f"edge/{robot}/*/state", self._answer_state)
+        for joint in joints:
+            self._publishers_for(int(joint))
+
+    # -- declaration -------------------------------------------------------------------------------
+
+    def _advanced(self, key: str) -> Any:
+        return zext.declare_advanced_publisher(
+            self.session, key, encoding=zenoh.Encoding.APPLICATION_JSON,
+            congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE,
+            cache=zext.CacheConfig(max_samples=self.cache_size),
+            sample_miss_detection=zext.MissDetectionConfig(heartbeat=HEARTBEAT_S, sporadic_heartbeat=None),
+            publisher_detection=True)
+
+    def _publishers_for(self, joint: int) -> dict[str, Any]:
+        with self._lock:
+            publishers = self._joint_publishers.get(joint)
+            if publishers is None:
+                publishers = {
+                    SYMPTOM: self._advanced(symptom_key(self.robot, joint, SYMPTOM)),
+                    ALARM: self._advanced(symptom_key(self.robot, joint, ALARM)),
+                    FRICTION: self.session.declare_publisher(
+                        symptom_key(self.robot, joint, FRICTION), encoding=zenoh.Encoding.APPLICATION_JSON,
+                        congestion_control=zenoh.CongestionControl.DROP),
+                }
+                self._joint_publishers[joint] = publishers
+            return publishers
+
+    @property
+    def joints(self) -> list[int]:
+        return sorted(self._joint_publishers)
+
+    # -- publication -------------------------------------------------------------------------------
+
+    def publish_symptom(self, record: dict) -> bool:
+        """Publish one per-cycle symptom record; True when handed to Zenoh."""
+        return self._put(SYMPTOM, record.get("joint"), record)
+
+    def publish_alarm(self, record: dict) -> bool:
+        """Publish one alarm raised/cleared record."""
+        return self._put(ALARM, record.get("joint"), record)
+
+    def publish_friction(self, joint: int, cycle: int, friction: dict) -> bool:
+        """Publish the friction curve of a cycle: ``{"speeds", "torque", "stderr"}``."""
+        record = {"schema": 1, "robot": self.robot, "joint": joint, "cycle": cycle, **friction}
+        return self._put(FRICTION, joint, record)
+
+    def publish_health(self, record: dict) -> bool:
+        """Publish the agent's health counters/rates."""
+        record = {"robot": self.robot, "symptoms_published": self.published[SYMPTOM],
+                  "symptoms_undelivered": self.undelivered[SYMPTOM], **record}
+        return self._put(HEALTH, None, record)
+
+    def _put(self, kind: str, joint: Any, record: dict) -> bool:
+        try:
+            if self._closed:
+                raise RuntimeError("publisher is closed")
+            payload = to_json(record)
+            publisher = self._health if kind == HEALTH else self._publishers_for(int(joint))[kind]
+            publisher.put(payload)
+        except Exception as exc:  # the agent never dies of output
+            self.undelivered[kind] += 1
+            if kind not in self._failed_kinds:
+                self._failed_kinds.add(kind)
+                log.warning("zenoh %s not delivered (further failures of this kind are only counted): %s",
+                            kind, exc)
+            return False
+        self.published[kind] += 1
+        return True
+
+    def stats(self) -> dict[str, int]:
+        """Counters: ``symptoms_published``, ``symptoms_undelivered``, ``alarms_…``, ``friction_…``,
+        ``health_…`` and ``state_queries``."""
+        out: dict[str, int] = {}
+        for kind in KINDS:
+            name = _STAT_NAMES[kind]
+            out[f"{name}_published"] = self.published[kind]
+            out[f"{name}_undelivered"] = self.undelivered[kind]
+        out["state_queries"] = self.queries_answered
+        return out
+
+    # -- queryable ---------------------------------------------------------------------------------
+
+    def _answer_state(self, query: zenoh.Query) -> None:
+        """Reply with the state of every joint whose state key the query selects."""
+        try:
+            selector = zenoh.KeyExpr(str(query.key_expr))
+            for joint in self.joints:
+                key = zenoh.KeyExpr(symptom_key(self.robot, joint, "state"))
+                if key.intersects(selector):
+                    state = self.state_provider(joint) if self.state_provider else {}
+                    query.reply(key, to_json(state), encoding=zenoh.Encoding.APPLICATION_JSON)
+            self.queries_answered += 1
+        except Exception as exc:  # a queryable callback must not raise into zenoh
+            log.warning("state query %s failed: %s", query.key_expr, exc)
+            try:
+                query.reply_err(to_json({"error": str(exc)}), encoding=zenoh.Encoding.APPLICATION_JSON)
+            except Exception:
+                pass
+
+    def close(self) -> None:
+        """Undeclare every publisher, the token and the queryable (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        entities: list[Any] = [self._health, self._token, self._queryable]
+        for publishers in self._joint_publishers.values():
+            entities.extend(publishers.values())
+        for entity in entities:
+            if entity is None:
+                continue
+            try:
+                entity.undeclare()
+            except Exception as exc:
+                log.debug("undeclare failed: %s", exc)
+
+    def __enter__(self) -> "SymptomPublisher":
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class ReceivedRecord:
+    """One record received from the ``edge/**`` key space."""
+
+    key: str
+    robot: str
+    joint: int | None          # None for agent-level keys (health)
+    kind: str                  # "symptom" | "alarm" | "friction" | "health" | other last key segment
+    record: dict
+
+
+def parse_key(key: str) -> tuple[str, int | None, str] | None:
+    """``edge/<robot>/<joint|agent>/<kind>`` → (robot, joint or None, kind); None for other keys."""
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != "edge":
+        return None
+    joint: int | None
+    if parts[2] == "agent":
+        joint = None
+    else:
+        try:
+            joint = int(parts[2])
+        except ValueError:
+            return None
+    return parts[1], joint, parts[3]
+
+
+class SymptomSubscriber:
+    """Advanced subscriber on ``key_expr`` collecting decoded records (thread-safe) and counting misses.
+
+    ``history``: query the advanced publishers' caches (also of publishers that appear later).
+    ``callback(ReceivedRecord)``: called on Zenoh's thread for each record, in addition to collection.
+    ``keep``: collect records in memory (off for long-running views that only use the callback).
+    """
+
+    def __init__(self, session: zenoh.Session, key_expr: str = "edge/**", history: bool = True,
+                 callback: Callable[[ReceivedRecord], None] | None = None, keep: bool = True,
+                 max_history: int = DEFAULT_CACHE_SIZE) -> None:
+        self.session = session
+        self.callback = callback
+        self.keep = keep
+        self.misses = 0
+        self.decode_errors = 0
+        self.agents: set[str] = set()
+        self._records: list[ReceivedRecord] = []
+        self._condition = threading.Condition()
+        history_config = (zext.HistoryConfig(detect_late_publishers=True, max_samples=max_history)
+                          if history else None)
+        self._subscriber = zext.declare_advanced_subscriber(
+            session, key_expr, self._on_sample, history=history_config,
+            recovery=zext.RecoveryConfig(periodic_queries=None, heartbeat=True))
+        self._miss_listener = self._subscriber.sample_miss_listener(self._on_miss)
+        self._liveliness = session.liveliness().declare_subscriber(
+            "edge/*/agent", self._on_liveliness, history=True)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        parsed = parse_key(key)
+        try:
+            record = json.loads(sample.payload.to_string())
+            if parsed is None or not isinstance(record, dict):
+                raise ValueError(f"unexpected key or payload on {key}")
+        except Exception as exc:
+            with self._condition:
+                self.decode_errors += 1
+            log.debug("undecodable sample on %s: %s", key, exc)
+            return
+        received = ReceivedRecord(key, parsed[0], parsed[1], parsed[2], record)
+        with self._condition:
+            if self.keep:
+                self._records.append(received)
+            self._condition.notify_all()
+        if self.callback is not None:
+            try:
+                self.callback(received)
+            except Exception as exc:
+                log.warning("subscriber callback failed on %s: %s", key, exc)
+
+    def _on_miss(self, miss: Any) -> None:
+        with self._condition:
+            self.misses += int(miss.nb)
+        log.warning("missed %d sample(s) from publisher %s", miss.nb, miss.source)
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        robot = str(sample.key_expr).split("/")[1]
+        with self._condition:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.agents.add(robot)
+            else:
+                self.agents.discard(robot)
+            self._condition.notify_all()
+
+    def records(self, kind: str | None = None) -> list[dict]:
+        """Copies of the received record dicts, in arrival order, optionally of one kind."""
+        with self._condition:
+            return [r.record for r in self._records if kind is None or r.kind == kind]
+
+    def received(self) -> list[ReceivedRecord]:
+        with self._condition:
+            return list(self._records)
+
+    def count(self, kind: str | None = None) -> int:
+        with self._condition:
+            return sum(1 for r in self._records if kind is None or r.kind == kind)
+
+    def wait_for(self, predicate: Callable[["SymptomSubscriber"], bool], timeout: float) -> bool:
+        """Block until ``predicate(self)`` holds or ``timeout`` seconds pass; returns whether it holds."""
+        with self._condition:  # an RLock: the predicate may call records()/count()
+            return self._condition.wait_for(lambda: predicate(self), timeout=timeout)
+
+    def close(self) -> None:
+        for entity in (self._miss_listener, self._subscriber, self._liveliness):
+            try:
+                entity.undeclare()
+            except Exception as exc:
+                log.debug("undeclare failed: %s", exc)
+
+    def __enter__(self) -> "SymptomSubscriber":
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
