@@ -1,0 +1,306 @@
+"""Per-joint distribution-domain monitor: KL distance of each cycle's torque density to nominal (§4).
+
+Per cycle, two streaming KDEs are fed block by block: ``raw`` bins the joint torque ``τ`` and
+``weighted`` bins ``w(v)·τ`` (disturbance-rejecting weights of motor speed, see
+:mod:`edge_monitor.disturbance_weights`). At ``end_cycle`` each gives a density and its symmetric KL
+distance to the nominal density; these are ``kl.raw`` and ``kl.weighted`` of the symptom record.
+
+Grid choice (bounded memory, grid fixed before binning): while no grid is fixed, the cycle is binned
+on a provisional grid over the full wire range of torque, ``[-1.6384, 1.6384]``, with
+``PROVISIONAL_GRID`` = 16384 points (2e-4 = four wire quanta per bin; weighted values are within the
+same range since 0 ≤ w < 1). At the end of the first valid nominal cycle the working grid is
+``[lo − m, hi + m]`` with ``[lo, hi]`` the occupied range and ``m = max(0.25·(hi − lo), 4·h)``
+(h = that cycle's bandwidth), clipped to the wire range; that cycle's mass is re-binned onto it
+(positions move by ≤ 1e-4, far below any bandwidth seen in practice) so it still counts as a nominal
+cycle. Later samples outside the working grid are counted as tail mass; the density then integrates
+to less than one, which raises the KL distance: a shift out of the nominal range is seen, not hidden.
+
+Nominal model: the average of the densities of the first K valid cycles (``n_nominal_cycles``),
+relearned (grid included) after :meth:`KLMonitor.reset` (declared gearbox replacement). The simple
+threshold ``μ0 + 3σ0`` uses leave-one-out KL values of the K learning cycles (each against the
+average of the other K − 1), so it is not biased low by comparing a cycle with itself.
+
+Units: torque dimensionless (fraction of max. joint torque), speed rad/s, KL dimensionless.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from edge_monitor.disturbance_weights import WeightFunction
+from edge_monitor.kde_stream import StreamingKDE, choose_grid, symmetric_kl
+
+log = logging.getLogger(__name__)
+
+#: Wire range of torque (docs/PROTOCOL.md: 16-bit signed, scale 5e-5).
+TORQUE_WIRE_LIMIT = 1.6384
+#: Points of the provisional grid used until the working grid is fixed.
+PROVISIONAL_GRID = 16384
+#: Segment code of production motion (docs/PROTOCOL.md).
+SEGMENT_PRODUCTION = 200
+#: Grid margin: fraction of the occupied range, and minimum in bandwidths of the first cycle.
+GRID_MARGIN = 0.25
+GRID_MIN_MARGIN_BANDWIDTHS = 4.0
+
+Window = Literal["cycle", "production"]
+CHANNELS = ("raw", "weighted")
+
+
+class KLConfigError(ValueError):
+    """Invalid KLMonitor configuration."""
+
+
+@dataclass
+class KLResult:
+    """Outcome of one cycle. ``raw``/``weighted`` are None while learning or when the cycle is
+    unusable; ``reason`` then says why (e.g. ``"cycle too short: 12 samples < 1000"``)."""
+
+    cycle: int
+    raw: float | None = None
+    weighted: float | None = None
+    reason: str | None = None
+    n_samples: int = 0
+    #: per channel: {"below", "above", "nonfinite"} sample counts of this cycle
+    outside: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: {"raw": μ0 + 3σ0, "weighted": ...} once the nominal model is learned, else None
+    threshold_3sigma: dict[str, float] | None = None
+    nearest_mode: str | None = None
+    #: raw channel for plotting: {"grid", "cycle", "nominal"} (ndarrays; nominal None while learning)
+    density: dict[str, NDArray[np.float64] | None] | None = None
+
+    def to_record(self) -> dict[str, float | None]:
+        """The ``kl`` part of the symptom record."""
+        return {"raw": self.raw, "weighted": self.weighted}
+
+
+class _Channel:
+    """One quantity (raw torque or weighted torque): its KDE, grid and nominal model."""
+
+    def __init__(self, n_grid: int) -> None:
+        self.n_grid = n_grid
+        self.kde = StreamingKDE(-TORQUE_WIRE_LIMIT, TORQUE_WIRE_LIMIT, PROVISIONAL_GRID)
+        self.grid_fixed = False
+        self.learning: list[NDArray[np.float64]] = []   # densities of the learning cycles
+        self.nominal: NDArray[np.float64] | None = None
+        self.mu0 = self.sigma0 = None  # type: float | None
+
+    def fix_grid(self) -> None:
+        occupied = self.kde.occupied_range()
+        assert occupied is not None
+        lo, hi = choose_grid(occupied[0], occupied[1], margin=GRID_MARGIN,
+                             min_margin=max(GRID_MIN_MARGIN_BANDWIDTHS * self.kde.bandwidth, 10 * 5e-5),
+                             bounds=(-TORQUE_WIRE_LIMIT, TORQUE_WIRE_LIMIT))
+        self.kde = self.kde.regrid(lo, hi, self.n_grid)
+        self.grid_fixed = True
+        log.info("KL grid fixed to [%.5f, %.5f] with %d points", lo, hi, self.n_grid)
+
+    def finish_learning(self) -> None:
+        stack = np.asarray(self.learning)
+        k = stack.shape[0]
+        self.nominal = stack.mean(axis=0)
+        others = (stack.sum(axis=0)[None, :] - stack) / (k - 1)
+        q = np.array([symmetric_kl(others[i], stack[i], self.kde.dx) for i in range(k)])
+        self.mu0, self.sigma0 = float(q.mean()), float(q.std(ddof=1))
+        self.learning = []
+
+    @property
+    def threshold(self) -> float | None:
+        return None if self.mu0 is None else self.mu0 + 3.0 * self.sigma0
+
+    def new_window(self) -> None:
+        self.kde.reset()
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"kde": self.kde.state_dict(), "grid_fixed": self.grid_fixed,
+                "learning": [d.tolist() for d in self.learning],
+                "nominal": None if self.nominal is None else self.nominal.tolist(),
+                "mu0": self.mu0, "sigma0": self.sigma0}
+
+    @classmethod
+    def from_state(cls, n_grid: int, state: dict[str, Any]) -> "_Channel":
+        ch = cls(n_grid)
+        ch.kde = StreamingKDE.from_state(state["kde"])
+        ch.grid_fixed = bool(state["grid_fixed"])
+        ch.learning = [np.asarray(d, dtype=float) for d in state["learning"]]
+        ch.nominal = None if state["nominal"] is None else np.asarray(state["nominal"], dtype=float)
+        ch.mu0, ch.sigma0 = state["mu0"], state["sigma0"]
+        return ch
+
+
+class KLMonitor:
+    """Distribution-domain detector of one joint. Feed blocks with :meth:`add`, close each cycle
+    with :meth:`end_cycle`.
+
+    ``window="cycle"`` uses every sample of the cycle, ``"production"`` only samples whose segment
+    code is 200 (production motion). ``weights=None`` disables the weighted channel.
+    """
+
+    def __init__(self, n_nominal_cycles: int = 10, n_grid: int = 512,
+                 weights: WeightFunction | None = WeightFunction(), window: Window = "cycle",
+                 min_samples: int = 1000) -> None:
+        if int(n_nominal_cycles) < 2:
+            raise KLConfigError(f"n_nominal_cycles: need >= 2 (for σ0), got {n_nominal_cycles}")
+        if int(n_grid) < 64:
+            raise KLConfigError(f"n_grid: need >= 64 grid points, got {n_grid}")
+        if window not in ("cycle", "production"):
+            raise KLConfigError(f"window: must be 'cycle' or 'production', got {window!r}")
+        if int(min_samples) < 2:
+            raise KLConfigError(f"min_samples: need >= 2, got {min_samples}")
+        self.n_nominal_cycles = int(n_nominal_cycles)
+        self.n_grid = int(n_grid)
+        self.weights = weights
+        self.window: Window = window
+        self.min_samples = int(min_samples)
+        self.modes: dict[str, NDArray[np.float64]] = {}
+        self.reset()
+
+    # -- configuration / lifecycle ------------------------------------------------------------
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return CHANNELS if self.weights is not None else CHANNELS[:1]
+
+    def reset(self) -> None:
+        """Forget grid and nominal model (e.g. after a declared gearbox replacement); relearn."""
+        self.channels = {name: _Channel(self.n_grid) for name in self.channel_names}
+        self.n_learned = 0
+        self.n_window = 0          # samples that entered the window this cycle (before NaN checks)
+        self.modes = {}
+
+    @property
+    def learned(self) -> bool:
+        return self.n_learned >= self.n_nominal_cycles
+
+    @property
+    def grid(self) -> NDArray[np.float64] | None:
+        raw = self.channels["raw"]
+        return raw.kde.grid if raw.grid_fixed else None
+
+    def add_mode(self, name: str, density: ArrayLike) -> None:
+        """Store the raw-channel density of a known mode (on this monitor's working grid)."""
+        if self.grid is None:
+            raise KLConfigError("add_mode: the working grid is not fixed yet (learn nominal cycles first)")
+        d = np.asarray(density, dtype=float)
+        if d.shape != (self.n_grid,) or not np.all(np.isfinite(d)) or np.any(d < 0):
+            raise KLConfigError(f"add_mode({name!r}): need {self.n_grid} finite non-negative density values")
+        self.modes[str(name)] = d
+
+    # -- streaming ----------------------------------------------------------------------------
+    def add(self, torque: ArrayLike, speed: ArrayLike, segment: ArrayLike | None = None) -> None:
+        """Add a block of samples of this joint (torque dimensionless, speed rad/s, segment codes)."""
+        tau = np.asarray(torque, dtype=float).reshape(-1)
+        v = np.asarray(speed, dtype=float).reshape(-1)
+        if v.shape != tau.shape:
+            raise ValueError(f"KLMonitor.add: speed has {v.size} samples, torque {tau.size}")
+        if self.window == "production":
+            if segment is None:
+                return                       # no segment information: nothing is production
+            seg = np.asarray(segment).reshape(-1)
+            if seg.shape != tau.shape:
+                raise ValueError(f"KLMonitor.add: segment has {seg.size} samples, torque {tau.size}")
+            keep = seg == SEGMENT_PRODUCTION
+            tau, v = tau[keep], v[keep]
+        self.n_window += tau.size
+        self.channels["raw"].kde.add(tau)
+        if self.weights is not None:
+            self.channels["weighted"].kde.add(self.weights(v) * tau)
+
+    def end_cycle(self, cycle: int) -> KLResult:
+        """Close the cycle: density, KL distances (or learning step, or a reason) and a new window."""
+        try:
+            return self._evaluate(int(cycle))
+        finally:
+            for ch in self.channels.values():
+                ch.new_window()
+            self.n_window = 0
+
+    def _outside(self) -> dict[str, dict[str, int]]:
+        return {name: {"below": ch.kde.n_below, "above": ch.kde.n_above, "nonfinite": ch.kde.n_nonfinite}
+                for name, ch in self.channels.items()}
+
+    def _unusable(self) -> str | None:
+        raw = self.channels["raw"].kde
+        if self.n_window == 0:
+            return "empty window: no samples" + (" in the production segment" if self.window == "production" else "")
+        counts = [ch.kde.n_samples for ch in self.channels.values()]
+        if min(counts) < self.min_samples:
+            nonfinite = max(ch.kde.n_nonfinite for ch in self.channels.values())
+            extra = f" ({nonfinite} non-finite skipped)" if nonfinite else ""
+            return f"cycle too short: {min(counts)} samples < {self.min_samples}{extra}"
+        for name, ch in self.channels.items():
+            if not ch.kde.bandwidth > 0:
+                return "constant data" if name == "raw" else f"constant data ({name})"
+        del raw
+        return None
+
+    def _evaluate(self, cycle: int) -> KLResult:
+        result = KLResult(cycle=cycle, n_samples=self.channels["raw"].kde.n_samples, outside=self._outside())
+        reason = self._unusable()
+        if reason is not None:
+            result.reason = reason
+            log.info("cycle %d: no KL value: %s", cycle, reason)
+            return result
+        for ch in self.channels.values():
+            if not ch.grid_fixed:
+                ch.fix_grid()
+        result.outside = self._outside()   # regrid may move provisional mass outside
+        densities = {name: ch.kde.density() for name, ch in self.channels.items()}
+        raw = self.channels["raw"]
+        if not self.learned:
+            for name, ch in self.channels.items():
+                ch.learning.append(densities[name])
+            self.n_learned += 1
+            result.reason = f"learning {self.n_learned}/{self.n_nominal_cycles}"
+            if self.learned:
+                for ch in self.channels.values():
+                    ch.finish_learning()
+            result.density = {"grid": raw.kde.grid, "cycle": densities["raw"], "nominal": raw.nominal}
+            result.threshold_3sigma = self._thresholds()
+            return result
+        values = {name: symmetric_kl(ch.nominal, densities[name], ch.kde.dx) for name, ch in self.channels.items()}
+        result.raw = values["raw"]
+        result.weighted = values.get("weighted")
+        result.threshold_3sigma = self._thresholds()
+        result.nearest_mode = self._nearest_mode(densities["raw"])
+        result.density = {"grid": raw.kde.grid, "cycle": densities["raw"], "nominal": raw.nominal}
+        return result
+
+    def _thresholds(self) -> dict[str, float] | None:
+        if not self.learned:
+            return None
+        return {name: float(ch.threshold) for name, ch in self.channels.items()}  # type: ignore[arg-type]
+
+    def _nearest_mode(self, density: NDArray[np.float64]) -> str | None:
+        """``argmin_m KL(p_m, p_k)`` over the stored modes and ``"nominal"``; None without stored modes."""
+        if not self.modes:
+            return None
+        raw = self.channels["raw"]
+        candidates = {"nominal": raw.nominal, **self.modes}
+        distances = {name: symmetric_kl(d, density, raw.kde.dx) for name, d in candidates.items()}
+        return min(distances, key=distances.__getitem__)
+
+    # -- persistence ------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "n_nominal_cycles": self.n_nominal_cycles, "n_grid": self.n_grid,
+            "weights": None if self.weights is None else self.weights.to_dict(),
+            "window": self.window, "min_samples": self.min_samples,
+            "n_learned": self.n_learned, "n_window": self.n_window,
+            "channels": {name: ch.state_dict() for name, ch in self.channels.items()},
+            "modes": {name: d.tolist() for name, d in self.modes.items()},
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> "KLMonitor":
+        weights = None if state["weights"] is None else WeightFunction.from_dict(state["weights"])
+        mon = cls(n_nominal_cycles=state["n_nominal_cycles"], n_grid=state["n_grid"], weights=weights,
+                  window=state["window"], min_samples=state["min_samples"])
+        mon.n_learned = int(state["n_learned"])
+        mon.n_window = int(state["n_window"])
+        mon.channels = {name: _Channel.from_state(mon.n_grid, s) for name, s in state["channels"].items()}
+        mon.modes = {name: np.asarray(d, dtype=float) for name, d in state["modes"].items()}
+        return mon
