@@ -88,6 +88,15 @@ class FrictionExtractor:
             return
         self._moments.setdefault((plateau.level, plateau.direction), DirectionMoments()).add(plateau)
 
+    @property
+    def n_pending(self) -> int:
+        """Number of (level, direction) entries collected in the open cycle."""
+        return len(self._moments)
+
+    def has(self, level: int, direction: int) -> bool:
+        """Whether this cycle already holds data of ``level`` in ``direction``."""
+        return (level, direction) in self._moments
+
     def skip(self, reason: str, count: int = 1) -> None:
         """Record a datum skipped upstream (e.g. a plateau cut short) for this cycle."""
         self._skip(reason, count)

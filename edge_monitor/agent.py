@@ -1,0 +1,203 @@
+"""The agent pipeline: frames → E2E checks → per-joint samples → cycles → symptoms → sinks.
+
+``Agent.process_frames`` takes a block of raw frames as numpy arrays and is shared by the live
+loop (``edge-monitor run``) and the deterministic replay (``edge-monitor replay``). Cycle
+boundaries come from the controller's status frame; without it, each joint infers them from the
+repetition of its plateau sequence (see :mod:`edge_monitor.joint_monitor`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge_monitor.config import AgentConfig
+from edge_monitor.ingest import Ingest, IngestBlock
+from edge_monitor.joint_monitor import CycleOutput, JointMonitor
+from edge_monitor.state_store import StateStore
+
+log = logging.getLogger(__name__)
+
+
+class Sink(Protocol):
+    """Where symptoms go (JSONL file, Zenoh, Rerun). Sinks must not raise; they count failures."""
+
+    def on_symptom(self, output: CycleOutput) -> None: ...
+    def on_alarm(self, alarm: dict[str, Any]) -> None: ...
+    def on_health(self, health: dict[str, Any]) -> None: ...
+    def close(self) -> None: ...
+
+
+@dataclass
+class RunStats:
+    cycles: int = 0
+    symptoms: int = 0
+    alarms: list[dict[str, Any]] = field(default_factory=list)
+    duplicate_cycles_skipped: int = 0
+    sink_errors: int = 0
+    started: float = field(default_factory=time.perf_counter)
+
+
+class Agent:
+    """Holds one :class:`JointMonitor` per joint and routes ingested samples to them."""
+
+    def __init__(self, config: AgentConfig, sinks: Iterable[Sink] = (), state_store: StateStore | None = None):
+        self.config = config
+        self.sinks = list(sinks)
+        self.store = state_store
+        self.ingest = Ingest(rate_hz=config.rate_hz, joints=config.joints)
+        self.joints: dict[int, JointMonitor] = {}
+        self.stats = RunStats()
+        self._open_cycle: int | None = None
+        self._last_emitted: dict[int, int] = {}
+        self._partial_cycle: int | None = None   # first cycle after start: its beginning was not seen
+        self._restored_joint_states: dict[int, dict] = {}
+        if state_store is not None:
+            self._restore(state_store.load())
+
+    # ------------------------------------------------------------------ input
+    def process_frames(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> list[CycleOutput]:
+        """Process one block of frames (``ids`` (n,), ``data`` (n, 8) uint8, ``dlc`` (n,), ``timestamps`` s)."""
+        block = self.ingest.process(ids, data, dlc, timestamps)
+        return self._route(block)
+
+    def _route(self, block: IngestBlock) -> list[CycleOutput]:
+        outputs: list[CycleOutput] = []
+        for run in block.cycle_runs():
+            if run.cycle is not None and run.cycle != self._open_cycle:
+                if self._open_cycle is not None:
+                    outputs += self._close_cycle(self._open_cycle)
+                elif run.starts_at_boundary is False:
+                    self._partial_cycle = run.cycle
+                self._open_cycle = run.cycle
+            for joint, samples in run.samples.items():
+                monitor = self._monitor(joint)
+                auto = monitor.add_samples(samples.tick, samples.speed, samples.torque,
+                                           samples.segment if run.cycle is not None else None)
+                for out in auto:     # no status frame: cycle inferred by the joint itself
+                    outputs += self._emit(joint, out)
+            for joint, estimate, std in run.load_estimates:
+                self._monitor(joint).add_load_estimate(estimate, std)
+        return outputs
+
+    def _monitor(self, joint: int) -> JointMonitor:
+        monitor = self.joints.get(joint)
+        if monitor is None:
+            monitor = JointMonitor(joint, self.config)
+            if joint in self._restored_joint_states:
+                monitor.load_state(self._restored_joint_states.pop(joint))
+            self.joints[joint] = monitor
+            log.info("joint %d: monitoring started", joint)
+        return monitor
+
+    def _close_cycle(self, cycle: int) -> list[CycleOutput]:
+        outputs: list[CycleOutput] = []
+        self.stats.cycles += 1
+        for joint in sorted(self.joints):
+            out = self.joints[joint].end_cycle(cycle, self.config.robot)
+            if cycle == self._partial_cycle:
+                out.symptom["partial"] = True
+            outputs += self._emit(joint, out)
+        return outputs
+
+    def _emit(self, joint: int, out: CycleOutput) -> list[CycleOutput]:
+        cycle = out.symptom["cycle"]
+        if cycle <= self._last_emitted.get(joint, -1):
+            self.stats.duplicate_cycles_skipped += 1
+            return []
+        self._last_emitted[joint] = cycle
+        self.stats.symptoms += 1
+        for alarm in out.alarms:
+            self.stats.alarms.append({"joint": alarm["joint"], "cycle": alarm["cycle"], "quantity": alarm["quantity"]})
+            log.warning("ALARM robot %s joint %d cycle %d: %s statistic %.3g > threshold %.3g",
+                        alarm["robot"], joint, cycle, alarm["quantity"], alarm.get("statistic") or float("nan"),
+                        alarm.get("threshold") or float("nan"))
+        for sink in self.sinks:
+            self._call(sink.on_symptom, out)
+            for alarm in out.alarms:
+                self._call(sink.on_alarm, alarm)
+        return [out]
+
+    def _call(self, fn, arg) -> None:
+        try:
+            fn(arg)
+        except Exception:  # a sink must never stop the agent
+            self.stats.sink_errors += 1
+            log.exception("output sink failed; counted and continuing")
+
+    # ------------------------------------------------------------------ control
+    def finish(self, close_open_cycle: bool = True) -> list[CycleOutput]:
+        """End of stream: optionally close the open cycle (replay of a complete log)."""
+        outputs: list[CycleOutput] = []
+        if not close_open_cycle:
+            return outputs
+        for monitor in self.joints.values():
+            monitor.plateaus_flush()
+        if self._open_cycle is not None:
+            outputs = self._close_cycle(self._open_cycle)
+            self._open_cycle = None
+        else:   # no status frames: each joint closes its own inferred cycle if it holds data
+            for joint, monitor in sorted(self.joints.items()):
+                if monitor.has_cycle_data():
+                    outputs += self._emit(joint, monitor.end_cycle(monitor.cycles, self.config.robot))
+        return outputs
+
+    def declare_maintenance(self, joint: int) -> None:
+        """Gearbox replaced: relearn the joint's nominal models; raised alarms are cleared."""
+        monitor = self._monitor(joint)
+        cycle = self._last_emitted.get(joint, -1)
+        for alarm in monitor.declare_maintenance(self.config.robot, cycle):
+            for sink in self.sinks:
+                self._call(sink.on_alarm, alarm)
+
+    def health(self) -> dict[str, Any]:
+        wall = time.perf_counter() - self.stats.started
+        h = self.ingest.counters()
+        h.update({
+            "robot": self.config.robot, "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
+            "alarms": len(self.stats.alarms), "sink_errors": self.stats.sink_errors,
+            "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
+            "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
+            "segmentation": {str(j): m.plateaus.counters.as_dict() for j, m in self.joints.items()},
+            "skipped": {str(j): dict(m.extractor.totals) for j, m in self.joints.items()},
+        })
+        return h
+
+    def run_statistics(self) -> dict[str, Any]:
+        """The run statistics of SYSTEM.md (``replay --json``)."""
+        h = self.health()
+        keys = ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated", "unknown_id", "malformed")
+        out = {k: h[k] for k in keys}
+        out.update({"cycles": self.stats.cycles, "symptoms": self.stats.symptoms, "alarms": list(self.stats.alarms),
+                    "frames_per_second": h["frames_per_second"], "wall_s": h["wall_s"]})
+        out["details"] = {k: v for k, v in h.items() if k not in out and k not in ("robot",)}
+        return out
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict[str, Any]:
+        joints = {str(j): m.state_dict() for j, m in self.joints.items()}
+        joints.update({str(j): s for j, s in self._restored_joint_states.items()})
+        return {"robot": self.config.robot, "last_emitted": {str(j): c for j, c in self._last_emitted.items()},
+                "joints": joints}
+
+    def save_state(self) -> None:
+        if self.store is not None:
+            self.store.save(self.state_dict())
+
+    def _restore(self, state: dict[str, Any] | None) -> None:
+        if not state:
+            return
+        self._last_emitted = {int(j): int(c) for j, c in state.get("last_emitted", {}).items()}
+        self._restored_joint_states = {int(j): s for j, s in state.get("joints", {}).items()}
+        log.info("restored state of joints %s (last cycles %s)", sorted(self._restored_joint_states),
+                 self._last_emitted)
+
+    def close(self) -> None:
+        self.save_state()
+        for sink in self.sinks:
+            self._call(lambda _: sink.close(), None)

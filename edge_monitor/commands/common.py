@@ -1,0 +1,73 @@
+"""Pieces shared by the agent's subcommands: config loading with overrides, sinks, summaries."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from typing import Any
+
+from edge_monitor.config import AgentConfig, ConfigError, load_config, with_overrides
+from edge_monitor.state_store import StateError, StateStore, strict_json
+
+log = logging.getLogger(__name__)
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="agent TOML config (default: embedded defaults)")
+    parser.add_argument("--robot", help="robot name used in symptom records and Zenoh keys")
+    parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
+    parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")
+    parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
+
+
+def load_agent_config(args: argparse.Namespace) -> AgentConfig:
+    """Config file + command-line overrides; exits with a clear message on bad input."""
+    try:
+        cfg = load_config(args.config)
+        cfg = with_overrides(cfg, robot=getattr(args, "robot", None), jsonl=getattr(args, "jsonl", None),
+                             state_dir=getattr(args, "state_dir", None))
+        if getattr(args, "pf", None) is not None:
+            import dataclasses
+            cfg = with_overrides(cfg, decision=dataclasses.replace(cfg.decision, pf=args.pf))
+        return cfg
+    except ConfigError as exc:
+        raise SystemExit(f"edge-monitor: configuration error: {exc}") from None
+
+
+def open_state_store(cfg: AgentConfig) -> StateStore | None:
+    if not cfg.state_dir:
+        return None
+    try:
+        return StateStore(cfg.state_dir)
+    except StateError as exc:
+        raise SystemExit(f"edge-monitor: {exc}") from None
+
+
+def print_json(obj: Any) -> None:
+    json.dump(strict_json(obj), sys.stdout, indent=2, allow_nan=False)
+    sys.stdout.write("\n")
+
+
+def fmt(x: Any, spec: str = ".3g") -> str:
+    return "–" if x is None else format(x, spec)
+
+
+def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: float) -> str:
+    """Per joint: cycles, final wear estimate ± std, alarms (cycle, quantity), Pf and estimated Pm."""
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear ± std':>16} {'temp °C':>8} {'alarms':<32} {'Pf':>7} {'Pm':>7}"]
+    alarms_by_joint: dict[int, list[str]] = {}
+    for a in stats.get("alarms", []):
+        alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
+    for joint in sorted(last_symptoms):
+        rec = last_symptoms[joint]
+        wear = rec.get("wear", {})
+        pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
+              if d.get("miss_probability") is not None]
+        alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
+        lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} "
+                     f"{fmt(wear.get('estimate'), '.1f'):>7} ± {fmt(wear.get('std'), '.1f'):<6} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:32]:<32} {pf:>7.2g} "
+                     f"{fmt(min(pm) if pm else None, '.2g'):>7}")
+    return "\n".join(lines)

@@ -1,0 +1,228 @@
+"""Agent configuration: a TOML file with embedded defaults, validated at start.
+
+Every error names the offending field (``section.key``) and what is expected. The shipped example
+``edge_monitor/defaults/agent.toml`` documents every key; ``edge-monitor commission`` writes the
+``[friction]`` section.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from edge_monitor.friction_model import DEFAULT_PARAMS, FrictionParams
+from edge_monitor.segmentation import PlateauConfig
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, of the wrong type or out of range."""
+
+
+@dataclass(frozen=True)
+class WearConfig:
+    """Wear estimation settings (ALGORITHMS.md §3)."""
+
+    enabled: bool = True
+    noise_std: float = 5.70e-3           # σ of a friction datum
+    temperature_min: float = 30.0        # plausible lubricant temperature range of the site [°C]
+    temperature_max: float = 50.0
+    default_load_std: float = 0.1        # σl when the controller sends none
+    critical: float = 35.0
+
+
+@dataclass(frozen=True)
+class KLConfig:
+    """Distribution-domain detector settings (ALGORITHMS.md §4)."""
+
+    enabled: bool = True
+    n_nominal_cycles: int = 10
+    n_grid: int = 512
+    window: str = "cycle"                # "cycle" | "production"
+    alpha: float = 1.45e-2               # w(v) = sech(β·v)·tanh(α·v)
+    beta: float = 4.55e-2
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """Sequential GLR decision layer settings (ALGORITHMS.md §5–6)."""
+
+    enabled: bool = True
+    n_nominal: int = 60
+    density: str = "gce"                 # "gauss" | "kde" | "gce"
+    pf: float = 1e-3
+    window: int = 100
+    gamma0: float = 0.6
+    rho: float = 1.0
+    quantities: tuple[str, ...] = ("wear", "kl_raw", "kl_weighted", "joint")
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    robot: str = "robot1"
+    rate_hz: float = 500.0
+    joints: tuple[int, ...] | None = None      # None: every joint seen on the bus
+    friction: FrictionParams = DEFAULT_PARAMS
+    joint_friction: Mapping[int, FrictionParams] = field(default_factory=dict)
+    segmentation: PlateauConfig = field(default_factory=PlateauConfig)
+    wear: WearConfig = field(default_factory=WearConfig)
+    kl: KLConfig = field(default_factory=KLConfig)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
+    queue_size: int = 65536                   # bounded CAN receive queue (frames)
+    block_size: int = 4096                    # frames per processing block
+    status_interval_s: float = 10.0           # periodic status line / health publication
+    state_dir: str | None = None
+    jsonl: str | None = None
+    rerun: str = "off"
+    zenoh: Mapping[str, Any] = field(default_factory=dict)
+
+    def friction_for(self, joint: int) -> FrictionParams:
+        return self.joint_friction.get(joint, self.friction)
+
+
+def _coerce(where: str, value: Any, target: Any, default: Any) -> Any:
+    """Convert a TOML value to the type of the dataclass default, with a message naming ``where``."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if isinstance(default, int) and not isinstance(default, bool):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
+    if isinstance(default, str) or (default is None and isinstance(value, str)):
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    if isinstance(default, tuple) or default is None:
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        return tuple(value)
+    return value
+
+
+def _section(cls: type, values: Mapping[str, Any], where: str) -> Any:
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{where}: expected a table, got {values!r}")
+    defaults = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(defaults))
+    if unknown:
+        names = ", ".join(f"{where}.{k}" for k in unknown)
+        raise ConfigError(f"{names}: unknown key; known keys of [{where}]: {sorted(defaults)}")
+    kwargs = {}
+    instance = cls()
+    for key, raw in values.items():
+        kwargs[key] = _coerce(f"{where}.{key}", raw, defaults[key].type, getattr(instance, key))
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _validate(cfg: AgentConfig) -> AgentConfig:
+    checks = [
+        (cfg.rate_hz > 0, "rate_hz: must be > 0"),
+        (cfg.queue_size > 0, "queue_size: must be > 0"),
+        (cfg.block_size > 0, "block_size: must be > 0"),
+        (cfg.wear.noise_std > 0, "wear.noise_std: must be > 0"),
+        (cfg.wear.temperature_min < cfg.wear.temperature_max,
+         "wear.temperature_min: must be below wear.temperature_max"),
+        (cfg.wear.default_load_std >= 0, "wear.default_load_std: must be >= 0"),
+        (cfg.kl.n_nominal_cycles >= 1, "kl.n_nominal_cycles: must be >= 1"),
+        (cfg.kl.n_grid >= 16, "kl.n_grid: must be >= 16"),
+        (cfg.kl.window in ("cycle", "production"), "kl.window: must be 'cycle' or 'production'"),
+        (cfg.decision.n_nominal >= 2, "decision.n_nominal: must be >= 2"),
+        (cfg.decision.density in ("gauss", "kde", "gce"), "decision.density: must be gauss, kde or gce"),
+        (0 < cfg.decision.pf < 1, "decision.pf: the false-alarm probability must be in (0, 1)"),
+        (cfg.decision.window >= 1, "decision.window: must be >= 1"),
+        (0 < cfg.decision.gamma0 < 1, "decision.gamma0: must be in (0, 1)"),
+        (0.5 < cfg.decision.rho <= 1, "decision.rho: must be in (0.5, 1]"),
+        (set(cfg.decision.quantities) <= {"wear", "kl_raw", "kl_weighted", "joint"},
+         "decision.quantities: allowed are wear, kl_raw, kl_weighted, joint"),
+        (cfg.joints is None or all(isinstance(j, int) and 0 <= j < 8 for j in cfg.joints),
+         "joints: joint indices must be integers 0 … 7"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(message)
+    from edge_monitor.densities import min_points
+    for quantity in cfg.decision.quantities:
+        need = min_points(cfg.decision.density, 3 if quantity == "joint" else 1)
+        if cfg.decision.n_nominal < need:
+            raise ConfigError(f"decision.n_nominal: {cfg.decision.n_nominal} cycles are too few for the "
+                              f"'{cfg.decision.density}' density of quantity '{quantity}'; use at least {need}")
+    return cfg
+
+
+def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
+    """Build a validated configuration from a parsed TOML document."""
+    data = dict(data)
+    kwargs: dict[str, Any] = {}
+    sections = {"segmentation": PlateauConfig, "wear": WearConfig, "kl": KLConfig, "decision": DecisionConfig}
+    for name, cls in sections.items():
+        if name in data:
+            kwargs[name] = _section(cls, data.pop(name), name)
+    if "friction" in data:
+        try:
+            kwargs["friction"] = FrictionParams.from_mapping(data.pop("friction"), "friction")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    if "joint" in data:
+        joint_friction = {}
+        for key, table in dict(data.pop("joint")).items():
+            if not str(key).isdigit() or not 0 <= int(key) < 8:
+                raise ConfigError(f"joint.{key}: joint index must be 0 … 7")
+            try:
+                joint_friction[int(key)] = FrictionParams.from_mapping(table.get("friction", {}),
+                                                                       f"joint.{key}.friction")
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+        kwargs["joint_friction"] = joint_friction
+    if "zenoh" in data:
+        if not isinstance(data["zenoh"], Mapping):
+            raise ConfigError("zenoh: expected a table")
+        kwargs["zenoh"] = dict(data.pop("zenoh"))
+    top = _section(_TopLevel, data, "config")
+    kwargs.update({k: v for k, v in dataclasses.asdict(top).items() if k in data})
+    return _validate(AgentConfig(**kwargs))
+
+
+@dataclass(frozen=True)
+class _TopLevel:
+    robot: str = "robot1"
+    rate_hz: float = 500.0
+    joints: tuple[int, ...] | None = None
+    queue_size: int = 65536
+    block_size: int = 4096
+    status_interval_s: float = 10.0
+    state_dir: str | None = None
+    jsonl: str | None = None
+    rerun: str = "off"
+
+
+def load_config(path: str | Path | None) -> AgentConfig:
+    """Load a TOML config file; ``None`` gives the embedded defaults."""
+    if path is None:
+        return AgentConfig()
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"config file {p} not found; pass an existing TOML file "
+                          f"(example: edge_monitor/defaults/agent.toml)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {p}: invalid TOML: {exc}") from None
+    return config_from_mapping(data)
+
+
+def with_overrides(cfg: AgentConfig, **overrides: Any) -> AgentConfig:
+    """Apply command-line overrides (``None`` means: keep the config value)."""
+    changes = {k: v for k, v in overrides.items() if v is not None}
+    return _validate(dataclasses.replace(cfg, **changes)) if changes else cfg

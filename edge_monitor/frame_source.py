@@ -1,0 +1,124 @@
+"""Sources of frame blocks: a python-can log file (replay) or a live bus (bounded queue).
+
+The live path follows python-can's Bus/Listener boundary: the listener runs on the Notifier's
+receive thread and only enqueues into a bounded queue (a full queue drops and counts the frame);
+it never raises into the Notifier. The processing thread takes frames out in blocks.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.frames import messages_to_arrays
+
+log = logging.getLogger(__name__)
+
+FrameArrays = tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int64], NDArray[np.float64]]
+
+
+def log_blocks(path: str | Path, block_size: int = 4096) -> Iterator[FrameArrays]:
+    """Yield the frames of a python-can log file (.blf, .log, .asc, …) as array blocks, in file order."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"log file {p} not found")
+    buf: list[can.Message] = []
+    with can.LogReader(str(p)) as reader:
+        for msg in reader:
+            buf.append(msg)
+            if len(buf) >= block_size:
+                yield messages_to_arrays(buf)
+                buf = []
+    if buf:
+        yield messages_to_arrays(buf)
+
+
+class BoundedQueueListener(can.Listener):
+    """Enqueue-only listener: counts drops when the queue is full and errors from the bus."""
+
+    def __init__(self, maxsize: int) -> None:
+        self.queue: queue.Queue[can.Message] = queue.Queue(maxsize=maxsize)
+        self.dropped = 0
+        self.received = 0
+        self.bus_errors = 0
+        self.last_error: str | None = None
+
+    def on_message_received(self, msg: can.Message) -> None:
+        try:
+            self.received += 1
+            self.queue.put_nowait(msg)
+        except queue.Full:
+            self.dropped += 1
+        except Exception:  # never raise into the Notifier thread
+            self.dropped += 1
+
+    def on_error(self, exc: Exception) -> None:
+        self.bus_errors += 1
+        self.last_error = repr(exc)
+        log.error("CAN receive error (counted): %r", exc)
+
+    def stop(self) -> None:
+        pass
+
+
+@dataclass
+class LiveSource:
+    """Receives from a bus through a Notifier into a bounded queue; ``blocks()`` yields arrays."""
+
+    bus: can.BusABC
+    maxsize: int = 65536
+    block_size: int = 4096
+    poll_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        self.listener = BoundedQueueListener(self.maxsize)
+        self.notifier = can.Notifier(self.bus, [self.listener], timeout=0.1)
+        self.stop_event = threading.Event()
+
+    def blocks(self) -> Iterator[FrameArrays | None]:
+        """Yield blocks as frames arrive; ``None`` when idle for ``poll_s`` (lets the caller tick)."""
+        q = self.listener.queue
+        while not self.stop_event.is_set():
+            try:
+                first = q.get(timeout=self.poll_s)
+            except queue.Empty:
+                yield None
+                continue
+            batch = [first]
+            while len(batch) < self.block_size:
+                try:
+                    batch.append(q.get_nowait())
+                except queue.Empty:
+                    break
+            yield messages_to_arrays(batch)
+        # drain what is left
+        rest = []
+        while True:
+            try:
+                rest.append(q.get_nowait())
+            except queue.Empty:
+                break
+        if rest:
+            yield messages_to_arrays(rest)
+
+    @property
+    def notifier_failed(self) -> BaseException | None:
+        return getattr(self.notifier, "exception", None)
+
+    def queue_depth(self) -> int:
+        return self.listener.queue.qsize()
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        try:
+            self.notifier.stop(timeout=1.0)
+        except Exception:  # pragma: no cover - shutdown best effort
+            log.debug("notifier stop failed", exc_info=True)

@@ -1,0 +1,61 @@
+"""JSON Lines output: one symptom record per line (and alarm records, marked by ``"kind"``)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, TextIO
+
+from edge_monitor.joint_monitor import CycleOutput
+from edge_monitor.state_store import dumps
+
+log = logging.getLogger(__name__)
+
+
+class JsonlSink:
+    """Appends symptom records to a ``.jsonl`` file (``-`` for standard output); never raises."""
+
+    def __init__(self, path: str | Path, include_alarms: bool = False) -> None:
+        self.path = str(path)
+        self.include_alarms = include_alarms
+        self.written = 0
+        self.failed = 0
+        self._fh: TextIO | None = None
+        try:
+            if self.path == "-":
+                import sys
+                self._fh = sys.stdout
+            else:
+                Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+                self._fh = open(self.path, "a", encoding="utf-8")
+        except OSError as exc:
+            log.error("JSONL output %s cannot be opened (%s); symptoms will be counted as undelivered",
+                      self.path, exc.strerror)
+
+    def _write(self, record: dict[str, Any]) -> None:
+        if self._fh is None:
+            self.failed += 1
+            return
+        try:
+            self._fh.write(dumps(record) + "\n")
+            self.written += 1
+        except (OSError, ValueError) as exc:
+            self.failed += 1
+            log.error("JSONL output %s: write failed (%s)", self.path, exc)
+
+    def on_symptom(self, output: CycleOutput) -> None:
+        self._write(output.symptom)
+
+    def on_alarm(self, alarm: dict[str, Any]) -> None:
+        if self.include_alarms:
+            self._write({"kind": "alarm", **alarm})
+
+    def on_health(self, health: dict[str, Any]) -> None:
+        pass
+
+    def close(self) -> None:
+        if self._fh is not None and self.path != "-":
+            self._fh.close()
+        elif self._fh is not None:
+            self._fh.flush()
+        self._fh = None

@@ -1,0 +1,72 @@
+"""Frames of simple synthetic test cycles built with the protocol encoders (no simulator).
+
+Per cycle: back-and-forth plateaus at the given speed levels (friction from the §1 model at the
+cycle's temperature, load and wear, plus inertia and gravity), a short production-like motion
+(segment 200), status frames every 10 ticks. Used by agent tests that must not depend on the
+simulator's physics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge_monitor.friction_model import friction_magnitude
+from protocol import frames as fr
+
+RATE = 500.0
+
+
+def cycle_profile(speeds, hold_s=1.2, ramp_s=0.1, pause_s=0.1):
+    """Speed reference and segment codes of one cycle."""
+    v_parts, seg_parts = [], []
+    for k, v in enumerate(speeds):
+        ramp = np.linspace(0, v, int(ramp_s * RATE), endpoint=False)
+        hold = np.full(int(hold_s * RATE), v)
+        part = np.concatenate([ramp, hold, ramp[::-1], -ramp, -hold, -ramp[::-1], np.zeros(int(pause_s * RATE))])
+        v_parts.append(part)
+        seg_parts.append(np.full(part.size, k + 1))
+    prod = 50.0 * np.sin(np.linspace(0, 4 * np.pi, int(1.0 * RATE)))
+    v_parts.append(prod)
+    seg_parts.append(np.full(prod.size, fr.SEGMENT_PRODUCTION))
+    return np.concatenate(v_parts), np.concatenate(seg_parts)
+
+
+def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j, c: 0.0,
+                temperature=lambda c: 40.0, load=0.5, load_std=0.1, noise=2e-3, seed=0,
+                status=True, first_cycle=0):
+    """Return (ids, data[n,8], dlc, timestamps) of ``n_cycles`` cycles, in transmission order."""
+    rng = np.random.default_rng(seed)
+    speed_ref, segment = cycle_profile(speeds)
+    n_tick = speed_ref.size
+    acc = np.gradient(speed_ref) * RATE
+    ids, rows, ts = [], [], []
+    tick0 = 0
+    status_counter = 0
+    for c in range(n_cycles):
+        cyc = first_cycle + c
+        ticks = tick0 + np.arange(n_tick)
+        per_joint = {}
+        for j in joints:
+            tau = (0.3 + np.sign(speed_ref) * friction_magnitude(speed_ref, load, temperature(cyc), wear(j, cyc))
+                   + 2e-4 * acc + rng.normal(0, noise, n_tick))
+            per_joint[j] = fr.encode_motor_state_block(j, ticks % 256, tau, speed_ref, np.zeros(n_tick))
+        load_est = load + rng.normal(0, load_std)
+        for i in range(n_tick):
+            t = (tick0 + i) / RATE
+            if status and i % 10 == 0:
+                ids.append(fr.CONTROLLER_STATUS_ID)
+                rows.append(fr.encode_controller_status(status_counter % 16, fr.Mode.TEST_CYCLE, cyc % 65536,
+                                                        int(segment[i]), (tick0 + i) % (1 << 24)))
+                ts.append(t)
+                for j in joints:
+                    ids.append(fr.JOINT_STATUS_BASE_ID + j)
+                    rows.append(fr.encode_joint_status(j, status_counter % 16, load_est, load_std, 45.0))
+                    ts.append(t)
+                status_counter += 1
+            for j in joints:
+                ids.append(fr.MOTOR_STATE_BASE_ID + j)
+                rows.append(bytes(per_joint[j][i]))
+                ts.append(t)
+        tick0 += n_tick
+    data = np.frombuffer(b"".join(rows), dtype=np.uint8).reshape(-1, 8).copy()
+    return np.array(ids, dtype=np.int64), data, np.full(len(ids), 8), np.array(ts)

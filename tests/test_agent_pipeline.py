@@ -1,0 +1,123 @@
+"""The agent pipeline on protocol frames of synthetic cycles: symptoms, E2E exclusion, cycles
+without status frames, and persistence across a restart."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from edge_monitor.agent import Agent
+from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, PlateauConfig
+from edge_monitor.friction_model import friction_magnitude
+from edge_monitor.state_store import StateStore
+from synthetic_frames import make_frames
+
+SPEEDS = (8.7, 41.7, 133.5)
+
+
+def small_config(**kw) -> AgentConfig:
+    return AgentConfig(segmentation=PlateauConfig(speeds=SPEEDS), kl=KLConfig(n_nominal_cycles=2),
+                       decision=DecisionConfig(n_nominal=3, density="gauss",
+                                                quantities=("wear", "kl_raw", "kl_weighted")), **kw)
+
+
+def feed(agent: Agent, frames, block=1000, start=0, stop=None):
+    ids, data, dlc, ts = frames
+    stop = len(ids) if stop is None else stop
+    outs = []
+    for s in range(start, stop, block):
+        e = min(s + block, stop)
+        outs += agent.process_frames(ids[s:e], data[s:e], dlc[s:e], ts[s:e])
+    return outs
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return make_frames(4, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 20.0 * j, seed=1)
+
+
+def test_one_symptom_per_joint_and_cycle_with_model_friction(frames):
+    agent = Agent(small_config())
+    outs = feed(agent, frames) + agent.finish()
+    symptoms = [o.symptom for o in outs]
+    assert [(s["joint"], s["cycle"]) for s in symptoms] == [(j, c) for c in range(4) for j in (0, 1)]
+    stats = agent.run_statistics()
+    assert stats["frames_total"] == len(frames[0]) == stats["frames_ok"]
+    assert stats["crc_errors"] == stats["counter_lost"] == stats["repeated"] == 0
+    for s in symptoms:
+        f = s["friction"]
+        assert f["speeds"] == list(SPEEDS)
+        truth = friction_magnitude(np.array(SPEEDS), 0.5, 40.0, 20.0 * s["joint"])
+        # sample noise 2e-3 over ≥ 470 steady samples: stderr ≈ 7e-5; 6 σ plus the torque LSB (5e-5)
+        assert np.all(np.abs(np.array(f["torque"]) - truth) < 6 * np.array(f["stderr"]) + 5e-5)
+        assert set(s["decisions"]) == {"wear", "kl_raw", "kl_weighted"}
+        assert s["schema"] == 1 and s["robot"] == "robot1"
+    # Load estimate error (σl = 0.1) dominates the wear estimate; the CRLB std includes it.
+    for s in symptoms[-2:]:
+        w = s["wear"]
+        assert w["std"] > 0
+        assert abs(w["estimate"] - 20.0 * s["joint"]) < 4 * w["std"] + 1.0
+    assert symptoms[-1]["decisions"]["wear"]["state"] == "monitoring"
+
+
+def test_corrupted_frames_are_counted_and_excluded(frames):
+    ids, data, dlc, ts = (a.copy() for a in frames)
+    rng = np.random.default_rng(7)
+    hit = rng.choice(len(ids), size=200, replace=False)
+    data[hit, rng.integers(0, 8, hit.size)] ^= np.uint8(1 << 3)
+    agent = Agent(small_config())
+    outs = feed(agent, (ids, data, dlc, ts)) + agent.finish()
+    stats = agent.run_statistics()
+    assert stats["crc_errors"] == 200
+    assert stats["frames_ok"] <= stats["frames_total"] - 200
+    clean = Agent(small_config())
+    ref = feed(clean, frames) + clean.finish()
+    for a, b in zip(outs, ref):
+        np.testing.assert_allclose(a.symptom["friction"]["torque"], b.symptom["friction"]["torque"], atol=2e-4)
+
+
+def test_cycles_inferred_without_status_frames():
+    frames = make_frames(3, joints=(0,), speeds=SPEEDS, status=False, seed=2)
+    agent = Agent(small_config())
+    outs = feed(agent, frames) + agent.finish()
+    assert [o.symptom["cycle"] for o in outs] == [0, 1, 2]
+    assert all(o.symptom["friction"]["speeds"] == list(SPEEDS) for o in outs)
+
+
+def test_restart_resumes_without_duplicates_or_gaps(frames, tmp_path):
+    ids = frames[0]
+    split = len(ids) // 2 + 123
+    cfg = small_config()
+    first = Agent(cfg, state_store=StateStore(tmp_path))
+    outs1 = feed(first, frames, stop=split)
+    first.close()
+    second = Agent(cfg, state_store=StateStore(tmp_path))
+    outs2 = feed(second, frames, start=split) + second.finish()
+    keys = [(o.symptom["joint"], o.symptom["cycle"]) for o in outs1 + outs2]
+    assert sorted(keys) == [(j, c) for j in (0, 1) for c in range(4)]
+    assert len(set(keys)) == len(keys)
+    # the restored detectors carry on: no re-learning from scratch
+    assert outs2[-1].symptom["decisions"]["wear"]["state"] == "monitoring"
+    # a second pass over the same log after restart emits nothing again
+    third = Agent(cfg, state_store=StateStore(tmp_path))
+    second.close()
+    third = Agent(cfg, state_store=StateStore(tmp_path))
+    assert feed(third, frames) + third.finish() == []
+    assert third.stats.duplicate_cycles_skipped > 0
+
+
+def test_config_errors_name_the_field():
+    from edge_monitor.config import ConfigError, config_from_mapping
+    with pytest.raises(ConfigError, match=r"decision\.pf"):
+        config_from_mapping({"decision": {"pf": 2.0}})
+    with pytest.raises(ConfigError, match=r"friction\.fc0"):
+        config_from_mapping({"friction": {"fc0": "abc"}})
+    with pytest.raises(ConfigError, match=r"wear\.bogus"):
+        config_from_mapping({"wear": {"bogus": 1}})
+    with pytest.raises(ConfigError, match=r"decision\.n_nominal.*joint"):
+        config_from_mapping({"decision": {"n_nominal": 3, "density": "gauss"}})
+    cfg = config_from_mapping({"robot": "r7", "segmentation": {"speeds": [5.0, 50.0]}})
+    assert cfg.robot == "r7" and cfg.segmentation.speeds == (5.0, 50.0)
+    assert dataclasses.replace(cfg).decision.pf == cfg.decision.pf
