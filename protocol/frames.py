@@ -369,7 +369,9 @@ def _quantise_block(name: str, values: np.ndarray, scale: float, raw_min: int, r
     if np.isnan(values).any():
         raise FrameValueError(f"{name}: contains NaN at index {int(np.flatnonzero(np.isnan(values))[0])}; "
                               "pass finite numbers")
-    return np.rint(np.clip(values / scale, raw_min, raw_max)).astype(np.int64)
+    with np.errstate(over="ignore"):  # |value| near float max: inf is clipped like any overflow
+        steps = values / scale
+    return np.rint(np.clip(steps, raw_min, raw_max)).astype(np.int64)
 
 
 def encode_motor_state_block(

@@ -1,0 +1,246 @@
+"""Links: open a python-can bus from a link string, log files, a bridged pty pair, vcan detection.
+
+Link strings (docs/PROTOCOL.md, SYSTEM.md "Links"):
+
+* ``socketcan:IFACE``            Linux SocketCAN (real or vcan)
+* ``slcan:DEVICE_OR_URL``        Lawicel serial-line CAN over a serial device, a pty or any pyserial
+                                 URL such as ``socket://127.0.0.1:PORT``
+* ``virtual:NAME``               python-can in-process bus (one process only)
+* ``None``                       python-can's own configuration (arguments, ``CAN_*`` environment,
+                                 ``~/.canrc``)
+* a log file (``.blf``, ``.log``, ``.asc``, ``.csv``, ``.trc``) is not a bus: see ``is_log_file``.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import socket
+import threading
+import tty
+from pathlib import Path
+from typing import Any
+
+import can
+
+log = logging.getLogger(__name__)
+
+LOG_SUFFIXES = (".blf", ".log", ".asc", ".csv", ".trc", ".log.gz", ".asc.gz")
+LINK_SCHEMES = ("socketcan", "slcan", "virtual")
+
+
+class LinkError(ValueError):
+    """A link could not be opened or is malformed; the message starts with the link."""
+
+
+def is_log_file(link: str | os.PathLike | None) -> bool:
+    """True if ``link`` names a CAN log file by its suffix (it need not exist yet)."""
+    if link is None:
+        return False
+    name = str(link).lower()
+    if name.split(":", 1)[0] in LINK_SCHEMES:
+        return False
+    return name.endswith(LOG_SUFFIXES)
+
+
+def open_log_reader(path: str | os.PathLike) -> can.LogReader:
+    """python-can LogReader for an existing log file (format from the suffix)."""
+    if not is_log_file(path):
+        raise LinkError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
+    if not Path(path).is_file():
+        raise LinkError(f"{path}: log file not found")
+    try:
+        return can.LogReader(path)
+    except Exception as error:  # noqa: BLE001 - re-raised as the typed error
+        raise LinkError(f"{path}: cannot read log ({error})") from error
+
+
+def open_log_writer(path: str | os.PathLike) -> can.Listener:
+    """python-can Logger writing a log file (format from the suffix); call ``.stop()`` to close."""
+    if not is_log_file(path):
+        raise LinkError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
+    try:
+        return can.Logger(path)
+    except Exception as error:  # noqa: BLE001
+        raise LinkError(f"{path}: cannot write log ({error})") from error
+
+
+def parse_link(link: str) -> tuple[str, str]:
+    """``"scheme:channel"`` -> (scheme, channel); raises LinkError naming the link."""
+    scheme, sep, channel = str(link).partition(":")
+    if not sep or scheme not in LINK_SCHEMES:
+        raise LinkError(f"{link}: unknown link; use socketcan:IFACE, slcan:DEVICE_OR_URL, virtual:NAME "
+                        "or a log file")
+    if not channel:
+        raise LinkError(f"{link}: missing channel after '{scheme}:'")
+    return scheme, channel
+
+
+def open_bus(
+    link: str | None,
+    *,
+    interface: str | None = None,
+    channel: str | None = None,
+    bitrate: int | None = None,
+    receive_own_messages: bool = False,
+    **kwargs: Any,
+) -> can.BusABC:
+    """Open a python-can bus from a link string (or python-can's configuration if ``link`` is None).
+
+    Extra keyword arguments go to the python-can interface (e.g. ``sleep_after_open`` for slcan,
+    default 0 here).  Failures raise ``LinkError`` saying which link and why.
+    """
+    if link is None:
+        return _open_configured(interface, channel, bitrate, receive_own_messages, kwargs)
+    if is_log_file(link):
+        raise LinkError(f"{link}: a log file is not a bus; read it with open_log_reader()")
+    scheme, target = parse_link(link)
+    options: dict[str, Any] = dict(kwargs)
+    if bitrate is not None:
+        options["bitrate"] = bitrate
+    if scheme == "slcan":
+        options.setdefault("sleep_after_open", 0)
+        if "://" not in target and not target.split("@", 1)[0].startswith("COM") \
+                and not os.path.exists(target.split("@", 1)[0]):
+            raise LinkError(f"{link}: device not found")
+    else:
+        options["receive_own_messages"] = receive_own_messages
+    try:
+        return can.Bus(interface=scheme, channel=target, ignore_config=True, **options)
+    except Exception as error:  # noqa: BLE001 - every interface raises its own types
+        raise LinkError(f"{link}: {_reason(error)}") from error
+
+
+def _open_configured(
+    interface: str | None, channel: str | None, bitrate: int | None, receive_own_messages: bool,
+    kwargs: dict[str, Any],
+) -> can.BusABC:
+    options: dict[str, Any] = dict(kwargs)
+    for key, value in (("interface", interface), ("channel", channel), ("bitrate", bitrate)):
+        if value is not None:
+            options[key] = value
+    if receive_own_messages:
+        options["receive_own_messages"] = True
+    described = f"interface={interface or '(config)'} channel={channel or '(config)'}"
+    try:
+        config = can.util.load_config(config={k: v for k, v in options.items()
+                                              if k in ("interface", "channel", "bitrate")},
+                                      context=options.pop("config_context", None))
+    except Exception as error:  # noqa: BLE001
+        raise LinkError(f"{described}: python-can configuration invalid ({_reason(error)})") from error
+    if config.get("interface") == "slcan":
+        options.setdefault("sleep_after_open", 0)
+    try:
+        return can.Bus(**options)
+    except Exception as error:  # noqa: BLE001
+        raise LinkError(f"{described}: {_reason(error)}; set --interface/--channel, CAN_INTERFACE/"
+                        "CAN_CHANNEL or ~/.canrc") from error
+
+
+def _reason(error: BaseException) -> str:
+    if isinstance(error, FileNotFoundError) or getattr(error, "errno", None) == errno.ENOENT:
+        return f"device not found ({error})"
+    if isinstance(error, OSError) and error.errno == errno.EAFNOSUPPORT:
+        return f"SocketCAN is not supported by this kernel ({error})"
+    if isinstance(error, OSError) and error.errno == errno.ENODEV:
+        return f"no such network interface ({error})"
+    return f"{type(error).__name__}: {error}"
+
+
+def vcan_available(name: str = "vcan0") -> bool:
+    """True if the SocketCAN interface ``name`` exists and a raw CAN socket can bind to it."""
+    try:
+        if not Path("/sys/class/net", name).exists():
+            return False
+        with socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW) as sock:
+            sock.bind((name,))
+        return True
+    except Exception:  # noqa: BLE001 - detection never raises
+        return False
+
+
+class PtyPair:
+    """Two pseudo-terminals bridged both ways: bytes written to ``.a`` are read from ``.b`` and
+    vice versa.  Each end behaves like one side of a null-modem cable, so two processes can talk
+    slcan (``slcan:`` + ``.a`` / ``.b``) without SocketCAN.
+
+    Use as a context manager; ``close()`` stops the bridge thread and closes all descriptors.
+    Bytes written while the other end is not read are buffered up to ``max_buffer`` bytes per
+    direction, then dropped and counted in ``dropped_bytes``.
+    """
+
+    def __init__(self, max_buffer: int = 1 << 20) -> None:
+        self.max_buffer = max_buffer
+        self.dropped_bytes = 0
+        self._master_a, self._slave_a = os.openpty()
+        self._master_b, self._slave_b = os.openpty()
+        for fd in (self._slave_a, self._slave_b):
+            tty.setraw(fd)  # no echo, no line discipline: bytes pass unchanged
+        for fd in (self._master_a, self._master_b):
+            os.set_blocking(fd, False)
+        self.a: str = os.ttyname(self._slave_a)
+        self.b: str = os.ttyname(self._slave_b)
+        self._wake_read, self._wake_write = os.pipe()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._bridge, name=f"PtyPair {self.a}<->{self.b}", daemon=True)
+        self._thread.start()
+
+    def __enter__(self) -> PtyPair:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _bridge(self) -> None:
+        pending = {self._master_a: bytearray(), self._master_b: bytearray()}  # bytes waiting to be written
+        peer = {self._master_a: self._master_b, self._master_b: self._master_a}
+        while not self._stop.is_set():
+            writers = [fd for fd, buf in pending.items() if buf]
+            try:
+                readable, writable, _ = select.select(
+                    [self._master_a, self._master_b, self._wake_read], writers, [], 1.0)
+            except (OSError, ValueError):
+                return
+            for fd in writable:
+                try:
+                    written = os.write(fd, pending[fd])
+                    del pending[fd][:written]
+                except BlockingIOError:
+                    pass
+                except OSError:
+                    pending[fd].clear()
+            for fd in readable:
+                if fd == self._wake_read:
+                    return
+                try:
+                    chunk = os.read(fd, 65536)
+                except (BlockingIOError, InterruptedError):
+                    continue
+                except OSError:  # EIO: no slave open right now; keep going
+                    continue
+                target = pending[peer[fd]]
+                room = self.max_buffer - len(target)
+                if len(chunk) > room:
+                    self.dropped_bytes += len(chunk) - max(room, 0)
+                    chunk = chunk[:max(room, 0)]
+                target += chunk
+
+    def close(self) -> None:
+        """Stop the bridge and close every descriptor (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        try:
+            os.write(self._wake_write, b"x")
+        except OSError:
+            pass
+        self._thread.join(timeout=5.0)
+        for fd in (self._master_a, self._slave_a, self._master_b, self._slave_b, self._wake_read, self._wake_write):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        if self.dropped_bytes:
+            log.warning("PtyPair dropped %d bytes (peer not reading)", self.dropped_bytes)
