@@ -9,6 +9,7 @@ repetition of its plateau sequence (see :mod:`edge_monitor.joint_monitor`).
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Protocol
@@ -57,14 +58,25 @@ class Agent:
         self._last_emitted: dict[int, int] = {}
         self._partial_cycle: int | None = None   # first cycle after start: its beginning was not seen
         self._restored_joint_states: dict[int, dict] = {}
+        self.lock = threading.RLock()     # processing vs. state queries from output threads
         if state_store is not None:
             self._restore(state_store.load())
 
     # ------------------------------------------------------------------ input
     def process_frames(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> list[CycleOutput]:
         """Process one block of frames (``ids`` (n,), ``data`` (n, 8) uint8, ``dlc`` (n,), ``timestamps`` s)."""
-        block = self.ingest.process(ids, data, dlc, timestamps)
-        return self._route(block)
+        with self.lock:
+            block = self.ingest.process(ids, data, dlc, timestamps)
+            return self._route(block)
+
+    def joint_state(self, joint: int) -> dict[str, Any]:
+        """Snapshot of one joint's models and detector state (for the read-only state queryable)."""
+        with self.lock:
+            monitor = self.joints.get(joint)
+            if monitor is None:
+                return {"joint": joint, "known": False}
+            return {"joint": joint, "known": True, "last_cycle": self._last_emitted.get(joint),
+                    **monitor.state_dict()}
 
     def _route(self, block: IngestBlock) -> list[CycleOutput]:
         outputs: list[CycleOutput] = []

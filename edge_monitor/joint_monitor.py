@@ -152,7 +152,7 @@ class JointMonitor:
             "t": self._last_tick / self.config.rate_hz,
             "friction": curve.to_record(),
             "wear": wear.to_record() if wear is not None else {"estimate": None, "std": None, "temperature": None},
-            "kl": {"raw": _finite_or_none(kl_record.get("raw")), "weighted": _finite_or_none(kl_record.get("weighted"))},
+            "kl": self._kl_record(kl, kl_record),
             "decisions": decisions,
             "alarm": any(d.get("alarm") for d in decisions.values()),
             "load": {"mean": _finite_or_none(load_mean), "std": _finite_or_none(self._load.std)},
@@ -169,6 +169,23 @@ class JointMonitor:
             extras["density"] = density
         self._load = _LoadAccumulator()
         return CycleOutput(symptom=symptom, alarms=alarms, extras=extras)
+
+    @staticmethod
+    def _kl_record(kl: Any, kl_record: dict) -> dict[str, Any]:
+        """``kl`` field: raw/weighted (SYSTEM.md) plus the simple μ0 + 3σ0 thresholds, tail counts
+        and the nearest stored mode when available."""
+        out: dict[str, Any] = {"raw": _finite_or_none(kl_record.get("raw")),
+                               "weighted": _finite_or_none(kl_record.get("weighted"))}
+        if kl is None:
+            return out
+        if kl.threshold_3sigma:
+            out["threshold_3sigma"] = {k: _finite_or_none(v) for k, v in kl.threshold_3sigma.items()}
+        if kl.outside:
+            out["outside"] = kl.outside
+        if kl.nearest_mode is not None:
+            out["nearest_mode"] = kl.nearest_mode
+        out["n_samples"] = kl.n_samples
+        return out
 
     def _estimate_wear(self, curve: FrictionCurve):
         if not self.config.wear.enabled:

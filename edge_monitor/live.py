@@ -1,0 +1,87 @@
+"""The live loop: a bus → bounded queue → agent blocks, with periodic health, status line and
+state saving, until stopped (signal, duration, cycle count or end of the peer's stream)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from edge_monitor.agent import Agent
+from edge_monitor.frame_source import LiveSource
+
+log = logging.getLogger(__name__)
+status_log = logging.getLogger("edge_monitor.status")
+
+
+@dataclass
+class LiveRunner:
+    """Drives an :class:`Agent` from a :class:`LiveSource`."""
+
+    agent: Agent
+    source: LiveSource
+    status_interval_s: float = 10.0
+    stop_event: threading.Event = field(default_factory=threading.Event)
+    no_new_data: int = 0
+
+    def health(self) -> dict[str, Any]:
+        h = self.agent.health()
+        listener = self.source.listener
+        h.update({"time": time.time(), "queue_depth": self.source.queue_depth(),
+                  "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
+                  "no_new_data": self.no_new_data,
+                  "notifier_failed": repr(self.source.notifier_failed) if self.source.notifier_failed else None})
+        h["e2e"] = dict(self.agent.ingest.e2e.stats)
+        return h
+
+    def _tick(self) -> None:
+        self.no_new_data += len(self.agent.ingest.e2e.poll(time.time()))
+        h = self.health()
+        for sink in self.agent.sinks:
+            self.agent._call(sink.on_health, h)
+        status_log.info("status: %d frames (%.0f/s), ok %d, crc %d, lost %d, queue %d (dropped %d), "
+                        "cycles %d, symptoms %d, alarms %d", h["frames_total"], h["frames_per_second"],
+                        h["frames_ok"], h["crc_errors"], h["counter_lost"], h["queue_depth"], h["queue_dropped"],
+                        h["cycles"], h["symptoms"], h["alarms"])
+
+    def run(self, duration_s: float | None = None, max_cycles: int | None = None,
+            idle_stop_s: float | None = None) -> None:
+        """Process until stopped. ``idle_stop_s``: stop after that long without frames once some arrived."""
+        start = time.monotonic()
+        next_status = start + self.status_interval_s
+        last_frame = start
+        seen_any = False
+        for block in self.source.blocks():
+            now = time.monotonic()
+            if block is not None:
+                seen_any = True
+                last_frame = now
+                cycles_before = self.agent.stats.cycles
+                self.agent.process_frames(*block)
+                if self.agent.stats.cycles != cycles_before:
+                    self._save_state()
+            if now >= next_status:
+                self._tick()
+                next_status = now + self.status_interval_s
+            if self.source.notifier_failed is not None:
+                log.error("CAN receive thread failed: %r; stopping", self.source.notifier_failed)
+                break
+            if duration_s is not None and now - start >= duration_s:
+                break
+            if max_cycles is not None and self.agent.stats.cycles >= max_cycles:
+                break
+            if idle_stop_s is not None and seen_any and now - last_frame >= idle_stop_s:
+                log.info("no frames for %.1f s: end of stream", idle_stop_s)
+                break
+            if self.stop_event.is_set():
+                break
+        self.source.stop()
+        self._tick()
+
+    def _save_state(self) -> None:
+        try:
+            self.agent.save_state()
+        except OSError as exc:
+            log.error("saving agent state failed (%s); monitoring continues", exc)
