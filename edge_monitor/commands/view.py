@@ -26,7 +26,7 @@ QUEUE_SIZE = 100_000      # bounded hand-over from Zenoh's thread; overflow is c
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("view", help="draw the symptoms of any number of robots in Rerun",
-                                   description=__doc__)
+                                   description=__doc__.replace("``", ""))
     ZenohOptions.add_arguments(parser)
     parser.add_argument("--robot", default=None, help="only this robot (default: every robot under edge/)")
     parser.add_argument("--rerun", default="spawn", metavar="SPEC",
