@@ -71,3 +71,22 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: flo
                      f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:32]:<32} {pf:>7.2g} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     return "\n".join(lines)
+
+
+class LastSymptomSink:
+    """Keeps the last symptom record per joint (for the summary table)."""
+
+    def __init__(self, store: dict[int, dict]) -> None:
+        self.store = store
+
+    def on_symptom(self, output) -> None:
+        self.store[output.symptom["joint"]] = output.symptom
+
+    def on_alarm(self, alarm) -> None:
+        pass
+
+    def on_health(self, health) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

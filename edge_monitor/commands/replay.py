@@ -14,6 +14,7 @@ from edge_monitor.commands.common import (
     open_state_store,
     print_json,
     summary_table,
+    LastSymptomSink,
 )
 from edge_monitor.frame_source import log_blocks
 from edge_monitor.jsonl_sink import JsonlSink
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     sinks = [JsonlSink(cfg.jsonl)] if cfg.jsonl else []
     agent = Agent(cfg, sinks=sinks, state_store=open_state_store(cfg))
     last: dict[int, dict] = {}
-    agent.sinks.append(_LastSymptom(last))
+    agent.sinks.append(LastSymptomSink(last))
     try:
         replay(agent, args.file, cfg.block_size)
     except FileNotFoundError as exc:
@@ -69,21 +70,3 @@ def run(args: argparse.Namespace) -> int:
               f"{stats['frames_per_second']:.0f} frames/s")
     return 0
 
-
-class _LastSymptom:
-    """Keeps the last symptom per joint for the summary table."""
-
-    def __init__(self, store: dict[int, dict]) -> None:
-        self.store = store
-
-    def on_symptom(self, output) -> None:
-        self.store[output.symptom["joint"]] = output.symptom
-
-    def on_alarm(self, alarm) -> None:
-        pass
-
-    def on_health(self, health) -> None:
-        pass
-
-    def close(self) -> None:
-        pass

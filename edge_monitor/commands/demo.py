@@ -1,0 +1,221 @@
+"""``edge-monitor demo``: the whole system in one command, on embedded defaults.
+
+Starts the simulated controller as a separate process streaming over a pseudo-terminal slcan link
+(SocketCAN ``vcan0`` where the kernel has it) with an accelerated wear ramp on one joint and thermal
+drift on all, runs the agent on the other end of the link, publishes over Zenoh (peer mode,
+loopback, multicast scouting off), counts what an independent Zenoh subscriber receives, records
+to Rerun (and spawns the viewer when a display is available), then prints a summary table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from edge_monitor.agent import Agent
+from edge_monitor.commands.common import LastSymptomSink, summary_table
+from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig
+from edge_monitor.frame_source import LiveSource
+from edge_monitor.jsonl_sink import JsonlSink
+from edge_monitor.live import LiveRunner
+from edge_monitor.segmentation import PlateauConfig
+
+log = logging.getLogger(__name__)
+
+#: Speeds of the demo's test cycle [rad/s]: the 4-point design of `edge-monitor design --points 4`
+#: at the default design point (docs/WEAR_ESTIMATION.md), rounded.
+DEMO_SPEEDS = (2.1, 21.9, 41.7, 82.2)
+DEMO_JOINTS = 3
+WORN_JOINT = 1
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("demo", help="simulated controller + agent + Zenoh + Rerun in one command",
+                              description=__doc__)
+    p.add_argument("--cycles", type=int, default=70, help="test cycles to simulate (default 70)")
+    p.add_argument("--joints", type=int, default=DEMO_JOINTS, help=f"joints (default {DEMO_JOINTS})")
+    p.add_argument("--speedup", type=float, default=6.0,
+                   help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
+    p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--out", default="out/demo", help="directory for the recording, symptoms, truth and state")
+    p.add_argument("--rerun", default=None,
+                   help="off | save:PATH | spawn (default: spawn with a display, else save:<out>/demo.rrd)")
+    p.add_argument("--link", default="auto", help="auto | pty | vcan (auto: vcan0 if available, else pty)")
+    p.add_argument("--json-summary", metavar="PATH", help="write the run summary as JSON here")
+    p.add_argument("--nominal-cycles", type=int, default=20,
+                   help="cycles the detectors learn from before monitoring (default 20)")
+    p.set_defaults(func=run)
+
+
+def demo_config(out: Path, nominal_cycles: int) -> AgentConfig:
+    """The demo's agent configuration: short learning phases so detection fits in minutes."""
+    return AgentConfig(
+        robot="demo-robot",
+        segmentation=PlateauConfig(speeds=DEMO_SPEEDS),
+        kl=KLConfig(n_nominal_cycles=5),
+        decision=DecisionConfig(n_nominal=nominal_cycles, window=50),
+        state_dir=str(out / "state"), jsonl=str(out / "symptoms.jsonl"),
+        status_interval_s=5.0,
+    )
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
+    wear_start = max(args.cycles // 2, args.nominal_cycles + 5)
+    return [sys.executable, "-m", "sim_controller.cli", "run", "--link", link,
+            "--joints", str(args.joints), "--cycles", str(args.cycles), "--seed", str(args.seed),
+            "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
+            "--speedup", str(args.speedup), "--time-acceleration", "120",
+            "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{args.cycles}:0:60",
+            "--truth", str(truth)]
+
+
+def choose_link(kind: str, stack: ExitStack) -> tuple[str, str, str]:
+    """(sim link, agent link, description)."""
+    from protocol.links import PtyPair, vcan_available
+    if kind == "vcan" or (kind == "auto" and vcan_available("vcan0")):
+        return "socketcan:vcan0", "socketcan:vcan0", "SocketCAN vcan0"
+    pair = stack.enter_context(PtyPair())
+    return f"slcan:{pair.a}", f"slcan:{pair.b}", f"slcan over pty {pair.a} <-> {pair.b}"
+
+
+def rerun_spec(requested: str | None, out: Path) -> str:
+    if requested:
+        return requested
+    has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return "spawn" if has_display else f"save:{out / 'demo.rrd'}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from protocol.links import LinkError, open_bus
+    logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
+    if args.cycles < 2 or args.joints < 1 or args.joints > 8:
+        print("edge-monitor demo: need --cycles >= 2 and 1 <= --joints <= 8", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in ("symptoms.jsonl", "truth.jsonl", "state/agent_state.json"):
+        (out / stale).unlink(missing_ok=True)
+    cfg = demo_config(out, args.nominal_cycles)
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    spec = rerun_spec(args.rerun, out)
+    started = time.monotonic()
+    with ExitStack() as stack:
+        sim_link, agent_link, link_desc = choose_link(args.link, stack)
+        print(f"demo: link {link_desc}; zenoh peer on {endpoint}; rerun {spec}; {args.cycles} cycles, "
+              f"{args.joints} joints, wear ramp on joint {WORN_JOINT}", flush=True)
+        from edge_monitor.commands.run import build_sinks
+        ns = argparse.Namespace(no_zenoh=False, rerun=spec, zenoh_mode="peer", zenoh_listen=[endpoint],
+                                zenoh_connect=[], zenoh_config=None)
+        agent_ref: dict[str, Agent] = {}
+        sinks = build_sinks(cfg, ns, stack, state_provider=lambda j: agent_ref["agent"].joint_state(j))
+        agent = Agent(cfg, sinks=sinks, state_store=_store(cfg))
+        agent_ref["agent"] = agent
+        last: dict[int, dict] = {}
+        agent.sinks.append(LastSymptomSink(last))
+        subscriber = stack.enter_context(_CountingSubscriber(endpoint))
+        try:
+            bus = open_bus(agent_link)
+        except LinkError as exc:
+            print(f"edge-monitor demo: cannot open the agent's end of the link: {exc}", file=sys.stderr)
+            return 2
+        stack.callback(bus.shutdown)
+        runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
+                            status_interval_s=cfg.status_interval_s)
+        agent_thread = threading.Thread(target=runner.run, kwargs={"idle_stop_s": 3.0}, name="agent", daemon=True)
+        agent_thread.start()
+        truth = out / "truth.jsonl"
+        sim = subprocess.Popen(sim_command(sim_link, args, truth), stdin=subprocess.DEVNULL)
+        try:
+            sim_rc = sim.wait()
+        except KeyboardInterrupt:
+            sim.terminate()
+            sim_rc = sim.wait()
+            runner.stop_event.set()
+        agent_thread.join(timeout=60)
+        agent.finish(close_open_cycle=True)
+        frames = agent.run_statistics()
+        published = _published(agent)
+        subscriber.wait_for(published, timeout=10.0)
+        received = subscriber.count()
+        agent.close()
+    summary = {
+        "alarms": frames["alarms"], "symptoms_published": published, "symptoms_received": received,
+        "rrd": spec.partition(":")[2] if spec.startswith("save:") else None, "rerun": spec,
+        "frames": {k: frames[k] for k in ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated",
+                                          "unknown_id", "malformed")},
+        "frames_sent": _frames_sent(truth), "cycles": frames["cycles"], "simulator_exit_code": sim_rc,
+        "wall_s": round(time.monotonic() - started, 1), "pf": cfg.decision.pf, "link": link_desc,
+        "jsonl": cfg.jsonl, "truth": str(truth),
+    }
+    print(summary_table(last, frames, cfg.decision.pf))
+    print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
+          f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['wall_s']} s")
+    if summary["rrd"]:
+        print(f"recording: {summary['rrd']}  (open with: .venv/bin/rerun {summary['rrd']})")
+    if args.json_summary:
+        Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json_summary).write_text(json.dumps(summary, indent=2))
+    return 0 if sim_rc == 0 else 1
+
+
+def _store(cfg: AgentConfig):
+    from edge_monitor.state_store import StateStore
+    return StateStore(cfg.state_dir) if cfg.state_dir else None
+
+
+def _published(agent: Agent) -> int:
+    for sink in agent.sinks:
+        publisher = getattr(sink, "publisher", None)
+        if publisher is not None:
+            return int(publisher.published.get("symptom", 0))
+    return 0
+
+
+def _frames_sent(truth: Path) -> int | None:
+    try:
+        last = truth.read_text().strip().splitlines()[-1]
+        return json.loads(last).get("frames_sent")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+class _CountingSubscriber:
+    """An independent Zenoh session (peer, connected to the agent's endpoint) counting symptoms."""
+
+    def __init__(self, endpoint: str) -> None:
+        self.endpoint = endpoint
+
+    def __enter__(self) -> "_CountingSubscriber":
+        from edge_monitor.publish_zenoh import SymptomSubscriber
+        from edge_monitor.zenoh_session import ZenohOptions, open_session
+        self.session = open_session(ZenohOptions(mode="peer", connect=[self.endpoint]))
+        self.sub = SymptomSubscriber(self.session, "edge/**", history=True)
+        return self
+
+    def count(self) -> int:
+        return len({(r["joint"], r["cycle"]) for r in self.sub.records("symptom")})
+
+    def wait_for(self, n: int, timeout: float) -> bool:
+        return self.sub.wait_for(lambda s: len({(r["joint"], r["cycle"]) for r in s.records("symptom")}) >= n,
+                                 timeout)
+
+    def __exit__(self, *exc: object) -> None:
+        self.sub.close()
+        self.session.close()
