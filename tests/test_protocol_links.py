@@ -1,0 +1,230 @@
+"""Links: virtual bus, slcan over a bridged pty between two processes, socketcan:vcan0 (where the
+kernel has it), log-file round trips, and link errors."""
+
+import subprocess
+import sys
+import textwrap
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from protocol import frames as F
+from protocol.e2e import E2EReceiver, E2EStatus
+from protocol.links import LinkError, PtyPair, is_log_file, open_bus, open_log_reader, open_log_writer, vcan_available
+
+N_TICKS = 300  # controller ticks sent by the peer process
+JOINTS = 2
+STATUS_EVERY = 10
+EXPECTED_FRAMES = N_TICKS * JOINTS + N_TICKS // STATUS_EVERY
+DEADLINE_S = 60.0  # generous: the machine is shared; no speed is asserted
+
+SENDER = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from protocol import frames as F
+    from protocol.links import open_bus
+
+    link, n_ticks, joints, every = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+    ticks = np.arange(n_ticks)
+    rows = [F.encode_motor_state_block(j, ticks, 0.5 * np.sin(ticks / 50.0), 0.01 * ticks, 0.003 * ticks)
+            for j in range(joints)]
+    bus = open_bus(link)
+    for tick in range(n_ticks):
+        for j in range(joints):
+            bus.send(F.to_message(F.MOTOR_STATE_BASE_ID + j, rows[j][tick].tobytes()))
+        if tick % every == 0:
+            bus.send(F.to_message(F.CONTROLLER_STATUS_ID,
+                                  F.encode_controller_status(tick // every, F.Mode.TEST_CYCLE, 1, 2, tick)))
+        if tick % 50 == 0:
+            time.sleep(0.01)  # a real controller paces its ticks; also keeps the pty buffers small
+    time.sleep(1.0)  # let the link drain before closing
+    bus.shutdown()
+    print("sent", n_ticks)
+    """
+)
+
+
+def _receive_and_check(bus: can.BusABC, sender: subprocess.Popen) -> None:
+    received: list[can.Message] = []
+    deadline = time.monotonic() + DEADLINE_S
+    while len(received) < EXPECTED_FRAMES and time.monotonic() < deadline:
+        msg = bus.recv(timeout=0.5)
+        if msg is not None:
+            received.append(msg)
+    out, err = sender.communicate(timeout=DEADLINE_S)
+    assert sender.returncode == 0, err
+    assert len(received) == EXPECTED_FRAMES, f"got {len(received)} of {EXPECTED_FRAMES} frames; sender: {out} {err}"
+    assert all(not m.is_extended_id for m in received)
+
+    ids, data, dlc, timestamps = F.messages_to_arrays(received)
+    block = F.decode_block(ids, data, dlc)
+    assert block.valid.all(), block.error_counts()
+    statuses, lost = E2EReceiver(timeout_s=5.0).check_block(ids, block.counter, block.crc_ok, timestamps)
+    assert (statuses == E2EStatus.OK).all() and lost.sum() == 0
+    ticks = np.arange(N_TICKS)
+    for j in range(JOINTS):
+        rows = block.kind == F.FrameKind.MOTOR_STATE
+        rows &= block.joint == j
+        assert block.counter[rows].tolist() == (ticks % 256).tolist()
+        np.testing.assert_allclose(block.torque[rows], 0.5 * np.sin(ticks / 50.0), atol=F.TORQUE_SCALE / 2 + 1e-12)
+        np.testing.assert_allclose(block.speed[rows], 0.01 * ticks, atol=F.SPEED_SCALE / 2 + 1e-9)
+    status_rows = block.kind == F.FrameKind.CONTROLLER_STATUS
+    assert block.status_tick[status_rows].tolist() == list(range(0, N_TICKS, STATUS_EVERY))
+
+
+def _start_sender(link: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-c", SENDER, link, str(N_TICKS), str(JOINTS), str(STATUS_EVERY)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+
+
+def test_two_processes_exchange_protected_frames_over_slcan_pty():
+    with PtyPair() as pty:
+        receiver = open_bus(f"slcan:{pty.b}")
+        try:
+            _receive_and_check(receiver, _start_sender(f"slcan:{pty.a}"))
+        finally:
+            receiver.shutdown()
+        assert pty.dropped_bytes == 0
+
+
+@pytest.mark.skipif(not vcan_available("vcan0"),
+                    reason="no SocketCAN vcan0 on this host (kernel lacks vcan or interface not up); "
+                           "`ip link add dev vcan0 type vcan && ip link set up vcan0` enables this test")
+def test_two_processes_exchange_protected_frames_over_socketcan_vcan0():
+    receiver = open_bus("socketcan:vcan0")
+    try:
+        _receive_and_check(receiver, _start_sender("socketcan:vcan0"))
+    finally:
+        receiver.shutdown()
+
+
+def test_virtual_bus_round_trip():
+    name = f"virtual:test-{uuid.uuid4().hex}"
+    sender, receiver = open_bus(name), open_bus(name)
+    try:
+        frames = [(F.CONTROLLER_STATUS_ID, F.encode_controller_status(3, F.Mode.PRODUCTION, 9, 200, 123))]
+        frames += [(F.MOTOR_STATE_BASE_ID + j, F.encode_motor_state(j, 77, 0.25, -3.5, 1.0)) for j in range(6)]
+        for arbitration_id, data in frames:
+            sender.send(F.to_message(arbitration_id, data))
+        got = [receiver.recv(timeout=5.0) for _ in frames]
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == frames
+    decoded = [F.decode_message(m) for m in got]
+    assert decoded[0] == F.ControllerStatus(3, F.Mode.PRODUCTION, 9, 200, 123)
+    assert all(isinstance(d, F.MotorState) and d.tick == 77 for d in decoded[1:])
+
+
+def test_python_can_configuration_is_used_when_no_link(monkeypatch):
+    channel = f"cfg-{uuid.uuid4().hex}"
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", channel)
+    configured = open_bus(None)
+    explicit = open_bus(f"virtual:{channel}")
+    try:
+        explicit.send(F.to_message(0x100, F.encode_motor_state(0, 1, 0, 0, 0)))
+        msg = configured.recv(timeout=5.0)
+    finally:
+        configured.shutdown()
+        explicit.shutdown()
+    assert msg is not None and msg.arbitration_id == 0x100
+    # explicit arguments win over the environment
+    other = open_bus(None, interface="virtual", channel="explicit-channel")
+    try:
+        assert "explicit-channel" in other.channel_info
+    finally:
+        other.shutdown()
+
+
+@pytest.mark.parametrize(
+    ("link", "reason"),
+    [
+        ("slcan:/dev/pts/99999", "slcan:/dev/pts/99999: device not found"),
+        ("bogus:x", "bogus:x: unknown link"),
+        ("virtual:", "missing channel"),
+        ("socketcan:nosuchcan0", "socketcan:nosuchcan0: "),
+        ("replay.blf", "log file is not a bus"),
+    ],
+)
+def test_link_errors_say_which_link_and_why(link, reason):
+    with pytest.raises(LinkError, match=reason) as info:
+        open_bus(link)
+    assert isinstance(info.value, ValueError)
+
+
+def test_is_log_file():
+    assert all(is_log_file(p) for p in ("a.blf", "b.LOG", "c.asc", "d.csv", "e.trc", "f.log.gz"))
+    assert not any(is_log_file(p) for p in ("slcan:/dev/pts/3", "virtual:x.log", "socketcan:vcan0", None, "x.txt"))
+
+
+def test_vcan_available_never_raises():
+    assert vcan_available("vcan0") in (True, False)
+    assert vcan_available("no-such-interface-name-that-is-too-long") is False
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".log", ".asc"])
+def test_log_write_read_round_trip(tmp_path, suffix):
+    ticks = np.arange(500)
+    rows = F.encode_motor_state_block(ticks % 6, ticks, np.cos(ticks / 9.0), 30 * np.sin(ticks / 17.0), ticks * 0.01)
+    messages = [F.to_message(F.MOTOR_STATE_BASE_ID + int(t % 6), rows[i].tobytes(), timestamp=100.0 + t * 0.0005)
+                for i, t in enumerate(ticks)]
+    messages.append(F.to_message(F.CONTROLLER_STATUS_ID, F.encode_controller_status(1, 1, 2, 3, 4), timestamp=100.3))
+    path = tmp_path / f"frames{suffix}"
+    writer = open_log_writer(path)
+    for msg in messages:
+        writer.on_message_received(msg)
+    writer.stop()
+    read = list(open_log_reader(path))
+    assert len(read) == len(messages)
+    assert all(not m.is_extended_id for m in read)
+    ids, data, dlc, timestamps = F.messages_to_arrays(read)
+    assert ids.tolist() == [m.arbitration_id for m in messages]
+    assert np.array_equal(data, np.vstack([rows, np.frombuffer(messages[-1].data, np.uint8)]))
+    block = F.decode_block(ids, data, dlc)
+    assert block.valid.all()
+    intervals = np.diff(timestamps)  # ASC stores relative time; intervals survive in every format
+    np.testing.assert_allclose(intervals, np.diff([m.timestamp for m in messages]), atol=2e-5)
+
+
+def test_log_reader_errors(tmp_path):
+    with pytest.raises(LinkError, match="not found"):
+        open_log_reader(tmp_path / "missing.blf")
+    with pytest.raises(LinkError, match="not a CAN log file"):
+        open_log_writer(tmp_path / "frames.txt")
+
+
+def test_pty_pair_bridges_both_ways_and_closes_cleanly():
+    import os
+
+    with PtyPair() as pty:
+        fd_a = os.open(pty.a, os.O_RDWR | os.O_NOCTTY)
+        fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd_a, b"t1008" + b"00" * 8 + b"\r")
+            assert _read_exactly(fd_b, 22) == b"t1008" + b"00" * 8 + b"\r"
+            os.write(fd_b, b"\x00\xff\r\n")  # raw: bytes pass unchanged, no echo
+            assert _read_exactly(fd_a, 4) == b"\x00\xff\r\n"
+        finally:
+            os.close(fd_a)
+            os.close(fd_b)
+    assert not pty._thread.is_alive()
+
+
+def _read_exactly(fd: int, size: int, timeout_s: float = 10.0) -> bytes:
+    import os
+    import select
+
+    buffer = b""
+    deadline = time.monotonic() + timeout_s
+    while len(buffer) < size and time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.2)
+        if ready:
+            buffer += os.read(fd, size - len(buffer))
+    return buffer
