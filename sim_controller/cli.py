@@ -1,0 +1,180 @@
+"""``sim-controller run | record``: the simulated robot controller on the command line.
+
+Options given on the command line override a ``--scenario`` file; see docs/SIMULATOR.md.
+Invalid input is refused with a message naming the field (exit code 2); a link or file that
+cannot be opened says which and why (exit code 1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from typing import Any, Sequence
+
+from protocol.links import LinkError
+
+from sim_controller.config import (SimConfig, SimConfigError, load_speeds_file, merge_wear, parse_float,
+                                   parse_range, parse_speeds, wear_profiles_from_ramps)
+from sim_controller.faults import FaultSpec
+from sim_controller.output import record, run
+from sim_controller.scenario import load_scenario
+
+log = logging.getLogger("sim_controller")
+
+
+def _typed(parse: Any, name: str) -> Any:
+    """argparse ``type=`` wrapper turning our ValueErrors into argparse errors naming ``name``."""
+    def convert(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    convert.__name__ = name
+    return convert
+
+
+def _number(name: str, kind: type = float) -> Any:
+    def parse(text: str) -> Any:
+        if kind is int:
+            try:
+                return int(text)
+            except ValueError:
+                raise SimConfigError(f"{name}: expected an integer, got {text!r}") from None
+        return parse_float(text, name)
+    return _typed(parse, name)
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("simulation")
+    g.add_argument("--scenario", metavar="FILE.toml", help="scenario file; command-line options override it")
+    g.add_argument("--joints", type=_number("joints", int), help="number of joints 1 … 8 (default 6)")
+    g.add_argument("--rate", type=_number("rate"), help="controller tick rate in Hz (default 500)")
+    g.add_argument("--cycles", type=_number("cycles", int), help="number of test cycles (default 10)")
+    g.add_argument("--seed", type=_number("seed", int), help="random seed (default 0); same seed, same output")
+    sp = g.add_mutually_exclusive_group()
+    sp.add_argument("--speeds", type=_typed(parse_speeds, "speeds"), metavar="V1,V2,...",
+                    help="friction speed levels in rad/s (motor side; default: the 12 of ALGORITHMS.md §2)")
+    sp.add_argument("--speeds-from", metavar="DESIGN.json", help="speeds from the JSON of edge-monitor design")
+    g.add_argument("--plateau-time", type=_number("plateau_time"), help="constant-speed time per direction in s (default 1.1)")
+    g.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO",
+                   help="linear wear ramp (repeatable; JOINT 0-based or 'all'; wear 0 … 100)")
+    g.add_argument("--temperature-range", type=_typed(lambda t: parse_range(t, "temperature_range"), "temperature_range"),
+                   metavar="LOW:HIGH", help="per-cycle uniform lubricant temperature in °C (default: thermal model)")
+    g.add_argument("--ambient", type=_number("ambient"), help="ambient temperature of the thermal model, °C (default 30)")
+    g.add_argument("--start-temperature", type=_number("start_temperature"), help="initial lubricant temperature, °C")
+    g.add_argument("--time-acceleration", type=_number("time_acceleration"),
+                   help="thermal time runs this many times faster than controller time (default 1)")
+    g.add_argument("--load-range", type=_typed(lambda t: parse_range(t, "load_range"), "load_range"),
+                   metavar="LOW:HIGH", help="per-cycle |load torque| range (default 0.3:0.7)")
+    g.add_argument("--load-std", type=_number("load_std"), help="σl of the controller's load estimate (default 0.1)")
+    g.add_argument("--friction-model-error", type=_number("friction_model_error"),
+                   help="σm of the per-cycle, per-level friction model error (default 5.7e-3; 0 allowed)")
+    g.add_argument("--torque-noise", type=_number("torque_noise"), help="per-sample torque noise std (default 2e-3)")
+    g.add_argument("--speed-noise", type=_number("speed_noise"), help="per-sample speed noise std in rad/s (default 0.02)")
+    g.add_argument("--vary", type=_number("vary"), metavar="FRACTION",
+                   help="± relative individual variation of friction parameters (default 0 for 1 joint, 0.08 otherwise)")
+    g.add_argument("--faults", type=_typed(FaultSpec.parse, "faults"), metavar="SPEC",
+                   help="e.g. drop=0.001,corrupt=0.001,duplicate=0.0005,reorder=0.0005,delay=0.001,"
+                        "silence=1e-5,restart=0.01,stuck=1e-5")
+    g.add_argument("--truth", metavar="PATH.jsonl", help="write ground truth (one record per joint per cycle, then a fault summary)")
+    g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
+    g.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+
+
+_FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "seed": "seed", "speeds": "speeds",
+                    "plateau_time": "plateau_time", "temperature_range": "temperature_range", "ambient": "ambient",
+                    "start_temperature": "start_temperature", "time_acceleration": "time_acceleration",
+                    "load_range": "load_range", "load_std": "load_std",
+                    "friction_model_error": "friction_model_error", "torque_noise": "torque_noise",
+                    "speed_noise": "speed_noise", "vary": "variation", "faults": "faults"}
+
+
+def build_config(args: argparse.Namespace) -> SimConfig:
+    """SimConfig from scenario file + command-line options (raises SimConfigError)."""
+    kwargs: dict[str, Any] = load_scenario(args.scenario) if args.scenario else {}
+    for option, name in _FIELD_OF_OPTION.items():
+        value = getattr(args, option, None)
+        if value is not None:
+            kwargs[name] = value
+    if args.speeds_from:
+        kwargs["speeds"] = load_speeds_file(args.speeds_from)
+    if kwargs.get("temperature_range") is not None:
+        kwargs["min_temperature"] = min(kwargs.get("min_temperature", 30.0), kwargs["temperature_range"][0])
+    joints = int(kwargs.get("joints", SimConfig.__dataclass_fields__["joints"].default))
+    if not 1 <= joints <= 8:
+        raise SimConfigError(f"joints: must be an integer 1 … 8, got {joints}")
+    wear = kwargs.get("wear", ())
+    if len(wear) > joints:
+        wear = wear[:joints]
+    if args.wear_ramp:
+        wear = merge_wear(wear, wear_profiles_from_ramps(args.wear_ramp, joints), joints)
+    kwargs["wear"] = tuple(wear)
+    overrides = kwargs.get("joint_overrides", ())
+    kwargs["joint_overrides"] = tuple(overrides[:joints])
+    return SimConfig(**kwargs)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sim-controller", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_run = sub.add_parser("run", help="stream frames onto a link in real time or faster")
+    p_run.add_argument("--link", help="slcan:DEVICE_OR_URL, socketcan:IFACE, virtual:NAME (default: python-can config)")
+    p_run.add_argument("--interface", help="python-can interface (when --link is not given)")
+    p_run.add_argument("--channel", help="python-can channel (when --link is not given)")
+    p_run.add_argument("--bitrate", type=_number("bitrate", int), help="bitrate in bit/s")
+    pace = p_run.add_mutually_exclusive_group()
+    pace.add_argument("--realtime", action="store_true", help="pace at real time (default)")
+    pace.add_argument("--speedup", type=_number("speedup"), metavar="X",
+                      help="pace at X × real time; 0 = as fast as the link takes frames")
+    _add_common(p_run)
+    p_rec = sub.add_parser("record", help="write frames to a python-can log file as fast as possible")
+    p_rec.add_argument("--out", required=True, metavar="FILE.{blf,log,asc}", help="log file (format from the suffix)")
+    _add_common(p_rec)
+    return parser
+
+
+def _configure_logging(verbosity: int) -> None:
+    level = logging.INFO if verbosity <= 1 else logging.DEBUG
+    logging.basicConfig(level=level if verbosity else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if verbosity == 0:
+        logging.getLogger("sim_controller").setLevel(logging.INFO)   # progress lines of long runs
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _configure_logging(args.verbose)
+    try:
+        config = build_config(args)
+    except ValueError as exc:   # SimConfigError, WearScenarioError, FaultSpecError, FrictionParams errors
+        parser.error(str(exc))   # exit 2
+    try:
+        if args.command == "record":
+            summary = record(config, args.out, args.truth)
+        else:
+            if args.speedup is not None and args.speedup < 0:
+                parser.error(f"speedup: must be ≥ 0, got {args.speedup}")
+            speedup = None if args.speedup == 0 else (args.speedup or 1.0)
+            bus_kwargs = {k: getattr(args, k) for k in ("interface", "channel", "bitrate") if getattr(args, k)}
+            summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=bus_kwargs)
+    except LinkError as exc:
+        print(f"sim-controller: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"sim-controller: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    if args.summary_json:
+        print(json.dumps(summary.to_dict()))
+    else:
+        log.info("%d frames, %d cycles, %.1f s simulated in %.2f s (%.1f× real time)", summary.frames_sent,
+                 summary.cycles, summary.simulated_s, summary.wall_s, summary.speed_ratio)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

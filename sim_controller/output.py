@@ -1,0 +1,165 @@
+"""Outputs of a simulation: a python-can log file (``record``) or a live bus (``run``), plus truth.
+
+``record`` writes as fast as possible with python-can's writer for the file suffix (``.blf``,
+``.log`` candump, ``.asc``, …; block writers in ``log_writers``); timestamps are controller time. ``run`` paces the
+frames to wall time (``speedup`` × real time, ``None`` = as fast as the link takes them) and sends
+them on a bus opened with ``protocol.links.open_bus``; timestamps are wall time.
+
+Ground truth (``truth_path``, JSONL): one record per joint per cycle, written as cycles complete,
+then a last line ``{"faults": {...}, "frames_sent": N}``. The per-joint parameters actually used go
+to a sidecar ``<truth stem>.params.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, Callable
+
+import can
+
+from protocol.links import open_bus
+
+from sim_controller.config import SimConfig
+from sim_controller.controller import Controller
+from sim_controller.log_writers import block_messages, open_block_writer
+
+log = logging.getLogger(__name__)
+
+#: Seconds of wall time between progress log lines.
+STATUS_INTERVAL_S = 10.0
+
+
+@dataclass
+class RunSummary:
+    """What a run produced."""
+
+    frames_sent: int
+    send_errors: int
+    cycles: int
+    simulated_s: float
+    wall_s: float
+    faults: dict[str, int]
+
+    @property
+    def speed_ratio(self) -> float:
+        return self.simulated_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"frames_sent": self.frames_sent, "send_errors": self.send_errors, "cycles": self.cycles,
+                "simulated_s": self.simulated_s, "wall_s": self.wall_s, "speed_ratio": self.speed_ratio,
+                "faults": self.faults}
+
+
+def sidecar_path(truth_path: str | Path) -> Path:
+    """``truth.jsonl`` → ``truth.params.json``."""
+    p = Path(truth_path)
+    return p.with_name(p.stem + ".params.json")
+
+
+class _TruthWriter:
+    def __init__(self, controller: Controller, path: str | Path | None) -> None:
+        self.controller = controller
+        self.file: IO[str] | None = None
+        if path is not None:
+            self.file = open(path, "w", encoding="utf-8")
+            sidecar_path(path).write_text(json.dumps(controller.parameters(), indent=1) + "\n")
+
+    def drain(self) -> None:
+        records = self.controller.drain_truth()
+        if self.file is not None and records:
+            self.file.write("".join(json.dumps(r) + "\n" for r in records))
+
+    def close(self, frames_sent: int) -> None:
+        self.drain()
+        if self.file is not None:
+            summary = self.controller.summary()
+            summary["frames_sent"] = frames_sent
+            self.file.write(json.dumps(summary) + "\n")
+            self.file.close()
+
+
+class _Progress:
+    def __init__(self, controller: Controller, what: str) -> None:
+        self.controller, self.what = controller, what
+        self.start = self.last = time.monotonic()
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        if now - self.last >= STATUS_INTERVAL_S:
+            self.last = now
+            c = self.controller
+            log.info("%s: cycle %d/%d, %.0f s simulated in %.0f s (%.1f× real time), %d frames",
+                     self.what, c.cycles_done, c.config.cycles, c.simulated_seconds, now - self.start,
+                     c.simulated_seconds / max(now - self.start, 1e-9), c.frames_emitted)
+
+
+def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = None) -> RunSummary:
+    """Simulate ``config`` and write all frames to the log ``path`` (format from the suffix)."""
+    controller = Controller(config)
+    writer = open_block_writer(path)
+    truth = _TruthWriter(controller, truth_path)
+    progress = _Progress(controller, f"record {path}")
+    start = time.perf_counter()
+    sent = 0
+    try:
+        for block in controller.frames():
+            writer.write_block(block)
+            sent += len(block)
+            truth.drain()
+            progress.tick()
+    finally:
+        writer.stop()
+        truth.close(sent)
+    wall = time.perf_counter() - start
+    return RunSummary(sent, 0, controller.cycles_done, controller.simulated_seconds, wall,
+                      dict(controller.injector.counts))
+
+
+def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, truth_path: str | Path | None = None,
+        bus_kwargs: dict[str, Any] | None = None, stop: Callable[[], bool] | None = None) -> RunSummary:
+    """Stream the simulation onto a bus, paced at ``speedup`` × real time (``None``: unpaced).
+
+    ``link`` is a link string (``slcan:…``, ``socketcan:…``, ``virtual:…``) or ``None`` for
+    python-can's configuration; ``bus_kwargs`` go to ``open_bus``. ``stop()`` returning True ends
+    the run early (checked per frame block).
+    """
+    bus = open_bus(link, **(bus_kwargs or {}))
+    controller = Controller(config)
+    truth = _TruthWriter(controller, truth_path)
+    progress = _Progress(controller, f"run {link}")
+    start = time.perf_counter()
+    wall0 = time.time()
+    t0: float | None = None
+    sent = errors = 0
+    try:
+        for block in controller.frames():
+            if t0 is None:
+                t0 = float(block.timestamps[0])
+            for message, t in zip(block_messages(block), block.timestamps.tolist()):
+                if speedup is not None:
+                    due = start + (t - t0) / speedup
+                    delay = due - time.perf_counter()
+                    if delay > 0:
+                        time.sleep(delay)
+                message.timestamp = wall0 + (time.perf_counter() - start)
+                try:
+                    bus.send(message, timeout=1.0)
+                    sent += 1
+                except can.CanError as exc:
+                    errors += 1
+                    if errors == 1 or errors % 1000 == 0:
+                        log.warning("send failed on %s (%d so far): %s", link, errors, exc)
+            truth.drain()
+            progress.tick()
+            if stop is not None and stop():
+                break
+    finally:
+        truth.close(sent)
+        bus.shutdown()
+    wall = time.perf_counter() - start
+    return RunSummary(sent, errors, controller.cycles_done, controller.simulated_seconds, wall,
+                      dict(controller.injector.counts))
