@@ -79,6 +79,9 @@ class AgentConfig:
     rerun: str = "off"
     zenoh: Mapping[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        _validate(self)
+
     def friction_for(self, joint: int) -> FrictionParams:
         return self.joint_friction.get(joint, self.friction)
 
@@ -191,7 +194,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
         kwargs["zenoh"] = dict(data.pop("zenoh"))
     top = _section(_TopLevel, data, "config")
     kwargs.update({k: v for k, v in dataclasses.asdict(top).items() if k in data})
-    return _validate(AgentConfig(**kwargs))
+    return AgentConfig(**kwargs)
 
 
 @dataclass(frozen=True)
@@ -225,4 +228,4 @@ def load_config(path: str | Path | None) -> AgentConfig:
 def with_overrides(cfg: AgentConfig, **overrides: Any) -> AgentConfig:
     """Apply command-line overrides (``None`` means: keep the config value)."""
     changes = {k: v for k, v in overrides.items() if v is not None}
-    return _validate(dataclasses.replace(cfg, **changes)) if changes else cfg
+    return dataclasses.replace(cfg, **changes) if changes else cfg
