@@ -1,1 +1,31 @@
-"""Shared wire format: frame catalogue, scaling, E2E protection, DBC, links (docs/PROTOCOL.md)."""
+"""Shared wire format: frame catalogue, scaling, E2E protection, DBC, links (docs/PROTOCOL.md).
+
+Modules: ``crc`` (CRC-8H2F), ``frames`` (catalogue, encoders, decoders, block codecs),
+``e2e`` (receiver check state machine), ``dbc`` (packaged DBC via cantools), ``links``
+(python-can buses from link strings, log files, pty pair, vcan detection).
+"""
+
+from protocol.crc import crc8h2f, crc8h2f_block
+from protocol.e2e import E2EReceiver, E2EState, E2EStatus
+from protocol.frames import (
+    CATALOGUE,
+    ControllerStatus,
+    DecodedBlock,
+    DecodeError,
+    DecodeErrorKind,
+    FrameKind,
+    JointStatus,
+    Mode,
+    MotorState,
+    decode,
+    decode_block,
+    decode_message,
+    messages_to_arrays,
+    to_message,
+)
+
+__all__ = [
+    "CATALOGUE", "ControllerStatus", "DecodeError", "DecodeErrorKind", "DecodedBlock", "E2EReceiver",
+    "E2EState", "E2EStatus", "FrameKind", "JointStatus", "Mode", "MotorState", "crc8h2f", "crc8h2f_block",
+    "decode", "decode_block", "decode_message", "messages_to_arrays", "to_message",
+]

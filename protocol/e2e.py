@@ -16,6 +16,8 @@ accepted counter), ``d = (c - ref) mod M`` (M = 256 for MotorState ticks, 16 for
   max_delta) and not the reference, the receiver resynchronises on it (status ``OK`` /
   ``OK_SOME_LOST`` relative to the candidate, counted in ``resyncs``).  So a controller restart
   or a long outage costs one frame, while a single stale frame never drags the reference back.
+  (Two or more *consecutive* stale frames are indistinguishable from a restart by counters alone:
+  the receiver resyncs on them and the live stream then costs one frame to resync back.)
 * ``poll(now)``: an identifier whose last accepted frame is older than its timeout reports
   ``NO_NEW_DATA`` once per outage.
 
@@ -69,6 +71,8 @@ def usable(statuses: np.ndarray) -> np.ndarray:
     """Mask of frames whose data may be used (status OK or OK_SOME_LOST)."""
     return np.asarray(statuses) <= E2EStatus.OK_SOME_LOST
 
+
+_OK, _OK_SOME_LOST, _ERROR = int(E2EStatus.OK), int(E2EStatus.OK_SOME_LOST), int(E2EStatus.ERROR)
 
 STAT_KEYS = ("frames", "ok", "some_lost", "lost_frames", "repeated", "wrong_sequence", "resyncs",
              "crc_errors", "unknown_id", "no_new_data")
@@ -228,17 +232,53 @@ class E2EReceiver:
         self.stats["frames"] += n
         order = np.argsort(ids, kind="stable")
         sorted_ids = ids[order]
-        starts = np.concatenate(([0], np.flatnonzero(sorted_ids[1:] != sorted_ids[:-1]) + 1, [n]))
-        for begin, end in zip(starts[:-1].tolist(), starts[1:].tolist()):
+        starts = np.concatenate(([0], np.flatnonzero(sorted_ids[1:] != sorted_ids[:-1]) + 1))
+        sizes = np.diff(np.append(starts, n))
+        states = [self._state_for(i) for i in sorted_ids[starts].tolist()]
+        known = [st is not None for st in states]
+        reference = np.array([st.reference if st else -1 for st in states], dtype=np.int64)
+        modulus = np.array([st.modulus if st else 1 for st in states], dtype=np.int64)
+        max_delta = np.array([st.max_delta if st else 0 for st in states], dtype=np.int64)
+
+        # All groups at once: a group whose every frame follows its predecessor within max_delta
+        # (and passed decoding) is "clean" and classified here; the others go row by row.
+        sorted_counters = counters[order]
+        previous = np.empty(n, dtype=np.int64)
+        previous[1:] = sorted_counters[:-1]
+        previous[starts] = reference
+        group_of_row = np.repeat(np.arange(len(states)), sizes)
+        delta = (sorted_counters - previous) % modulus[group_of_row]
+        in_sequence = crc_ok[order] & (delta >= 1) & (delta <= max_delta[group_of_row])
+        clean = np.logical_and.reduceat(in_sequence, starts) & (reference >= 0)
+        sorted_status = np.where(delta == 1, _OK, _OK_SOME_LOST).astype(np.int8)
+        sorted_lost = (delta - 1).astype(np.int32)
+        clean_rows = clean[group_of_row]
+        n_clean = int(np.count_nonzero(clean_rows))
+        if n_clean:
+            some_lost = int(np.count_nonzero(clean_rows & (delta > 1)))
+            self.stats["ok"] += n_clean - some_lost
+            self.stats["some_lost"] += some_lost
+            self.stats["lost_frames"] += int(sorted_lost[clean_rows].sum())
+        last_rows = np.append(starts[1:], n) - 1
+        last_counter = sorted_counters[last_rows].tolist()
+        last_time = timestamps[order[last_rows]].tolist()
+        bounds = np.append(starts, n).tolist()
+        for g, st in enumerate(states):
+            if clean[g]:
+                self._accept(st, last_counter[g], last_time[g], runs=int(sizes[g]))
+                continue
+            begin, end = bounds[g], bounds[g + 1]
             rows = order[begin:end]
-            st = self._state_for(int(sorted_ids[begin]))
-            if st is None:
-                statuses[rows] = E2EStatus.ERROR
+            if not known[g]:
+                sorted_status[begin:end] = _ERROR
+                sorted_lost[begin:end] = 0
                 self.stats["unknown_id"] += end - begin
                 continue
             group_status, group_lost = self._check_group(st, counters[rows], crc_ok[rows], timestamps[rows])
-            statuses[rows] = group_status
-            lost[rows] = group_lost
+            sorted_status[begin:end] = group_status
+            sorted_lost[begin:end] = group_lost
+        statuses[order] = sorted_status
+        lost[order] = sorted_lost
         return statuses, lost
 
     def _check_group(

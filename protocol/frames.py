@@ -521,6 +521,11 @@ def _field(words: np.ndarray, start: int, length: int, signed: bool = False) -> 
     return raw
 
 
+_KIND_ERROR, _KIND_MOTOR, _KIND_CONTROLLER, _KIND_JOINT = (int(k) for k in FrameKind)
+_ERR_NONE, _ERR_UNKNOWN_ID, _ERR_WRONG_DLC, _ERR_CRC, _ERR_BAD_VALUE = (int(k) for k in DecodeErrorKind)
+_MAX_MODE = int(max(Mode))
+
+
 def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedBlock:
     """Decode n frames at once: ids int[n], data uint8[n, 8] (zero-padded), dlc int[n]."""
     ids = np.asarray(ids, dtype=np.int64).reshape(-1)
@@ -529,17 +534,17 @@ def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedB
     dlc = np.asarray(dlc).reshape(n)
     in_space = (ids >= 0) & (ids < _ID_SPACE)
     lookup = np.where(in_space, ids, 0)
-    kind = np.where(in_space, _KIND_BY_ID[lookup], np.int8(FrameKind.ERROR)).astype(np.int8)
+    kind = np.where(in_space, _KIND_BY_ID[lookup], _KIND_ERROR).astype(np.int8)
     crc = crc8h2f_block(data[:, 1:], init=_ID_REGISTER_BY_ID[lookup])
-    known = kind != FrameKind.ERROR
+    known = kind != _KIND_ERROR
     length_ok = dlc == FRAME_LENGTH
     crc_ok = known & length_ok & (crc == data[:, 0])
     words = data.view("<u8").reshape(n)
 
-    error = np.full(n, DecodeErrorKind.NONE, dtype=np.int8)
-    error[~crc_ok] = DecodeErrorKind.CRC
-    error[~length_ok] = DecodeErrorKind.WRONG_DLC
-    error[~known] = DecodeErrorKind.UNKNOWN_ID
+    error = np.full(n, _ERR_NONE, dtype=np.int8)
+    error[~crc_ok] = _ERR_CRC
+    error[~length_ok] = _ERR_WRONG_DLC
+    error[~known] = _ERR_UNKNOWN_ID
 
     joint = np.full(n, -1, dtype=np.int8)
     counter = np.full(n, -1, dtype=np.int16)
@@ -551,7 +556,7 @@ def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedB
     segment = np.full(n, -1, dtype=np.int16)
     status_tick = np.full(n, -1, dtype=np.int32)
 
-    motor = np.flatnonzero(crc_ok & (kind == FrameKind.MOTOR_STATE))
+    motor = np.flatnonzero(crc_ok & (kind == _KIND_MOTOR))
     if motor.size:
         w = words[motor]
         joint[motor] = _JOINT_BY_ID[ids[motor]]
@@ -559,20 +564,20 @@ def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedB
         torque[motor] = _field(w, 16, 16, True) * TORQUE_SCALE
         speed[motor] = _field(w, 32, 18, True) * SPEED_SCALE
         position[motor] = _field(w, 50, 14) * POSITION_SCALE
-    status = np.flatnonzero(crc_ok & (kind == FrameKind.CONTROLLER_STATUS))
+    status = np.flatnonzero(crc_ok & (kind == _KIND_CONTROLLER))
     if status.size:
         w = words[status]
         status_mode = _field(w, 12, 4)
-        bad = status[status_mode > max(Mode)]
-        error[bad] = DecodeErrorKind.BAD_VALUE
-        good = status_mode <= max(Mode)
+        bad = status[status_mode > _MAX_MODE]
+        error[bad] = _ERR_BAD_VALUE
+        good = status_mode <= _MAX_MODE
         status, w = status[good], w[good]
         counter[status] = _field(w, 8, 4)
         mode[status] = status_mode[good]
         cycle[status] = _field(w, 16, 16)
         segment[status] = _field(w, 32, 8)
         status_tick[status] = _field(w, 40, 24)
-    joint_status = np.flatnonzero(crc_ok & (kind == FrameKind.JOINT_STATUS))
+    joint_status = np.flatnonzero(crc_ok & (kind == _KIND_JOINT))
     if joint_status.size:
         w = words[joint_status]
         joint[joint_status] = _JOINT_BY_ID[ids[joint_status]]
@@ -580,7 +585,7 @@ def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedB
         load_estimate[joint_status] = _field(w, 16, 16, True) * TORQUE_SCALE
         load_std[joint_status] = _field(w, 32, 8) * LOAD_STD_SCALE
         motor_temperature[joint_status] = _field(w, 40, 16, True) * TEMPERATURE_SCALE
-    kind[error != DecodeErrorKind.NONE] = FrameKind.ERROR
+    kind[error != _ERR_NONE] = _KIND_ERROR
     return DecodedBlock(ids, kind, error, crc_ok, joint, counter, torque, speed, position, mode, cycle,
                         segment, status_tick, load_estimate, load_std, motor_temperature)
 
@@ -593,6 +598,9 @@ _get_id = attrgetter("arbitration_id")
 _get_data = attrgetter("data")
 _get_timestamp = attrgetter("timestamp")
 _get_flags = attrgetter("is_extended_id", "is_remote_frame", "is_error_frame")
+_is_extended = attrgetter("is_extended_id")
+_is_remote = attrgetter("is_remote_frame")
+_is_error = attrgetter("is_error_frame")
 
 
 def messages_to_arrays(
@@ -614,7 +622,7 @@ def messages_to_arrays(
     data = np.frombuffer(raw, dtype=np.uint8).reshape(n, FRAME_LENGTH).copy()
     ids = np.fromiter(map(_get_id, messages), dtype=np.int64, count=n)
     timestamps = np.fromiter(map(_get_timestamp, messages), dtype=np.float64, count=n)
-    flagged = [i for i, flags in enumerate(map(_get_flags, messages)) if any(flags)]
-    if flagged:
+    if any(map(_is_extended, messages)) or any(map(_is_remote, messages)) or any(map(_is_error, messages)):
+        flagged = [i for i, flags in enumerate(map(_get_flags, messages)) if any(flags)]
         ids[flagged] |= CAN_EFF_FLAG
     return ids, data, dlc, timestamps
