@@ -6,6 +6,7 @@ import sys
 import textwrap
 import time
 import uuid
+from pathlib import Path
 
 import can
 import numpy as np
@@ -91,6 +92,25 @@ def test_two_processes_exchange_protected_frames_over_slcan_pty():
         finally:
             receiver.shutdown()
         assert pty.dropped_bytes == 0
+
+
+def test_two_processes_exchange_protected_frames_over_slcan_tcp_hub():
+    hub_script = Path(__file__).resolve().parents[1] / "tools" / "slcan_hub.py"
+    hub = subprocess.Popen([sys.executable, str(hub_script), "--port", "0"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        banner = hub.stdout.readline().split()
+        assert banner[:1] == ["listening"], banner
+        link = f"slcan:socket://{banner[1]}"
+        receiver = open_bus(link)
+        try:
+            _receive_and_check(receiver, _start_sender(link))
+        finally:
+            receiver.shutdown()
+    finally:
+        hub.terminate()
+        hub.communicate(timeout=DEADLINE_S)
+    assert hub.returncode == 0
 
 
 @pytest.mark.skipif(not vcan_available("vcan0"),
