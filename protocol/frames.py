@@ -406,6 +406,48 @@ def encode_motor_state_block(
     return rows
 
 
+def _integer_block(name: str, values, n: int, limit: int | None = None) -> np.ndarray:
+    array = np.broadcast_to(np.asarray(values), (n,))
+    if array.size and (not np.issubdtype(array.dtype, np.integer) or array.min() < 0
+                       or (limit is not None and array.max() >= limit)):
+        bound = f"0 .. {limit - 1}" if limit is not None else ">= 0"
+        raise FrameValueError(f"{name}: must be integers {bound}")
+    return array.astype(np.int64)
+
+
+def _protect_block(words: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    rows = np.ascontiguousarray(words.astype("<u8")).view(np.uint8).reshape(-1, 8)
+    rows[:, 0] = crc8h2f_block(rows[:, 1:], init=_ID_REGISTER_BY_ID[ids])
+    return rows
+
+
+def encode_controller_status_block(counter, mode, cycle, segment, tick) -> np.ndarray:
+    """Protected ControllerStatus payloads for n frames -> uint8[n, 8] (same rules as the scalar
+    encoder: counter mod 16, cycle mod 2**16, tick mod 2**24; mode a Mode value, segment 0..255)."""
+    n = int(np.broadcast(np.asarray(counter), np.asarray(mode), np.asarray(cycle), np.asarray(segment),
+                         np.asarray(tick)).size)
+    mode = _integer_block("mode", mode, n, _MAX_MODE + 1)
+    words = ((_integer_block("counter", counter, n) & 0xF) << 8) | (mode << 12) \
+        | ((_integer_block("cycle", cycle, n) % CYCLE_MODULUS) << 16) \
+        | (_integer_block("segment", segment, n, 256) << 32) \
+        | ((_integer_block("tick", tick, n) % STATUS_TICK_MODULUS) << 40)
+    return _protect_block(words, np.full(n, CONTROLLER_STATUS_ID))
+
+
+def encode_joint_status_block(joint, counter, load_estimate, load_std, motor_temperature) -> np.ndarray:
+    """Protected JointStatus payloads for n frames -> uint8[n, 8] (saturating like the scalar encoder)."""
+    n = int(np.broadcast(np.asarray(joint), np.asarray(counter), np.asarray(load_estimate),
+                         np.asarray(load_std), np.asarray(motor_temperature)).size)
+    joints = _integer_block("joint", joint, n, MAX_JOINTS)
+    words = ((_integer_block("counter", counter, n) & 0xF) << 8) \
+        | ((np.broadcast_to(_quantise_block("load_estimate", load_estimate, TORQUE_SCALE, -(1 << 15), (1 << 15) - 1),
+                            (n,)) & 0xFFFF) << 16) \
+        | (np.broadcast_to(_quantise_block("load_std", load_std, LOAD_STD_SCALE, 0, 255), (n,)) << 32) \
+        | ((np.broadcast_to(_quantise_block("motor_temperature", motor_temperature, TEMPERATURE_SCALE,
+                                            -(1 << 15), (1 << 15) - 1), (n,)) & 0xFFFF) << 40)
+    return _protect_block(words, JOINT_STATUS_BASE_ID + joints)
+
+
 # ----------------------------------------------------------------------------------------------
 # Scalar decoding (never raises)
 

@@ -282,3 +282,32 @@ def test_a_frame_of_one_joint_is_rejected_under_any_other_joint_id():
         for other in F.CATALOGUE.values():
             if other.kind == frame_type.kind and other.arbitration_id != arbitration_id:
                 assert F.decode(other.arbitration_id, payload).kind == F.DecodeErrorKind.CRC
+
+
+@settings(max_examples=60)
+@given(st.lists(st.tuples(st.integers(0, 2**20), st.sampled_from(list(F.Mode)), st.integers(0, 2**20),
+                          st.integers(0, 255), st.integers(0, 2**30)), min_size=1, max_size=20))
+def test_controller_status_block_encoder_equals_scalar(rows):
+    columns = [np.array([int(v) for v in c]) for c in zip(*rows)]
+    block = F.encode_controller_status_block(*columns)
+    assert [bytes(r) for r in block] == [F.encode_controller_status(*row) for row in rows]
+
+
+@settings(max_examples=60)
+@given(st.lists(st.tuples(st.integers(0, 7), st.integers(0, 2**20), finite_or_inf, finite_or_inf, finite_or_inf),
+                min_size=1, max_size=20))
+def test_joint_status_block_encoder_equals_scalar(rows):
+    columns = [np.array(c) for c in zip(*rows)]
+    block = F.encode_joint_status_block(*columns)
+    assert [bytes(r) for r in block] == [F.encode_joint_status(*row) for row in rows]
+
+
+def test_status_block_encoders_reject_bad_columns():
+    with pytest.raises(F.FrameValueError, match="mode"):
+        F.encode_controller_status_block([0], [7], [0], [0], [0])
+    with pytest.raises(F.FrameValueError, match="segment"):
+        F.encode_controller_status_block([0], [1], [0], [300], [0])
+    with pytest.raises(F.FrameValueError, match="load_std"):
+        F.encode_joint_status_block([0], [0], [0.0], [np.nan], [20.0])
+    with pytest.raises(F.FrameValueError, match="joint"):
+        F.encode_joint_status_block([8], [0], [0.0], [0.0], [20.0])
