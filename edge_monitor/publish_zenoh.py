@@ -19,7 +19,6 @@ import json
 import logging
 import math
 import threading
-import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 

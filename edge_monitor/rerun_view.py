@@ -85,7 +85,10 @@ def _number(value: Any) -> float:
 
 
 class RerunSink:
-    """Draws symptom, alarm and health records into one Rerun recording (or nowhere, for ``off``)."""
+    """Draws symptom, alarm and health records into one Rerun recording (or nowhere, for ``off``).
+
+    Not thread-safe: call it from one thread (the agent's output thread, the view's draw loop).
+    """
 
     def __init__(self, rec: Any, spec: str, cycle_span: int = 1000) -> None:
         self.rec = rec
@@ -172,10 +175,14 @@ class RerunSink:
                 groups[(str(record["robot"]), int(record["joint"]))].append(record)
             except (KeyError, TypeError, ValueError) as exc:
                 self._fail("symptom", ValueError(f"record without robot/joint: {exc}"))
+        new_joints = [(robot, joint) for robot, joint in groups if joint not in self._layout[robot]]
+        if new_joints:   # one blueprint for every joint that appears in this block
+            for robot, joint in new_joints:
+                self._layout[robot].add(joint)
+            self._send_blueprint()
         for (robot, joint), block in groups.items():
             try:
                 block.sort(key=lambda r: int(r["cycle"]))
-                self._ensure_layout(robot, joint)
                 self._draw_block(robot, joint, block)
                 self.records_logged += len(block)
             except Exception as exc:  # drawing must never take the agent down

@@ -108,6 +108,9 @@ def test_batch_path_writes_the_same_rows_as_record_by_record(tmp_path):
             expected[f"/robot/{robot}/joint/{j}/density/nominal"] = 1
             expected[f"/robot/{robot}/joint/{j}/density/cycle"] = 1
     assert counts == expected
+    from rerun.chunk import RrdReader
+
+    assert len(RrdReader(str(path)).blueprints()) == 1   # one layout for all six joints of the block
 
 
 def test_values_and_colours_read_back(tmp_path):
