@@ -169,6 +169,9 @@ def _id_register(data_id: int) -> int:
     return crc8h2f(bytes((data_id & 0xFF, data_id >> 8))) ^ FINAL_XOR
 
 
+_KIND_ERROR, _KIND_MOTOR, _KIND_CONTROLLER, _KIND_JOINT = (int(k) for k in FrameKind)
+_ERR_NONE, _ERR_UNKNOWN_ID, _ERR_WRONG_DLC, _ERR_CRC, _ERR_BAD_VALUE = (int(k) for k in DecodeErrorKind)
+_MAX_MODE = int(max(Mode))
 # Lookup tables over the 11-bit ID space, used by the block decoder.
 _ID_SPACE = 1 << 11
 _KIND_BY_ID = np.zeros(_ID_SPACE, dtype=np.int8)
@@ -561,11 +564,6 @@ def _field(words: np.ndarray, start: int, length: int, signed: bool = False) -> 
         half = 1 << (length - 1)
         raw = (raw ^ half) - half
     return raw
-
-
-_KIND_ERROR, _KIND_MOTOR, _KIND_CONTROLLER, _KIND_JOINT = (int(k) for k in FrameKind)
-_ERR_NONE, _ERR_UNKNOWN_ID, _ERR_WRONG_DLC, _ERR_CRC, _ERR_BAD_VALUE = (int(k) for k in DecodeErrorKind)
-_MAX_MODE = int(max(Mode))
 
 
 def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedBlock:

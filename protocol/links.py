@@ -127,7 +127,7 @@ def _open_configured(
     try:
         config = can.util.load_config(config={k: v for k, v in options.items()
                                               if k in ("interface", "channel", "bitrate")},
-                                      context=options.pop("config_context", None))
+                                      context=options.get("config_context"))
     except Exception as error:  # noqa: BLE001
         raise LinkError(f"{described}: python-can configuration invalid ({_reason(error)})") from error
     if config.get("interface") == "slcan":

@@ -57,7 +57,7 @@ def _ours_as_dict(frame) -> dict:
     return {k: int(v) if isinstance(v, F.Mode) else v for k, v in fields.items()}
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(cantools_frames())
 def test_cantools_encode_then_protocol_decode(drawn):
     message, values = drawn
@@ -87,7 +87,7 @@ def protocol_frames(draw):
     return frame
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(protocol_frames())
 def test_protocol_encode_then_cantools_decode(frame):
     arbitration_id, data = F.encode(frame)

@@ -171,7 +171,7 @@ def frame_sequences(draw):
     return ids, counters, crc_ok, timestamps
 
 
-@settings(max_examples=120)
+@settings(max_examples=120, deadline=None)
 @given(frame_sequences(), st.integers(1, 4))
 def test_check_block_equals_check_row_by_row(sequence, n_blocks):
     ids, counters, crc_ok, timestamps = sequence

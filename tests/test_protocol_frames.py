@@ -66,6 +66,7 @@ def test_to_message_is_classical_11_bit():
 # --------------------------------------------------------------------------- scalar round trips
 
 
+@settings(deadline=None)  # no wall-clock limits: the machine is shared
 @given(st.integers(0, 7), st.integers(0, 2**40), st.floats(-1.6384, 1.6383), st.floats(-655.36, 655.35),
        st.floats(0, 2 * math.pi * 16383 / 16384))
 def test_motor_state_round_trip_within_half_lsb(joint, tick, torque, speed, position):
@@ -79,6 +80,7 @@ def test_motor_state_round_trip_within_half_lsb(joint, tick, torque, speed, posi
     assert abs(diff) <= F.POSITION_SCALE / 2 + 1e-12
 
 
+@settings(deadline=None)  # no wall-clock limits: the machine is shared
 @given(st.integers(0, 2**20), st.sampled_from(list(F.Mode)), st.integers(0, 2**20), st.integers(0, 255),
        st.integers(0, 2**30))
 def test_controller_status_round_trip(counter, mode, cycle, segment, tick):
@@ -86,6 +88,7 @@ def test_controller_status_round_trip(counter, mode, cycle, segment, tick):
     assert frame == F.ControllerStatus(counter % 16, mode, cycle % 65536, segment, tick % 2**24)
 
 
+@settings(deadline=None)  # no wall-clock limits: the machine is shared
 @given(st.integers(0, 7), st.integers(0, 100), st.floats(-1.6384, 1.6383), st.floats(0, 0.51),
        st.floats(-327.68, 327.67))
 def test_joint_status_round_trip(joint, counter, load, load_std, temperature):
@@ -144,7 +147,7 @@ def test_encode_of_records_matches_encoders():
 # --------------------------------------------------------------------------- block vs scalar
 
 
-@settings(max_examples=60)
+@settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 7), st.integers(0, 2**31), finite_or_inf, finite_or_inf, moderate),
                 min_size=1, max_size=30))
 def test_block_encoder_equals_scalar_encoder(rows):
@@ -182,7 +185,7 @@ frame_rows = st.one_of(
 )
 
 
-@settings(max_examples=150)
+@settings(max_examples=150, deadline=None)
 @given(st.lists(frame_rows, min_size=1, max_size=40))
 def test_block_decoder_equals_scalar_decoder_on_arbitrary_rows(rows):
     ids = np.array([r[0] for r in rows])
@@ -197,7 +200,7 @@ def test_block_decoder_equals_scalar_decoder_on_arbitrary_rows(rows):
 # --------------------------------------------------------------------------- bad input never raises
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(st.one_of(st.integers(), st.none(), st.text(max_size=3), st.floats()),
        st.one_of(st.binary(max_size=70), st.lists(st.integers(-300, 300), max_size=10), st.none(), st.text(max_size=9)))
 def test_decode_never_raises(arbitration_id, data):
@@ -284,7 +287,7 @@ def test_a_frame_of_one_joint_is_rejected_under_any_other_joint_id():
                 assert F.decode(other.arbitration_id, payload).kind == F.DecodeErrorKind.CRC
 
 
-@settings(max_examples=60)
+@settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 2**20), st.sampled_from(list(F.Mode)), st.integers(0, 2**20),
                           st.integers(0, 255), st.integers(0, 2**30)), min_size=1, max_size=20))
 def test_controller_status_block_encoder_equals_scalar(rows):
@@ -293,7 +296,7 @@ def test_controller_status_block_encoder_equals_scalar(rows):
     assert [bytes(r) for r in block] == [F.encode_controller_status(*row) for row in rows]
 
 
-@settings(max_examples=60)
+@settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 7), st.integers(0, 2**20), finite_or_inf, finite_or_inf, finite_or_inf),
                 min_size=1, max_size=20))
 def test_joint_status_block_encoder_equals_scalar(rows):

@@ -163,6 +163,20 @@ def test_python_can_configuration_is_used_when_no_link(monkeypatch):
         other.shutdown()
 
 
+def test_canrc_file_and_config_context_are_used_when_no_link(tmp_path, monkeypatch):
+    for key in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / ".canrc").write_text(
+        "[default]\ninterface = virtual\nchannel = from-canrc\n\n[bench]\ninterface = virtual\nchannel = ctx\n")
+    for options, expected in (({}, "from-canrc"), ({"config_context": "bench"}, "ctx")):
+        bus = open_bus(None, **options)
+        try:
+            assert expected in bus.channel_info
+        finally:
+            bus.shutdown()
+
+
 @pytest.mark.parametrize(
     ("link", "reason"),
     [
