@@ -46,6 +46,7 @@ class _Counts:
         self.alarms = 0
         self.health = 0
         self.dropped = 0
+        self.malformed = 0
         self.joints: set[tuple[str, int]] = set()
 
 
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"edge-monitor view: {counts.symptoms} symptoms from {len(robots)} robot(s) "
           f"({', '.join(robots) or '-'}), {len(counts.joints)} joint(s), {counts.alarms} alarm records, "
           f"{counts.health} health records; missed {subscriber.misses}, undecodable {subscriber.decode_errors}, "
-          f"dropped {counts.dropped}, drawing errors {sink.errors}; sink {sink.spec}", flush=True)
+          f"dropped {counts.dropped}, malformed {counts.malformed}, drawing errors {sink.errors}; sink {sink.spec}", flush=True)
     return 0
 
 
@@ -114,7 +115,9 @@ def _draw_pending(inbox: queue.Queue, sink: RerunSink, counts: _Counts) -> None:
             received: ReceivedRecord = inbox.get_nowait()
         except queue.Empty:
             break
-        if received.kind == SYMPTOM:
+        if received.kind in (SYMPTOM, ALARM) and received.joint is None:
+            counts.malformed += 1           # e.g. edge/<robot>/agent/symptom: not a joint key
+        elif received.kind == SYMPTOM:
             symptoms.append({"robot": received.robot, "joint": received.joint, **received.record})
             counts.joints.add((received.robot, int(received.joint)))
         elif received.kind == ALARM:
