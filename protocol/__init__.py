@@ -20,6 +20,7 @@ from protocol.frames import (
     decode,
     decode_block,
     decode_message,
+    frame_crc,
     messages_to_arrays,
     to_message,
 )
@@ -27,5 +28,5 @@ from protocol.frames import (
 __all__ = [
     "CATALOGUE", "ControllerStatus", "DecodeError", "DecodeErrorKind", "DecodedBlock", "E2EReceiver",
     "E2EState", "E2EStatus", "FrameKind", "JointStatus", "Mode", "MotorState", "crc8h2f", "crc8h2f_block",
-    "decode", "decode_block", "decode_message", "messages_to_arrays", "to_message",
+    "decode", "decode_block", "decode_message", "frame_crc", "messages_to_arrays", "to_message",
 ]

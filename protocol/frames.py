@@ -287,6 +287,12 @@ def _check_counter(name: str, value: int) -> int:
     return int(value)
 
 
+def frame_crc(arbitration_id: int, data: bytes | bytearray) -> int:
+    """E2E CRC a frame of this catalogue ID must carry in byte 0: CRC-8H2F over the data ID
+    (low, high byte) and ``data[1:8]``.  Raises KeyError for IDs outside the catalogue."""
+    return crc8h2f(bytes(data[1:FRAME_LENGTH]), init=_ID_REGISTER[arbitration_id])
+
+
 def _protect(arbitration_id: int, word: int) -> bytes:
     """Put the CRC into byte 0 of the 64-bit word and return the 8 frame bytes."""
     payload = (word & ~0xFF).to_bytes(8, "little")

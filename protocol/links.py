@@ -166,6 +166,8 @@ class PtyPair:
     vice versa.  Each end behaves like one side of a null-modem cable, so two processes can talk
     slcan (``slcan:`` + ``.a`` / ``.b``) without SocketCAN.
 
+    Like a serial port, opening an end (pyserial flushes its input) discards bytes that arrived
+    before: open the receiving end before the peer starts sending.
     Use as a context manager; ``close()`` stops the bridge thread and closes all descriptors.
     Bytes written while the other end is not read are buffered up to ``max_buffer`` bytes per
     direction, then dropped and counted in ``dropped_bytes``.

@@ -56,6 +56,8 @@ def test_crc_is_over_data_id_then_payload_bytes_1_to_7():
     assert data[0] == crc8h2f(bytes([0x03, 0x11]) + data[1:])
     status = F.encode_controller_status(1, F.Mode.PRODUCTION, 2, F.SEGMENT_PRODUCTION, 3)
     assert status[0] == crc8h2f(bytes([0x80, 0x10]) + status[1:])
+    for arbitration_id, payload in representative_frames():
+        assert F.frame_crc(arbitration_id, payload) == payload[0]
 
 
 def test_to_message_is_classical_11_bit():
