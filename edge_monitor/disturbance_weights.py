@@ -81,40 +81,53 @@ def fit_index_weights(healthy: ArrayLike, faulty: ArrayLike) -> NDArray[np.float
     return w / peak
 
 
+def _shape(v: NDArray[np.float64], alpha: float, beta: float) -> NDArray[np.float64]:
+    with np.errstate(over="ignore"):
+        return np.tanh(alpha * v) / np.cosh(beta * v)
+
+
+def _projected_residual(log_ab: NDArray[np.float64], v: NDArray[np.float64], w: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+    """Residual ``c(α, β)·f(v; α, β) − w`` with the scale ``c`` eliminated by least squares."""
+    f = _shape(v, float(np.exp(log_ab[0])), float(np.exp(log_ab[1])))
+    ff = float(np.dot(f, f))
+    scale = float(np.dot(f, w)) / ff if ff > 0 else 0.0
+    return scale * f - w
+
+
 def fit_weight_function(speeds: ArrayLike, index_weights: ArrayLike,
-                        start: tuple[float, float] = (DEFAULT_ALPHA, DEFAULT_BETA),
-                        bounds: tuple[float, float] = (1e-5, 10.0)) -> tuple[float, float]:
+                        bounds: tuple[float, float] = (1e-4, 1.0), n_start: int = 40,
+                        n_polish: int = 4) -> tuple[float, float]:
     """Fit ``(α, β)`` of ``c·sech(β|v|)·tanh(α|v|)`` to per-index weights by bounded least squares.
 
     The index weights are made direction independent first (multiplied by ``sign(v)``: a wear
-    change of the odd friction torque is negative at negative speed) and scaled to max = 1; the
-    scale ``c`` is a free nuisance parameter, so only the shape is fitted. ``α, β`` are bounded to
-    ``bounds`` [s/rad]. Samples at |v| = 0 carry no information on the shape and are ignored.
+    change of the odd friction torque is negative at negative speed) and scaled to max |w| = 1. The
+    scale ``c`` is a nuisance parameter eliminated in closed form (variable projection), so only
+    the shape is fitted: ``scipy.optimize.least_squares`` over ``(log α, log β)`` within ``bounds``
+    [s/rad], started from the ``n_polish`` best points of an ``n_start × n_start`` log-spaced grid
+    (the cost has long curved valleys with local minima; one start is not enough). Samples at
+    ``v = 0`` carry no information on the shape and are ignored.
     """
-    v = np.asarray(speeds, dtype=float).reshape(-1)
-    w = np.asarray(index_weights, dtype=float).reshape(-1)
-    if v.shape != w.shape:
-        raise WeightFitError(f"fit_weight_function: {v.size} speeds vs {w.size} weights")
-    keep = np.isfinite(v) & np.isfinite(w) & (v != 0)
-    v, w = np.abs(v[keep]), (w * np.sign(np.asarray(speeds, dtype=float).reshape(-1)))[keep]
+    v_all = np.asarray(speeds, dtype=float).reshape(-1)
+    w_all = np.asarray(index_weights, dtype=float).reshape(-1)
+    if v_all.shape != w_all.shape:
+        raise WeightFitError(f"fit_weight_function: {v_all.size} speeds vs {w_all.size} weights")
+    keep = np.isfinite(v_all) & np.isfinite(w_all) & (v_all != 0)
+    v, w = np.abs(v_all[keep]), (w_all * np.sign(v_all))[keep]
     if v.size < 3:
         raise WeightFitError("fit_weight_function: need >= 3 samples at non-zero speed")
     peak = np.abs(w).max()
     if not peak > 0:
         raise WeightFitError("fit_weight_function: all weights are zero")
     w = w / peak
-
-    def residual(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        alpha, beta, scale = theta
-        with np.errstate(over="ignore"):
-            return scale * np.tanh(alpha * v) / np.cosh(beta * v) - w
-
-    lo, hi = bounds
+    lo, hi = np.log(bounds[0]), np.log(bounds[1])
+    grid = np.linspace(lo, hi, n_start)
+    costs = sorted((float(np.sum(_projected_residual(np.array([a, b]), v, w) ** 2)), a, b)
+                   for a in grid for b in grid)
     best = None
-    for a0 in (start[0], 1e-3, 1e-1):          # a few starts: the problem has flat directions
-        for b0 in (start[1], 1e-3, 1e-1):
-            x0 = np.clip([a0, b0, 1.0], [lo, lo, -np.inf], [hi, hi, np.inf])
-            fit = least_squares(residual, x0, bounds=([lo, lo, -np.inf], [hi, hi, np.inf]))
-            if best is None or fit.cost < best.cost:
-                best = fit
-    return float(best.x[0]), float(best.x[1])
+    for _, a0, b0 in costs[:n_polish]:
+        fit = least_squares(_projected_residual, np.array([a0, b0]), args=(v, w), bounds=([lo, lo], [hi, hi]),
+                            xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        if best is None or fit.cost < best.cost:
+            best = fit
+    return float(np.exp(best.x[0])), float(np.exp(best.x[1]))

@@ -16,7 +16,6 @@ straight from the §1 friction model, see its docstring.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from dataclasses import dataclass
@@ -92,32 +91,40 @@ def simulate_cycles(n_cycles: int, wear: float, temperature: tuple[float, float]
 
 # -- CSV input/output ---------------------------------------------------------------------------
 def write_cycles_csv(path: Path, torque: NDArray[np.float64], speed: NDArray[np.float64]) -> None:
-    with open(path, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["cycle", "sample", "speed", "torque"])
-        n_cycles, n_samples = torque.shape
-        for c in range(n_cycles):
-            writer.writerows(zip([c] * n_samples, range(n_samples), (f"{x:.4f}" for x in speed),
-                                 (f"{x:.6f}" for x in torque[c])))
+    """Write cycles as ``cycle,sample,speed,torque`` rows."""
+    n_cycles, n_samples = torque.shape
+    rows = np.column_stack([np.repeat(np.arange(n_cycles), n_samples), np.tile(np.arange(n_samples), n_cycles),
+                            np.tile(speed, n_cycles), torque.reshape(-1)])
+    np.savetxt(path, rows, fmt=["%d", "%d", "%.4f", "%.6f"], delimiter=",", header="cycle,sample,speed,torque",
+               comments="")
 
 
 def read_cycles_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Read ``cycle,sample,speed,torque`` rows into (torque [n_cycles, n_samples], speed [n_samples])."""
+    """Read ``cycle,sample,speed,torque`` rows (any column order, header required) into
+    (torque [n_cycles, n_samples], speed [n_samples]). Incomplete cycles are skipped with a note."""
     try:
-        data = np.genfromtxt(path, delimiter=",", names=True)
+        with open(path) as fh:
+            header = [name.strip() for name in fh.readline().split(",")]
+            missing = {"cycle", "sample", "speed", "torque"} - set(header)
+            if missing:
+                raise CycleDataError(f"{path}: missing column(s) {sorted(missing)}; "
+                                     "header must name cycle,sample,speed,torque")
+            data = np.loadtxt(fh, delimiter=",", ndmin=2)
     except OSError as exc:
         raise CycleDataError(f"{path}: cannot read ({exc})") from None
-    missing = {"cycle", "sample", "speed", "torque"} - set(data.dtype.names or ())
-    if missing:
-        raise CycleDataError(f"{path}: missing column(s) {sorted(missing)}; header must be cycle,sample,speed,torque")
-    cycles = np.unique(data["cycle"])
-    n_samples = int(data["sample"].max()) + 1
+    except ValueError as exc:
+        raise CycleDataError(f"{path}: not numeric CSV ({exc})") from None
+    col = {name: data[:, header.index(name)] for name in ("cycle", "sample", "speed", "torque")}
+    if data.shape[0] == 0:
+        raise CycleDataError(f"{path}: no rows")
+    cycles = np.unique(col["cycle"])
+    sample = col["sample"].astype(int)
+    n_samples = int(sample.max()) + 1
     torque = np.full((cycles.size, n_samples), np.nan)
-    row = np.searchsorted(cycles, data["cycle"])
-    torque[row, data["sample"].astype(int)] = data["torque"]
-    first = data["cycle"] == cycles[0]
+    torque[np.searchsorted(cycles, col["cycle"]), sample] = col["torque"]
+    first = col["cycle"] == cycles[0]
     speed = np.full(n_samples, np.nan)
-    speed[data["sample"][first].astype(int)] = data["speed"][first]
+    speed[sample[first]] = col["speed"][first]
     complete = np.all(np.isfinite(torque), axis=1)
     if not complete.all():
         print(f"{path}: skipping {int((~complete).sum())} incomplete cycle(s)", file=sys.stderr)
