@@ -184,21 +184,34 @@ class FaultInjector:
         return block.take(keep)
 
     def _stick(self, block: FrameBlock) -> FrameBlock:
-        data = block.data.copy()
         motor = (block.ids >= MOTOR_STATE_BASE_ID) & (block.ids < MOTOR_STATE_BASE_ID + 8)
-        draws = self.rng.random(len(block)) < self.spec.stuck
+        draws = (self.rng.random(len(block)) < self.spec.stuck) & motor
+        touched = set(self._stuck) | set(block.ids[draws].tolist())
+        if not touched:
+            return block
+        data = block.data.copy()
         altered = np.zeros(len(block), dtype=bool)
-        for i in range(len(block)):   # only frames that start or continue a stuck period reach here cheaply
-            fid = int(block.ids[i])
-            held = self._stuck.get(fid)
-            if held is not None and block.timestamps[i] < held[0]:
-                data[i, 2:] = held[1]
-                altered[i] = True
-            elif held is not None:
-                del self._stuck[fid]
-            if motor[i] and draws[i] and fid not in self._stuck:
+        for fid in sorted(touched):     # one pass per stuck period, vectorised within it
+            rows = np.flatnonzero(block.ids == fid)
+            ts, start_rows = block.timestamps[rows], rows[draws[rows]]
+            pos = 0                     # rows[pos:] not yet decided
+            while pos < rows.size:
+                held = self._stuck.get(fid)
+                if held is not None:
+                    end = pos + int(np.searchsorted(ts[pos:], held[0], side="left"))
+                    data[rows[pos:end], 2:] = held[1]
+                    altered[rows[pos:end]] = True
+                    if end == rows.size:
+                        break           # still stuck at the end of the block
+                    del self._stuck[fid]
+                    pos = end
+                nxt = start_rows[start_rows >= rows[pos]]
+                if nxt.size == 0:
+                    break
+                i = int(nxt[0])
                 self._stuck[fid] = (block.timestamps[i] + self.spec.stuck_time, data[i, 2:].copy())
                 self.counts["stuck_periods"] += 1
+                pos = int(np.searchsorted(rows, i)) + 1
         if altered.any():
             data[altered, 0] = self.crc_fn(block.ids[altered], data[altered])
         self.counts["stuck"] += int(altered.sum())
