@@ -86,10 +86,13 @@ def _shape(v: NDArray[np.float64], alpha: float, beta: float) -> NDArray[np.floa
         return np.tanh(alpha * v) / np.cosh(beta * v)
 
 
-def _projected_residual(log_ab: NDArray[np.float64], v: NDArray[np.float64], w: NDArray[np.float64]
-                        ) -> NDArray[np.float64]:
-    """Residual ``c(α, β)·f(v; α, β) − w`` with the scale ``c`` eliminated by least squares."""
+def _projected_residual(log_ab: NDArray[np.float64], v: NDArray[np.float64], w: NDArray[np.float64],
+                        root_count: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Residual ``√n·(c(α, β)·f(v; α, β) − w)`` with the scale ``c`` eliminated by least squares
+    (``n``: samples per distinct speed, ``w`` their mean weight)."""
     f = _shape(v, float(np.exp(log_ab[0])), float(np.exp(log_ab[1])))
+    if root_count is not None:
+        f, w = f * root_count, w * root_count
     ff = float(np.dot(f, f))
     scale = float(np.dot(f, w)) / ff if ff > 0 else 0.0
     return scale * f - w
@@ -120,13 +123,18 @@ def fit_weight_function(speeds: ArrayLike, index_weights: ArrayLike,
     if not peak > 0:
         raise WeightFitError("fit_weight_function: all weights are zero")
     w = w / peak
+    # samples at the same speed (plateaus) enter as their mean with weight √count: same minimiser
+    v, inverse, counts = np.unique(v, return_inverse=True, return_counts=True)
+    w = np.bincount(inverse, weights=w) / counts
+    root_count = np.sqrt(counts.astype(float))
     lo, hi = np.log(bounds[0]), np.log(bounds[1])
     grid = np.linspace(lo, hi, n_start)
-    costs = sorted((float(np.sum(_projected_residual(np.array([a, b]), v, w) ** 2)), a, b)
+    costs = sorted((float(np.sum(_projected_residual(np.array([a, b]), v, w, root_count) ** 2)), a, b)
                    for a in grid for b in grid)
     best = None
     for _, a0, b0 in costs[:n_polish]:
-        fit = least_squares(_projected_residual, np.array([a0, b0]), args=(v, w), bounds=([lo, lo], [hi, hi]),
+        fit = least_squares(_projected_residual, np.array([a0, b0]), args=(v, w, root_count),
+                            bounds=([lo, lo], [hi, hi]),
                             xtol=1e-15, ftol=1e-15, gtol=1e-15)
         if best is None or fit.cost < best.cost:
             best = fit
