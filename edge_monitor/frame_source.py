@@ -63,7 +63,9 @@ class BoundedQueueListener(can.Listener):
     def on_error(self, exc: Exception) -> None:
         self.bus_errors += 1
         self.last_error = repr(exc)
-        log.error("CAN receive error (counted): %r", exc)
+        if self.bus_errors in (1, 10, 100) or self.bus_errors % 10_000 == 0:
+            log.error("CAN receive error #%d (counted; logged at 1, 10, 100, every 10000): %r",
+                      self.bus_errors, exc)
 
     def stop(self) -> None:
         pass

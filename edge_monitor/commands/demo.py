@@ -24,7 +24,7 @@ from typing import Any
 
 from edge_monitor.agent import Agent
 from edge_monitor.commands.common import LastSymptomSink, summary_table
-from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig
+from edge_monitor.config import AgentConfig, ConfigError, DecisionConfig, KLConfig
 from edge_monitor.frame_source import LiveSource
 from edge_monitor.jsonl_sink import JsonlSink
 from edge_monitor.live import LiveRunner
@@ -76,11 +76,11 @@ def free_port() -> int:
 
 
 def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
-    wear_start = max(args.cycles // 2, args.nominal_cycles + 5)
+    wear_start = min(max(args.cycles // 2, args.nominal_cycles + 5), args.cycles - 1)
     return [sys.executable, "-m", "sim_controller.cli", "run", "--link", link,
             "--joints", str(args.joints), "--cycles", str(args.cycles), "--seed", str(args.seed),
             "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
-            "--speedup", str(args.speedup), "--time-acceleration", "120",
+            "--speedup", str(args.speedup), "--time-acceleration", "120", "--vary", "0",
             "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{args.cycles}:0:60",
             "--truth", str(truth)]
 
@@ -111,7 +111,11 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("symptoms.jsonl", "truth.jsonl", "state/agent_state.json"):
         (out / stale).unlink(missing_ok=True)
-    cfg = demo_config(out, args.nominal_cycles)
+    try:
+        cfg = demo_config(out, args.nominal_cycles)
+    except ConfigError as exc:
+        print(f"edge-monitor demo: {exc}", file=sys.stderr)
+        return 2
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     spec = rerun_spec(args.rerun, out)
@@ -138,17 +142,18 @@ def run(args: argparse.Namespace) -> int:
         stack.callback(bus.shutdown)
         runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
                             status_interval_s=cfg.status_interval_s)
-        agent_thread = threading.Thread(target=runner.run, kwargs={"idle_stop_s": 3.0}, name="agent", daemon=True)
+        agent_thread = threading.Thread(target=runner.run, name="agent", daemon=True)
         agent_thread.start()
         truth = out / "truth.jsonl"
         sim = subprocess.Popen(sim_command(sim_link, args, truth), stdin=subprocess.DEVNULL)
         try:
             sim_rc = sim.wait()
+            _wait_until_drained(agent, runner)
         except KeyboardInterrupt:
             sim.terminate()
             sim_rc = sim.wait()
-            runner.stop_event.set()
-        agent_thread.join(timeout=60)
+        runner.stop_event.set()
+        agent_thread.join(timeout=30)
         agent.finish(close_open_cycle=True)
         frames = agent.run_statistics()
         published = _published(agent)
@@ -173,6 +178,19 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_summary).write_text(json.dumps(summary, indent=2))
     return 0 if sim_rc == 0 else 1
+
+
+def _wait_until_drained(agent: Agent, runner: LiveRunner, quiet_s: float = 2.0, limit_s: float = 60.0) -> None:
+    """After the simulator exits: wait until no frame has arrived for ``quiet_s`` and the queue is empty."""
+    deadline = time.monotonic() + limit_s
+    last, last_change = -1, time.monotonic()
+    while time.monotonic() < deadline:
+        frames = agent.ingest.c.frames_total + runner.source.listener.received
+        if frames != last:
+            last, last_change = frames, time.monotonic()
+        elif time.monotonic() - last_change >= quiet_s and runner.source.queue_depth() == 0:
+            return
+        time.sleep(0.2)
 
 
 def _store(cfg: AgentConfig):
