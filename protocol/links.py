@@ -108,6 +108,9 @@ def open_bus(
     else:
         options["receive_own_messages"] = receive_own_messages
     try:
+        if scheme == "slcan":   # chunked reads: python-can's byte-wise reader starves next to numeric threads
+            from protocol.slcan_fast import FastSlcanBus
+            return FastSlcanBus(target, **options)
         return can.Bus(interface=scheme, channel=target, ignore_config=True, **options)
     except Exception as error:  # noqa: BLE001 - every interface raises its own types
         raise LinkError(f"{link}: {_reason(error)}") from error
