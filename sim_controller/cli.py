@@ -66,6 +66,8 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     g.add_argument("--start-temperature", type=_number("start_temperature"), help="initial lubricant temperature, °C")
     g.add_argument("--time-acceleration", type=_number("time_acceleration"),
                    help="thermal time runs this many times faster than controller time (default 1)")
+    g.add_argument("--heating", type=_number("heating"),
+                   help="thermal model: steady-state rise per unit mean friction power |τf·v|, °C (default 4)")
     g.add_argument("--load-range", type=_typed(lambda t: parse_range(t, "load_range"), "load_range"),
                    metavar="LOW:HIGH", help="per-cycle |load torque| range (default 0.3:0.7)")
     g.add_argument("--load-std", type=_number("load_std"), help="σl of the controller's load estimate (default 0.1)")
@@ -78,6 +80,8 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     g.add_argument("--faults", type=_typed(FaultSpec.parse, "faults"), metavar="SPEC",
                    help="e.g. drop=0.001,corrupt=0.001,duplicate=0.0005,reorder=0.0005,delay=0.001,"
                         "silence=1e-5,restart=0.01,stuck=1e-5")
+    g.add_argument("--start-time", type=_number("start_time"), metavar="S",
+                   help="record: timestamp of tick 0 in s (default 0; e.g. a Unix time)")
     g.add_argument("--truth", metavar="PATH.jsonl", help="write ground truth (one record per joint per cycle, then a fault summary)")
     g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
     g.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
@@ -88,7 +92,8 @@ _FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "see
                     "start_temperature": "start_temperature", "time_acceleration": "time_acceleration",
                     "load_range": "load_range", "load_std": "load_std",
                     "friction_model_error": "friction_model_error", "torque_noise": "torque_noise",
-                    "speed_noise": "speed_noise", "vary": "variation", "faults": "faults"}
+                    "speed_noise": "speed_noise", "vary": "variation", "faults": "faults",
+                    "heating": "heating", "start_time": "start_time"}
 
 
 def build_config(args: argparse.Namespace) -> SimConfig:
