@@ -28,6 +28,10 @@ KERNEL_TRUNCATION = 5.0
 DEFAULT_RELATIVE_FLOOR = 1e-6
 
 
+#: Relative spread below which data count as constant (a few hundred ulps of the mean).
+ROUNDOFF_SPREAD = 1e-13
+
+
 class KDEDataError(ValueError):
     """The window cannot give a density (too few samples, zero variance, no finite samples)."""
 
@@ -66,7 +70,8 @@ def gaussian_kernel(h: float, dx: float, max_half_width: int) -> NDArray[np.floa
     the binned mass even when ``h`` is small compared to ``dx``."""
     half = int(min(max(math.ceil(KERNEL_TRUNCATION * h / dx), 1), max_half_width))
     offsets = np.arange(-half, half + 1) * dx
-    kernel = np.exp(-0.5 * (offsets / h) ** 2)
+    with np.errstate(under="ignore"):          # far tails underflow to 0: harmless
+        kernel = np.exp(-0.5 * (offsets / h) ** 2)
     return kernel / kernel.sum()
 
 
@@ -195,11 +200,13 @@ class StreamingKDE:
     @property
     def std(self) -> float:
         """Weighted standard deviation of all finite samples (reliability weights; ddof = 1 for unit
-        weights). 0.0 with fewer than 2 samples."""
+        weights). 0.0 with fewer than 2 samples, and for constant data: a spread below the
+        round-off of the running mean (``ROUNDOFF_SPREAD·|mean|``) counts as zero."""
         denom = self.sum_w - self.sum_w2 / self.sum_w if self.sum_w > 0 else 0.0
         if self.n_samples < 2 or denom <= 0:
             return 0.0
-        return math.sqrt(max(self.m2, 0.0) / denom)
+        std = math.sqrt(max(self.m2, 0.0) / denom)
+        return std if std > ROUNDOFF_SPREAD * abs(self.mean) else 0.0
 
     @property
     def bandwidth(self) -> float:
