@@ -230,11 +230,6 @@ def merge_wear(base: Sequence[WearProfile], extra: Sequence[WearProfile], joints
     return tuple(out)
 
 
-def default_field_values() -> dict[str, Any]:
-    """Default values of the scalar fields (for docs and the scenario validator)."""
-    return {f: getattr(SimConfig(), f) for f in SimConfig.__dataclass_fields__}
-
-
 __all__ = [
     "DEFAULT_SPEEDS", "MAX_JOINTS", "JointOverride", "SimConfig", "SimConfigError",
     "load_speeds_file", "merge_wear", "parse_float", "parse_range", "parse_speeds", "wear_profiles_from_ramps",

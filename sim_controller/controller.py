@@ -258,7 +258,9 @@ class Controller:
         torque = resp.torque + noise.normal(0.0, c.torque_noise, size=resp.torque.shape)
         speed = resp.speed + noise.normal(0.0, c.speed_noise, size=resp.speed.shape)
         motor_angle = np.array([s.test_angle * s.gear_ratio for s in setups])[:, None] + ref.angle - resp.angle_error
-        load_estimate = gravity_ff
+        # JointStatus carries the controller's estimate μl of the load torque at the test angle, constant
+        # over the cycle (the production path's cos(Δq) gravity model stays inside the controller)
+        load_estimate = np.broadcast_to(cond.load_estimate[:, None], gravity_ff.shape)
         power = np.mean(np.abs(resp.friction * resp.speed), axis=1)
         return {"torque": torque, "speed": speed, "position": np.mod(motor_angle, 2.0 * math.pi),
                 "load_estimate": load_estimate, "power": power}
