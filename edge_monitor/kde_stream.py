@@ -141,54 +141,70 @@ class StreamingKDE:
     def add(self, samples: ArrayLike, weights: ArrayLike | None = None) -> None:
         """Bin a block of samples. Non-finite samples (or weights) are counted in ``n_nonfinite``
         and skipped; samples outside ``[lo, hi]`` count in ``n_below``/``n_above`` and in the total
-        mass (so the density integrates to the in-grid fraction) but are not binned."""
+        mass (so the density integrates to the in-grid fraction) but are not binned. Samples with
+        weight 0 are ignored."""
         y = np.asarray(samples, dtype=float).reshape(-1)
-        if weights is None:
-            w = np.ones_like(y)
-        else:
+        w: NDArray[np.float64] | None = None         # None: unit weights (fast path)
+        if weights is not None:
             w = np.asarray(weights, dtype=float).reshape(-1)
             if w.shape != y.shape:
                 raise ValueError(f"StreamingKDE.add: weights shape {w.shape} != samples shape {y.shape}")
             if np.any(w < 0):
                 raise ValueError("StreamingKDE.add: weights must be >= 0")
-        finite = np.isfinite(y) & np.isfinite(w)
-        self.n_nonfinite += int(y.size - np.count_nonzero(finite))
+        finite = np.isfinite(y) if w is None else np.isfinite(y) & np.isfinite(w)
         if not finite.all():
-            y, w = y[finite], w[finite]
-        positive = w > 0
-        if not positive.all():
-            y, w = y[positive], w[positive]
+            self.n_nonfinite += int(y.size - np.count_nonzero(finite))
+            y = y[finite]
+            w = None if w is None else w[finite]
+        if w is not None and not (w > 0).all():
+            y, w = y[w > 0], w[w > 0]
         if y.size == 0:
             return
         self._update_moments(y, w)
-        below, above = y < self.lo, y > self.hi
-        self.n_below += int(np.count_nonzero(below))
-        self.n_above += int(np.count_nonzero(above))
-        inside = ~(below | above)
-        if not inside.all():
-            self.mass_outside += float(w[~inside].sum())
-            y, w = y[inside], w[inside]
+        if y.min() < self.lo or y.max() > self.hi:
+            below, above = y < self.lo, y > self.hi
+            self.n_below += int(np.count_nonzero(below))
+            self.n_above += int(np.count_nonzero(above))
+            inside = ~(below | above)
+            self.mass_outside += float(np.count_nonzero(~inside) if w is None else w[~inside].sum())
+            y = y[inside]
+            w = None if w is None else w[inside]
         self._bin(y, w)
 
-    def _bin(self, y: NDArray[np.float64], w: NDArray[np.float64]) -> None:
-        t = np.clip((y - self.lo) / self.dx, 0.0, self.n_grid - 1)   # clip: round-off at y == hi
-        idx = np.minimum(t.astype(np.int64), self.n_grid - 1)          # t >= 0, so int() == floor
+    def _bin(self, y: NDArray[np.float64], w: NDArray[np.float64] | None) -> None:
+        """Linear binning of in-grid samples: a sample at ``t = (y − lo)/dx`` gives ``1 − frac`` of
+        its mass to point ``floor(t)`` and ``frac`` to the next point."""
+        t = (y - self.lo) * (1.0 / self.dx)
+        idx = t.astype(np.int64)                     # t >= 0, so truncation == floor
         frac = t - idx
-        counts = np.bincount(idx, weights=w * (1.0 - frac), minlength=self.n_grid + 1)
-        counts[1:] += np.bincount(idx, weights=w * frac, minlength=self.n_grid + 1)[:-1]
+        upper = frac if w is None else w * frac
+        total = np.bincount(idx, weights=w, minlength=self.n_grid + 1)
+        to_next = np.bincount(idx, weights=upper, minlength=self.n_grid + 1)
+        counts = total - to_next
+        counts[1:] += to_next[:-1]
+        counts[self.n_grid - 1] += counts[self.n_grid:].sum()   # round-off at y == hi lands past the end
         self.mass += counts[: self.n_grid]
 
-    def _update_moments(self, y: NDArray[np.float64], w: NDArray[np.float64]) -> None:
+    def _update_moments(self, y: NDArray[np.float64], w: NDArray[np.float64] | None) -> None:
         """Chan et al. parallel combination of (Σw, mean, M2) with the block's own moments."""
-        wb = float(w.sum())
-        mean_b = float(np.dot(w, y) / wb)
-        m2_b = float(np.dot(w, (y - mean_b) ** 2))
+        if w is None:
+            wb = float(y.size)
+            mean_b = float(y.mean())
+            d = y - mean_b
+            m2_b = float(np.dot(d, d))
+            w2_b = wb
+        else:
+            wb = float(w.sum())
+            mean_b = float(np.dot(w, y) / wb)
+            d = y - mean_b
+            m2_b = float(np.dot(w * d, d))
+            w2_b = float(np.dot(w, w))
         total = self.sum_w + wb
         delta = mean_b - self.mean
         self.mean += delta * wb / total
         self.m2 += m2_b + delta * delta * self.sum_w * wb / total
         self.sum_w = total
-        self.sum_w2 += float(np.dot(w, w))
+        self.sum_w2 += w2_b
         self.n_samples += int(y.size)
 
     # -- estimates ---------------------------------------------------------------------------
