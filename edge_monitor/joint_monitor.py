@@ -80,6 +80,7 @@ class JointMonitor:
         self.detectors = {q: self._new_detector(q) for q in config.decision.quantities} \
             if config.decision.enabled else {}
         self._load = _LoadAccumulator()
+        self._alarmed: dict[str, bool] = {}     # latched alarm per quantity (raised once, until maintenance)
         self._last_tick = 0
         self._cut_short_seen = 0
         self.cycles = 0
@@ -205,8 +206,9 @@ class JointMonitor:
                 value: Any = [values["wear"], values["kl_raw"], values["kl_weighted"]]
             else:
                 value = values[quantity]
-            was_alarmed = bool(getattr(detector, "alarm", False))
+            was_alarmed = self._alarmed.get(quantity, False)
             decision = detector.update(value, cycle)
+            self._alarmed[quantity] = bool(decision.alarm)
             record = decision.to_record()
             if getattr(decision, "reason", None):
                 record["reason"] = decision.reason
@@ -223,9 +225,10 @@ class JointMonitor:
     def declare_maintenance(self, robot: str, cycle: int) -> list[dict]:
         """Gearbox replaced or serviced: relearn nominal models; clear raised alarms."""
         cleared = [self._alarm_record(robot, cycle, q, {}, "cleared")
-                   for q, det in self.detectors.items() if getattr(det, "alarm", False)]
+                   for q in self.detectors if self._alarmed.get(q)]
         for det in self.detectors.values():
             det.reset()
+        self._alarmed.clear()
         if self.kl is not None:
             self.kl.reset()
         return cleared
@@ -233,7 +236,7 @@ class JointMonitor:
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
         return {
-            "joint": self.joint, "cycles": self.cycles,
+            "joint": self.joint, "cycles": self.cycles, "alarmed": dict(self._alarmed),
             "plateaus": self.plateaus.state_dict(), "extractor": self.extractor.state_dict(),
             "kl": self.kl.state_dict() if self.kl is not None else None,
             "detectors": {q: d.state_dict() for q, d in self.detectors.items()},
@@ -242,6 +245,7 @@ class JointMonitor:
     def load_state(self, state: dict[str, Any]) -> None:
         """Restore learned models and detector state (configuration comes from the current config)."""
         self.cycles = int(state.get("cycles", 0))
+        self._alarmed = {str(q): bool(v) for q, v in state.get("alarmed", {}).items()}
         self.plateaus = PlateauDetector.from_state(state.get("plateaus", {}), self.config.segmentation)
         self._cut_short_seen = self.plateaus.counters.cut_short
         if self.kl is not None and state.get("kl") is not None:

@@ -121,3 +121,12 @@ def test_config_errors_name_the_field():
     cfg = config_from_mapping({"robot": "r7", "segmentation": {"speeds": [5.0, 50.0]}})
     assert cfg.robot == "r7" and cfg.segmentation.speeds == (5.0, 50.0)
     assert dataclasses.replace(cfg).decision.pf == cfg.decision.pf
+
+
+def test_shipped_example_config_equals_embedded_defaults():
+    from pathlib import Path
+
+    import edge_monitor
+    from edge_monitor.config import load_config
+    example = Path(edge_monitor.__file__).parent / "defaults" / "agent.toml"
+    assert load_config(example) == AgentConfig()
