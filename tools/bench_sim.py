@@ -13,6 +13,7 @@ Usage: python tools/bench_sim.py [--cycles 4] [--repeat 3] [--out docs/benchmark
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -94,7 +95,8 @@ def _markdown(rows, config: SimConfig, sim_s: float, frames: int, args) -> str:
         "",
         f"{config.joints} joints at {config.rate:g} Hz, {args.cycles} test cycles = {sim_s:.1f} s simulated, "
         f"{frames:,} frames ({frames / sim_s:,.0f} frames per simulated second). Ratio = simulated s / wall s, "
-        f"best of {args.repeat} (one run for baselines), one process, shared 2-core machine. "
+        f"best of {args.repeat} (one run for baselines), one process, shared 2-core machine "
+        f"(load average {os.getloadavg()[0]:.1f} at the end of the run). "
         "Goal: `record` ≥ 50× real time. Run: `python tools/bench_sim.py`.",
         "",
         "| path | × real time | frames/s |",
