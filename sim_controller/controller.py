@@ -26,7 +26,7 @@ from typing import Any, Iterator
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.friction_model import FrictionParams, friction_magnitude
+from edge_monitor.friction_model import FrictionParams, friction_magnitude, nominal_friction, wear_friction
 from protocol import frames as pf
 from protocol.crc import crc8h2f, crc8h2f_block
 
@@ -246,12 +246,17 @@ class Controller:
         offsets = np.where(ref.level[None, :] >= 0, cond.model_error[:, np.maximum(ref.level, 0)], 0.0)
         setups = self.joints
 
-        def friction_fn(speed: NDArray[np.float64]) -> NDArray[np.float64]:
-            out = np.empty_like(speed)
+        def friction_fn(speed: NDArray[np.float64], mask: NDArray[np.bool_] | None,
+                        previous: NDArray[np.float64] | None) -> NDArray[np.float64]:
+            out = np.empty_like(speed) if previous is None else previous.copy()
             for j in range(n_j):
-                out[j] = friction_magnitude(speed[j], cond.load[j], cond.temperature[j], cond.wear[j],
-                                            setups[j].friction)
-            return np.sign(speed) * (out + offsets)
+                cols = slice(None) if mask is None else mask[j]
+                v = speed[j, cols]
+                magnitude = nominal_friction(v, cond.load[j], cond.temperature[j], setups[j].friction)
+                if cond.wear[j] > 0:
+                    magnitude = magnitude + wear_friction(v, cond.wear[j], setups[j].friction)
+                out[j, cols] = np.sign(v) * (magnitude + offsets[j, cols])
+            return out
 
         resp = simulate_block(self._loop, ref.speed, ref.acceleration, gravity, gravity_ff, friction_fn)
         noise = self._noise_rng
