@@ -93,8 +93,8 @@ def _projected_residual(log_ab: NDArray[np.float64], v: NDArray[np.float64], w: 
     f = _shape(v, float(np.exp(log_ab[0])), float(np.exp(log_ab[1])))
     if root_count is not None:
         f, w = f * root_count, w * root_count
-    ff = float(np.dot(f, f))
-    scale = float(np.dot(f, w)) / ff if ff > 0 else 0.0
+    ff = float((f * f).sum())             # elementwise, not BLAS dot (threads spin on busy hosts)
+    scale = float((f * w).sum()) / ff if ff > 0 else 0.0
     return scale * f - w
 
 

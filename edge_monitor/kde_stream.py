@@ -191,14 +191,14 @@ class StreamingKDE:
             wb = float(y.size)
             mean_b = float(y.mean())
             d = y - mean_b
-            m2_b = float(np.dot(d, d))
+            m2_b = float((d * d).sum())   # not np.dot: OpenBLAS threads spin on a busy machine
             w2_b = wb
         else:
             wb = float(w.sum())
-            mean_b = float(np.dot(w, y) / wb)
+            mean_b = float((w * y).sum() / wb)
             d = y - mean_b
-            m2_b = float(np.dot(w * d, d))
-            w2_b = float(np.dot(w, w))
+            m2_b = float((w * d * d).sum())
+            w2_b = float((w * w).sum())
         total = self.sum_w + wb
         delta = mean_b - self.mean
         self.mean += delta * wb / total
