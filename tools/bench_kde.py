@@ -17,15 +17,20 @@ Requires the benchmark-only peer KDEpy (``pip install KDEpy``). Writes docs/benc
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import sys
 import time
 from typing import Callable
 
-import numpy as np
-from scipy.stats import gaussian_kde
+# BLAS threads spin on an oversubscribed host and slow scipy's direct sums (and np.dot) by 100×;
+# single-threaded BLAS keeps the comparison about the algorithms. Must be set before numpy loads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from edge_monitor.kde_stream import StreamingKDE, choose_grid, symmetric_kl
+import numpy as np  # noqa: E402
+from scipy.stats import gaussian_kde  # noqa: E402
+
+from edge_monitor.kde_stream import StreamingKDE, choose_grid, symmetric_kl  # noqa: E402
 
 N_GRID = 512
 BLOCKS = 10
@@ -60,7 +65,8 @@ def run(out: str | None) -> str:
     lines = ["## KDE + KL per cycle window (issue 5)", "",
              f"Same data, {N_GRID}-point grid and bandwidth for all; time per window = density + symmetric KL "
              f"(ours also includes streaming binning in {BLOCKS} blocks). Best of repeats. "
-             f"Python {platform.python_version()}, numpy {np.__version__}.", "",
+             f"Python {platform.python_version()}, numpy {np.__version__}, "
+             f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, {os.cpu_count()} cores (shared).", "",
              "| samples per window | ours [ms] | KDEpy FFTKDE [ms] | scipy gaussian_kde [ms] | KDEpy / ours | scipy / ours |",
              "|---|---|---|---|---|---|"]
     for n in (10_000, 100_000):
