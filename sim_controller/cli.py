@@ -98,7 +98,9 @@ _FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "see
 
 def build_config(args: argparse.Namespace) -> SimConfig:
     """SimConfig from scenario file + command-line options (raises SimConfigError)."""
-    kwargs: dict[str, Any] = load_scenario(args.scenario) if args.scenario else {}
+    if args.joints is not None and not 1 <= args.joints <= 8:
+        raise SimConfigError(f"joints: must be an integer 1 … 8, got {args.joints}")
+    kwargs: dict[str, Any] = load_scenario(args.scenario, args.joints) if args.scenario else {}
     for option, name in _FIELD_OF_OPTION.items():
         value = getattr(args, option, None)
         if value is not None:

@@ -67,18 +67,21 @@ def _convert(name: str, value: Any, where: str) -> Any:
     return float(value)
 
 
-def load_scenario(path: str | Path) -> dict[str, Any]:
-    """Parse and validate a scenario file into ``SimConfig`` keyword arguments."""
+def load_scenario(path: str | Path, joints: int | None = None) -> dict[str, Any]:
+    """Parse and validate a scenario file into ``SimConfig`` keyword arguments.
+
+    ``joints`` (e.g. from the command line) overrides the file's joint count, so that
+    ``index = "all"`` covers every joint that will run."""
     try:
         doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise ScenarioError(f"scenario: cannot read {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"scenario: {path} is not valid TOML: {exc}") from None
-    return scenario_from_mapping(doc)
+    return scenario_from_mapping(doc, joints)
 
 
-def scenario_from_mapping(doc: dict[str, Any]) -> dict[str, Any]:
+def scenario_from_mapping(doc: dict[str, Any], joints: int | None = None) -> dict[str, Any]:
     unknown = sorted(set(doc) - {"simulation", "faults", "joint"})
     if unknown:
         raise ScenarioError(f"scenario: unknown table(s) {unknown}; use [simulation], [faults], [[joint]]")
@@ -102,7 +105,10 @@ def scenario_from_mapping(doc: dict[str, Any]) -> dict[str, Any]:
         kwargs["faults"] = FaultSpec(**{k: float(v) for k, v in faults.items()})
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"scenario.faults: {exc}") from None
-    joints = int(kwargs.get("joints", SimConfig().joints))
+    if joints is None:
+        joints = int(kwargs.get("joints", SimConfig().joints))
+    if not 1 <= joints <= 8:
+        raise ScenarioError(f"scenario.simulation.joints: must be 1 … 8, got {joints}")
     wear, overrides = _joints(doc.get("joint", []), joints)
     kwargs["wear"] = wear
     kwargs["joint_overrides"] = overrides

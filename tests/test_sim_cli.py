@@ -185,3 +185,13 @@ def test_help_lists_the_options(capsys):
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
     assert "--friction-model-error" in out and "--scenario" in out and "--truth" in out
+
+
+def test_scenario_all_joints_follows_the_command_line_joint_count(tmp_path):
+    scenario = tmp_path / "all.toml"
+    scenario.write_text('[simulation]\njoints = 2\n\n[[joint]]\nindex = "all"\nwear_initial = 12\n')
+    truth = tmp_path / "t.jsonl"
+    assert main(["record", "--out", str(tmp_path / "a.log"), "--scenario", str(scenario), "--joints", "3",
+                 "--truth", str(truth), "--cycles", "1", "--speeds", "20", "--plateau-time", "0.3"]) == 0
+    records, _ = read_truth(truth)
+    assert [(r["joint"], r["wear"]) for r in records] == [(0, 12.0), (1, 12.0), (2, 12.0)]
