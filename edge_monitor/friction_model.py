@@ -107,7 +107,7 @@ def nominal_friction(v: ArrayLike, load: ArrayLike, temperature: ArrayLike,
 
 def _wear_exponent(a: NDArray[np.float64], wear: NDArray[np.float64], p: FrictionParams) -> NDArray[np.float64]:
     """``u = (|v| / (ϖ·vsϖ))^α``; +inf where ϖ = 0 (the wear Stribeck term vanishes there)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         u = (a / (np.maximum(wear, 0.0) * p.vsw)) ** p.alpha
     return np.where(wear > 0, u, np.inf)
 
