@@ -35,16 +35,16 @@ log = logging.getLogger(__name__)
 #: Speeds of the demo's test cycle [rad/s]: `edge-monitor design --points 4 --json` at the default
 #: design point (ξ' = 40 °C, ϖ' = 35), rounded to 0.1 rad/s.
 DEMO_SPEEDS = (31.6, 36.6, 41.6, 46.6)
-DEMO_JOINTS = 3
+DEMO_JOINTS = 2
 WORN_JOINT = 1
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("demo", help="simulated controller + agent + Zenoh + Rerun in one command",
                               description=__doc__)
-    p.add_argument("--cycles", type=int, default=60, help="test cycles to simulate (default 60)")
+    p.add_argument("--cycles", type=int, default=100, help="test cycles to simulate (default 100)")
     p.add_argument("--joints", type=int, default=DEMO_JOINTS, help=f"joints (default {DEMO_JOINTS})")
-    p.add_argument("--speedup", type=float, default=6.0,
+    p.add_argument("--speedup", type=float, default=8.0,
                    help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--out", default="out/demo", help="directory for the recording, symptoms, truth and state")
@@ -52,8 +52,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="off | save:PATH | spawn (default: spawn with a display, else save:<out>/demo.rrd)")
     p.add_argument("--link", default="auto", help="auto | pty | vcan (auto: vcan0 if available, else pty)")
     p.add_argument("--json-summary", metavar="PATH", help="write the run summary as JSON here")
-    p.add_argument("--nominal-cycles", type=int, default=25,
-                   help="cycles the detectors learn from before monitoring (default 25)")
+    p.add_argument("--nominal-cycles", type=int, default=60,
+                   help="cycles the detectors learn from before monitoring (default 60, as the agent)")
     p.set_defaults(func=run)
 
 
@@ -63,8 +63,7 @@ def demo_config(out: Path, nominal_cycles: int) -> AgentConfig:
         robot="demo-robot",
         segmentation=PlateauConfig(speeds=DEMO_SPEEDS),
         kl=KLConfig(n_nominal_cycles=5),
-        # few nominal cycles: the smooth KDE density is better calibrated than the sparse GCE here
-        decision=DecisionConfig(n_nominal=nominal_cycles, density="kde", window=50),
+        decision=DecisionConfig(n_nominal=nominal_cycles),
         state_dir=str(out / "state"), jsonl=str(out / "symptoms.jsonl"),
         status_interval_s=5.0,
     )
@@ -77,7 +76,7 @@ def free_port() -> int:
 
 
 def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
-    wear_start = min(max(args.cycles // 2, args.nominal_cycles + 5), args.cycles - 1)
+    wear_start = min(args.nominal_cycles + 5, args.cycles - 1)
     return [sys.executable, "-m", "sim_controller.cli", "run", "--link", link,
             "--joints", str(args.joints), "--cycles", str(args.cycles), "--seed", str(args.seed),
             "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
