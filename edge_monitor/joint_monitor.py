@@ -94,7 +94,8 @@ class JointMonitor:
     def _new_detector(self, quantity: str) -> SequentialDetector:
         d = self.config.decision
         dim = 3 if quantity == "joint" else 1
-        return SequentialDetector(dim=dim, n_nominal=d.n_nominal, density=d.density, pf=d.pf, window=d.window,
+        density = d.density_joint if quantity == "joint" else d.density
+        return SequentialDetector(dim=dim, n_nominal=d.n_nominal, density=density, pf=d.pf, window=d.window,
                                   gamma0=d.gamma0, rho=d.rho)
 
     # ------------------------------------------------------------------ streaming input
