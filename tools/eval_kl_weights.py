@@ -79,7 +79,9 @@ def kl_values(monitor: KLMonitor, torque: np.ndarray, speed: np.ndarray) -> np.n
 def fitted_weights(source: Source, rng: np.random.Generator, n: int = 200) -> WeightFunction:
     healthy, speed = source(n, 0.0, (30.0, 70.0), rng)
     faulty, _ = source(n, 35.0, (30.0, 70.0), rng)
-    alpha, beta = fit_weight_function(speed[0], fit_index_weights(healthy, faulty))
+    size = min(healthy.shape[1], faulty.shape[1])     # simulator cycles differ by a few ticks
+    healthy, faulty, speed = healthy[:, :size], faulty[:, :size], speed[:, :size].mean(axis=0)
+    alpha, beta = fit_weight_function(speed, fit_index_weights(healthy, faulty))
     return WeightFunction(alpha, beta)
 
 
