@@ -165,7 +165,8 @@ class KLMonitor:
         return CHANNELS if self.weights is not None else CHANNELS[:1]
 
     def reset(self) -> None:
-        """Forget grid and nominal model (e.g. after a declared gearbox replacement); relearn."""
+        """Forget grid, nominal model and stored modes (they live on the old grid), e.g. after a
+        declared gearbox replacement; the next valid cycles relearn them."""
         self.channels = {name: _Channel(self.n_grid) for name in self.channel_names}
         self.n_learned = 0
         self.n_window = 0          # samples that entered the window this cycle (before NaN checks)
@@ -223,7 +224,7 @@ class KLMonitor:
                 for name, ch in self.channels.items()}
 
     def _unusable(self) -> str | None:
-        raw = self.channels["raw"].kde
+        """Why this cycle cannot give a KL value, or None if it can."""
         if self.n_window == 0:
             return "empty window: no samples" + (" in the production segment" if self.window == "production" else "")
         counts = [ch.kde.n_samples for ch in self.channels.values()]
@@ -234,7 +235,6 @@ class KLMonitor:
         for name, ch in self.channels.items():
             if not ch.kde.bandwidth > 0:
                 return "constant data" if name == "raw" else f"constant data ({name})"
-        del raw
         return None
 
     def _evaluate(self, cycle: int) -> KLResult:
