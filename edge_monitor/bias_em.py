@@ -27,11 +27,16 @@ class BiasEMError(ValueError):
 
 
 def em_bias(y: ArrayLike, density: GaussianMixture, tol: float = 1e-10,
-            max_iter: int = 500) -> NDArray[np.float64]:
+            max_iter: int = 500, accelerate: bool = True) -> NDArray[np.float64]:
     """Maximum-likelihood Δ of p0(y − Δ) for the observations ``y`` (n, d) by EM.
 
     Start ``Δ0 = ȳ − Σk πk μk``; E-step ζnk ∝ πk·N(yn − Δ; μk, S); M-step
     ``Δ = (1/N)·Σn Σk ζnk (yn − μk)``; stop when ‖Δ(i) − Δ(i−1)‖² ≤ ``tol`` or after ``max_iter``.
+
+    EM's rate is 1 − S·F(0) per iteration, slow for KDE-like mixtures (≈ 0.9). With
+    ``accelerate`` each iteration also tries the EM step scaled by (S·F(0))⁻¹ and keeps it only if
+    the log-likelihood does not drop below the plain EM step's, so the fixed point and monotone
+    ascent of EM are kept while the iteration count falls about tenfold.
     """
     obs = as_observations(y, density.dim, name="test data")
     if len(obs) == 0:
@@ -40,8 +45,16 @@ def em_bias(y: ArrayLike, density: GaussianMixture, tol: float = 1e-10,
     delta = y_mean - density.mean
     if density.n_components == 1:
         return delta
+    scale = step_matrix(density, "fisher") if accelerate else None
+    post, _ = density.posterior_mean_and_logpdf(obs - delta)
     for _ in range(max_iter):
-        new = y_mean - density.posterior_mean(obs - delta).mean(axis=0)
+        new = y_mean - post.mean(axis=0)
+        post, loglik = density.posterior_mean_and_logpdf(obs - new)
+        if scale is not None:
+            trial = delta + scale @ (new - delta)
+            trial_post, trial_loglik = density.posterior_mean_and_logpdf(obs - trial)
+            if trial_loglik.sum() >= loglik.sum():
+                new, post = trial, trial_post
         step = float(np.sum((new - delta) ** 2))
         delta = new
         if step <= tol:

@@ -85,7 +85,7 @@ class GaussianMixture:
         except linalg.LinAlgError as exc:
             raise DensityError("kernel covariance is not positive definite (constant or collinear "
                                "nominal data?)") from exc
-        self.weights = w / w.sum()
+        self.weights = w if abs(w.sum() - 1.0) <= 1e-12 else w / w.sum()
         self.means = mu
         self.cov = s
         self.kind = kind
@@ -134,6 +134,14 @@ class GaussianMixture:
     def posterior_mean(self, y: ArrayLike) -> NDArray[np.float64]:
         """Σk ζnk μk, (n, d)."""
         return self.responsibilities(y) @ self.means
+
+    def posterior_mean_and_logpdf(self, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(Σk ζnk μk (n, d), log p0(yn) (n,)) from one pass over the components."""
+        lc = self.component_logpdf(y)
+        top = lc.max(axis=1, keepdims=True)
+        z = np.exp(lc - top)
+        total = z.sum(axis=1, keepdims=True)
+        return (z / total) @ self.means, (top + np.log(total))[:, 0]
 
     def score(self, y: ArrayLike) -> NDArray[np.float64]:
         """∇y log p0(y) = −S⁻¹·(y − Σk ζk μk), (n, d), in 1/units."""
@@ -245,8 +253,8 @@ def fit_gce(y0: ArrayLike, prune_eps: float = GCE_PRUNE_EPS) -> GaussianMixture:
     """Botev–Kroese GCE sparse mixture (ALGORITHMS.md §5).
 
     Works in standardised coordinates (each column divided by σ̂i), so S(h) = diag(h²σ̂i²). The
-    bandwidth h* is the root of Σλ(h) = 1, bracketed on a log grid around Silverman's h and refined
-    by Brent's method; Σλ → 0 as h → 0 and → 2^(d/2) as h → ∞, so a bracket always exists.
+    bandwidth h* is the root of Σλ(h) = 1, bracketed by doubling/halving from Silverman's h and
+    refined by Brent's method (to 0.1 % in h); Σλ → 0 as h → 0 and → 2^(d/2) as h → ∞, so a bracket always exists.
     """
     arr = _check_nominal(y0, "gce")
     n, d = arr.shape
@@ -257,15 +265,19 @@ def fit_gce(y0: ArrayLike, prune_eps: float = GCE_PRUNE_EPS) -> GaussianMixture:
     def excess(log_h: float) -> float:
         return float(_gce_weights(sq, d, math.exp(log_h)).sum() - 1.0)
 
-    h_ref = float(silverman_bandwidth(x)[0])
-    grid = np.log(h_ref) + np.log(2.0) * np.arange(-6, 8)
-    values = [excess(g) for g in grid]
-    sign_change = [i for i in range(len(grid) - 1) if values[i] < 0.0 <= values[i + 1]]
-    if not sign_change:
+    lo = math.log(float(silverman_bandwidth(x)[0]))
+    f_lo = excess(lo)
+    step = math.log(2.0) if f_lo < 0.0 else -math.log(2.0)
+    for _ in range(12):  # walk from Silverman's h by factors of 2 until Σλ(h) − 1 changes sign
+        hi = lo + step
+        f_hi = excess(hi)
+        if (f_lo < 0.0) != (f_hi < 0.0):
+            break
+        lo, f_lo = hi, f_hi
+    else:
         raise DensityError("GCE: no bandwidth with Σλ(h) = 1 found (data nearly degenerate); "
-                           "use --density kde or gauss")
-    i = sign_change[0]
-    log_h = optimize.brentq(excess, grid[i], grid[i + 1], xtol=1e-4)
+                           "use the kde or gauss density")
+    log_h = optimize.brentq(excess, min(lo, hi), max(lo, hi), xtol=1e-3)
     h = math.exp(log_h)
     lam = _gce_weights(sq, d, h)
     order = np.argsort(lam)

@@ -1,0 +1,129 @@
+"""Per-quantity sequential detector: learning → monitoring, alarms, bad data, persistence."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from edge_monitor.sequential_detector import DEFAULT_PF, DetectorConfigError, SequentialDetector
+
+RECORD_FIELDS = {"state", "statistic", "threshold", "alarm", "change_cycle", "delta", "miss_probability"}
+
+
+def test_learning_then_monitoring_with_the_decision_record_fields() -> None:
+    rng = np.random.default_rng(0)
+    det = SequentialDetector(n_nominal=20, window=30)
+    first = det.update(0.1, cycle=100)
+    assert first.state == "learning" and first.reason == "learning 1/20"
+    assert set(first.to_record()) == RECORD_FIELDS
+    decisions = [det.update(v, cycle=101 + i) for i, v in enumerate(rng.normal(size=40))]
+    assert decisions[17].state == "learning"
+    assert decisions[18].state == "monitoring" and "learned" in decisions[18].reason
+    record = decisions[-1].to_record()
+    assert set(record) == RECORD_FIELDS and record["state"] == "monitoring"
+    assert record["threshold"] == pytest.approx(0.5 * 2 * 0 + record["threshold"])
+    assert json.loads(json.dumps(record)) == record
+    assert record["change_cycle"] >= 119
+
+
+def test_alarm_on_a_three_sigma_change_is_latched_until_reset() -> None:
+    rng = np.random.default_rng(1)
+    det = SequentialDetector(n_nominal=60, window=100)
+    values = np.r_[rng.normal(size=60 + 100), rng.normal(size=40) + 3.0]
+    decisions = [det.update(v, cycle=1000 + i) for i, v in enumerate(values)]
+    change_cycle = 1000 + 160
+    assert not any(d.alarm for d in decisions[:160])
+    first = next(i for i, d in enumerate(decisions) if d.alarm)
+    assert 160 <= first <= 175                     # a 3σ change: a handful of cycles (see DETECTION.md)
+    assert abs(decisions[first].change_cycle - change_cycle) <= 3
+    assert decisions[first].delta[0] == pytest.approx(3.0, abs=1.5)
+    back_to_normal = det.update(0.0, cycle=2000)
+    assert back_to_normal.alarm, "alarm must stay latched"
+    det.reset()
+    after = det.update(0.0, cycle=2001)
+    assert after.state == "learning" and not after.alarm and det.counters()["resets"] == 1
+
+
+@pytest.mark.slow
+def test_quiet_on_nominal_data_at_the_default_pf() -> None:
+    # DEFAULT_PF is chosen for a measured ARL0 ≥ 10⁴ cycles (DETECTION.md). Over 20 runs of 500
+    # monitored cycles (10⁴ cycles in all) the expected number of false alarms is ≤ 1, so seeing
+    # more than 5 has probability < 0.4 % under a Poisson(1) model.
+    rng = np.random.default_rng(2)
+    alarms = 0
+    for _ in range(20):
+        det = SequentialDetector()
+        for i, v in enumerate(rng.normal(size=560)):
+            alarms += det.update(v, i).alarm and det._latched is not None and det._latched["cycle"] == i
+    assert alarms <= 5
+
+
+def test_non_finite_values_are_skipped_counted_and_do_not_touch_state() -> None:
+    rng = np.random.default_rng(3)
+    det = SequentialDetector(n_nominal=15, window=10, density="kde")
+    for i, v in enumerate(rng.normal(size=25)):
+        det.update(v, i)
+    before = json.dumps(det.state_dict(), sort_keys=True)
+    for bad in (math.nan, math.inf, -math.inf):
+        d = det.update(bad, 99)
+        assert d.reason == "non-finite value skipped" and d.state == "monitoring"
+    d = det.update([1.0, 2.0], 100)
+    assert "expected 1 number" in d.reason
+    d = det.update("abc", 101)  # type: ignore[arg-type]
+    assert "expected 1 number" in d.reason
+    after = det.state_dict()
+    assert after["counters"] == {"skipped_nonfinite": 3, "skipped_bad_shape": 2, "resets": 0}
+    after["counters"] = json.loads(before)["counters"]
+    assert json.dumps(after, sort_keys=True) == before
+
+
+def test_constant_nominal_data_keep_the_detector_learning_with_a_reason() -> None:
+    det = SequentialDetector(n_nominal=12, window=10)
+    for i in range(30):
+        d = det.update(0.25, i)
+    assert d.state == "learning" and "constant" in d.reason
+    rng = np.random.default_rng(4)
+    for i, v in enumerate(0.25 + 0.01 * rng.normal(size=12)):
+        d = det.update(v, 30 + i)
+    assert d.state == "monitoring"
+
+
+def test_vector_detector_and_state_round_trip_continue_identically() -> None:
+    rng = np.random.default_rng(5)
+    det = SequentialDetector(dim=3, n_nominal=40, window=25, density="gce", mode="exact")
+    for i, v in enumerate(rng.normal(size=(70, 3))):
+        det.update(v, i)
+    back = SequentialDetector.from_state(json.loads(json.dumps(det.state_dict())))
+    for i, v in enumerate(rng.normal(size=(30, 3)) + [0.0, 1.0, 0.0]):
+        a, b = det.update(v, 70 + i), back.update(v, 70 + i)
+        assert a.to_record() == b.to_record()
+        assert len(a.delta) == 3
+
+
+def test_state_round_trip_during_learning() -> None:
+    det = SequentialDetector(n_nominal=10, window=5, density="gauss")
+    for i in range(6):
+        det.update(float(i), i)
+    back = SequentialDetector.from_state(json.loads(json.dumps(det.state_dict())))
+    assert back.update(7.0, 7).reason == det.update(7.0, 7).reason == "learning 7/10"
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"n_nominal": 3}, "at least 10"),
+    ({"density": "parzen"}, "choose one of"),
+    ({"pf": 0.0}, "between 0 and 1"),
+    ({"window": 0}, "window"),
+    ({"gamma0": 1.5}, "gamma0"),
+    ({"mode": "fast"}, "mode"),
+    ({"dim": 0}, "dim"),
+])
+def test_bad_configuration_is_a_clear_error(kwargs: dict, match: str) -> None:
+    with pytest.raises(DetectorConfigError, match=match):
+        SequentialDetector(**kwargs)
+
+
+def test_default_pf_is_the_documented_product_default() -> None:
+    assert SequentialDetector().pf == DEFAULT_PF

@@ -1,0 +1,228 @@
+"""Monte Carlo study of the decision layer (ALGORITHMS.md §5–6), figures for docs/DETECTION.md.
+
+Parts (all with fixed seeds; select with --part, default all):
+
+* ``calibration`` — false-alarm rate of the known-change batch GLR under H0 for Gaussian, skewed
+  (gamma, shape 2) and bimodal nominal data, N0 nominal points, N = 50 test points, Pf ∈ {0.05,
+  0.01}, asymptotic χ² threshold and bootstrap threshold; every run refits the nominal model on a
+  fresh nominal sample (S nominal sets × T test sets); the standard error accounts for the
+  clustering by nominal set.
+* ``power`` — detection rate of the Gaussian, KDE and GCE batch tests for shifts of 0.25 and 0.5
+  nominal σ on skewed and bimodal nominal data, next to each test's measured false-alarm rate.
+* ``gce`` — GCE sparsity and held-out log-likelihood against the KDE.
+* ``sequential`` — run length to false alarm (ARL0) and detection delay of the agent's detector
+  (learning 60 cycles, GCE density, window 100, exact mode) for bias changes of 1, 2, 3 nominal σ.
+  The windowed statistic does not depend on Pf, so one set of traces gives ARL0 and delay for every
+  Pf: ARL0(h) = monitored steps / number of up-crossings of h (each up-crossing is one false alarm
+  followed by a reset); delay = first step at or after the change where the statistic ≥ h.
+
+Usage: ``python tools/arl_study.py [--part NAME ...] [--quick] [--json OUT.json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edge_monitor.densities import fit_density  # noqa: E402
+from edge_monitor.glr import bootstrap_statistics, glr_known_change, threshold_from_pf  # noqa: E402
+from edge_monitor.sequential_detector import SequentialDetector  # noqa: E402
+
+
+def _bimodal(rng: np.random.Generator, n: int) -> np.ndarray:
+    pick = rng.random(n) < 0.5
+    return np.where(pick, rng.normal(-2.0, 0.5, n), rng.normal(2.0, 0.5, n))
+
+
+SHAPES: dict[str, Callable[[np.random.Generator, int], np.ndarray]] = {
+    "gaussian": lambda rng, n: rng.normal(size=n),
+    "skewed": lambda rng, n: rng.gamma(2.0, size=n),
+    "bimodal": _bimodal,
+}
+#: standard deviation of each nominal shape (to express shifts in nominal σ)
+SHAPE_SD = {"gaussian": 1.0, "skewed": math.sqrt(2.0), "bimodal": math.sqrt(4.25)}
+PFS = (0.05, 0.01)
+
+
+def calibration(n0: int, sets: int, tests: int, n_boot: int, seed: int,
+                kinds: tuple[str, ...] = ("gauss", "kde", "gce"), kde_sets: int | None = None) -> list[dict]:
+    """KDE bootstrap is the slowest (EM over N0 components per draw): ``kde_sets`` nominal sets."""
+    rows = []
+    full_sets = sets
+    for shape, draw in SHAPES.items():
+        for kind in kinds:
+            sets = kde_sets if (kind == "kde" and kde_sets) else full_sets
+            rng = np.random.default_rng(seed)
+            t0 = time.perf_counter()
+            asym = np.zeros((sets, len(PFS)))
+            boot = np.zeros((sets, len(PFS)))
+            for s in range(sets):
+                nominal = draw(rng, n0)[:, None]
+                density = fit_density(nominal, kind)
+                boot_h = np.quantile(bootstrap_statistics(nominal, density, 50, n_boot, seed + s),
+                                     [1 - pf for pf in PFS]) if n_boot else None
+                stats = np.array([glr_known_change(draw(rng, 50)[:, None], density).statistic
+                                  for _ in range(tests)])
+                for i, pf in enumerate(PFS):
+                    asym[s, i] = np.mean(stats >= threshold_from_pf(pf, 1))
+                    if boot_h is not None:
+                        boot[s, i] = np.mean(stats >= boot_h[i])
+            for i, pf in enumerate(PFS):
+                for method, rates in (("asymptotic", asym), ("bootstrap", boot)):
+                    if method == "bootstrap" and not n_boot:
+                        continue
+                    rate = float(rates[:, i].mean())
+                    se = float(rates[:, i].std(ddof=1) / math.sqrt(sets))
+                    rows.append({"shape": shape, "density": kind, "pf": pf, "threshold": method,
+                                 "rate": rate, "se": se, "runs": sets * tests,
+                                 "within_factor_2": bool(pf / 2 <= rate <= 2 * pf)})
+            print(f"calibration {shape}/{kind}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def power(n0: int, sets: int, tests: int, seed: int, shifts: tuple[float, ...] = (0.25, 0.5)) -> list[dict]:
+    rows = []
+    pf = 0.01
+    for shape in ("skewed", "bimodal"):
+        draw = SHAPES[shape]
+        for kind in ("gauss", "kde", "gce"):
+            rng = np.random.default_rng(seed)
+            h0_hits, hits = [], {k: [] for k in shifts}
+            for _ in range(sets):
+                density = fit_density(draw(rng, n0)[:, None], kind)
+                h = threshold_from_pf(pf, 1)
+                h0_hits += [glr_known_change(draw(rng, 50)[:, None], density).statistic >= h for _ in range(tests)]
+                for k in shifts:
+                    shift = k * SHAPE_SD[shape]
+                    hits[k] += [glr_known_change(draw(rng, 50)[:, None] + shift, density).statistic >= h
+                                for _ in range(tests)]
+            row = {"shape": shape, "density": kind, "pf": pf, "false_alarm_rate": float(np.mean(h0_hits)),
+                   "runs": sets * tests}
+            row.update({f"detection_{k}sd": float(np.mean(hits[k])) for k in shifts})
+            rows.append(row)
+            print(f"power {shape}/{kind} done", file=sys.stderr, flush=True)
+    return rows
+
+
+def gce_quality(seed: int) -> list[dict]:
+    rows = []
+    for shape, draw in SHAPES.items():
+        for n0 in (60, 200, 500):
+            rng = np.random.default_rng(seed)
+            nominal, held = draw(rng, n0)[:, None], draw(rng, 20_000)[:, None]
+            t0 = time.perf_counter()
+            gce = fit_density(nominal, "gce")
+            fit_s = time.perf_counter() - t0
+            kde = fit_density(nominal, "kde")
+            rows.append({"shape": shape, "n0": n0, "components": gce.n_components,
+                         "kept_percent": 100.0 * gce.n_components / n0, "fit_s": fit_s,
+                         "heldout_ll_gce": float(gce.logpdf(held).mean()),
+                         "heldout_ll_kde": float(kde.logpdf(held).mean())})
+    return rows
+
+
+def _trace(detector: SequentialDetector, values: np.ndarray) -> np.ndarray:
+    out = []
+    for cycle, v in enumerate(values):
+        d = detector.update(float(v), cycle)
+        if d.state == "monitoring" and d.statistic is not None:
+            out.append(d.statistic)
+    return np.asarray(out)
+
+
+def _upcrossings(trace: np.ndarray, h: float) -> int:
+    above = trace >= h
+    return int(above[0]) + int(np.sum(above[1:] & ~above[:-1]))
+
+
+def sequential(shape: str, runs_h0: int, steps_h0: int, runs_h1: int, pre: int, post: int, seed: int,
+               pfs: tuple[float, ...], density: str = "gce", window: int = 100) -> dict:
+    draw = SHAPES[shape]
+    rng = np.random.default_rng(seed)
+    n_nominal = 60
+    t0 = time.perf_counter()
+    h0_traces = [_trace(SequentialDetector(density=density, window=window), draw(rng, n_nominal + steps_h0))
+                 for _ in range(runs_h0)]
+    h0_s = time.perf_counter() - t0
+    total = sum(len(t) for t in h0_traces)
+    h1 = {}
+    for k in (1.0, 2.0, 3.0):
+        traces = []
+        for _ in range(runs_h1):
+            values = draw(rng, n_nominal + pre + post)
+            values[n_nominal + pre:] += k * SHAPE_SD[shape]
+            traces.append(_trace(SequentialDetector(density=density, window=window), values))
+        h1[k] = traces
+    table = []
+    for pf in pfs:
+        h = threshold_from_pf(pf, 1)
+        crossings = sum(_upcrossings(t, h) for t in h0_traces)
+        row = {"pf": pf, "threshold": h, "h0_steps": total, "false_alarms": crossings,
+               "arl0": (total / crossings) if crossings else None, "arl0_lower_bound": None}
+        if not crossings:
+            row["arl0_lower_bound"] = total / 3.0   # 95 % Poisson bound with zero events: rate ≤ 3/steps
+        for k, traces in h1.items():
+            delays, early = [], 0
+            for t in traces:
+                before, after = t[:pre], t[pre:]
+                if np.any(before >= h):
+                    early += 1
+                    continue
+                hit = np.flatnonzero(after >= h)
+                delays.append(int(hit[0]) + 1 if hit.size else math.inf)
+            finite = [d for d in delays if math.isfinite(d)]
+            row[f"delay_{int(k)}sd_median"] = float(np.median(delays)) if delays else None
+            row[f"delay_{int(k)}sd_mean"] = float(np.mean(finite)) if finite else None
+            row[f"missed_{int(k)}sd"] = len(delays) - len(finite)
+            row[f"early_alarms_{int(k)}sd"] = early
+        table.append(row)
+    # tail of the per-step exceedance, for extrapolating ARL0 beyond what was observed
+    levels = np.linspace(2.0, 12.0, 21)
+    tail = [{"h": float(h), "upcrossings": sum(_upcrossings(t, h) for t in h0_traces)} for h in levels]
+    return {"shape": shape, "density": density, "window": window, "n_nominal": n_nominal, "runs_h0": runs_h0,
+            "steps_per_run": steps_h0, "runs_h1": runs_h1, "pre_change": pre, "post_change": post,
+            "seconds_per_step": h0_s / max(total, 1), "table": table, "tail": tail}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--part", action="append", choices=("calibration", "power", "gce", "sequential"))
+    parser.add_argument("--quick", action="store_true", help="small run counts (smoke test)")
+    parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
+    parser.add_argument("--density", default="gce", choices=("gauss", "kde", "gce"))
+    parser.add_argument("--calibration-densities", default="gauss,kde,gce")
+    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--json", type=Path, help="write all results here")
+    args = parser.parse_args(argv)
+    parts = args.part or ["calibration", "power", "gce", "sequential"]
+    q = args.quick
+    results: dict[str, object] = {}
+    if "gce" in parts:
+        results["gce"] = gce_quality(args.seed)
+    if "calibration" in parts:
+        results["calibration"] = calibration(200, 10 if q else 100, 20 if q else 80, 200 if q else 1000, args.seed,
+                                             tuple(args.calibration_densities.split(",")), None if q else 40)
+    if "power" in parts:
+        results["power"] = power(200, 10 if q else 50, 20 if q else 40, args.seed)
+    if "sequential" in parts:
+        results["sequential"] = sequential(args.shape, 4 if q else 40, 500 if q else 5000, 10 if q else 200,
+                                           200, 150, args.seed,
+                                           (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7), density=args.density)
+    text = json.dumps(results, indent=1)
+    print(text)
+    if args.json:
+        args.json.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
