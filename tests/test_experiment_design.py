@@ -112,3 +112,12 @@ def test_cli_refuses_infeasible_separation():
     proc = run_cli("--points", "10", "--speed-min", "1", "--speed-max", "20", "--min-separation", "5", "--json")
     assert proc.returncode == 2
     assert "--min-separation" in proc.stderr and proc.stdout == ""
+
+
+def test_simulator_reads_the_design_file(tmp_path):
+    """The file of ``design --out`` is what ``sim-controller --speeds-from`` loads."""
+    config = pytest.importorskip("sim_controller.config", reason="simulator not present in this tree")
+    out = tmp_path / "design.json"
+    proc = run_cli("--points", "3", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert list(config.load_speeds_file(out)) == pytest.approx(design_speeds(3).speeds, abs=1e-6)
