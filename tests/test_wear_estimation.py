@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from edge_monitor.experiment_design import design_speeds
-from edge_monitor.friction_model import DEFAULT_PARAMS, friction_magnitude
+from edge_monitor.friction_model import friction_magnitude
 from edge_monitor.wear_estimation import WearEstimate, WearEstimator, crlb_wear, marginal_fisher_wear
 
 SIGMA = 5.7e-3

@@ -92,10 +92,12 @@ def markdown_table(rows: list[dict]) -> str:
         ok_bias = "" if r["unbiased"] else " ✗"
         ok_var = "" if r["within_factor_2"] else " ✗"
         lines.append(
-            f"| {r['design']} | {r['method']} | {', '.join(f'{v:g}' for v in r['speeds'])} | {r['wear']:g} | {r['mean']:.2f} | "
+            f"| {r['design']} | {r['method']} | {', '.join(f'{v:g}' for v in r['speeds'])} | {r['wear']:g} | "
+            f"{r['mean']:.2f} | "
             f"{r['bias']:+.2f} (±{r['bias_tolerance']:.2f}){ok_bias} | {r['variance']:.1f} | {r['bound']:.3g} | "
             f"{r['variance_ratio']:.2f}{ok_var} | {crlb_text} | {r['median_published_std']:.3g} | "
-            f"{100 * r['fraction_at_zero']:.0f} % | {r['q95']:.1f} | {r['ms_per_call_mean']:.1f} ({r['ms_per_call_max']:.1f}) | "
+            f"{100 * r['fraction_at_zero']:.0f} % | {r['q95']:.1f} | "
+            f"{r['ms_per_call_mean']:.1f} ({r['ms_per_call_max']:.1f}) | "
             f"{r['cpu_ms_per_call_mean']:.1f} |")
     return "\n".join(lines) + "\n"
 
