@@ -225,9 +225,9 @@ def test_design_speeds_beat_badly_chosen_speeds(estimator, designs):
 
 def test_no_wear_stays_low_and_wear_shows(estimator, designs):
     """Both sides: at ϖ = 0 the (truncated) estimates stay below the critical level 35 in all but a
-    few cycles, at ϖ = 50 above it in most. Bounds: with the bound std ≈ 5 at the design point a
-    miss/false call needs a ≥ 3σ error; allow 5 of RUNS (binomial, p ≤ 1.3 % per cycle at 3σ one-sided
-    would give ≤ 5 with probability > 99 %)."""
+    few cycles, at ϖ = 50 above it in all but a few. A wrong side needs an error of 15 wear units,
+    ≥ 3.4 bound standard deviations (√19.7 ≈ 4.4 at N = 3), one-sided p ≈ 4e-4 per cycle; even at a
+    generous p = 1.35 % (2.2σ) more than 5 of 100 wrong-side cycles has binomial probability 0.25 %."""
     speeds = designs[3]
     healthy = run_estimates(estimator, speeds, simulate_cycles(speeds, 0.0, RUNS, seed=11)[0])
     worn = run_estimates(estimator, speeds, simulate_cycles(speeds, 50.0, RUNS, seed=12)[0])
