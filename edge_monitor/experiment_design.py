@@ -16,7 +16,7 @@ Speeds in rad/s, wear and its bound in wear units (bound = a variance).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,7 +63,6 @@ class DesignResult:
     min_separation: float
     method: str
     n_starts: int = 0
-    extra: dict = field(default_factory=dict)
 
     @property
     def wear_std(self) -> float:
