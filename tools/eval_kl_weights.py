@@ -43,6 +43,10 @@ def model_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.
     return torque, np.broadcast_to(speed, torque.shape)
 
 
+#: Load range |τl| of the simulator runs (``--sim-load``); None: the simulator's default U(0.3, 0.7).
+SIM_LOAD: tuple[float, float] | None = None
+
+
 def sim_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.random.Generator
                ) -> tuple[np.ndarray, np.ndarray]:
     """Cycles of the project simulator (one joint, default test cycle incl. production motion,
@@ -55,6 +59,8 @@ def sim_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.ra
 
     config = SimConfig(joints=1, cycles=n, seed=int(rng.integers(2**31)), temperature_range=temperature,
                        wear=(WearProfile(initial=wear),))
+    if SIM_LOAD is not None:
+        config = config.with_(load_range=SIM_LOAD)
     ctrl = Controller(config)
     torques, speeds = [], []
     for cycle in range(n):
@@ -162,10 +168,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--wear", type=float, default=35.0)
     p.add_argument("--spreads", default="0,5,10,15,20,25,30,35,40")
     p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--sim-load", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="with --source sim: per-cycle load range |τl| (default: the simulator's 0.3 0.7)")
     p.add_argument("--png", help="write the Pd-vs-spread figure here")
     p.add_argument("--json", help="write the numbers here")
     args = p.parse_args(argv)
     rng = np.random.default_rng(args.seed)
+    global SIM_LOAD
+    SIM_LOAD = None if args.sim_load is None else (args.sim_load[0], args.sim_load[1])
     source: Source = model_cycles if args.source == "model" else sim_cycles
     t0 = time.perf_counter()
     fitted = fitted_weights(source, rng)
