@@ -75,7 +75,8 @@ class JointMonitor:
         self.plateaus = PlateauDetector(config.segmentation)
         self.extractor = FrictionExtractor(config.segmentation.speeds)
         self.wear = WearEstimator(params=config.friction_for(joint), noise_std=config.wear.noise_std,
-                                  temperature_range=(config.wear.temperature_min, config.wear.temperature_max))
+                                  temperature_range=(config.wear.temperature_min, config.wear.temperature_max),
+                                  method=config.wear.method)
         self.kl = self._new_kl_monitor() if config.kl.enabled else None
         self.detectors = {q: self._new_detector(q) for q in config.decision.quantities} \
             if config.decision.enabled else {}
