@@ -66,8 +66,10 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: flo
         pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
               if d.get("miss_probability") is not None]
         alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
+        std = wear.get("std")
+        std_text = ">100" if std is not None and std > 100 else fmt(std, ".1f")   # not identifiable near ϖ = 0
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} "
-                     f"{fmt(wear.get('estimate'), '.1f'):>7} ± {fmt(wear.get('std'), '.1f'):<6} "
+                     f"{fmt(wear.get('estimate'), '.1f'):>7} ± {std_text:<6} "
                      f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:32]:<32} {pf:>7.2g} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     return "\n".join(lines)
