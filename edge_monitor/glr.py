@@ -125,8 +125,10 @@ def bootstrap_statistics(y0: ArrayLike, density: GaussianMixture, n_test: int, n
     """Bootstrap distribution of the known-change GLR statistic under H0, (n_boot,).
 
     Each draw resamples ``n_test`` test points from the nominal data ``y0`` and shifts them by the
-    error of a resampled nominal mean (the location uncertainty of a model fitted on N0 points),
-    then computes the statistic against ``density``. This captures the two finite-sample effects the
+    model's location error on a resampled nominal set (EM estimate of Δ for N0 resampled nominal
+    points, minus that of y0 itself: the location uncertainty of a model fitted on N0 points; for
+    one Gaussian it is the error of the resampled mean), then computes the statistic against
+    ``density``. This captures the two finite-sample effects the
     χ² threshold ignores: the nominal model's location error (makes the asymptotic test liberal by
     a factor of about 1 + N/N0 on the statistic) and kernel smoothing (the variance of a KDE/GCE
     mixture exceeds the data's, which makes it conservative).
@@ -143,9 +145,10 @@ def bootstrap_statistics(y0: ArrayLike, density: GaussianMixture, n_test: int, n
         dev = means - shifts - density.means[0]
         return 0.5 * int(n_test) * np.einsum("bi,ij,bj->b", dev, density.precision, dev)
     values = np.empty(int(n_boot))
+    reference = em_bias(nominal, density, tol=1e-8, max_iter=200)
     for b in range(int(n_boot)):
         test = nominal[rng.integers(0, n0, int(n_test))]
-        shift = nominal[rng.integers(0, n0, n0)].mean(axis=0) - centre
+        shift = em_bias(nominal[rng.integers(0, n0, n0)], density, tol=1e-8, max_iter=200) - reference
         sample = test - shift
         delta = em_bias(sample, density, tol=1e-8, max_iter=200)
         values[b] = max(_log_ratio_sum(sample, density, delta), 0.0)

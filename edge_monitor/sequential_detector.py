@@ -28,11 +28,15 @@ from edge_monitor.glr import GLRError, WindowedGLR, check_pf
 log = logging.getLogger(__name__)
 
 #: Per-test false-alarm probability of the agent's detectors (ARL0 ≥ 10⁴ cycles, docs/DETECTION.md).
-DEFAULT_PF = 1e-4
+DEFAULT_PF = 1e-9
 #: Candidate change times kept by the agent's detectors [cycles].
 DEFAULT_WINDOW = 100
 #: Learning phase length [cycles] (ALGORITHMS.md §6: 50 … 70).
 DEFAULT_NOMINAL = 60
+#: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.5 ms per update at W = 100, K ≤ 30);
+#: "exact" is O(W²·K) (3 … 8 ms at K = 5 … 30, docs/benchmarks/glr.md). The ARL0/delay table in
+#: docs/DETECTION.md was measured for the recursive mode, so it is the default.
+DEFAULT_MODE = "recursive"
 
 
 class DetectorConfigError(ValueError):
@@ -75,7 +79,7 @@ class SequentialDetector:
 
     def __init__(self, dim: int = 1, n_nominal: int = DEFAULT_NOMINAL, density: str = "gce",
                  pf: float = DEFAULT_PF, window: int = DEFAULT_WINDOW, gamma0: float = 0.6,
-                 rho: float = 1.0, mode: str = "exact") -> None:
+                 rho: float = 1.0, mode: str = DEFAULT_MODE) -> None:
         if int(dim) < 1:
             raise DetectorConfigError(f"dim = {dim!r} must be ≥ 1")
         if density not in DENSITY_KINDS:

@@ -11,7 +11,7 @@ Parts (all with fixed seeds; select with --part, default all):
   nominal σ on skewed and bimodal nominal data, next to each test's measured false-alarm rate.
 * ``gce`` — GCE sparsity and held-out log-likelihood against the KDE.
 * ``sequential`` — run length to false alarm (ARL0) and detection delay of the agent's detector
-  (learning 60 cycles, GCE density, window 100, exact mode) for bias changes of 1, 2, 3 nominal σ.
+  (learning 60 cycles, GCE density, window 100, recursive mode) for bias changes of 1, 2, 3 nominal σ.
   The windowed statistic does not depend on Pf, so one set of traces gives ARL0 and delay for every
   Pf: ARL0(h) = monitored steps / number of up-crossings of h (each up-crossing is one false alarm
   followed by a reset); delay = first step at or after the change where the statistic ≥ h.
@@ -55,12 +55,15 @@ PFS = (0.05, 0.01)
 
 def calibration(n0: int, sets: int, tests: int, n_boot: int, seed: int,
                 kinds: tuple[str, ...] = ("gauss", "kde", "gce"),
-                bootstrap_kinds: tuple[str, ...] = ("gauss", "gce")) -> list[dict]:
+                bootstrap_kinds: tuple[str, ...] = ("gauss", "gce"),
+                shapes: tuple[str, ...] = tuple(SHAPES)) -> list[dict]:
     """The KDE bootstrap (EM over N0 components per draw) is too slow for this machine: skipped
     unless "kde" is in ``bootstrap_kinds``."""
     rows = []
     all_boot = n_boot
     for shape, draw in SHAPES.items():
+        if shape not in shapes:
+            continue
         for kind in kinds:
             n_boot = all_boot if kind in bootstrap_kinds else 0
             rng = np.random.default_rng(seed)
@@ -148,18 +151,18 @@ def _upcrossings(trace: np.ndarray, h: float) -> int:
 
 
 def h0_trace(shape: str, steps: int, rng: np.random.Generator, density: str = "gce", window: int = 100,
-             n_nominal: int = 60) -> np.ndarray:
+             n_nominal: int = 60, mode: str = "recursive") -> np.ndarray:
     """Statistic of one detector over ``steps`` monitored cycles of nominal data (fresh nominal set)."""
-    return _trace(SequentialDetector(n_nominal=n_nominal, density=density, window=window),
+    return _trace(SequentialDetector(n_nominal=n_nominal, density=density, window=window, mode=mode),
                   SHAPES[shape](rng, n_nominal + steps))
 
 
 def h1_trace(shape: str, shift_sd: float, pre: int, post: int, rng: np.random.Generator, density: str = "gce",
-             window: int = 100, n_nominal: int = 60) -> np.ndarray:
+             window: int = 100, n_nominal: int = 60, mode: str = "recursive") -> np.ndarray:
     """Statistic over ``pre`` nominal then ``post`` shifted monitored cycles (shift in nominal σ)."""
     values = SHAPES[shape](rng, n_nominal + pre + post)
     values[n_nominal + pre:] += shift_sd * SHAPE_SD[shape]
-    return _trace(SequentialDetector(n_nominal=n_nominal, density=density, window=window), values)
+    return _trace(SequentialDetector(n_nominal=n_nominal, density=density, window=window, mode=mode), values)
 
 
 def summarize(h0_traces: list[np.ndarray], h1_traces: dict[float, list[np.ndarray]], pre: int,
@@ -224,6 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
     parser.add_argument("--density", default="gce", choices=("gauss", "kde", "gce"))
     parser.add_argument("--calibration-densities", default="gauss,kde,gce")
+    parser.add_argument("--calibration-shapes", default="gaussian,skewed,bimodal")
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--json", type=Path, help="write all results here")
     args = parser.parse_args(argv)
@@ -234,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
         results["gce"] = gce_quality(args.seed)
     if "calibration" in parts:
         results["calibration"] = calibration(200, 10 if q else 60, 20 if q else 80, 200 if q else 500, args.seed,
-                                             tuple(args.calibration_densities.split(",")))
+                                             tuple(args.calibration_densities.split(",")),
+                                             shapes=tuple(args.calibration_shapes.split(",")))
     if "power" in parts:
         results["power"] = power(200, 10 if q else 50, 20 if q else 40, args.seed)
     if "sequential" in parts:
