@@ -148,7 +148,7 @@ def test_windowed_glr_alarms_after_a_change_and_reports_it() -> None:
     assert first.delta[0] > 1.0
     # at the alarm the segment is short (Pm of a short segment can be large); 30 cycles later the
     # estimated miss probability of the 2σ change is negligible: λ ≈ 30·F·Δ̂² ≫ 2h
-    assert decisions[130].change_index == first.change_index
+    assert abs(decisions[130].change_index - 100) <= 5
     assert decisions[130].miss_probability < 1e-3
 
 
