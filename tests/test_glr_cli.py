@@ -126,7 +126,7 @@ def test_bad_input_gives_clear_errors_and_nonzero_exit(tmp_path: Path, files: di
     cases = [
         (["--nominal", str(few), "--test", str(files["same"])], "provide at least 10"),
         (["--nominal", str(two), "--test", str(files["same"]), "--density", "gauss"], "provide at least 3"),
-        (["--nominal", str(const), "--test", str(files["same"])], "constant"),
+        (["--nominal", str(const), "--test", str(files["same"])], "nominal column(s) ['wear'] are constant"),
         (["--nominal", str(files["nominal"]), "--test", str(files["test2"])], "dimension mismatch"),
         (["--nominal", str(files["nominal"]), "--test", str(files["same"]), "--pf", "1.5"], "between 0 and 1"),
         (["--nominal", str(files["nominal"]), "--test", str(files["same"]), "--pf", "0"], "between 0 and 1"),

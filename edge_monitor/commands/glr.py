@@ -108,6 +108,10 @@ def run(args: argparse.Namespace) -> int:
         if nominal.shape[1] != test.shape[1]:
             raise ValueError(f"dimension mismatch: nominal has {nominal.shape[1]} numeric column(s) "
                              f"{nominal_cols}, test has {test.shape[1]} {test_cols}; use the same columns")
+        flat = [name for name, col in zip(nominal_cols, nominal.T) if np.ptp(col) == 0.0]
+        if flat:
+            raise ValueError(f"{args.nominal}: nominal column(s) {flat} are constant; a density cannot be "
+                             "fitted to constant data (drop the column or record more varied nominal data)")
         density = fit_density(nominal, args.density)
         threshold = None
         if args.threshold == "bootstrap":
