@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 APP_ID = "joint-wear-monitor"
 CRITICAL_WEAR = 35.0               # ALGORITHMS.md: wear level to alarm on
 FRICTION_SCALE = 1000.0            # friction drawn in ‰ of the joint's maximum torque
+WEAR_MAX = 100.0                   # wear scale: 0 … 100 (100 = failure)
 DENSITY_HEIGHT = 100.0             # nominal density peak drawn at this height
 DEFAULT_VIEWER_PORT = 9876
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
@@ -305,8 +306,10 @@ class RerunSink:
         critical = np.array([_number(r.get("critical_wear", CRITICAL_WEAR)) for r in block])
         series = {
             "wear/estimate": (wear, "wear estimate", [230, 120, 30], 2.5),
-            "wear/upper": (wear + 2 * std, "+2σ", [240, 180, 120], 1.0),
-            "wear/lower": (wear - 2 * std, "−2σ", [240, 180, 120], 1.0),
+            # the band is clipped to the physical wear range 0 … 100: near ϖ = 0 the Cramér–Rao std is
+            # huge (the wear term is not identifiable there) and an unclipped band hides the plot
+            "wear/upper": (np.minimum(wear + 2 * std, WEAR_MAX), "+2σ", [240, 180, 120], 1.0),
+            "wear/lower": (np.maximum(wear - 2 * std, 0.0), "−2σ", [240, 180, 120], 1.0),
             "wear/critical": (critical, "critical level", [220, 30, 30], 1.5),
             "temperature": (column("wear", "temperature"), "lubricant temperature °C", [200, 80, 60], 1.5),
             "kl/raw": (column("kl", "raw"), "KL raw", [90, 90, 220], 2.0),
