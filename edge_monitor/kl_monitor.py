@@ -5,15 +5,35 @@ Per cycle, two streaming KDEs are fed block by block: ``raw`` bins the joint tor
 :mod:`edge_monitor.disturbance_weights`). At ``end_cycle`` each gives a density and its symmetric KL
 distance to the nominal density; these are ``kl.raw`` and ``kl.weighted`` of the symptom record.
 
-Grid choice (bounded memory, grid fixed before binning): while no grid is fixed, the cycle is binned
+Grid choice (bounded memory): while no grid is fixed, the cycle is binned
 on a provisional grid over the full wire range of torque, ``[-1.6384, 1.6384]``, with
 ``PROVISIONAL_GRID`` = 16384 points (2e-4 = four wire quanta per bin; weighted values are within the
 same range since 0 ≤ w < 1). At the end of the first valid nominal cycle the working grid is
 ``[lo − m, hi + m]`` with ``[lo, hi]`` the occupied range and ``m = max(0.25·(hi − lo), 4·h)``
 (h = that cycle's bandwidth), clipped to the wire range; that cycle's mass is re-binned onto it
 (positions move by ≤ 1e-4, far below any bandwidth seen in practice) so it still counts as a nominal
-cycle. Later samples outside the working grid are counted as tail mass; the density then integrates
+cycle (with centring, the raw channel's range and mass are those of the centred cycle). Later
+samples outside the working grid are counted as tail mass; the density then integrates
 to less than one, which raises the KL distance: a shift out of the nominal range is seen, not hidden.
+
+Centring (``center=True``, default): within a cycle the load (gravity) torque at the test angle is
+constant and friction enters as ±τf symmetrically, so a per-cycle load is a location shift of the
+cycle's torque; wear changes the shape. Both channels are made exactly invariant to it:
+
+* ``raw``: the cycle is binned on the fixed provisional grid (wire range, 16384 points, memory
+  O(grid)) with its running mean; at cycle end the binned mass is moved by −(cycle mean) onto the
+  working grid by linear interpolation (:meth:`StreamingKDE.regrid` with ``shift``). The density
+  compared is that of ``τ − mean(τ)``. Error for a pure shift: two linear binnings, KL ≤ 1.5·δ²/h⁴
+  with δ = (dx_capture² + dx_working²)/4 (derived in the tests).
+* ``weighted``: the weight applies to centred torque, ``w(v)·(τ_t − m_t)``, with ``m_t`` the running
+  mean of the cycle's finite torque samples up to sample t (causal). Exact centring by the final
+  cycle mean before weighting is impossible in one pass with O(grid) memory (``w·(τ − m)`` is not a
+  shift of the ``w·τ`` histogram: it needs the joint histogram of (w, w·τ)), and centring after
+  weighting does not remove the load (``w·l`` spreads with w). The causal mean removes a per-cycle
+  constant exactly (it shifts ``τ_t`` and ``m_t`` alike), at the price that early samples are
+  centred on a noisier location; nominal and test cycles pass the same transform.
+
+``center=False`` reproduces the uncentred detector (densities of τ and w·τ themselves).
 
 Nominal model: the average of the densities of the first K valid cycles (``n_nominal_cycles``),
 relearned (grid included) after :meth:`KLMonitor.reset` (declared gearbox replacement). The simple
@@ -79,32 +99,61 @@ class KLResult:
 
 
 class _Channel:
-    """One quantity (raw torque or weighted torque): its KDE, grid and nominal model."""
+    """One quantity (raw torque or weighted torque): its KDE, grid and nominal model.
 
-    def __init__(self, n_grid: int) -> None:
+    Without centring, ``kde`` bins on the provisional grid until the working grid is fixed and on
+    the working grid afterwards (:meth:`window_kde` is ``kde`` itself). With centring, ``kde`` always
+    bins on the fine provisional grid over the wire range and :meth:`window_kde` moves the cycle's
+    mass by −(cycle mean) onto the working grid ``[lo, hi]`` (linear interpolation)."""
+
+    def __init__(self, n_grid: int, center: bool) -> None:
         self.n_grid = n_grid
+        self.center = center
         self.kde = StreamingKDE(-TORQUE_WIRE_LIMIT, TORQUE_WIRE_LIMIT, PROVISIONAL_GRID)
         self.grid_fixed = False
+        self.lo = self.hi = None  # type: float | None   # working grid bounds once fixed
         self.learning: list[NDArray[np.float64]] = []   # densities of the learning cycles
         self.nominal: NDArray[np.float64] | None = None
         self.mu0 = self.sigma0 = None  # type: float | None
 
+    @property
+    def shift(self) -> float:
+        """Location removed from this window: the cycle mean with centring, else 0."""
+        return self.kde.mean if self.center else 0.0
+
     def fix_grid(self) -> None:
         occupied = self.kde.occupied_range()
         assert occupied is not None
-        lo, hi = choose_grid(occupied[0], occupied[1], margin=GRID_MARGIN,
+        lo, hi = choose_grid(occupied[0] - self.shift, occupied[1] - self.shift, margin=GRID_MARGIN,
                              min_margin=max(GRID_MIN_MARGIN_BANDWIDTHS * self.kde.bandwidth, 10 * 5e-5),
                              bounds=(-TORQUE_WIRE_LIMIT, TORQUE_WIRE_LIMIT))
-        self.kde = self.kde.regrid(lo, hi, self.n_grid)
+        self.lo, self.hi = lo, hi
+        if not self.center:
+            self.kde = self.kde.regrid(lo, hi, self.n_grid)
         self.grid_fixed = True
-        log.info("KL grid fixed to [%.5f, %.5f] with %d points", lo, hi, self.n_grid)
+        log.info("KL grid fixed to [%.5f, %.5f] with %d points%s", lo, hi, self.n_grid,
+                 " (centred)" if self.center else "")
+
+    def window_kde(self) -> StreamingKDE:
+        """The window on the working grid (grid fixed): centred copy, or ``kde`` itself."""
+        if not self.center:
+            return self.kde
+        return self.kde.regrid(self.lo, self.hi, self.n_grid, shift=self.kde.mean)  # type: ignore[arg-type]
+
+    @property
+    def grid(self) -> NDArray[np.float64]:
+        return np.linspace(self.lo, self.hi, self.n_grid)  # type: ignore[arg-type]
+
+    @property
+    def dx(self) -> float:
+        return (self.hi - self.lo) / (self.n_grid - 1)  # type: ignore[operator]
 
     def finish_learning(self) -> None:
         stack = np.asarray(self.learning)
         k = stack.shape[0]
         self.nominal = stack.mean(axis=0)
         others = (stack.sum(axis=0)[None, :] - stack) / (k - 1)
-        q = np.array([symmetric_kl(others[i], stack[i], self.kde.dx) for i in range(k)])
+        q = np.array([symmetric_kl(others[i], stack[i], self.dx) for i in range(k)])
         self.mu0, self.sigma0 = float(q.mean()), float(q.std(ddof=1))
         self.learning = []
 
@@ -116,16 +165,19 @@ class _Channel:
         self.kde.reset()
 
     def state_dict(self) -> dict[str, Any]:
-        return {"kde": self.kde.state_dict(), "grid_fixed": self.grid_fixed,
+        return {"kde": self.kde.state_dict(), "grid_fixed": self.grid_fixed, "lo": self.lo, "hi": self.hi,
                 "learning": [d.tolist() for d in self.learning],
                 "nominal": None if self.nominal is None else self.nominal.tolist(),
                 "mu0": self.mu0, "sigma0": self.sigma0}
 
     @classmethod
-    def from_state(cls, n_grid: int, state: dict[str, Any]) -> "_Channel":
-        ch = cls(n_grid)
+    def from_state(cls, n_grid: int, center: bool, state: dict[str, Any]) -> "_Channel":
+        ch = cls(n_grid, center)
         ch.kde = StreamingKDE.from_state(state["kde"])
         ch.grid_fixed = bool(state["grid_fixed"])
+        if ch.grid_fixed:     # states before centring existed: the working grid is the kde's grid
+            ch.lo = float(state["lo"]) if state.get("lo") is not None else ch.kde.lo
+            ch.hi = float(state["hi"]) if state.get("hi") is not None else ch.kde.hi
         ch.learning = [np.asarray(d, dtype=float) for d in state["learning"]]
         ch.nominal = None if state["nominal"] is None else np.asarray(state["nominal"], dtype=float)
         ch.mu0, ch.sigma0 = state["mu0"], state["sigma0"]
@@ -137,12 +189,14 @@ class KLMonitor:
     with :meth:`end_cycle`.
 
     ``window="cycle"`` uses every sample of the cycle, ``"production"`` only samples whose segment
-    code is 200 (production motion). ``weights=None`` disables the weighted channel.
+    code is 200 (production motion). ``weights=None`` disables the weighted channel. ``center=True``
+    compares the densities of the cycle's values minus their own cycle mean (invariant to a
+    per-cycle load/gravity torque); ``False`` compares the densities of the values themselves.
     """
 
     def __init__(self, n_nominal_cycles: int = 10, n_grid: int = 512,
                  weights: WeightFunction | None = WeightFunction(), window: Window = "cycle",
-                 min_samples: int = 1000) -> None:
+                 min_samples: int = 1000, center: bool = True) -> None:
         if int(n_nominal_cycles) < 2:
             raise KLConfigError(f"n_nominal_cycles: need >= 2 (for σ0), got {n_nominal_cycles}")
         if int(n_grid) < 64:
@@ -156,6 +210,7 @@ class KLMonitor:
         self.weights = weights
         self.window: Window = window
         self.min_samples = int(min_samples)
+        self.center = bool(center)
         self.modes: dict[str, NDArray[np.float64]] = {}
         self.reset()
 
@@ -167,9 +222,30 @@ class KLMonitor:
     def reset(self) -> None:
         """Forget grid, nominal model and stored modes (they live on the old grid), e.g. after a
         declared gearbox replacement; the next valid cycles relearn them."""
-        self.channels = {name: _Channel(self.n_grid) for name in self.channel_names}
+        self.channels = {name: _Channel(self.n_grid, self._centred_by_mean(name)) for name in self.channel_names}
         self.n_learned = 0
+        self._new_window()
+
+    def _new_window(self) -> None:
         self.n_window = 0          # samples that entered the window this cycle (before NaN checks)
+        self.torque_sum = 0.0      # Σ finite τ of the window so far (causal location, weighted channel)
+        self.torque_count = 0
+
+    def _centred_by_mean(self, channel: str) -> bool:
+        """The raw channel is centred by its cycle mean at cycle end; the weighted channel bins
+        values already centred causally (see :meth:`_causally_centred`)."""
+        return self.center and channel == "raw"
+
+    def _causally_centred(self, tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``τ_t − m_t`` with ``m_t`` the mean of the window's finite torque samples up to and
+        including t (updates the running sums). A per-cycle constant load adds the same constant to
+        ``τ_t`` and ``m_t``, so the result is exactly invariant to it. Non-finite τ stay non-finite."""
+        finite = np.isfinite(tau)
+        sums = self.torque_sum + np.cumsum(np.where(finite, tau, 0.0))
+        counts = self.torque_count + np.cumsum(finite)
+        if tau.size:
+            self.torque_sum, self.torque_count = float(sums[-1]), int(counts[-1])
+        return tau - sums / np.maximum(counts, 1)
         self.modes = {}
 
     @property
@@ -179,7 +255,7 @@ class KLMonitor:
     @property
     def grid(self) -> NDArray[np.float64] | None:
         raw = self.channels["raw"]
-        return raw.kde.grid if raw.grid_fixed else None
+        return raw.grid if raw.grid_fixed else None
 
     def add_mode(self, name: str, density: ArrayLike) -> None:
         """Store the raw-channel density of a known mode (on this monitor's working grid)."""
@@ -208,7 +284,8 @@ class KLMonitor:
         self.n_window += tau.size
         self.channels["raw"].kde.add(tau)
         if self.weights is not None:
-            self.channels["weighted"].kde.add(self.weights(v) * tau)
+            located = self._causally_centred(tau) if self.center else tau
+            self.channels["weighted"].kde.add(self.weights(v) * located)
 
     def end_cycle(self, cycle: int) -> KLResult:
         """Close the cycle: density, KL distances (or learning step, or a reason) and a new window."""
@@ -217,7 +294,7 @@ class KLMonitor:
         finally:
             for ch in self.channels.values():
                 ch.new_window()
-            self.n_window = 0
+            self._new_window()
 
     def _outside(self) -> dict[str, dict[str, int]]:
         return {name: {"below": ch.kde.n_below, "above": ch.kde.n_above, "nonfinite": ch.kde.n_nonfinite}
@@ -247,8 +324,11 @@ class KLMonitor:
         for ch in self.channels.values():
             if not ch.grid_fixed:
                 ch.fix_grid()
-        result.outside = self._outside()   # regrid may move provisional mass outside
-        densities = {name: ch.kde.density() for name, ch in self.channels.items()}
+        windows = {name: ch.window_kde() for name, ch in self.channels.items()}
+        # regrid (first cycle, or centring) may move mass outside the working grid
+        result.outside = {name: {"below": k.n_below, "above": k.n_above, "nonfinite": k.n_nonfinite}
+                          for name, k in windows.items()}
+        densities = {name: k.density() for name, k in windows.items()}
         raw = self.channels["raw"]
         if not self.learned:
             for name, ch in self.channels.items():
@@ -258,15 +338,15 @@ class KLMonitor:
             if self.learned:
                 for ch in self.channels.values():
                     ch.finish_learning()
-            result.density = {"grid": raw.kde.grid, "cycle": densities["raw"], "nominal": raw.nominal}
+            result.density = {"grid": raw.grid, "cycle": densities["raw"], "nominal": raw.nominal}
             result.threshold_3sigma = self._thresholds()
             return result
-        values = {name: symmetric_kl(ch.nominal, densities[name], ch.kde.dx) for name, ch in self.channels.items()}
+        values = {name: symmetric_kl(ch.nominal, densities[name], ch.dx) for name, ch in self.channels.items()}
         result.raw = values["raw"]
         result.weighted = values.get("weighted")
         result.threshold_3sigma = self._thresholds()
         result.nearest_mode = self._nearest_mode(densities["raw"])
-        result.density = {"grid": raw.kde.grid, "cycle": densities["raw"], "nominal": raw.nominal}
+        result.density = {"grid": raw.grid, "cycle": densities["raw"], "nominal": raw.nominal}
         return result
 
     def _thresholds(self) -> dict[str, float] | None:
@@ -280,7 +360,7 @@ class KLMonitor:
             return None
         raw = self.channels["raw"]
         candidates = {"nominal": raw.nominal, **self.modes}
-        distances = {name: symmetric_kl(d, density, raw.kde.dx) for name, d in candidates.items()}
+        distances = {name: symmetric_kl(d, density, raw.dx) for name, d in candidates.items()}
         return min(distances, key=distances.__getitem__)
 
     # -- persistence ------------------------------------------------------------------------
@@ -288,8 +368,9 @@ class KLMonitor:
         return {
             "n_nominal_cycles": self.n_nominal_cycles, "n_grid": self.n_grid,
             "weights": None if self.weights is None else self.weights.to_dict(),
-            "window": self.window, "min_samples": self.min_samples,
+            "window": self.window, "min_samples": self.min_samples, "center": self.center,
             "n_learned": self.n_learned, "n_window": self.n_window,
+            "torque_sum": self.torque_sum, "torque_count": self.torque_count,
             "channels": {name: ch.state_dict() for name, ch in self.channels.items()},
             "modes": {name: d.tolist() for name, d in self.modes.items()},
         }
@@ -297,10 +378,15 @@ class KLMonitor:
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "KLMonitor":
         weights = None if state["weights"] is None else WeightFunction.from_dict(state["weights"])
+        # states written before centring existed learned uncentred densities: missing key → False
         mon = cls(n_nominal_cycles=state["n_nominal_cycles"], n_grid=state["n_grid"], weights=weights,
-                  window=state["window"], min_samples=state["min_samples"])
+                  window=state["window"], min_samples=state["min_samples"],
+                  center=bool(state.get("center", False)))
         mon.n_learned = int(state["n_learned"])
         mon.n_window = int(state["n_window"])
-        mon.channels = {name: _Channel.from_state(mon.n_grid, s) for name, s in state["channels"].items()}
+        mon.torque_sum = float(state.get("torque_sum", 0.0))
+        mon.torque_count = int(state.get("torque_count", 0))
+        mon.channels = {name: _Channel.from_state(mon.n_grid, mon._centred_by_mean(name), s)
+                        for name, s in state["channels"].items()}
         mon.modes = {name: np.asarray(d, dtype=float) for name, d in state["modes"].items()}
         return mon

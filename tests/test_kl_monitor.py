@@ -80,7 +80,8 @@ def test_learning_sets_grid_from_the_first_cycle_and_reports_thresholds() -> Non
     assert first.reason == "learning 1/3" and first.threshold_3sigma is None
     grid = mon.grid
     assert grid is not None and grid.size == 512
-    assert grid[0] < torque[0].min() and grid[-1] > torque[0].max()
+    centred = torque[0] - torque[0].mean()          # the grid holds the centred torque (center=True)
+    assert grid[0] < centred.min() and grid[-1] > centred.max()
     # the first cycle was re-binned, not lost: its density integrates to ~1 on the working grid
     assert first.density["cycle"].sum() * (grid[1] - grid[0]) == pytest.approx(1.0, abs=1e-3)
     rest = _feed(mon, torque[1:], speed, first_cycle=1)
@@ -135,15 +136,28 @@ def test_nan_samples_are_counted_and_the_rest_is_used() -> None:
     assert result.n_samples == tau.size - tau.size // 100
 
 
-def test_samples_outside_the_grid_are_reported_and_raise_kl() -> None:
-    mon, speed = _monitor_after()
-    torque, _, _ = simulate_cycles(2, 0.0, CONSTANT_TEMPERATURE, np.random.default_rng(4))
-    normal = _feed(mon, torque[:1], speed)[0]
-    shifted = torque[1] + 0.5                      # far beyond the working grid's margin
-    mon.add(shifted, speed)
+@pytest.mark.parametrize("center", [False, True])
+def test_samples_outside_the_grid_are_reported_and_raise_kl(center: bool) -> None:
+    rng = np.random.default_rng(4)
+    mon = KLMonitor(n_nominal_cycles=2, center=center)
+    torque, speed, _ = simulate_cycles(4, 0.0, CONSTANT_TEMPERATURE, rng)
+    _feed(mon, torque[:2], speed)
+    normal = _feed(mon, torque[2:3], speed)[0]
+    # uncentred: a shift of +0.5 leaves the working grid; centred, a shift is removed, so stretch
+    # the cycle about its mean instead (a change of shape the centring must not hide)
+    moved = torque[3] + 0.5 if not center else torque[3].mean() + 6.0 * (torque[3] - torque[3].mean())
+    mon.add(moved, speed)
     result = mon.end_cycle(9)
     assert normal.outside["raw"]["above"] == 0
-    assert result.outside["raw"]["above"] > 0.9 * shifted.size
+    # every sample beyond the working grid is counted; mass is counted by (capture or working) bin,
+    # so only samples within one bin (≤ 2e-4 before the ×6 stretch, i.e. 1.2e-3) of a grid end may
+    # land on either side
+    located = moved - (moved.mean() if center else 0.0)
+    grid = mon.grid
+    beyond = np.count_nonzero((located < grid[0]) | (located > grid[-1]))
+    ambiguous = np.count_nonzero(np.minimum(abs(located - grid[0]), abs(located - grid[-1])) < 1.2e-3)
+    out = result.outside["raw"]["above"] + result.outside["raw"]["below"]
+    assert beyond > 0.2 * moved.size and abs(out - beyond) <= ambiguous + 1
     assert result.raw > 100 * normal.raw
 
 
@@ -218,8 +232,114 @@ def test_configuration_errors_name_the_field() -> None:
 def test_memory_is_bounded_by_the_grid() -> None:
     mon, speed = _monitor_after()
     torque, _, _ = simulate_cycles(1, 0.0, CONSTANT_TEMPERATURE, np.random.default_rng(9))
-    for _ in range(20):                       # a cycle 20 times longer than usual
+    mon.add(torque[0], speed)
+    size_one_cycle = len(json.dumps(mon.state_dict()))
+    for _ in range(19):                       # a cycle 20 times longer than usual
         mon.add(torque[0], speed)
     state = mon.state_dict()
-    assert len(state["channels"]["raw"]["kde"]["mass"]) == 512 < PROVISIONAL_GRID
+    # raw channel (centred): fixed capture grid over the wire range; weighted: the working grid
+    assert len(state["channels"]["raw"]["kde"]["mass"]) == PROVISIONAL_GRID
+    assert len(state["channels"]["weighted"]["kde"]["mass"]) == 512
+    # same mass bins, only the numbers in them change: the state does not grow with the cycle
+    assert len(json.dumps(state)) < 1.1 * size_one_cycle
     assert mon.end_cycle(1).n_samples == 20 * speed.size
+
+
+# -- centring: invariance to a per-cycle load (gravity) torque --------------------------------------
+LOAD_SPREAD = (0.3, 0.7)      # simulator default |τl| ~ U(0.3, 0.7), a location shift per cycle
+
+
+def test_centring_removes_a_pure_shift_up_to_the_binning_error() -> None:
+    """A cycle equal to the nominal cycle shifted by a constant has KL ≈ 0.
+
+    Bound (raw channel): a sample binned linearly at fraction f between two points of step dx
+    contributes K(x − y) + ½·f(1 − f)·dx²·K''(x − y) + O(dx³), i.e. an extra variance in [0, dx²/4]
+    per binning. The sample passes two binnings (capture grid, then working grid), so the two
+    densities differ by Δp = ½·Σ aᵢ·cᵢ·K''ᵢ with |cᵢ| ≤ δ = (dx_c² + dx_w²)/4. By Cauchy–Schwarz
+    and ∫K''²/K = 3/h⁴ for a Gaussian of std h, the χ² distance ∫Δp²/p ≤ ¾·δ²/h⁴; the symmetric
+    KL equals χ² to second order, so KL ≤ 2·¾·δ²/h⁴ (factor 2 for higher-order terms).
+    Weighted channel: its values w·(τ − m_t) are shift-invariant in exact arithmetic (m_t: causal
+    running mean) and are binned once on the working grid; but the first learning cycle was binned
+    on the provisional grid and re-binned when the grid was fixed, so the same bound applies with
+    the weighted values' h and working step.
+    """
+    rng = np.random.default_rng(11)
+    torque, speed, _ = simulate_cycles(1, 10.0, CONSTANT_TEMPERATURE, rng)
+    cycle = torque[0]
+    mon = KLMonitor(n_nominal_cycles=2)
+    _feed(mon, np.stack([cycle, cycle]), speed)            # nominal density = this cycle's density
+    n = cycle.size
+    h = (4.0 / (3.0 * n)) ** 0.2 * cycle.std(ddof=1)      # normal reference rule, as the KDE uses
+    dx_capture = 2 * 1.6384 / (PROVISIONAL_GRID - 1)
+    dx_work = mon.grid[1] - mon.grid[0]
+    delta = (dx_capture ** 2 + dx_work ** 2) / 4
+    bound = 2 * 0.75 * delta ** 2 / h ** 4
+    weighted = WeightFunction()(speed) * (cycle - np.cumsum(cycle) / np.arange(1, n + 1))
+    h_weighted = (4.0 / (3.0 * n)) ** 0.2 * weighted.std(ddof=1)
+    delta_weighted = (dx_capture ** 2 + mon.channels["weighted"].dx ** 2) / 4
+    bound_weighted = 2 * 0.75 * delta_weighted ** 2 / h_weighted ** 4
+    for shift in (1e-5, 0.0137, 0.31415, -0.2718, 0.9):
+        result = _feed(mon, (cycle + shift)[None, :], speed)[0]
+        assert result.raw <= bound, (shift, result.raw, bound)
+        assert result.weighted <= bound_weighted, (shift, result.weighted, bound_weighted)
+    # the bound is far below the nominal level of KL between different healthy cycles
+    other, _, _ = simulate_cycles(1, 10.0, CONSTANT_TEMPERATURE, rng)
+    assert _feed(mon, other, speed)[0].raw > 1000 * bound
+
+
+def _spearman(a: np.ndarray, b: np.ndarray) -> float:
+    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
+    return float(np.corrcoef(ra, rb)[0, 1])
+
+
+@pytest.mark.parametrize("center", [True, False])
+def test_load_spread_centred_stays_nominal_and_sees_wear_uncentred_sees_the_load(center: bool) -> None:
+    rng = np.random.default_rng(20261123)
+    k, n = 10, 40
+    mon = KLMonitor(n_nominal_cycles=k, center=center)
+    torque, speed, _ = simulate_cycles(k, 0.0, CONSTANT_TEMPERATURE, rng, gravity=LOAD_SPREAD)
+    _feed(mon, torque, speed)
+    nominal_mean = torque.mean()
+    batches = {}
+    for label, wear, gravity in (("h0 fixed", 0.0, None), ("h0 load", 0.0, LOAD_SPREAD),
+                                 ("h1 load", 35.0, LOAD_SPREAD)):
+        torque, _, _ = simulate_cycles(n, wear, CONSTANT_TEMPERATURE, rng, gravity=gravity)
+        batches[label] = (np.array([[r.raw, r.weighted] for r in _feed(mon, torque, speed)]), torque.mean(axis=1))
+    h0, load = batches["h0 load"]
+    # Under independence, Spearman's ρ of n pairs has sd 1/√(n − 1); |ρ| > 4/√(n − 1) has
+    # probability < 1e-4.
+    rho_limit = 4 / np.sqrt(n - 1)
+    distance = np.abs(load - nominal_mean)     # how far this cycle's load is from the nominal ones
+    if not center:
+        # the old failure: kl.raw follows the per-cycle load, not the machine's condition
+        assert _spearman(h0[:, 0], distance) > rho_limit
+        return
+    h0_fixed = batches["h0 fixed"][0]
+    h1 = batches["h1 load"][0]
+    thresholds = {name: mon.channels[name].threshold for name in ("raw", "weighted")}  # μ0 + 3σ0
+    for j, name in enumerate(("raw", "weighted")):
+        # quiet: centred KL does not depend on the load (ρ test) and its mean equals the mean at a
+        # fixed load (CLT: |z| > 4 has probability 6e-5)
+        assert abs(_spearman(h0[:, j], distance)) < rho_limit, name
+        assert abs(h0[:, j].mean() - h0_fixed[:, j].mean()) < 4 * _se_diff(h0[:, j], h0_fixed[:, j]), name
+        # alarm: wear 35 under the same load spread raises the mean significantly (z > 4) and
+        # above the μ0 + 3σ0 threshold
+        assert h1[:, j].mean() - h0[:, j].mean() > 4 * _se_diff(h0[:, j], h1[:, j]), name
+        assert h1[:, j].mean() > thresholds[name], name
+
+
+def test_old_states_without_the_center_key_load_uncentred() -> None:
+    rng = np.random.default_rng(12)
+    torque, speed, _ = simulate_cycles(3, 0.0, CONSTANT_TEMPERATURE, rng)
+    old = KLMonitor(n_nominal_cycles=2, center=False)
+    _feed(old, torque[:2], speed)
+    state = json.loads(json.dumps(old.state_dict()))
+    for key in ("center", "torque_sum", "torque_count"):     # keys added with centring
+        del state[key]
+    for ch in state["channels"].values():
+        del ch["lo"], ch["hi"]
+    restored = KLMonitor.from_state(state)
+    assert restored.center is False
+    a, b = _feed(old, torque[2:], speed)[0], _feed(restored, torque[2:], speed)[0]
+    assert (a.raw, a.weighted) == (b.raw, b.weighted)
+    np.testing.assert_array_equal(restored.grid, old.grid)

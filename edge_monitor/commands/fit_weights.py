@@ -74,18 +74,23 @@ class CycleModel:
 
 
 def simulate_cycles(n_cycles: int, wear: float, temperature: tuple[float, float],
-                    rng: np.random.Generator, model: CycleModel = CycleModel()
+                    rng: np.random.Generator, model: CycleModel = CycleModel(),
+                    gravity: tuple[float, float] | None = None
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Draw ``n_cycles`` test cycles at wear ``wear`` with the lubricant temperature of each cycle
     uniform on ``temperature = (lo, hi)`` [°C]. Returns (torque [n_cycles, n_samples], speed
-    [n_samples] rad/s, temperature per cycle [°C])."""
+    [n_samples] rad/s, temperature per cycle [°C]). With ``gravity = (lo, hi)`` the gravity (load)
+    torque at the test angle is drawn per cycle from U(lo, hi) (dimensionless; a pure location shift
+    of the cycle, the friction load stays ``model.load``), else it is ``model.gravity``. The extra
+    draws come after the others, so without ``gravity`` the stream is unchanged."""
     speed, level = model.speed_profile()
     xi = rng.uniform(temperature[0], temperature[1], size=n_cycles)
     sign = np.sign(speed)
     tau_f = friction(speed[None, :], model.load, xi[:, None], wear)
     errors = rng.normal(0.0, model.model_error_std, size=(n_cycles, len(model.levels)))
     noise = rng.normal(0.0, model.noise_std, size=(n_cycles, speed.size))
-    torque = model.gravity + tau_f + sign[None, :] * errors[:, level] + noise
+    g = np.full(n_cycles, model.gravity) if gravity is None else rng.uniform(gravity[0], gravity[1], n_cycles)
+    torque = g[:, None] + tau_f + sign[None, :] * errors[:, level] + noise
     return torque, speed, xi
 
 
