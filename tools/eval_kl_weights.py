@@ -13,7 +13,9 @@ generator (healthy vs wear 35, both with ξ ~ U(30, 70)).
 
 Data: ``edge_monitor.commands.fit_weights.simulate_cycles`` (test cycle straight from the §1 model)
 or, with ``--source sim``, the project simulator (``sim_controller``), one joint, samples taken
-before the wire (see ``sim_cycles``).
+before the wire (see ``sim_cycles``). Both draw the load (gravity torque at the test angle) per cycle
+from U(0.3, 0.7) by default (``--load``, ``--sim-load``); ``--no-center`` evaluates the uncentred
+detector.
 
 Needs matplotlib for ``--png`` (a benchmark/eval-only peer: ``pip install matplotlib``).
 
@@ -37,14 +39,18 @@ from edge_monitor.kl_monitor import KLMonitor
 Source = Callable[[int, float, tuple[float, float], np.random.Generator], tuple[np.ndarray, np.ndarray]]
 
 
-def model_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.random.Generator
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    torque, speed, _ = simulate_cycles(n, wear, temperature, rng)
-    return torque, np.broadcast_to(speed, torque.shape)
-
-
+#: Per-cycle gravity (load) torque of the model generator (``--load``): the simulator's U(0.3, 0.7).
+MODEL_LOAD: tuple[float, float] = (0.3, 0.7)
 #: Load range |τl| of the simulator runs (``--sim-load``); None: the simulator's default U(0.3, 0.7).
 SIM_LOAD: tuple[float, float] | None = None
+#: KLMonitor(center=...) (``--no-center`` turns it off).
+CENTER = True
+
+
+def model_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.random.Generator
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    torque, speed, _ = simulate_cycles(n, wear, temperature, rng, gravity=MODEL_LOAD)
+    return torque, np.broadcast_to(speed, torque.shape)
 
 
 def sim_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.random.Generator
@@ -82,11 +88,21 @@ def kl_values(monitor: KLMonitor, torque: np.ndarray, speed: np.ndarray) -> np.n
     return np.array(out)
 
 
+def causally_centred(torque: np.ndarray) -> np.ndarray:
+    """``τ_t − m_t`` per cycle (row), ``m_t`` the running mean up to t: what the centred weighted
+    channel weights (see edge_monitor.kl_monitor)."""
+    return torque - np.cumsum(torque, axis=1) / np.arange(1, torque.shape[1] + 1)
+
+
 def fitted_weights(source: Source, rng: np.random.Generator, n: int = 200) -> WeightFunction:
+    """Weights fitted to labelled runs (ξ ~ U(30, 70), load as the source draws it); with centring
+    on, fitted to the causally centred torque the weighted channel sees."""
     healthy, speed = source(n, 0.0, (30.0, 70.0), rng)
     faulty, _ = source(n, 35.0, (30.0, 70.0), rng)
     size = min(healthy.shape[1], faulty.shape[1])     # simulator cycles differ by a few ticks
     healthy, faulty, speed = healthy[:, :size], faulty[:, :size], speed[:, :size].mean(axis=0)
+    if CENTER:
+        healthy, faulty = causally_centred(healthy), causally_centred(faulty)
     alpha, beta = fit_weight_function(speed, fit_index_weights(healthy, faulty))
     return WeightFunction(alpha, beta)
 
@@ -102,7 +118,7 @@ def study(source: Source, spreads: list[float], n_cycles: int, replicates: int, 
     for s in spreads:
         temperature = (30.0, 30.0 + s)
         for _ in range(replicates):
-            monitors = {name: KLMonitor(n_nominal_cycles=k, weights=w) for name, w in weights.items()}
+            monitors = {name: KLMonitor(n_nominal_cycles=k, weights=w, center=CENTER) for name, w in weights.items()}
             data = {label: source(n, wr, temperature, rng)
                     for label, n, wr in (("nominal", k, 0.0), ("h0", n_cycles, 0.0), ("h1", n_cycles, wear))}
             values = {}
@@ -119,7 +135,7 @@ def study(source: Source, spreads: list[float], n_cycles: int, replicates: int, 
 
 
 def example_densities(source: Source, rng: np.random.Generator, k: int) -> dict[str, np.ndarray]:
-    mon = KLMonitor(n_nominal_cycles=k)
+    mon = KLMonitor(n_nominal_cycles=k, center=CENTER)
     kl_values(mon, *source(k, 0.0, (40.0, 40.0), rng))
     out = {}
     for label, wear in (("wear 0", 0.0), ("wear 35", 35.0)):
@@ -150,7 +166,7 @@ def plot(pd: dict[str, dict[float, list[float]]], densities: dict[str, np.ndarra
     ax2.plot(densities["grid"], densities["nominal"], "k-", label="nominal (K cycles)")
     ax2.plot(densities["grid"], densities["wear 0"], label="one cycle, wear 0")
     ax2.plot(densities["grid"], densities["wear 35"], label="one cycle, wear 35")
-    ax2.set_xlabel("joint torque [fraction of max]")
+    ax2.set_xlabel("joint torque − cycle mean [fraction of max]" if CENTER else "joint torque [fraction of max]")
     ax2.set_ylabel("density (raw channel)")
     ax2.set_title("torque densities at 40 °C")
     ax2.grid(alpha=0.3)
@@ -170,12 +186,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--sim-load", type=float, nargs=2, metavar=("LO", "HI"),
                    help="with --source sim: per-cycle load range |τl| (default: the simulator's 0.3 0.7)")
+    p.add_argument("--load", type=float, nargs=2, metavar=("LO", "HI"), default=(0.3, 0.7),
+                   help="with --source model: per-cycle gravity torque range (default 0.3 0.7; '0.3 0.3' fixed)")
+    p.add_argument("--no-center", action="store_true", help="KLMonitor(center=False): the uncentred detector")
     p.add_argument("--png", help="write the Pd-vs-spread figure here")
     p.add_argument("--json", help="write the numbers here")
     args = p.parse_args(argv)
     rng = np.random.default_rng(args.seed)
-    global SIM_LOAD
+    global SIM_LOAD, MODEL_LOAD, CENTER
     SIM_LOAD = None if args.sim_load is None else (args.sim_load[0], args.sim_load[1])
+    MODEL_LOAD = (args.load[0], args.load[1])
+    CENTER = not args.no_center
     source: Source = model_cycles if args.source == "model" else sim_cycles
     t0 = time.perf_counter()
     fitted = fitted_weights(source, rng)
@@ -189,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
         cells = [f"{np.mean(pd[n][s]):.3f} ({min(pd[n][s]):.2f}–{max(pd[n][s]):.2f})" for n in pd]
         print(f"| {s:.0f} | " + " | ".join(cells) + " |")
     print(f"\nsource={args.source} cycles/hypothesis={args.cycles} replicates={args.replicates} K={args.nominal} "
-          f"wear={args.wear} fitted alpha={fitted.alpha:.4g} beta={fitted.beta:.4g} "
+          f"wear={args.wear} center={CENTER} "
+          f"load={MODEL_LOAD if args.source == 'model' else (SIM_LOAD or 'sim default')} fitted alpha={fitted.alpha:.4g} beta={fitted.beta:.4g} "
           f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
         with open(args.json, "w") as fh:
