@@ -8,8 +8,10 @@ maintenance), which also restarts learning. Non-finite values are skipped and co
 touch the state.
 
 Default false-alarm probability: :data:`DEFAULT_PF` per test, chosen so that the measured run
-length to false alarm (ARL0) of the windowed test is at least 10⁴ cycles (tools/arl_study.py,
-docs/DETECTION.md).
+length to false alarm (ARL0) of the windowed test is at least 10⁴ cycles for roughly Gaussian
+per-cycle values (measured > 4·10⁴; tools/arl_study.py, docs/DETECTION.md). For skewed, long-tailed
+values (e.g. a raw KL distance) the measured ARL0 is only a few hundred cycles: transform them
+(e.g. log) before this detector.
 """
 
 from __future__ import annotations
