@@ -144,9 +144,10 @@ class JointMonitor:
         wear = self._estimate_wear(curve)
         kl = self.kl.end_cycle(cycle) if self.kl is not None else None
         kl_record = kl.to_record() if kl is not None else {"raw": None, "weighted": None}
+        kl_transform = _safe_log if self.config.decision.log_kl else (lambda x: x)
         values = {"wear": wear.estimate if wear is not None else float("nan"),
-                  "kl_raw": _nan_if_none(kl_record.get("raw")),
-                  "kl_weighted": _nan_if_none(kl_record.get("weighted"))}
+                  "kl_raw": kl_transform(_nan_if_none(kl_record.get("raw"))),
+                  "kl_weighted": kl_transform(_nan_if_none(kl_record.get("weighted")))}
         decisions, alarms = self._decide(values, cycle, robot)
         self.cycles += 1
         load_mean = self._load.mean()
@@ -255,6 +256,11 @@ class JointMonitor:
         for q, s in state.get("detectors", {}).items():
             if q in self.detectors:
                 self.detectors[q] = SequentialDetector.from_state(s)
+
+
+def _safe_log(x: float) -> float:
+    """log of a KL distance for the detectors; non-positive or non-finite values become NaN (skipped)."""
+    return math.log(x) if math.isfinite(x) and x > 0 else float("nan")
 
 
 def _nan_if_none(x: Any) -> float:
