@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge_monitor.commands.fit_weights import CycleModel, simulate_cycles
+from edge_monitor.commands.fit_weights import CycleModel, fit, simulate_cycles
 from edge_monitor.disturbance_weights import (DEFAULT_ALPHA, DEFAULT_BETA, WeightFitError, WeightFunction,
                                               fit_index_weights, fit_weight_function)
 
@@ -135,3 +135,22 @@ def test_cli_reports_bad_input_with_exit_code_2(tmp_path: Path) -> None:
     bad.write_text("cycle,torque\n0,0.1\n")
     done = _cli("--healthy", str(bad), "--faulty", str(bad))
     assert done.returncode == 2 and "missing column" in done.stderr
+
+
+def test_centred_fit_ignores_a_per_cycle_load() -> None:
+    """fit(center=True) works on τ_t − m_t, which a per-cycle constant leaves unchanged (up to
+    round-off): the fitted α, β with and without a load spread U(0.3, 0.7) agree to 1e-6."""
+    rng = np.random.default_rng(4)
+    healthy, speed, _ = simulate_cycles(20, 0.0, (30.0, 70.0), rng)
+    faulty, _, _ = simulate_cycles(20, 35.0, (30.0, 70.0), rng)
+    loads = rng.uniform(0.3, 0.7, size=(2, 20, 1))
+    plain = fit(healthy, faulty, speed)
+    loaded = fit(healthy + loads[0], faulty + loads[1], speed)
+    assert plain["center"] is True
+    assert loaded["alpha"] == pytest.approx(plain["alpha"], rel=1e-6)
+    assert loaded["beta"] == pytest.approx(plain["beta"], rel=1e-6)
+    # uncentred, the load spread dominates the per-sample variance and changes the fit
+    uncentred = fit(healthy + loads[0], faulty + loads[1], speed, center=False)
+    assert uncentred["center"] is False
+    assert uncentred["alpha"] != pytest.approx(plain["alpha"], rel=1e-3) or \
+        uncentred["beta"] != pytest.approx(plain["beta"], rel=1e-3)

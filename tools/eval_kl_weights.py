@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from edge_monitor.commands.fit_weights import simulate_cycles
+from edge_monitor.commands.fit_weights import causally_centred, simulate_cycles
 from edge_monitor.disturbance_weights import WeightFunction, fit_index_weights, fit_weight_function
 from edge_monitor.kl_monitor import KLMonitor
 
@@ -86,12 +86,6 @@ def kl_values(monitor: KLMonitor, torque: np.ndarray, speed: np.ndarray) -> np.n
         r = monitor.end_cycle(c)
         out.append((np.nan, np.nan) if r.raw is None else (r.raw, r.weighted))
     return np.array(out)
-
-
-def causally_centred(torque: np.ndarray) -> np.ndarray:
-    """``τ_t − m_t`` per cycle (row), ``m_t`` the running mean up to t: what the centred weighted
-    channel weights (see edge_monitor.kl_monitor)."""
-    return torque - np.cumsum(torque, axis=1) / np.arange(1, torque.shape[1] + 1)
 
 
 def fitted_weights(source: Source, rng: np.random.Generator, n: int = 200) -> WeightFunction:

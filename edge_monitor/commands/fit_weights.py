@@ -140,12 +140,24 @@ def read_cycles_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64
 
 
 # -- command ------------------------------------------------------------------------------------
-def fit(healthy: NDArray[np.float64], faulty: NDArray[np.float64], speed: NDArray[np.float64]) -> dict[str, Any]:
+def causally_centred(torque: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``τ_t − m_t`` per cycle (row), ``m_t`` the running mean of the cycle up to sample t: the
+    quantity the centred KL detector weights (:class:`edge_monitor.kl_monitor.KLMonitor`,
+    ``center=True``); invariant to a per-cycle constant load torque."""
+    return torque - np.cumsum(torque, axis=1) / np.arange(1, torque.shape[1] + 1)
+
+
+def fit(healthy: NDArray[np.float64], faulty: NDArray[np.float64], speed: NDArray[np.float64],
+        center: bool = True) -> dict[str, Any]:
+    """Fit α, β. ``center=True`` fits to causally centred torque (for the default, centred KL
+    detector); ``False`` to the torque itself (for ``KLMonitor(center=False)``)."""
+    if center:
+        healthy, faulty = causally_centred(healthy), causally_centred(faulty)
     w_index = fit_index_weights(healthy, faulty)
     alpha, beta = fit_weight_function(speed, w_index)
     return {"alpha": alpha, "beta": beta, "index_weights": [round(float(x), 6) for x in w_index],
             "speeds": [round(float(x), 4) for x in speed],
-            "n_healthy": int(healthy.shape[0]), "n_faulty": int(faulty.shape[0])}
+            "n_healthy": int(healthy.shape[0]), "n_faulty": int(faulty.shape[0]), "center": bool(center)}
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -158,6 +170,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--wear", type=float, default=CRITICAL_WEAR, help="wear of the faulty class (default 35)")
     p.add_argument("--temperature", type=float, nargs=2, default=(30.0, 70.0), metavar=("LO", "HI"),
                    help="temperature spread °C per cycle with --simulate (default 30 70)")
+    p.add_argument("--load", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="with --simulate: per-cycle gravity (load) torque U(LO, HI) (default: fixed 0.3)")
+    p.add_argument("--no-center", action="store_true",
+                   help="fit to the torque itself, for an uncentred KL detector (default: causally centred torque)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--write-csv", type=Path, metavar="DIR", help="with --simulate: also write healthy.csv/faulty.csv")
     p.add_argument("-o", "--output", type=Path, help="write the JSON here instead of stdout")
@@ -170,8 +186,9 @@ def run(args: argparse.Namespace) -> int:
             if args.cycles < 2:
                 raise CycleDataError("--cycles: need >= 2 cycles per class")
             rng = np.random.default_rng(args.seed)
-            healthy, speed, _ = simulate_cycles(args.cycles, 0.0, tuple(args.temperature), rng)
-            faulty, _, _ = simulate_cycles(args.cycles, args.wear, tuple(args.temperature), rng)
+            load = None if args.load is None else (args.load[0], args.load[1])
+            healthy, speed, _ = simulate_cycles(args.cycles, 0.0, tuple(args.temperature), rng, gravity=load)
+            faulty, _, _ = simulate_cycles(args.cycles, args.wear, tuple(args.temperature), rng, gravity=load)
             if args.write_csv:
                 args.write_csv.mkdir(parents=True, exist_ok=True)
                 write_cycles_csv(args.write_csv / "healthy.csv", healthy, speed)
@@ -183,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
             faulty, speed_f = read_cycles_csv(args.faulty)
             if speed_f.shape != speed.shape or not np.allclose(speed_f, speed, atol=0.05):
                 raise CycleDataError("--healthy and --faulty must follow the same trajectory (speed per sample)")
-        result = fit(healthy, faulty, speed)
+        result = fit(healthy, faulty, speed, center=not args.no_center)
     except (CycleDataError, WeightFitError) as exc:
         print(f"edge-monitor fit-weights: {exc}", file=sys.stderr)
         return 2
