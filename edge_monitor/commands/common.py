@@ -56,7 +56,7 @@ def fmt(x: Any, spec: str = ".3g") -> str:
 
 def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: float) -> str:
     """Per joint: cycles, final wear estimate ± std, alarms (cycle, quantity), Pf and estimated Pm."""
-    lines = [f"{'joint':>5} {'cycles':>6} {'wear ± std':>16} {'temp °C':>8} {'alarms':<32} {'Pf':>7} {'Pm':>7}"]
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear ± std':>16} {'temp °C':>8} {'alarms':<44} {'Pf':>7} {'Pm':>7}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
@@ -70,7 +70,7 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: flo
         std_text = ">100" if std is not None and std > 100 else fmt(std, ".1f")   # not identifiable near ϖ = 0
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} "
                      f"{fmt(wear.get('estimate'), '.1f'):>7} ± {std_text:<6} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:32]:<32} {pf:>7.2g} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:44]:<44} {pf:>7.2g} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     return "\n".join(lines)
 
