@@ -280,8 +280,13 @@ class StreamingKDE:
 
     # -- persistence ------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
+        """JSON state. The mass is stored from its first to its last non-zero bin (``mass_offset``
+        = index of the first): an empty window costs nothing, a fine grid only its occupied part."""
+        nz = np.flatnonzero(self.mass)
+        first, last = (int(nz[0]), int(nz[-1]) + 1) if nz.size else (0, 0)
         return {
-            "lo": self.lo, "hi": self.hi, "n_grid": self.n_grid, "mass": self.mass.tolist(),
+            "lo": self.lo, "hi": self.hi, "n_grid": self.n_grid,
+            "mass": self.mass[first:last].tolist(), "mass_offset": first,
             "sum_w": self.sum_w, "sum_w2": self.sum_w2, "mean": self.mean, "m2": self.m2,
             "n_samples": self.n_samples, "n_below": self.n_below, "n_above": self.n_above,
             "n_nonfinite": self.n_nonfinite, "mass_outside": self.mass_outside,
@@ -290,10 +295,14 @@ class StreamingKDE:
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "StreamingKDE":
         kde = cls(state["lo"], state["hi"], state["n_grid"])
-        mass = np.asarray(state["mass"], dtype=float)
-        if mass.shape != (kde.n_grid,):
+        mass = np.asarray(state["mass"], dtype=float).reshape(-1)
+        offset = int(state.get("mass_offset", 0))      # states without it hold the full grid
+        if "mass_offset" not in state and mass.size != kde.n_grid:
             raise ValueError(f"StreamingKDE.from_state: 'mass' has {mass.size} bins, expected {kde.n_grid}")
-        kde.mass = mass
+        if offset < 0 or offset + mass.size > kde.n_grid:
+            raise ValueError(f"StreamingKDE.from_state: 'mass' bins {offset}…{offset + mass.size} "
+                             f"exceed the grid of {kde.n_grid} points")
+        kde.mass[offset:offset + mass.size] = mass
         for key in ("sum_w", "sum_w2", "mean", "m2", "mass_outside"):
             setattr(kde, key, float(state[key]))
         for key in ("n_samples", "n_below", "n_above", "n_nonfinite"):

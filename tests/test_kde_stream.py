@@ -121,6 +121,20 @@ def test_state_round_trips_through_json() -> None:
     assert (clone.n_above, clone.n_nonfinite, clone.bandwidth) == (kde.n_above, kde.n_nonfinite, kde.bandwidth)
 
 
+def test_state_stores_only_the_occupied_bins_and_reads_full_grid_states() -> None:
+    kde = StreamingKDE(-1.6384, 1.6384, 16384)
+    assert StreamingKDE.from_state(kde.state_dict()).mass.sum() == 0 and kde.state_dict()["mass"] == []
+    kde.add(np.random.default_rng(9).normal(0.3, 0.01, 2000))
+    state = kde.state_dict()
+    assert 0 < len(state["mass"]) < 1000              # ±6σ = 0.12 → about 600 bins of 2e-4
+    np.testing.assert_array_equal(StreamingKDE.from_state(state).mass, kde.mass)
+    full = {**state, "mass": kde.mass.tolist()}       # format before trimming: whole grid, no offset
+    del full["mass_offset"]
+    np.testing.assert_array_equal(StreamingKDE.from_state(full).mass, kde.mass)
+    with pytest.raises(ValueError, match="mass"):
+        StreamingKDE.from_state({**state, "mass_offset": 16380})
+
+
 def test_regrid_keeps_moments_and_moves_mass_by_less_than_a_bin() -> None:
     y = np.random.default_rng(8).normal(0.2, 0.05, 5000)
     wide = StreamingKDE(-1.6384, 1.6384, 16384)
