@@ -46,6 +46,7 @@ class KLConfig:
     n_nominal_cycles: int = 10
     n_grid: int = 512
     window: str = "cycle"                # "cycle" | "production"
+    center: bool = True                  # compare densities of torque − cycle mean (load/gravity invariant)
     alpha: float = 1.45e-2               # w(v) = sech(β·v)·tanh(α·v)
     beta: float = 4.55e-2
 

@@ -90,7 +90,7 @@ class JointMonitor:
     def _new_kl_monitor(self) -> KLMonitor:
         k = self.config.kl
         return KLMonitor(n_nominal_cycles=k.n_nominal_cycles, n_grid=k.n_grid,
-                         weights=WeightFunction(alpha=k.alpha, beta=k.beta), window=k.window)
+                         weights=WeightFunction(alpha=k.alpha, beta=k.beta), window=k.window, center=k.center)
 
     def _new_detector(self, quantity: str) -> SequentialDetector:
         d = self.config.decision
