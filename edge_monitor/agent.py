@@ -159,13 +159,21 @@ class Agent:
                     outputs += self._emit(joint, monitor.end_cycle(monitor.cycles, self.config.robot))
         return outputs
 
-    def declare_maintenance(self, joint: int) -> None:
-        """Gearbox replaced: relearn the joint's nominal models; raised alarms are cleared."""
-        monitor = self._monitor(joint)
-        cycle = self._last_emitted.get(joint, -1)
-        for alarm in monitor.declare_maintenance(self.config.robot, cycle):
-            for sink in self.sinks:
-                self._call(sink.on_alarm, alarm)
+    def declare_maintenance(self, joint: int) -> list[dict[str, Any]]:
+        """Gearbox replaced or serviced: relearn the joint's nominal models; raised alarms are cleared
+        (one "cleared" alarm record per quantity, returned and sent to the sinks). Thread-safe."""
+        if not 0 <= int(joint) < 8:
+            raise ValueError(f"joint {joint!r}: joints are 0 … 7")
+        with self.lock:
+            monitor = self._monitor(int(joint))
+            cycle = self._last_emitted.get(int(joint), -1)
+            cleared = monitor.declare_maintenance(self.config.robot, cycle)
+            log.warning("joint %d: maintenance declared after cycle %d; nominal models are relearned", joint, cycle)
+            for alarm in cleared:
+                for sink in self.sinks:
+                    self._call(sink.on_alarm, alarm)
+            self.save_state()
+            return cleared
 
     def health(self) -> dict[str, Any]:
         wall = time.perf_counter() - self.stats.started

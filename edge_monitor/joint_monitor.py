@@ -85,6 +85,7 @@ class JointMonitor:
         self._last_tick = 0
         self._cut_short_seen = 0
         self.cycles = 0
+        self.maintenances = 0
 
     # ------------------------------------------------------------------ construction
     def _new_kl_monitor(self) -> KLMonitor:
@@ -234,12 +235,14 @@ class JointMonitor:
         self._alarmed.clear()
         if self.kl is not None:
             self.kl.reset()
+        self.maintenances += 1
         return cleared
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
         return {
             "joint": self.joint, "cycles": self.cycles, "alarmed": dict(self._alarmed),
+            "maintenances": self.maintenances,
             "plateaus": self.plateaus.state_dict(), "extractor": self.extractor.state_dict(),
             "kl": self.kl.state_dict() if self.kl is not None else None,
             "detectors": {q: d.state_dict() for q, d in self.detectors.items()},
@@ -248,6 +251,7 @@ class JointMonitor:
     def load_state(self, state: dict[str, Any]) -> None:
         """Restore learned models and detector state (configuration comes from the current config)."""
         self.cycles = int(state.get("cycles", 0))
+        self.maintenances = int(state.get("maintenances", 0))
         self._alarmed = {str(q): bool(v) for q, v in state.get("alarmed", {}).items()}
         self.plateaus = PlateauDetector.from_state(state.get("plateaus", {}), self.config.segmentation)
         self._cut_short_seen = self.plateaus.counters.cut_short

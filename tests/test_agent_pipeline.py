@@ -130,3 +130,30 @@ def test_shipped_example_config_equals_embedded_defaults():
     from edge_monitor.config import load_config
     example = Path(edge_monitor.__file__).parent / "defaults" / "agent.toml"
     assert load_config(example) == AgentConfig()
+
+
+def test_alarm_is_raised_once_and_cleared_by_a_declared_maintenance():
+    # 5 healthy cycles (3 learn the nominal model), then the gearbox is badly worn
+    frames = make_frames(9, joints=(0,), speeds=SPEEDS, wear=lambda j, c: 0.0 if c < 5 else 60.0, seed=9)
+    sink_alarms = []
+
+    class Sink:
+        def on_symptom(self, output): pass
+        def on_alarm(self, alarm): sink_alarms.append(alarm)
+        def on_health(self, health): pass
+        def close(self): pass
+
+    agent = Agent(small_config(), sinks=[Sink()])
+    outs = feed(agent, frames)
+    raised = [a for a in sink_alarms if a["state"] == "raised"]
+    assert raised and {a["quantity"] for a in raised} >= {"wear"}
+    assert len(raised) == len({a["quantity"] for a in raised})            # each quantity raised once
+    assert all(a["cycle"] >= 5 for a in raised)                            # never before the wear
+    assert outs[-1].symptom["alarm"] is True
+    cleared = agent.declare_maintenance(0)
+    assert {a["quantity"] for a in cleared} == {a["quantity"] for a in raised}
+    assert all(a["state"] == "cleared" for a in cleared)
+    assert agent.joints[0].maintenances == 1
+    after = agent.finish()
+    assert after[-1].symptom["decisions"]["wear"]["state"] == "learning"
+    assert after[-1].symptom["alarm"] is False

@@ -96,6 +96,13 @@ def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: P
             state_reply = json.loads(replies[0].ok.payload.to_string())
             assert state_reply["joint"] == 1 and state_reply["known"] and "detectors" in state_reply
             assert wait_until(lambda: sub.records("health"), 10)
+            # a declared maintenance over Zenoh makes the joint relearn (seen through the queryable)
+            session.put("edge/cell7/1/maintenance", "gearbox replaced")
+
+            def maintenances() -> int:
+                replies = list(session.get("edge/cell7/1/state", timeout=5.0))
+                return json.loads(replies[0].ok.payload.to_string()).get("maintenances", 0) if replies else 0
+            assert wait_until(lambda: maintenances() == 1, 30)
             agent.send_signal(signal.SIGTERM)
             out, _ = agent.communicate(timeout=60)
         finally:

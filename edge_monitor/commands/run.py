@@ -41,7 +41,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-cycles", type=int, help="stop after this many cycles")
     p.add_argument("--idle-stop", type=float, help="stop after this many seconds without frames")
     p.add_argument("--maintenance", type=int, action="append", default=[], metavar="JOINT",
-                   help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models")
+                   help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models "
+                        "(while running: put anything on Zenoh key edge/<robot>/<joint>/maintenance)")
     p.set_defaults(func=run)
 
 
@@ -96,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
         agent_ref["agent"] = agent
         for joint in args.maintenance:
             agent.declare_maintenance(joint)
+        session = next((s.publisher.session for s in sinks if hasattr(s, "publisher")), None)
+        if session is not None:
+            stack.callback(listen_for_maintenance(session, cfg.robot, agent).undeclare)
         try:
             bus = open_bus(args.link, interface=args.interface, channel=args.channel, bitrate=args.bitrate)
         except LinkError as exc:
@@ -111,6 +115,21 @@ def run(args: argparse.Namespace) -> int:
         finally:
             agent.close()
     return 0
+
+
+def listen_for_maintenance(session, robot: str, agent: Agent):
+    """Subscribe to ``edge/<robot>/<joint>/maintenance``: any put there declares a gearbox replacement
+    or service of that joint (the agent relearns its nominal models and clears its alarms)."""
+
+    def on_sample(sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            joint = int(key.split("/")[2])
+            agent.declare_maintenance(joint)
+        except Exception as exc:   # never raise into Zenoh's thread
+            log.error("maintenance declaration on %s ignored: %s", key, exc)
+
+    return session.declare_subscriber(f"edge/{robot}/*/maintenance", on_sample)
 
 
 def _joint_state(agent_ref: dict[str, Agent], joint: int) -> dict:
