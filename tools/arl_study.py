@@ -15,8 +15,17 @@ Parts (all with fixed seeds; select with --part, default all):
   The windowed statistic does not depend on Pf, so one set of traces gives ARL0 and delay for every
   Pf: ARL0(h) = monitored steps / number of up-crossings of h (each up-crossing is one false alarm
   followed by a reset); delay = first step at or after the change where the statistic ≥ h.
+* ``agent`` — the same ARL0/delay study for the quantities the agent actually watches, at its
+  default settings (DecisionConfig: 60 learning cycles, window 100, recursive mode): the wear
+  estimate and log ``kl.raw`` / log ``kl.weighted`` (GCE density, d = 1) and the joint 3-vector
+  [wear, log kl.raw, log kl.weighted] (KDE density, d = 3). Nominal data are synthetic surrogates
+  fitted to 95 healthy cycles of the demo (joint 0, see :data:`SURROGATE` and ``--fit-from``):
+  wear = max(0, N(μ, σ²)), log KL ~ N(μ, σ²), tied by a Gaussian copula with the measured
+  correlations. Shifts (k = 1, 2, 3 nominal σ) move the wear's latent normal (before the
+  truncation at 0), for the vector along the wear axis only, and the log KL values additively.
 
-Usage: ``python tools/arl_study.py [--part NAME ...] [--quick] [--json OUT.json]``
+Usage: ``python tools/arl_study.py [--part NAME ...] [--quick] [--json OUT.json]``;
+``--part agent`` alone takes about 5 minutes on this machine.
 """
 
 from __future__ import annotations
@@ -33,6 +42,8 @@ from typing import Callable
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from scipy import stats  # noqa: E402
 
 from edge_monitor.densities import fit_density  # noqa: E402
 from edge_monitor.glr import bootstrap_statistics, glr_known_change, threshold_from_pf  # noqa: E402
@@ -167,12 +178,13 @@ def h1_trace(shape: str, shift_sd: float, pre: int, post: int, rng: np.random.Ge
 
 
 def summarize(h0_traces: list[np.ndarray], h1_traces: dict[float, list[np.ndarray]], pre: int,
-              pfs: tuple[float, ...]) -> dict:
-    """ARL0 and delay for every Pf from the same traces (the statistic does not depend on Pf)."""
+              pfs: tuple[float, ...], dim: int = 1) -> dict:
+    """ARL0 and delay for every Pf from the same traces (the statistic does not depend on Pf);
+    ``dim`` is the detector's dimension (h = ½·χ²_dim quantile)."""
     total = sum(len(t) for t in h0_traces)
     table = []
     for pf in pfs:
-        h = threshold_from_pf(pf, 1)
+        h = threshold_from_pf(pf, dim)
         crossings = sum(_upcrossings(t, h) for t in h0_traces)
         row = {"pf": pf, "threshold": h, "h0_steps": total, "false_alarms": crossings,
                "arl0": (total / crossings) if crossings else None,
@@ -191,7 +203,7 @@ def summarize(h0_traces: list[np.ndarray], h1_traces: dict[float, list[np.ndarra
             row[f"missed_{k:g}sd"] = len(delays) - len(finite)
             row[f"early_alarms_{k:g}sd"] = early
         table.append(row)
-    levels = np.arange(2.0, 20.5, 1.0)
+    levels = np.arange(2.0, 40.5, 1.0)
     tail = [{"h": float(h), "upcrossings": sum(_upcrossings(t, h) for t in h0_traces)} for h in levels]
     return {"h0_steps": total, "table": table, "tail": tail}
 
@@ -233,19 +245,126 @@ def sequential(shape: str = "gaussian", runs_h0: int = 25, steps_h0: int = 2500,
     return out
 
 
+#: Surrogate of the agent's per-cycle nominal values, fitted to /tmp/demo9/symptoms.jsonl (joint 0,
+#: 100 healthy cycles; the KL distances exist from cycle 5 on, so 95 complete vectors; reproduce
+#: with ``--fit-from``): wear estimate [%] sample mean 9.18 and sd 5.01 (3 exact zeros in 100 cycles;
+#: max(0, N(9.18, 5.01²)) puts 3.4 % at 0);
+#: log kl.raw mean −3.08, sd 1.09; log kl.weighted mean −3.24, sd 0.96 (Shapiro p 0.05 / 0.03: close
+#: to log-normal KL); Pearson correlations of [wear, log kl.raw, log kl.weighted] below; lag-1
+#: autocorrelations 0.03 … 0.07 (< 2/√100), so cycles are drawn independently.
+SURROGATE: dict[str, list] = {
+    "mean": [9.18, -3.08, -3.24],
+    "sd": [5.01, 1.09, 0.96],
+    "corr": [[1.0, 0.03, 0.19], [0.03, 1.0, 0.67], [0.19, 0.67, 1.0]],
+}
+#: The agent's detectors: name → (columns of the surrogate vector, density, dimension).
+AGENT_QUANTITIES: dict[str, tuple[list[int], str]] = {
+    "wear": ([0], "gce"),
+    "log_kl_raw": ([1], "gce"),
+    "log_kl_weighted": ([2], "gce"),
+    "joint": ([0, 1, 2], "kde"),
+}
+AGENT_PFS = (1e-4, 1e-6, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-14)
+
+
+def fit_surrogate(path: Path, joint: int = 0) -> dict[str, list]:
+    """Fit :data:`SURROGATE` to a symptoms JSONL log: cycles of ``joint`` with a finite wear
+    estimate and positive KL distances; moments of [wear, log kl.raw, log kl.weighted]."""
+    rows = []
+    for line in path.read_text().splitlines():
+        rec = json.loads(line)
+        if rec.get("joint") != joint:
+            continue
+        w, kr, kw = rec["wear"]["estimate"], rec["kl"]["raw"], rec["kl"]["weighted"]
+        if None not in (w, kr, kw) and kr > 0 and kw > 0:
+            rows.append([w, math.log(kr), math.log(kw)])
+    x = np.asarray(rows)
+    if len(x) < 10:
+        raise ValueError(f"{path}: only {len(x)} complete cycles for joint {joint}; need ≥ 10")
+    return {"mean": x.mean(axis=0).round(2).tolist(), "sd": x.std(axis=0, ddof=1).round(2).tolist(),
+            "corr": np.corrcoef(x.T).round(2).tolist(), "cycles": len(x)}
+
+
+def surrogate_draw(rng: np.random.Generator, n: int, surrogate: dict[str, list],
+                   wear_shift_sd: float = 0.0, column_shift_sd: tuple[int, float] | None = None) -> np.ndarray:
+    """(n, 3) nominal vectors [wear, log kl.raw, log kl.weighted]: Gaussian copula with the
+    surrogate's correlations; wear = max(0, latent). ``column_shift_sd`` = (column, k) adds k
+    nominal sd to that column's latent value (before the wear truncation)."""
+    z = rng.multivariate_normal(np.zeros(3), np.asarray(surrogate["corr"]), size=n)
+    x = np.asarray(surrogate["mean"]) + z * np.asarray(surrogate["sd"])
+    if column_shift_sd is not None:
+        col, k = column_shift_sd
+        x[:, col] += k * surrogate["sd"][col]
+    x[:, 0] = np.maximum(x[:, 0], 0.0)
+    return x
+
+
+def _agent_trace(columns: list[int], density: str, values: np.ndarray, window: int, n_nominal: int) -> np.ndarray:
+    dim = len(columns)
+    detector = SequentialDetector(dim=dim, n_nominal=n_nominal, density=density, window=window, mode="recursive")
+    out = []
+    for cycle, v in enumerate(values[:, columns]):
+        d = detector.update(v if dim > 1 else float(v[0]), cycle)
+        if d.state == "monitoring" and d.statistic is not None:
+            out.append(d.statistic)
+    return np.asarray(out)
+
+
+def agent_quantity(name: str, surrogate: dict[str, list], runs_h0: int = 40, steps_h0: int = 2500,
+                   runs_h1: int = 40, pre: int = 100, post: int = 120, pfs: tuple[float, ...] = AGENT_PFS,
+                   window: int = 100, n_nominal: int = 60, seed: int = 31) -> dict:
+    """ARL0/delay of the agent's detector for ``name`` (a key of :data:`AGENT_QUANTITIES`) on
+    surrogate nominal data; the H1 shift is applied to the quantity's own column (wear for the
+    joint vector). Each run learns a fresh nominal density."""
+    columns, density = AGENT_QUANTITIES[name]
+    shift_column = columns[0]
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    h0 = [_agent_trace(columns, density, surrogate_draw(rng, n_nominal + steps_h0, surrogate), window, n_nominal)
+          for _ in range(runs_h0)]
+    rng = np.random.default_rng(seed + 1)
+    h1: dict[float, list[np.ndarray]] = {1.0: [], 2.0: [], 3.0: []}
+    for _ in range(runs_h1):
+        for k in h1:
+            values = surrogate_draw(rng, n_nominal + pre + post, surrogate)
+            values[n_nominal + pre:] = surrogate_draw(rng, post, surrogate, column_shift_sd=(shift_column, k))
+            h1[k].append(_agent_trace(columns, density, values, window, n_nominal))
+    out = summarize(h0, h1, pre, pfs, dim=len(columns))
+    out.update({"quantity": name, "density": density, "dim": len(columns), "window": window,
+                "n_nominal": n_nominal, "mode": "recursive", "runs_h0": runs_h0, "steps_per_run": steps_h0,
+                "runs_h1": runs_h1, "pre_change": pre, "post_change": post, "seed": seed,
+                "seconds": time.perf_counter() - t0,
+                "h_for_arl0_1e4": arl0_extrapolated(out["tail"], out["h0_steps"])})
+    h = out["h_for_arl0_1e4"]
+    out["pf_for_arl0_1e4"] = float(stats.chi2.sf(2.0 * h, len(columns))) if h is not None else None
+    print(f"agent {name}: {out['seconds']:.0f} s", file=sys.stderr, flush=True)
+    return out
+
+
+def agent(surrogate: dict[str, list], quick: bool = False,
+          names: tuple[str, ...] = tuple(AGENT_QUANTITIES)) -> list[dict]:
+    """The ``agent`` part: every quantity of :data:`AGENT_QUANTITIES` with fixed seeds."""
+    kwargs = {"runs_h0": 2, "steps_h0": 300, "runs_h1": 3} if quick else {}
+    return [agent_quantity(name, surrogate, seed=31 + 10 * i, **kwargs) for i, name in enumerate(names)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--part", action="append", choices=("calibration", "power", "gce", "sequential"))
+    parser.add_argument("--part", action="append", choices=("calibration", "power", "gce", "sequential", "agent"))
     parser.add_argument("--quick", action="store_true", help="small run counts (smoke test)")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
     parser.add_argument("--density", default="gce", choices=("gauss", "kde", "gce"))
     parser.add_argument("--calibration-densities", default="gauss,kde,gce")
     parser.add_argument("--calibration-shapes", default="gaussian,skewed,bimodal")
     parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--fit-from", type=Path, help="agent part: fit the surrogate to this symptoms JSONL "
+                        "(joint --joint) instead of the built-in SURROGATE fit")
+    parser.add_argument("--joint", type=int, default=0, help="joint for --fit-from")
+    parser.add_argument("--quantities", default=",".join(AGENT_QUANTITIES), help="agent part: which detectors")
     parser.add_argument("--json", type=Path, help="write all results here")
     args = parser.parse_args(argv)
     logging.getLogger("edge_monitor").setLevel(logging.ERROR)  # thousands of expected H0 alarms
-    parts = args.part or ["calibration", "power", "gce", "sequential"]
+    parts = args.part or ["calibration", "power", "gce", "sequential", "agent"]
     q = args.quick
     results: dict[str, object] = {}
     if "gce" in parts:
@@ -259,6 +378,10 @@ def main(argv: list[str] | None = None) -> int:
     if "sequential" in parts:
         results["sequential"] = (sequential(args.shape, 2, 300, 5, density=args.density) if q
                                  else sequential(args.shape, density=args.density))
+    if "agent" in parts:
+        surrogate = fit_surrogate(args.fit_from, args.joint) if args.fit_from else SURROGATE
+        results["agent"] = {"surrogate": surrogate,
+                            "quantities": agent(surrogate, q, tuple(args.quantities.split(",")))}
     text = json.dumps(results, indent=1)
     print(text)
     if args.json:
