@@ -40,6 +40,7 @@ class RunStats:
     symptoms: int = 0
     alarms: list[dict[str, Any]] = field(default_factory=list)
     duplicate_cycles_skipped: int = 0
+    partial_cycles: int = 0
     sink_errors: int = 0
     started: float = field(default_factory=time.perf_counter)
 
@@ -84,7 +85,7 @@ class Agent:
             if run.cycle is not None and run.cycle != self._open_cycle:
                 if self._open_cycle is not None:
                     outputs += self._close_cycle(self._open_cycle)
-                elif run.starts_at_boundary is False:
+                elif run.starts_at_boundary is not True:   # first cycle of this instance, start not seen
                     self._partial_cycle = run.cycle
                 self._open_cycle = run.cycle
             for joint, samples in run.samples.items():
@@ -110,10 +111,19 @@ class Agent:
     def _close_cycle(self, cycle: int) -> list[CycleOutput]:
         outputs: list[CycleOutput] = []
         self.stats.cycles += 1
+        partial = cycle == self._partial_cycle
         for joint in sorted(self.joints):
-            out = self.joints[joint].end_cycle(cycle, self.config.robot)
-            if cycle == self._partial_cycle:
+            monitor = self.joints[joint]
+            if cycle <= self._last_emitted.get(joint, -1):
+                # published before a restart (e.g. a log replayed again): its data must not enter the
+                # detectors a second time
+                monitor.discard_cycle()
+                self.stats.duplicate_cycles_skipped += 1
+                continue
+            out = monitor.end_cycle(cycle, self.config.robot, partial=partial)
+            if partial:
                 out.symptom["partial"] = True
+                self.stats.partial_cycles += 1
             outputs += self._emit(joint, out)
         return outputs
 
@@ -145,6 +155,10 @@ class Agent:
     # ------------------------------------------------------------------ control
     def finish(self, close_open_cycle: bool = True) -> list[CycleOutput]:
         """End of stream: optionally close the open cycle (replay of a complete log)."""
+        with self.lock:
+            return self._finish(close_open_cycle)
+
+    def _finish(self, close_open_cycle: bool) -> list[CycleOutput]:
         outputs: list[CycleOutput] = []
         if not close_open_cycle:
             return outputs
@@ -161,10 +175,15 @@ class Agent:
 
     def declare_maintenance(self, joint: int) -> list[dict[str, Any]]:
         """Gearbox replaced or serviced: relearn the joint's nominal models; raised alarms are cleared
-        (one "cleared" alarm record per quantity, returned and sent to the sinks). Thread-safe."""
-        if not 0 <= int(joint) < 8:
-            raise ValueError(f"joint {joint!r}: joints are 0 … 7")
+        (one "cleared" alarm record per quantity, returned and sent to the sinks). Thread-safe.
+        Only for a joint the agent monitors (seen on the bus or restored from the state)."""
+        joint = int(joint)
         with self.lock:
+            if self.config.joints is not None and joint not in self.config.joints:
+                raise ValueError(f"joint {joint}: not monitored (configured joints: {list(self.config.joints)})")
+            if joint not in self.joints and joint not in self._restored_joint_states:
+                raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
+                                 "a maintenance declaration is only needed for a joint with learned models")
             monitor = self._monitor(int(joint))
             cycle = self._last_emitted.get(int(joint), -1)
             cleared = monitor.declare_maintenance(self.config.robot, cycle)
@@ -176,12 +195,17 @@ class Agent:
             return cleared
 
     def health(self) -> dict[str, Any]:
+        with self.lock:
+            return self._health()
+
+    def _health(self) -> dict[str, Any]:
         wall = time.perf_counter() - self.stats.started
         h = self.ingest.counters()
         h.update({
             "robot": self.config.robot, "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
             "alarms": len(self.stats.alarms), "sink_errors": self.stats.sink_errors,
             "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
+            "partial_cycles": self.stats.partial_cycles,
             "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
             "segmentation": {str(j): m.plateaus.counters.as_dict() for j, m in self.joints.items()},
             "skipped": {str(j): dict(m.extractor.totals) for j, m in self.joints.items()},
@@ -200,19 +224,24 @@ class Agent:
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        joints = {str(j): m.state_dict() for j, m in self.joints.items()}
-        joints.update({str(j): s for j, s in self._restored_joint_states.items()})
-        return {"robot": self.config.robot, "last_emitted": {str(j): c for j, c in self._last_emitted.items()},
-                "joints": joints}
+        with self.lock:
+            joints = {str(j): m.state_dict() for j, m in self.joints.items()}
+            joints.update({str(j): s for j, s in self._restored_joint_states.items()})
+            return {"robot": self.config.robot,
+                    "last_emitted": {str(j): c for j, c in self._last_emitted.items()},
+                    "ingest": self.ingest.state_dict(), "joints": joints}
 
     def save_state(self) -> None:
         if self.store is not None:
-            self.store.save(self.state_dict())
+            with self.lock:            # one snapshot at a time, in order
+                self.store.save(self.state_dict())
 
     def _restore(self, state: dict[str, Any] | None) -> None:
         if not state:
             return
         self._last_emitted = {int(j): int(c) for j, c in state.get("last_emitted", {}).items()}
+        if state.get("ingest"):
+            self.ingest.load_state(state["ingest"])
         self._restored_joint_states = {int(j): s for j, s in state.get("joints", {}).items()}
         log.info("restored state of joints %s (last cycles %s)", sorted(self._restored_joint_states),
                  self._last_emitted)

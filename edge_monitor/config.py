@@ -34,6 +34,7 @@ class WearConfig:
     noise_std: float = 5.70e-3           # σ of a friction datum
     temperature_min: float = 30.0        # plausible lubricant temperature range of the site [°C]
     temperature_max: float = 50.0
+    default_load_mean: float = 0.5       # μl when the controller sends no load estimate
     default_load_std: float = 0.1        # σl when the controller sends none
     critical: float = 35.0
 

@@ -49,11 +49,13 @@ class BoundedQueueListener(can.Listener):
         self.dropped = 0
         self.received = 0
         self.bus_errors = 0
+        self.consecutive_errors = 0       # errors since the last frame received
         self.last_error: str | None = None
 
     def on_message_received(self, msg: can.Message) -> None:
         try:
             self.received += 1
+            self.consecutive_errors = 0
             self.queue.put_nowait(msg)
         except queue.Full:
             self.dropped += 1
@@ -62,6 +64,7 @@ class BoundedQueueListener(can.Listener):
 
     def on_error(self, exc: Exception) -> None:
         self.bus_errors += 1
+        self.consecutive_errors += 1
         self.last_error = repr(exc)
         if self.bus_errors in (1, 10, 100) or self.bus_errors % 10_000 == 0:
             log.error("CAN receive error #%d (counted; logged at 1, 10, 100, every 10000): %r",
@@ -111,9 +114,23 @@ class LiveSource:
         if rest:
             yield messages_to_arrays(rest)
 
+    #: Receive errors in a row (no frame in between) after which the link counts as failed.
+    max_consecutive_errors: int = 1000
+
     @property
-    def notifier_failed(self) -> BaseException | None:
-        return getattr(self.notifier, "exception", None)
+    def notifier_failed(self) -> str | None:
+        """Why the receive path is dead, or None. A transient error that the listener handled leaves
+        python-can's Notifier running (only ``notifier.exception`` is set): that is counted, not fatal."""
+        readers = [t for t in getattr(self.notifier, "_readers", []) if isinstance(t, threading.Thread)]
+        if readers and not any(t.is_alive() for t in readers):
+            return f"receive thread ended: {getattr(self.notifier, 'exception', None)!r}"
+        if self.listener.consecutive_errors >= self.max_consecutive_errors:
+            return f"{self.listener.consecutive_errors} receive errors in a row, last {self.listener.last_error}"
+        return None
+
+    def malformed_lines(self) -> int:
+        """Lines the slcan reader could not parse (0 for other interfaces)."""
+        return int(getattr(self.bus, "malformed_lines", 0))
 
     def queue_depth(self) -> int:
         return self.listener.queue.qsize()

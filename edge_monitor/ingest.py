@@ -19,12 +19,15 @@ from protocol.e2e import E2EReceiver, E2EStatus
 from protocol.frames import (
     CYCLE_MODULUS,
     MOTOR_COUNTER_MODULUS,
+    STATUS_TICK_MODULUS,
     DecodeErrorKind,
     FrameKind,
     decode_block,
 )
 
 _USABLE = (int(E2EStatus.OK), int(E2EStatus.OK_SOME_LOST))
+#: Largest forward jump of the cycle counter taken as progress; larger or backward: controller restart.
+MAX_CYCLE_STEP = 1000
 
 
 @dataclass
@@ -81,7 +84,9 @@ class Ingest:
         self._cycle_raw: int | None = None
         self._segment = -1                    # segment in force
         self._carry_cycle = -1                # cycle label in force at the end of the last block
-        self._status_tick: int | None = None  # last controller tick from the status frame
+        self._status_tick: int | None = None  # last controller tick from the status frame (unwrapped)
+        self._status_tick_raw: int | None = None
+        self._anchored = False                # a status frame was seen by this instance
         self._last_counter: dict[int, int] = {}
         self._last_tick: dict[int, int] = {}
 
@@ -100,12 +105,13 @@ class Ingest:
         usable = dec.valid & np.isin(statuses, _USABLE)
         self._count(dec, statuses, np.asarray(lost), usable)
         row_cycle, row_segment, first_seen = self._label_rows(dec, usable)
+        row_tick = self._status_ticks(dec)
         motor = usable & (dec.kind == FrameKind.MOTOR_STATE)
         if self.joints is not None:
             keep = np.isin(dec.joint, list(self.joints))
             self.c.joint_filtered += int((motor & ~keep).sum())
             motor &= keep
-        ticks = self._unwrap_ticks(dec, motor)
+        ticks = self._unwrap_ticks(dec, motor, row_tick)
         jstatus = usable & (dec.kind == FrameKind.JOINT_STATUS)
         return IngestBlock(self._split_runs(dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen))
 
@@ -123,40 +129,64 @@ class Ingest:
         c.counter_lost += int(lost[lost > 0].sum())
 
     def _label_rows(self, dec, usable: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64], dict[int, bool]]:
-        """Forward-fill the cycle (unwrapped) and segment of usable status frames over all rows."""
+        """Forward-fill the cycle (unwrapped) and segment of the usable status frames over all rows
+        (-1 where none is known yet)."""
         n = len(dec)
         status_rows = np.flatnonzero(usable & (dec.kind == FrameKind.CONTROLLER_STATUS))
         cycles = np.empty(status_rows.size, dtype=np.int64)
         first_seen: dict[int, bool] = {}
         for i, r in enumerate(status_rows):           # a few status frames per block: Python is fine
-            raw = int(dec.cycle[r])
-            seg = int(dec.segment[r])
-            if self._cycle_raw is None:
-                self._cycle = raw
-                first_seen[raw] = seg <= 1        # the start of the first cycle seen: segment 0 or 1
-            elif raw != self._cycle_raw:
-                step = (raw - self._cycle_raw) % CYCLE_MODULUS
-                if step < CYCLE_MODULUS // 2:
-                    self._cycle += step
-                else:                                # cycle counter went back: controller restart
-                    self._cycle = raw if raw > self._cycle else self._cycle + 1
-                first_seen[self._cycle] = True
-            self._cycle_raw = raw
+            self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen)
             cycles[i] = self._cycle
-            self._status_tick = int(dec.status_tick[r])
-        idx = np.full(n, -1, dtype=np.int64)
-        idx[status_rows] = np.arange(status_rows.size)
-        np.maximum.accumulate(idx, out=idx)
+        at, known = _forward_index(n, status_rows)
         segments = dec.segment[status_rows].astype(np.int64)
-        row_cycle = np.where(idx >= 0, cycles[np.maximum(idx, 0)] if cycles.size else -1, self._carry_cycle)
-        row_segment = np.where(idx >= 0, segments[np.maximum(idx, 0)] if segments.size else -1, self._segment)
+        row_cycle = np.where(known, cycles[at] if cycles.size else -1, self._carry_cycle)
+        row_segment = np.where(known, segments[at] if segments.size else -1, self._segment)
         if status_rows.size:
             self._carry_cycle = int(cycles[-1])
             self._segment = int(segments[-1])
         return row_cycle.astype(np.int64), row_segment.astype(np.int64), first_seen
 
-    def _unwrap_ticks(self, dec, motor: NDArray) -> NDArray[np.int64]:
-        """Per joint, unwrap the 8-bit tick counter into a monotone controller tick."""
+    def _status_ticks(self, dec) -> NDArray[np.int64]:
+        """Forward-fill the (unwrapped) controller tick of every CRC-valid status frame over all rows.
+        The tick is absolute, so it is used even when the frame's alive counter is out of sequence
+        (the first frame after a long silence): that re-anchors the motor ticks at once."""
+        rows = np.flatnonzero(dec.valid & (dec.kind == FrameKind.CONTROLLER_STATUS))
+        carry = -1 if self._status_tick is None else self._status_tick      # in force before this block
+        ticks = np.array([self._update_status_tick(int(dec.status_tick[r])) for r in rows], dtype=np.int64)
+        at, known = _forward_index(len(dec), rows)
+        return np.where(known, ticks[at] if ticks.size else -1, carry).astype(np.int64)
+
+    def _update_cycle(self, raw: int, segment: int, first_seen: dict[int, bool]) -> None:
+        """Unwrap the 16-bit cycle counter. Steps of 1 … MAX_CYCLE_STEP are progress (lost status
+        frames of whole cycles included); anything else is a controller restart: numbering goes on
+        from the last cycle + 1, so published cycle numbers stay unique and increasing."""
+        if self._cycle_raw is None or self._cycle is None:     # first status frame, no restored state
+            self._cycle = raw
+            first_seen[raw] = segment <= 1                      # its start seen: segment 0 or 1
+        elif raw != self._cycle_raw:
+            step = (raw - self._cycle_raw) % CYCLE_MODULUS
+            self._cycle += step if 0 < step <= MAX_CYCLE_STEP else 1
+            first_seen[self._cycle] = True
+        elif not self._anchored:                                # restored state, same cycle: mid-cycle
+            first_seen[self._cycle] = False
+        self._anchored = True
+        self._cycle_raw = raw
+
+    def _update_status_tick(self, raw: int) -> int:
+        """Unwrap the 24-bit controller tick of the status frame (a backward step is a restart)."""
+        if self._status_tick is None or self._status_tick_raw is None:
+            full = raw
+        else:
+            step = (raw - self._status_tick_raw) % STATUS_TICK_MODULUS
+            full = self._status_tick + step if step < STATUS_TICK_MODULUS // 2 else raw
+        self._status_tick_raw, self._status_tick = raw, full
+        return full
+
+    def _unwrap_ticks(self, dec, motor: NDArray, row_tick: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Controller tick of each motor sample: anchored to the status-frame tick in force (sent every
+        10 ticks, so exact across any gap); before the first status frame, the 8-bit counter is
+        unwrapped per joint (exact across gaps of < 256 frames)."""
         ticks = np.full(len(dec), -1, dtype=np.int64)
         rows = np.flatnonzero(motor)
         if rows.size == 0:
@@ -166,17 +196,32 @@ class Ingest:
             jr = rows[joints == joint]
             t8 = dec.counter[jr].astype(np.int64)
             j = int(joint)
-            if j in self._last_counter:
-                base, prev = self._last_tick[j], self._last_counter[j]
-            else:
-                anchor = self._status_tick if self._status_tick is not None else int(t8[0])
-                base = anchor + ((int(t8[0]) - anchor + 128) % MOTOR_COUNTER_MODULUS) - 128
-                prev = int(t8[0])
-            steps = np.diff(t8, prepend=prev) % MOTOR_COUNTER_MODULUS
-            full = base + np.cumsum(steps)
+            anchor = row_tick[jr]
+            anchored = anchor >= 0
+            full = np.empty(jr.size, dtype=np.int64)
+            full[anchored] = anchor[anchored] + (t8[anchored] - anchor[anchored] + 128) % MOTOR_COUNTER_MODULUS - 128
+            loose = np.flatnonzero(~anchored)
+            if loose.size:
+                base = self._last_tick.get(j, int(t8[loose[0]]))
+                prev = self._last_counter.get(j, int(t8[loose[0]]))
+                full[loose] = base + np.cumsum(np.diff(t8[loose], prepend=prev) % MOTOR_COUNTER_MODULUS)
             ticks[jr] = full
             self._last_tick[j], self._last_counter[j] = int(full[-1]), int(t8[-1])
         return ticks
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict:
+        """Cycle and tick unwrapping state: a restarted agent keeps its cycle numbering."""
+        return {"cycle": self._cycle, "cycle_raw": self._cycle_raw, "status_tick": self._status_tick,
+                "status_tick_raw": self._status_tick_raw}
+
+    def load_state(self, state: dict) -> None:
+        self._cycle = state.get("cycle")
+        self._cycle_raw = state.get("cycle_raw")
+        self._status_tick = state.get("status_tick")
+        self._status_tick_raw = state.get("status_tick_raw")
+        self._carry_cycle = -1 if self._cycle is None else int(self._cycle)
+        self._anchored = False
 
     def _split_runs(self, dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen) -> list[CycleRun]:
         n = len(dec)
@@ -200,3 +245,11 @@ class Ingest:
             runs.append(CycleRun(cycle=None if cyc < 0 else cyc, samples=samples, load_estimates=loads,
                                  starts_at_boundary=first_seen.get(cyc)))
         return runs
+
+
+def _forward_index(n: int, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """For each of ``n`` rows: the index into ``rows`` of the last listed row at or before it."""
+    idx = np.full(n, -1, dtype=np.int64)
+    idx[rows] = np.arange(rows.size)
+    np.maximum.accumulate(idx, out=idx)
+    return np.maximum(idx, 0), idx >= 0

@@ -136,20 +136,34 @@ class JointMonitor:
         self._load.add(estimate, std)
 
     # ------------------------------------------------------------------ cycle end
-    def end_cycle(self, cycle: int, robot: str) -> CycleOutput:
+    def discard_cycle(self) -> None:
+        """Drop the open cycle's data (a cycle already published before a restart)."""
+        self.extractor.end_cycle()
+        if self.kl is not None:
+            self.kl.discard_cycle()
+        self._load = _LoadAccumulator()
+
+    def end_cycle(self, cycle: int, robot: str, partial: bool = False) -> CycleOutput:
+        """Close the cycle. A ``partial`` cycle (its beginning was not seen) is published with its
+        friction data and wear estimate, but feeds neither KL learning nor the detectors."""
         cut = self.plateaus.counters.cut_short - self._cut_short_seen
         if cut:
             self.extractor.skip("plateau cut short", cut)
             self._cut_short_seen = self.plateaus.counters.cut_short
         curve = self.extractor.end_cycle()
         wear = self._estimate_wear(curve)
-        kl = self.kl.end_cycle(cycle) if self.kl is not None else None
+        kl = None
+        if self.kl is not None:
+            if partial:
+                self.kl.discard_cycle()
+            else:
+                kl = self.kl.end_cycle(cycle)
         kl_record = kl.to_record() if kl is not None else {"raw": None, "weighted": None}
         kl_transform = _safe_log if self.config.decision.log_kl else (lambda x: x)
         values = {"wear": wear.estimate if wear is not None else float("nan"),
                   "kl_raw": kl_transform(_nan_if_none(kl_record.get("raw"))),
                   "kl_weighted": kl_transform(_nan_if_none(kl_record.get("weighted")))}
-        decisions, alarms = self._decide(values, cycle, robot)
+        decisions, alarms = self._decide(values, cycle, robot) if not partial else (self._idle_decisions(), [])
         self.cycles += 1
         load_mean = self._load.mean()
         symptom: dict[str, Any] = {
@@ -197,10 +211,18 @@ class JointMonitor:
             return None
         load_mean = self._load.mean()
         load_std = self._load.std if math.isfinite(self._load.std) else self.config.wear.default_load_std
-        if not math.isfinite(load_mean):
-            load_mean = float("nan")
+        if not math.isfinite(load_mean):   # no JointStatus frame this cycle: the configured prior
+            load_mean = self.config.wear.default_load_mean
         return self.wear.estimate(np.asarray(curve.speeds), np.asarray(curve.torque), load_mean, load_std,
                                   friction_stderr=np.asarray(curve.stderr) if curve.stderr else None)
+
+    def _idle_decisions(self) -> dict[str, dict]:
+        """Decision fields of a cycle that did not enter the detectors (state unchanged)."""
+        return {q: {"state": "monitoring" if getattr(d, "state", "learning") == "monitoring" else "learning",
+                    "statistic": None, "threshold": None, "alarm": self._alarmed.get(q, False),
+                    "change_cycle": None, "delta": None, "miss_probability": None,
+                    "reason": "partial cycle: not used by the detectors"}
+                for q, d in self.detectors.items()}
 
     def _decide(self, values: dict[str, float], cycle: int, robot: str) -> tuple[dict, list]:
         decisions: dict[str, dict] = {}

@@ -287,6 +287,12 @@ class KLMonitor:
             located = self._causally_centred(tau) if self.center else tau
             self.channels["weighted"].kde.add(self.weights(v) * located)
 
+    def discard_cycle(self) -> None:
+        """Drop the open window without evaluating or learning (partial or duplicate cycles)."""
+        for ch in self.channels.values():
+            ch.new_window()
+        self._new_window()
+
     def end_cycle(self, cycle: int) -> KLResult:
         """Close the cycle: density, KL distances (or learning step, or a reason) and a new window."""
         try:

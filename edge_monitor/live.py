@@ -25,14 +25,18 @@ class LiveRunner:
     status_interval_s: float = 10.0
     stop_event: threading.Event = field(default_factory=threading.Event)
     no_new_data: int = 0
+    processing_errors: int = 0
+    discarded_at_stop: int = 0
+    link_failure: str | None = None
 
     def health(self) -> dict[str, Any]:
         h = self.agent.health()
         listener = self.source.listener
         h.update({"time": time.time(), "queue_depth": self.source.queue_depth(),
                   "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
-                  "no_new_data": self.no_new_data,
-                  "notifier_failed": repr(self.source.notifier_failed) if self.source.notifier_failed else None})
+                  "no_new_data": self.no_new_data, "processing_errors": self.processing_errors,
+                  "malformed_lines": self.source.malformed_lines(), "link_failure": self.link_failure,
+                  "discarded_at_stop": self.discarded_at_stop})
         h["e2e"] = dict(self.agent.ingest.e2e.stats)
         return h
 
@@ -53,35 +57,52 @@ class LiveRunner:
         next_status = start + self.status_interval_s
         last_frame = start
         seen_any = False
-        for block in self.source.blocks():
-            now = time.monotonic()
-            if block is not None:
-                seen_any = True
-                last_frame = now
-                cycles_before = self.agent.stats.cycles
-                self.agent.process_frames(*block)
-                if self.agent.stats.cycles != cycles_before:
-                    self._save_state()
-            if now >= next_status:
-                self._tick()
-                next_status = now + self.status_interval_s
-            if self.source.notifier_failed is not None:
-                log.error("CAN receive thread failed: %r; stopping", self.source.notifier_failed)
-                break
-            if duration_s is not None and now - start >= duration_s:
-                break
-            if max_cycles is not None and self.agent.stats.cycles >= max_cycles:
-                break
-            if idle_stop_s is not None and seen_any and now - last_frame >= idle_stop_s:
-                log.info("no frames for %.1f s: end of stream", idle_stop_s)
-                break
-            if self.stop_event.is_set():
-                break
-        self.source.stop()
-        self._tick()
+        try:
+            for block in self.source.blocks():
+                now = time.monotonic()
+                if block is not None:
+                    seen_any = True
+                    last_frame = now
+                    self._process(block)
+                if now >= next_status:
+                    self._tick()
+                    next_status = now + self.status_interval_s
+                failure = self.source.notifier_failed
+                if failure is not None:
+                    self.link_failure = failure
+                    log.error("CAN link failed (%s); stopping", failure)
+                    break
+                if duration_s is not None and now - start >= duration_s:
+                    break
+                if max_cycles is not None and self.agent.stats.cycles >= max_cycles:
+                    break
+                if idle_stop_s is not None and seen_any and now - last_frame >= idle_stop_s:
+                    log.info("no frames for %.1f s: end of stream", idle_stop_s)
+                    break
+                if self.stop_event.is_set():
+                    break
+        finally:
+            self.source.stop()
+            self.discarded_at_stop = self.source.queue_depth()
+            if self.discarded_at_stop:
+                log.warning("%d frames still queued at stop were not processed (counted)", self.discarded_at_stop)
+            self._tick()
+
+    def _process(self, block) -> None:
+        """One block through the agent; an unexpected error is logged and counted, never fatal."""
+        cycles_before = self.agent.stats.cycles
+        try:
+            self.agent.process_frames(*block)
+        except Exception:
+            self.processing_errors += 1
+            if self.processing_errors in (1, 10, 100) or self.processing_errors % 1000 == 0:
+                log.exception("processing a block of %d frames failed (#%d, counted; monitoring goes on)",
+                              len(block[0]), self.processing_errors)
+        if self.agent.stats.cycles != cycles_before:
+            self._save_state()
 
     def _save_state(self) -> None:
         try:
             self.agent.save_state()
-        except OSError as exc:
+        except Exception as exc:
             log.error("saving agent state failed (%s); monitoring continues", exc)

@@ -101,3 +101,12 @@ def test_golden_replay(tmp_path: Path):
                 assert got[key] is None, key
             else:   # optimiser results: allow for last-digit differences across BLAS builds
                 assert got[key] == pytest.approx(want[key], rel=1e-4, abs=1e-6), key
+
+
+def test_replay_of_a_missing_or_broken_file_says_what_is_wrong(tmp_path: Path):
+    for path, words in ((tmp_path / "missing.blf", "not found"), (tmp_path / "broken.blf", "cannot read")):
+        if path.name == "broken.blf":
+            path.write_bytes(b"this is not a BLF file")
+        proc = subprocess.run([sys.executable, "-m", "edge_monitor.cli", "replay", str(path)],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import struct
 import sys
 import time
 
@@ -33,9 +34,28 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+class LogReadError(ValueError):
+    """The log file cannot be read (not the agent's fault)."""
+
+
+def _blocks(path: str, block_size: int):
+    """Frame blocks of the log; reading errors become LogReadError naming the file."""
+    it = log_blocks(path, block_size)
+    while True:
+        try:
+            block = next(it)
+        except StopIteration:
+            return
+        except FileNotFoundError:
+            raise
+        except (ValueError, OSError, EOFError, struct.error) as exc:
+            raise LogReadError(f"cannot read {path}: {exc}") from exc
+        yield block
+
+
 def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0) -> None:
     next_report = time.monotonic() + progress_s
-    for ids, data, dlc, ts in log_blocks(path, block_size):
+    for ids, data, dlc, ts in _blocks(path, block_size):
         agent.process_frames(ids, data, dlc, ts)
         if time.monotonic() >= next_report:
             h = agent.ingest.counters()
@@ -52,11 +72,9 @@ def run(args: argparse.Namespace) -> int:
     agent.sinks.append(LastSymptomSink(last))
     try:
         replay(agent, args.file, cfg.block_size)
-    except FileNotFoundError as exc:
+    except (FileNotFoundError, LogReadError) as exc:
         print(f"edge-monitor replay: {exc}", file=sys.stderr)
-        return 2
-    except (ValueError, OSError) as exc:
-        print(f"edge-monitor replay: cannot read {args.file}: {exc}", file=sys.stderr)
+        agent.close()
         return 2
     agent.finish(close_open_cycle=not args.no_close)
     stats = agent.run_statistics()

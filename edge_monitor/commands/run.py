@@ -96,7 +96,11 @@ def run(args: argparse.Namespace) -> int:
         agent = Agent(cfg, sinks=sinks, state_store=store)
         agent_ref["agent"] = agent
         for joint in args.maintenance:
-            agent.declare_maintenance(joint)
+            try:
+                agent.declare_maintenance(joint)
+            except ValueError as exc:
+                print(f"edge-monitor run: --maintenance {joint}: {exc}", file=sys.stderr)
+                return 2
         session = next((s.publisher.session for s in sinks if hasattr(s, "publisher")), None)
         if session is not None:
             stack.callback(listen_for_maintenance(session, cfg.robot, agent).undeclare)
@@ -114,6 +118,9 @@ def run(args: argparse.Namespace) -> int:
             runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
         finally:
             agent.close()
+    if runner.link_failure:
+        print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
+        return 1
     return 0
 
 
