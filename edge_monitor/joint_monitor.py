@@ -97,7 +97,8 @@ class JointMonitor:
         d = self.config.decision
         dim = 3 if quantity == "joint" else 1
         density = d.density_joint if quantity == "joint" else d.density
-        return SequentialDetector(dim=dim, n_nominal=d.n_nominal, density=density, pf=d.pf, window=d.window,
+        pf = d.pf_joint if quantity == "joint" else d.pf
+        return SequentialDetector(dim=dim, n_nominal=d.n_nominal, density=density, pf=pf, window=d.window,
                                   gamma0=d.gamma0, rho=d.rho)
 
     # ------------------------------------------------------------------ streaming input

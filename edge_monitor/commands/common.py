@@ -72,6 +72,8 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: flo
                      f"{fmt(wear.get('estimate'), '.1f'):>7} ± {std_text:<6} "
                      f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:44]:<44} {pf:>7.2g} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
+    lines.append("Pf: false-alarm probability per test of the scalar detectors (the joint-vector detector uses "
+                 "decision.pf_joint); Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)
 
 
