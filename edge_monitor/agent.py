@@ -14,7 +14,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Protocol
 
-import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.config import AgentConfig

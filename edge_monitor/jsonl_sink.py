@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from edge_monitor.joint_monitor import CycleOutput
-from edge_monitor.state_store import dumps
+from edge_monitor.strict_json import dumps
 
 log = logging.getLogger(__name__)
 

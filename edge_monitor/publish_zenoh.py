@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
-import numpy as np
 import zenoh
 import zenoh.ext as zext
+
+from edge_monitor.strict_json import dumps as to_json
 
 log = logging.getLogger(__name__)
 
@@ -37,29 +37,6 @@ _STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", FRICTION: "friction", HEALT
 
 DEFAULT_CACHE_SIZE = 256          # samples per advanced publisher (≈ 2 h of 30 s cycles)
 HEARTBEAT_S = 0.5                 # sample-miss heartbeat period, s
-
-
-def _clean(value: Any) -> Any:
-    """``value`` with NaN/±inf → None and numpy scalars/arrays → Python types (strict JSON)."""
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _clean(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        number = float(value)
-        return number if math.isfinite(number) else None
-    return value
-
-
-def to_json(record: Any) -> str:
-    """Strict JSON text of ``record`` (NaN/inf become null; numpy types converted)."""
-    return json.dumps(_clean(record), allow_nan=False, separators=(",", ":"))
 
 
 def symptom_key(robot: str, joint: int | str, kind: str) -> str:

@@ -22,7 +22,6 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -31,6 +30,8 @@ from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
+
+from edge_monitor.loopback import free_loopback_port
 
 log = logging.getLogger(__name__)
 
@@ -65,16 +66,6 @@ def _display_available() -> bool:
     if sys.platform != "linux":
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
-def _free_loopback_port(preferred: int) -> int:
-    with socket.socket() as probe:
-        try:
-            probe.bind(("127.0.0.1", preferred))
-            return preferred
-        except OSError:
-            probe.bind(("127.0.0.1", 0))
-            return probe.getsockname()[1]
 
 
 def _number(value: Any) -> float:
@@ -149,7 +140,7 @@ class RerunSink:
         executable = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
         if executable is None:
             raise RuntimeError("the rerun executable is not installed")
-        port = _free_loopback_port(DEFAULT_VIEWER_PORT)
+        port = free_loopback_port(DEFAULT_VIEWER_PORT)
         self._viewer = subprocess.Popen(
             [executable, "--bind", "127.0.0.1", "--port", str(port), "--memory-limit", "25%"],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import tempfile
 from pathlib import Path
 from typing import Any
+
+from edge_monitor.strict_json import dumps
 
 log = logging.getLogger(__name__)
 
@@ -23,25 +24,6 @@ STATE_VERSION = 1
 
 class StateError(ValueError):
     """The state directory or file cannot be used."""
-
-
-def strict_json(obj: Any) -> Any:
-    """Replace non-finite floats by ``None`` recursively (JSON has no NaN)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): strict_json(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [strict_json(v) for v in obj]
-    if hasattr(obj, "tolist"):
-        return strict_json(obj.tolist())
-    if hasattr(obj, "item"):
-        return strict_json(obj.item())
-    return obj
-
-
-def dumps(obj: Any) -> str:
-    return json.dumps(strict_json(obj), separators=(",", ":"), allow_nan=False)
 
 
 class StateStore:

@@ -7,29 +7,24 @@ import json
 import logging
 import math
 import signal
-import socket
 import subprocess
 import sys
-import time
+import socket
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
 
+from edge_monitor.loopback import free_loopback_port as free_port
 from edge_monitor.publish_zenoh import SymptomPublisher, SymptomSubscriber, parse_key, to_json
 from edge_monitor.zenoh_session import ZenohOptions, ZenohSetupError, open_session
+from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[1]
 WAIT_S = 20.0   # generous upper bound for deliveries on a loaded 2-core machine; never a speed assertion
 
 pytestmark = pytest.mark.timeout(60)
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def symptom(robot: str, joint: int, cycle: int) -> dict:
@@ -105,7 +100,7 @@ def test_queryable_answers_with_provided_state(peers):
 
     with SymptomPublisher(pub_session, "r1", joints=[0, 2, 5], state_provider=state_of) as publisher:
         # the queryable is declared on the publisher side; retry until the route reaches the subscriber side
-        assert _wait(lambda: _query(sub_session, "edge/r1/2/state"), WAIT_S)
+        assert wait_until(lambda: _query(sub_session, "edge/r1/2/state"), WAIT_S)
         replies = _query(sub_session, "edge/r1/2/state")
         assert replies == {"edge/r1/2/state": {"joint": 2, "detectors": {"wear": {"mean": 3.0, "nan": None}}}}
         everything = _query(sub_session, "edge/r1/*/state")
@@ -120,15 +115,6 @@ def _query(session: zenoh.Session, selector: str) -> dict:
         assert reply.ok is not None, reply.err.payload.to_string()
         out[str(reply.ok.key_expr)] = json.loads(reply.ok.payload.to_string())
     return out
-
-
-def _wait(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def test_client_mode_through_router_subprocess():
@@ -207,7 +193,7 @@ def test_friction_and_health_telemetry_arrive(peers):
                 publisher.publish_health({"frames_total": 1200, "queue_depth": 0})
             return bool(s.count("friction") and s.count("health"))
 
-        assert _wait(lambda: delivered(subscriber), WAIT_S)
+        assert wait_until(lambda: delivered(subscriber), WAIT_S)
         assert subscriber.records("friction")[0] == {"schema": 1, "robot": "r1", "joint": 4, "cycle": 17,
                                                      "speeds": [2.1, 41.7], "torque": [0.05, None],
                                                      "stderr": [1e-3, 2e-3]}

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -15,10 +14,12 @@ from pathlib import Path
 import can
 import pytest
 
+from edge_monitor.loopback import free_loopback_port as free_port
 from edge_monitor.publish_zenoh import SymptomSubscriber
 from edge_monitor.zenoh_session import ZenohOptions, open_session
 from protocol.links import PtyPair, open_bus
 from synthetic_frames import make_frames
+from waiting import wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -37,12 +38,6 @@ quantities = ["wear", "kl_raw", "kl_weighted"]
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def send_frames(link: str, frames, rate_per_s: float = 8000.0) -> None:
     ids, data, dlc, ts = frames
     with open_bus(link) as bus:
@@ -53,15 +48,6 @@ def send_frames(link: str, frames, rate_per_s: float = 8000.0) -> None:
                 ahead = i / rate_per_s - (time.monotonic() - start)
                 if ahead > 0:
                     time.sleep(ahead)
-
-
-def wait_until(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: Path):

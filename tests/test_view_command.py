@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -14,17 +13,12 @@ from pathlib import Path
 import pytest
 
 from edge_monitor import cli
+from edge_monitor.loopback import free_loopback_port as free_port
 from edge_monitor.publish_zenoh import SymptomPublisher
 from edge_monitor.zenoh_session import ZenohOptions, open_session
 
 pytestmark = pytest.mark.timeout(90)
 START_TIMEOUT_S = 30.0   # process start-up bound (imports rerun + zenoh); not a speed assertion
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def symptom(robot: str, joint: int, cycle: int) -> dict:

@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     weights = {"published": WeightFunction(), "fitted": fitted}
     spreads = [float(x) for x in args.spreads.split(",")]
     pd = study(source, spreads, args.cycles, args.replicates, args.nominal, args.wear, weights, rng)
-    print(f"| spread [°C] | " + " | ".join(f"Pd {n}" for n in pd) + " |")
+    print("| spread [°C] | " + " | ".join(f"Pd {n}" for n in pd) + " |")
     print("|---|" + "---|" * len(pd))
     for s in spreads:
         cells = [f"{np.mean(pd[n][s]):.3f} ({min(pd[n][s]):.2f}–{max(pd[n][s]):.2f})" for n in pd]

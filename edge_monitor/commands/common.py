@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from typing import Any
 
 from edge_monitor.config import AgentConfig, ConfigError, load_config, with_overrides
-from edge_monitor.state_store import StateError, StateStore, strict_json
+from edge_monitor.state_store import StateError, StateStore
+from edge_monitor.strict_json import dumps
 
 log = logging.getLogger(__name__)
 
@@ -46,8 +46,7 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
 
 
 def print_json(obj: Any) -> None:
-    json.dump(strict_json(obj), sys.stdout, indent=2, allow_nan=False)
-    sys.stdout.write("\n")
+    sys.stdout.write(dumps(obj, indent=2, separators=(",", ": ")) + "\n")
 
 
 def fmt(x: Any, spec: str = ".3g") -> str:

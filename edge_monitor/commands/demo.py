@@ -13,21 +13,19 @@ import argparse
 import json
 import logging
 import os
-import socket
 import subprocess
 import sys
 import threading
 import time
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
 
 from edge_monitor.agent import Agent
 from edge_monitor.commands.common import LastSymptomSink, summary_table
 from edge_monitor.config import AgentConfig, ConfigError, DecisionConfig, KLConfig
 from edge_monitor.frame_source import LiveSource
-from edge_monitor.jsonl_sink import JsonlSink
 from edge_monitor.live import LiveRunner
+from edge_monitor.loopback import free_loopback_port
 from edge_monitor.segmentation import PlateauConfig
 
 log = logging.getLogger(__name__)
@@ -67,12 +65,6 @@ def demo_config(out: Path, nominal_cycles: int) -> AgentConfig:
         state_dir=str(out / "state"), jsonl=str(out / "symptoms.jsonl"),
         status_interval_s=5.0,
     )
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
@@ -118,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"edge-monitor demo: {exc}", file=sys.stderr)
         return 2
-    port = free_port()
+    port = free_loopback_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     spec = rerun_spec(args.rerun, out)
     started = time.monotonic()
