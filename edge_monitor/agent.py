@@ -80,7 +80,7 @@ class Agent:
 
     def _route(self, block: IngestBlock) -> list[CycleOutput]:
         outputs: list[CycleOutput] = []
-        for run in block.cycle_runs():
+        for run in block.runs:
             if run.cycle is not None and run.cycle != self._open_cycle:
                 if self._open_cycle is not None:
                     outputs += self._close_cycle(self._open_cycle)
@@ -128,9 +128,6 @@ class Agent:
 
     def _emit(self, joint: int, out: CycleOutput) -> list[CycleOutput]:
         cycle = out.symptom["cycle"]
-        if cycle <= self._last_emitted.get(joint, -1):
-            self.stats.duplicate_cycles_skipped += 1
-            return []
         self._last_emitted[joint] = cycle
         self.stats.symptoms += 1
         for alarm in out.alarms:

@@ -106,7 +106,7 @@ class AgentConfig:
         return self.joint_friction.get(joint, self.friction)
 
 
-def _coerce(where: str, value: Any, target: Any, default: Any) -> Any:
+def _coerce(where: str, value: Any, default: Any) -> Any:
     """Convert a TOML value to the type of the dataclass default, with a message naming ``where``."""
     if isinstance(default, bool):
         if not isinstance(value, bool):
@@ -131,18 +131,22 @@ def _coerce(where: str, value: Any, target: Any, default: Any) -> Any:
     return value
 
 
-def _section(cls: type, values: Mapping[str, Any], where: str) -> Any:
+def _coerce_fields(cls: type, values: Mapping[str, Any], where: str,
+                   known: frozenset[str] | None = None) -> dict[str, Any]:
+    """Values of ``cls`` fields (only ``known`` ones if given), typed like the field defaults."""
     if not isinstance(values, Mapping):
         raise ConfigError(f"{where}: expected a table, got {values!r}")
-    defaults = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - set(defaults))
+    known = known if known is not None else frozenset(f.name for f in dataclasses.fields(cls))
+    unknown = sorted(set(values) - known)
     if unknown:
         names = ", ".join(f"{where}.{k}" for k in unknown)
-        raise ConfigError(f"{names}: unknown key; known keys of [{where}]: {sorted(defaults)}")
-    kwargs = {}
-    instance = cls()
-    for key, raw in values.items():
-        kwargs[key] = _coerce(f"{where}.{key}", raw, defaults[key].type, getattr(instance, key))
+        raise ConfigError(f"{names}: unknown key; known keys of [{where}]: {sorted(known)}")
+    defaults = cls()
+    return {key: _coerce(f"{where}.{key}", raw, getattr(defaults, key)) for key, raw in values.items()}
+
+
+def _section(cls: type, values: Mapping[str, Any], where: str) -> Any:
+    kwargs = _coerce_fields(cls, values, where)
     try:
         return cls(**kwargs)
     except ValueError as exc:
@@ -216,22 +220,16 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
         if not isinstance(data["zenoh"], Mapping):
             raise ConfigError("zenoh: expected a table")
         kwargs["zenoh"] = dict(data.pop("zenoh"))
-    top = _section(_TopLevel, data, "config")
-    kwargs.update({k: v for k, v in dataclasses.asdict(top).items() if k in data})
-    return AgentConfig(**kwargs)
+    kwargs.update(_coerce_fields(AgentConfig, data, "config", _TOP_LEVEL_KEYS))
+    try:
+        return AgentConfig(**kwargs)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
-@dataclass(frozen=True)
-class _TopLevel:
-    robot: str = "robot1"
-    rate_hz: float = 500.0
-    joints: tuple[int, ...] | None = None
-    queue_size: int = 65536
-    block_size: int = 4096
-    status_interval_s: float = 10.0
-    state_dir: str | None = None
-    jsonl: str | None = None
-    rerun: str = "off"
+#: Plain keys at the top of the TOML file (the structured fields have tables of their own).
+_TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
+    "friction", "joint_friction", "segmentation", "wear", "kl", "decision", "zenoh"}
 
 
 def load_config(path: str | Path | None) -> AgentConfig:

@@ -86,12 +86,13 @@ class LiveSource:
     def __post_init__(self) -> None:
         self.listener = BoundedQueueListener(self.maxsize)
         self.notifier = can.Notifier(self.bus, [self.listener], timeout=0.1)
-        self.stop_event = threading.Event()
 
     def blocks(self) -> Iterator[FrameArrays | None]:
-        """Yield blocks as frames arrive; ``None`` when idle for ``poll_s`` (lets the caller tick)."""
+        """Yield blocks as frames arrive; ``None`` when idle for ``poll_s`` (lets the caller tick).
+        Endless: the caller stops iterating, then calls :meth:`stop`; frames still queued then are the
+        caller's to count (``queue_depth``)."""
         q = self.listener.queue
-        while not self.stop_event.is_set():
+        while True:
             try:
                 first = q.get(timeout=self.poll_s)
             except queue.Empty:
@@ -104,15 +105,6 @@ class LiveSource:
                 except queue.Empty:
                     break
             yield messages_to_arrays(batch)
-        # drain what is left
-        rest = []
-        while True:
-            try:
-                rest.append(q.get_nowait())
-            except queue.Empty:
-                break
-        if rest:
-            yield messages_to_arrays(rest)
 
     #: Receive errors in a row (no frame in between) after which the link counts as failed.
     max_consecutive_errors: int = 1000
@@ -136,7 +128,6 @@ class LiveSource:
         return self.listener.queue.qsize()
 
     def stop(self) -> None:
-        self.stop_event.set()
         try:
             self.notifier.stop(timeout=1.0)
         except Exception:  # pragma: no cover - shutdown best effort

@@ -10,8 +10,6 @@ segment of the controller status frame in force when it arrived (stream order).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterator
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -54,9 +52,6 @@ class CycleRun:
 class IngestBlock:
     runs: list[CycleRun] = field(default_factory=list)
 
-    def cycle_runs(self) -> Iterator[CycleRun]:
-        return iter(self.runs)
-
 
 @dataclass
 class IngestCounters:
@@ -83,7 +78,6 @@ class Ingest:
         self._cycle: int | None = None        # unwrapped cycle in force
         self._cycle_raw: int | None = None
         self._segment = -1                    # segment in force
-        self._carry_cycle = -1                # cycle label in force at the end of the last block
         self._status_tick: int | None = None  # last controller tick from the status frame (unwrapped)
         self._status_tick_raw: int | None = None
         self._anchored = False                # a status frame was seen by this instance
@@ -135,15 +129,15 @@ class Ingest:
         status_rows = np.flatnonzero(usable & (dec.kind == FrameKind.CONTROLLER_STATUS))
         cycles = np.empty(status_rows.size, dtype=np.int64)
         first_seen: dict[int, bool] = {}
+        in_force = -1 if self._cycle is None else self._cycle      # before this block's status frames
         for i, r in enumerate(status_rows):           # a few status frames per block: Python is fine
             self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen)
             cycles[i] = self._cycle
         at, known = _forward_index(n, status_rows)
         segments = dec.segment[status_rows].astype(np.int64)
-        row_cycle = np.where(known, cycles[at] if cycles.size else -1, self._carry_cycle)
+        row_cycle = np.where(known, cycles[at] if cycles.size else -1, in_force)
         row_segment = np.where(known, segments[at] if segments.size else -1, self._segment)
         if status_rows.size:
-            self._carry_cycle = int(cycles[-1])
             self._segment = int(segments[-1])
         return row_cycle.astype(np.int64), row_segment.astype(np.int64), first_seen
 
@@ -220,7 +214,6 @@ class Ingest:
         self._cycle_raw = state.get("cycle_raw")
         self._status_tick = state.get("status_tick")
         self._status_tick_raw = state.get("status_tick_raw")
-        self._carry_cycle = -1 if self._cycle is None else int(self._cycle)
         self._anchored = False
 
     def _split_runs(self, dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen) -> list[CycleRun]:

@@ -159,11 +159,11 @@ class JointMonitor:
                 self.kl.discard_cycle()
             else:
                 kl = self.kl.end_cycle(cycle)
-        kl_record = kl.to_record() if kl is not None else {"raw": None, "weighted": None}
+        kl_record = self._kl_record(kl)
         kl_transform = _safe_log if self.config.decision.log_kl else (lambda x: x)
         values = {"wear": wear.estimate if wear is not None else float("nan"),
-                  "kl_raw": kl_transform(_nan_if_none(kl_record.get("raw"))),
-                  "kl_weighted": kl_transform(_nan_if_none(kl_record.get("weighted")))}
+                  "kl_raw": kl_transform(_nan_if_none(kl_record["raw"])),
+                  "kl_weighted": kl_transform(_nan_if_none(kl_record["weighted"]))}
         decisions, alarms = self._decide(values, cycle, robot) if not partial else (self._idle_decisions(), [])
         self.cycles += 1
         load_mean = self._load.mean()
@@ -172,7 +172,7 @@ class JointMonitor:
             "t": self._last_tick / self.config.rate_hz,
             "friction": curve.to_record(),
             "wear": wear.to_record() if wear is not None else {"estimate": None, "std": None, "temperature": None},
-            "kl": self._kl_record(kl, kl_record),
+            "kl": kl_record,
             "decisions": decisions,
             "alarm": any(d.get("alarm") for d in decisions.values()),
             "load": {"mean": _finite_or_none(load_mean), "std": _finite_or_none(self._load.std)},
@@ -184,20 +184,19 @@ class JointMonitor:
         if reasons:
             symptom["reasons"] = reasons
         extras: dict[str, Any] = {}
-        density = getattr(kl, "density", None) if kl is not None else None
+        density = getattr(kl, "density", None)
         if density is not None:
             extras["density"] = density
         self._load = _LoadAccumulator()
         return CycleOutput(symptom=symptom, alarms=alarms, extras=extras)
 
     @staticmethod
-    def _kl_record(kl: Any, kl_record: dict) -> dict[str, Any]:
+    def _kl_record(kl: Any) -> dict[str, Any]:
         """``kl`` field: raw/weighted (SYSTEM.md) plus the simple μ0 + 3σ0 thresholds, tail counts
         and the nearest stored mode when available."""
-        out: dict[str, Any] = {"raw": _finite_or_none(kl_record.get("raw")),
-                               "weighted": _finite_or_none(kl_record.get("weighted"))}
         if kl is None:
-            return out
+            return {"raw": None, "weighted": None}
+        out: dict[str, Any] = {"raw": _finite_or_none(kl.raw), "weighted": _finite_or_none(kl.weighted)}
         if kl.threshold_3sigma:
             out["threshold_3sigma"] = {k: _finite_or_none(v) for k, v in kl.threshold_3sigma.items()}
         if kl.outside:
@@ -219,7 +218,7 @@ class JointMonitor:
 
     def _idle_decisions(self) -> dict[str, dict]:
         """Decision fields of a cycle that did not enter the detectors (state unchanged)."""
-        return {q: {"state": "monitoring" if getattr(d, "state", "learning") == "monitoring" else "learning",
+        return {q: {"state": d.state,
                     "statistic": None, "threshold": None, "alarm": self._alarmed.get(q, False),
                     "change_cycle": None, "delta": None, "miss_probability": None,
                     "reason": "partial cycle: not used by the detectors"}

@@ -88,6 +88,23 @@ class LiveRunner:
                 log.warning("%d frames still queued at stop were not processed (counted)", self.discarded_at_stop)
             self._tick()
 
+    def wait_drained(self, quiet_s: float, limit_s: float = 60.0, poll_s: float = 0.1) -> bool:
+        """After the sender has finished (called from another thread while :meth:`run` goes on): wait
+        until every received frame is processed and none has arrived for ``quiet_s``; False if
+        ``limit_s`` passed first."""
+        deadline = time.monotonic() + limit_s
+        listener, counters = self.source.listener, self.agent.ingest.c
+        last, last_change = -1, time.monotonic()
+        while time.monotonic() < deadline:
+            received = listener.received
+            if received != last:
+                last, last_change = received, time.monotonic()
+            elif (time.monotonic() - last_change >= quiet_s and self.source.queue_depth() == 0
+                  and counters.frames_total >= received):
+                return True
+            time.sleep(poll_s)
+        return False
+
     def _process(self, block) -> None:
         """One block through the agent; an unexpected error is logged and counted, never fatal."""
         cycles_before = self.agent.stats.cycles

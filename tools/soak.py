@@ -18,7 +18,6 @@ import logging
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 from edge_monitor.agent import Agent
@@ -83,10 +82,7 @@ def main() -> int:
         truth_path = Path(tmp) / "truth.jsonl"
         summary = run_simulator(config, args.link, speedup=args.speedup, truth_path=truth_path)
         truth = json.loads(truth_path.read_text().splitlines()[-1])
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and (runner.source.queue_depth() or
-                                           agent.ingest.c.frames_total < runner.source.listener.received):
-        time.sleep(0.2)
+    runner.wait_drained(quiet_s=0.5, limit_s=120)
     runner.stop_event.set()
     thread.join(timeout=30)
     bus.shutdown()

@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         sim = subprocess.Popen(sim_command(sim_link, args, truth), stdin=subprocess.DEVNULL)
         try:
             sim_rc = sim.wait()
-            _wait_until_drained(agent, runner)
+            runner.wait_drained(quiet_s=2.0)
         except KeyboardInterrupt:
             sim.terminate()
             sim_rc = sim.wait()
@@ -172,19 +172,6 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_summary).write_text(json.dumps(summary, indent=2))
     return 0 if sim_rc == 0 else 1
-
-
-def _wait_until_drained(agent: Agent, runner: LiveRunner, quiet_s: float = 2.0, limit_s: float = 60.0) -> None:
-    """After the simulator exits: wait until no frame has arrived for ``quiet_s`` and the queue is empty."""
-    deadline = time.monotonic() + limit_s
-    last, last_change = -1, time.monotonic()
-    while time.monotonic() < deadline:
-        frames = agent.ingest.c.frames_total + runner.source.listener.received
-        if frames != last:
-            last, last_change = frames, time.monotonic()
-        elif time.monotonic() - last_change >= quiet_s and runner.source.queue_depth() == 0:
-            return
-        time.sleep(0.2)
 
 
 def _store(cfg: AgentConfig):
