@@ -293,6 +293,12 @@ def frame_crc(arbitration_id: int, data: bytes | bytearray) -> int:
     return crc8h2f(bytes(data[1:FRAME_LENGTH]), init=_ID_REGISTER[arbitration_id])
 
 
+def frame_crc_block(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`frame_crc`: the byte-0 CRC of each row of ``data`` (uint8[n, 8]) for its
+    catalogue ID in ``ids`` (every ID must be in the catalogue)."""
+    return crc8h2f_block(np.asarray(data)[:, 1:], init=_ID_REGISTER_BY_ID[np.asarray(ids, dtype=np.int64)])
+
+
 def _protect(arbitration_id: int, word: int) -> bytes:
     """Put the CRC into byte 0 of the 64-bit word and return the 8 frame bytes."""
     payload = (word & ~0xFF).to_bytes(8, "little")
@@ -410,8 +416,7 @@ def encode_motor_state_block(
         | ((speed_raw & 0x3FFFF) << 32)
     ).astype("<u8") | (position_raw.astype("<u8") << np.uint64(50))
     rows = np.ascontiguousarray(word.reshape(n)).view(np.uint8).reshape(n, 8)
-    ids = MOTOR_STATE_BASE_ID + joints.astype(np.int64)
-    rows[:, 0] = crc8h2f_block(rows[:, 1:], init=_ID_REGISTER_BY_ID[ids])
+    rows[:, 0] = frame_crc_block(MOTOR_STATE_BASE_ID + joints.astype(np.int64), rows)
     return rows
 
 
@@ -426,7 +431,7 @@ def _integer_block(name: str, values, n: int, limit: int | None = None) -> np.nd
 
 def _protect_block(words: np.ndarray, ids: np.ndarray) -> np.ndarray:
     rows = np.ascontiguousarray(words.astype("<u8")).view(np.uint8).reshape(-1, 8)
-    rows[:, 0] = crc8h2f_block(rows[:, 1:], init=_ID_REGISTER_BY_ID[ids])
+    rows[:, 0] = frame_crc_block(ids, rows)
     return rows
 
 

@@ -28,11 +28,9 @@ from numpy.typing import NDArray
 
 from edge_monitor.friction_model import FrictionParams, friction_magnitude, nominal_friction, wear_friction
 from protocol import frames as pf
-from protocol.crc import crc8h2f, crc8h2f_block
 
 from sim_controller.config import SimConfig
 from sim_controller.faults import FaultInjector, FrameBlock
-from sim_controller.status_blocks import encode_controller_status_block, encode_joint_status_block
 from sim_controller.joint_dynamics import SpeedLoop, SpeedLoopParams, simulate_block
 from sim_controller.test_cycle import CycleReference, build_cycle
 from sim_controller.thermal import ThermalModel
@@ -106,20 +104,6 @@ def make_joint_setups(config: SimConfig, rng: np.random.Generator) -> list[Joint
     return setups
 
 
-def id_registers(ids: NDArray[np.int64]) -> NDArray[np.uint8]:
-    """CRC register after each frame's data ID (data ID = 0x1000 + arbitration ID, docs/PROTOCOL.md)."""
-    out = np.empty(ids.size, dtype=np.uint8)
-    for fid in np.unique(ids):
-        data_id = 0x1000 + int(fid)
-        out[ids == fid] = crc8h2f(bytes((data_id & 0xFF, data_id >> 8))) ^ 0xFF
-    return out
-
-
-def recompute_crc(ids: NDArray[np.int64], data: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    """Byte-0 CRC-8H2F of frames (used to keep altered frames E2E-valid)."""
-    return crc8h2f_block(data[:, 1:], init=id_registers(ids))
-
-
 class Controller:
     """Simulated controller of one robot (see module docstring). Deterministic given ``config.seed``."""
 
@@ -133,7 +117,7 @@ class Controller:
         self._thermal = [ThermalModel(temperature=config.start_temperature, ambient=config.ambient,
                                       time_constant=config.thermal_time_constant, heating=config.heating,
                                       time_acceleration=config.time_acceleration) for _ in range(config.joints)]
-        self.injector = FaultInjector(config.faults, fault_rng, recompute_crc)
+        self.injector = FaultInjector(config.faults, fault_rng, pf.frame_crc_block)
         self._truth: list[dict[str, Any]] = []
         self._drained = 0
         self.frames_emitted = 0
@@ -293,12 +277,12 @@ class Controller:
         ts[base] = t_tick[st] + n_j * self._frame_spacing
         temp_noise = self._noise_rng.normal(0.0, MOTOR_TEMPERATURE_FRAME_STD, size=(n_j, st.size))
         counters = status_count + np.arange(st.size)
-        data[base] = encode_controller_status_block(counters, mode[st], cycle, ref.segment[st], ticks[st])
+        data[base] = pf.encode_controller_status_block(counters, mode[st], cycle, ref.segment[st], ticks[st])
         for j in range(n_j):
             pos = base + 1 + j
             ids[pos] = pf.JOINT_STATUS_BASE_ID + j
             ts[pos] = t_tick[st] + (n_j + 1 + j) * self._frame_spacing
-            data[pos] = encode_joint_status_block(j, counters, sim["load_estimate"][j, st], c.load_std,
+            data[pos] = pf.encode_joint_status_block(j, counters, sim["load_estimate"][j, st], c.load_std,
                                                   cond.motor_temperature[j] + temp_noise[j])
         return FrameBlock(ids, data, ts)
 

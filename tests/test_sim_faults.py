@@ -7,7 +7,7 @@ import pytest
 
 from protocol import frames as pf
 from sim_controller.config import SimConfig
-from sim_controller.controller import Controller, recompute_crc
+from sim_controller.controller import Controller
 from sim_controller.faults import FaultInjector, FaultSpec, FaultSpecError, FrameBlock
 from test_sim_support import collect, decode
 
@@ -22,13 +22,13 @@ def synthetic_stream() -> FrameBlock:
     data[:, 1] = index % 256
     data[:, 2:] = (index[:, None] >> (8 * np.arange(6, dtype=np.uint64))).astype(np.uint8)
     ids = pf.MOTOR_STATE_BASE_ID + (np.arange(N) % 3)
-    data[:, 0] = recompute_crc(ids, data)
+    data[:, 0] = pf.frame_crc_block(ids, data)
     return FrameBlock(ids.astype(np.int64), data, np.arange(N) * 1e-3)
 
 
 def inject(spec: str, seed: int = 1) -> tuple[FrameBlock, FrameBlock, dict[str, int]]:
     clean = synthetic_stream()
-    injector = FaultInjector(FaultSpec.parse(spec), np.random.default_rng(seed), recompute_crc)
+    injector = FaultInjector(FaultSpec.parse(spec), np.random.default_rng(seed), pf.frame_crc_block)
     parts = [injector.apply(clean.take(np.arange(i, i + BLOCK))) for i in range(0, N, BLOCK)]
     return clean, FrameBlock.concat(parts + [injector.flush()]), injector.counts
 

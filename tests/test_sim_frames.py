@@ -17,7 +17,6 @@ from sim_controller.controller import Controller
 from sim_controller.faults import FaultSpec, FrameBlock
 from sim_controller.log_writers import block_messages, open_block_writer
 from sim_controller.output import record, sidecar_path
-from sim_controller.status_blocks import encode_controller_status_block, encode_joint_status_block
 from test_sim_support import collect, decode
 
 SMALL = dict(joints=2, cycles=2, speeds=(10.0, 100.0), plateau_time=0.3, pause_time=0.1)
@@ -27,7 +26,7 @@ SMALL = dict(joints=2, cycles=2, speeds=(10.0, 100.0), plateau_time=0.3, pause_t
 @given(counter=st.integers(0, 10**6), mode=st.sampled_from(list(pf.Mode)), cycle=st.integers(0, 10**6),
        segment=st.integers(0, 255), tick=st.integers(0, 2**40))
 def test_controller_status_block_matches_scalar_encoder(counter, mode, cycle, segment, tick):
-    block = encode_controller_status_block([counter], [int(mode)], cycle, [segment], [tick])
+    block = pf.encode_controller_status_block([counter], [int(mode)], cycle, [segment], [tick])
     assert block[0].tobytes() == pf.encode_controller_status(counter, int(mode), cycle, segment, tick)
 
 
@@ -35,7 +34,7 @@ def test_controller_status_block_matches_scalar_encoder(counter, mode, cycle, se
 @given(joint=st.integers(0, 7), counter=st.integers(0, 10**6), load=st.floats(-2.0, 2.0),
        std=st.floats(0.0, 0.6), temp=st.floats(-400.0, 400.0))
 def test_joint_status_block_matches_scalar_encoder(joint, counter, load, std, temp):
-    block = encode_joint_status_block(joint, [counter], [load], std, [temp])
+    block = pf.encode_joint_status_block(joint, [counter], [load], std, [temp])
     assert block[0].tobytes() == pf.encode_joint_status(joint, counter, load, std, temp)
 
 
