@@ -16,8 +16,9 @@ from protocol import frames as fr
 RATE = 500.0
 
 
-def cycle_profile(speeds, hold_s=1.2, ramp_s=0.1, pause_s=0.1):
-    """Speed reference and segment codes of one cycle."""
+def cycle_profile(speeds, hold_s=1.2, ramp_s=0.1, pause_s=0.1, production=True):
+    """Speed reference and segment codes of one cycle: per level ramp → +v hold → ramp → −v hold →
+    ramp → pause, then (``production``) a sinusoidal production-like motion."""
     v_parts, seg_parts = [], []
     for k, v in enumerate(speeds):
         ramp = np.linspace(0, v, int(ramp_s * RATE), endpoint=False)
@@ -25,10 +26,18 @@ def cycle_profile(speeds, hold_s=1.2, ramp_s=0.1, pause_s=0.1):
         part = np.concatenate([ramp, hold, ramp[::-1], -ramp, -hold, -ramp[::-1], np.zeros(int(pause_s * RATE))])
         v_parts.append(part)
         seg_parts.append(np.full(part.size, k + 1))
-    prod = 50.0 * np.sin(np.linspace(0, 4 * np.pi, int(1.0 * RATE)))
-    v_parts.append(prod)
-    seg_parts.append(np.full(prod.size, fr.SEGMENT_PRODUCTION))
+    if production:
+        prod = 50.0 * np.sin(np.linspace(0, 4 * np.pi, int(1.0 * RATE)))
+        v_parts.append(prod)
+        seg_parts.append(np.full(prod.size, fr.SEGMENT_PRODUCTION))
     return np.concatenate(v_parts), np.concatenate(seg_parts)
+
+
+def cycle_torque(speed, rng, load=0.5, temperature=40.0, wear=0.0, noise=2e-3, inertia=2e-4, gravity=0.3):
+    """Motor torque along a speed profile: gravity + friction (§1 model) + inertia + white noise."""
+    acc = np.gradient(speed) * RATE
+    return (gravity + np.sign(speed) * friction_magnitude(speed, load, temperature, wear)
+            + inertia * acc + rng.normal(0, noise, speed.size))
 
 
 def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j, c: 0.0,
@@ -38,7 +47,6 @@ def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j,
     rng = np.random.default_rng(seed)
     speed_ref, segment = cycle_profile(speeds)
     n_tick = speed_ref.size
-    acc = np.gradient(speed_ref) * RATE
     ids, rows, ts = [], [], []
     tick0 = 0
     status_counter = 0
@@ -47,8 +55,7 @@ def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j,
         ticks = tick0 + np.arange(n_tick)
         per_joint = {}
         for j in joints:
-            tau = (0.3 + np.sign(speed_ref) * friction_magnitude(speed_ref, load, temperature(cyc), wear(j, cyc))
-                   + 2e-4 * acc + rng.normal(0, noise, n_tick))
+            tau = cycle_torque(speed_ref, rng, load, temperature(cyc), wear(j, cyc), noise)
             per_joint[j] = fr.encode_motor_state_block(j, ticks % 256, tau, speed_ref, np.zeros(n_tick))
         load_est = load + rng.normal(0, load_std)
         for i in range(n_tick):

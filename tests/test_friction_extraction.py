@@ -9,24 +9,16 @@ from hypothesis import given, settings, strategies as st
 from edge_monitor.friction_extraction import FrictionExtractor
 from edge_monitor.friction_model import friction_magnitude
 from edge_monitor.segmentation import PlateauConfig, PlateauDetector
+from synthetic_frames import cycle_profile, cycle_torque
 
-RATE = 500.0
 SPEEDS = PlateauConfig().speeds
 
 
 def back_and_forth(speeds, *, hold_s=1.2, ramp_s=0.1, pause_s=0.1, inertia=2e-4, gravity=0.3,
                    load=0.5, temperature=40.0, wear=0.0, noise=2e-3, seed=0):
-    """Speed and torque of a test cycle: per level ramp → +v hold → ramp → −v hold → ramp → pause."""
-    rng = np.random.default_rng(seed)
-    parts_v = []
-    for v in speeds:
-        ramp = np.linspace(0, v, int(ramp_s * RATE), endpoint=False)
-        hold = np.full(int(hold_s * RATE), v)
-        parts_v += [ramp, hold, ramp[::-1], -ramp, -hold, -ramp[::-1], np.zeros(int(pause_s * RATE))]
-    speed = np.concatenate(parts_v)
-    acc = np.gradient(speed) * RATE
-    torque = (gravity + np.sign(speed) * friction_magnitude(speed, load, temperature, wear)
-              + inertia * acc + rng.normal(0, noise, speed.size))
+    """Speed and torque of the friction part of a test cycle (no production motion)."""
+    speed, _ = cycle_profile(speeds, hold_s, ramp_s, pause_s, production=False)
+    torque = cycle_torque(speed, np.random.default_rng(seed), load, temperature, wear, noise, inertia, gravity)
     return speed, torque
 
 
