@@ -21,7 +21,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from edge_monitor.agent import Agent
-from edge_monitor.commands.common import LastSymptomSink, summary_table
+from edge_monitor.commands.common import LastSymptomSink, open_state_store, summary_table
 from edge_monitor.config import AgentConfig, ConfigError, DecisionConfig, KLConfig
 from edge_monitor.frame_source import LiveSource
 from edge_monitor.live import LiveRunner
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
                                 zenoh_connect=[], zenoh_config=None)
         agent_ref: dict[str, Agent] = {}
         sinks = build_sinks(cfg, ns, stack, state_provider=lambda j: agent_ref["agent"].joint_state(j))
-        agent = Agent(cfg, sinks=sinks, state_store=_store(cfg))
+        agent = Agent(cfg, sinks=sinks, state_store=open_state_store(cfg))
         agent_ref["agent"] = agent
         last: dict[int, dict] = {}
         agent.sinks.append(LastSymptomSink(last))
@@ -174,11 +174,6 @@ def run(args: argparse.Namespace) -> int:
     return 0 if sim_rc == 0 else 1
 
 
-def _store(cfg: AgentConfig):
-    from edge_monitor.state_store import StateStore
-    return StateStore(cfg.state_dir) if cfg.state_dir else None
-
-
 def _published(agent: Agent) -> int:
     for sink in agent.sinks:
         publisher = getattr(sink, "publisher", None)
@@ -212,8 +207,7 @@ class _CountingSubscriber:
         return len({(r["joint"], r["cycle"]) for r in self.sub.records("symptom")})
 
     def wait_for(self, n: int, timeout: float) -> bool:
-        return self.sub.wait_for(lambda s: len({(r["joint"], r["cycle"]) for r in s.records("symptom")}) >= n,
-                                 timeout)
+        return self.sub.wait_for(lambda _: self.count() >= n, timeout)
 
     def __exit__(self, *exc: object) -> None:
         self.sub.close()
