@@ -6,10 +6,11 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from collections import Counter
 from pathlib import Path
 
 import pytest
+
+from recordings import rows_by_entity
 
 pytestmark = pytest.mark.slow
 
@@ -34,11 +35,7 @@ def test_demo_reduced(tmp_path: Path):
     assert all(len(s["friction"]["speeds"]) == 4 for s in symptoms)
     assert "joint" in proc.stdout and "symptoms published" in proc.stdout    # the summary table
 
-    from rerun.chunk import RrdReader
-    rows: Counter = Counter()
-    for chunk in RrdReader(str(rrd)).stream():
-        if not chunk.is_static:
-            rows[chunk.entity_path] += chunk.num_rows
+    rows = rows_by_entity(rrd)
     for j in range(joints):
         assert rows[f"/robot/demo-robot/joint/{j}/wear/estimate"] == cycles
         assert rows[f"/robot/demo-robot/joint/{j}/friction/curve"] == cycles

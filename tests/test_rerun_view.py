@@ -6,7 +6,6 @@ import math
 import subprocess
 import sys
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.rerun_view import CRITICAL_WEAR, FRICTION_SCALE, RerunSetupError, RerunSink, cycle_colors
+from recordings import rows_by_entity
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -38,17 +38,6 @@ def symptom(robot: str, joint: int, cycle: int, levels: int = 4) -> dict:
             "alarm": monitoring and cycle > 11,
             "density": {"grid": [0.0, 0.05, 0.1, 0.15], "nominal": [0.2, 1.0, 0.6, 0.1],
                         "cycle": [0.1, 0.8, 0.9, 0.2]}}
-
-
-def rows_by_entity(path: Path) -> Counter:
-    """Number of non-static rows per entity path in a recording."""
-    from rerun.chunk import RrdReader
-
-    counts: Counter = Counter()
-    for chunk in RrdReader(str(path)).stream():
-        if not chunk.is_static:
-            counts[chunk.entity_path] += chunk.num_rows
-    return counts
 
 
 def expected_rows(records: list[dict], per_record_density: bool) -> Counter:

@@ -16,6 +16,7 @@ from edge_monitor import cli
 from edge_monitor.loopback import free_loopback_port as free_port
 from edge_monitor.publish_zenoh import SymptomPublisher
 from edge_monitor.zenoh_session import ZenohOptions, open_session
+from recordings import rows_by_entity
 
 pytestmark = pytest.mark.timeout(90)
 START_TIMEOUT_S = 30.0   # process start-up bound (imports rerun + zenoh); not a speed assertion
@@ -51,22 +52,12 @@ def _readline(process: subprocess.Popen, timeout: float) -> str:
     return process.stdout.readline() if ready else ""
 
 
-def rows(path: Path) -> Counter:
-    from rerun.chunk import RrdReader
-
-    counts: Counter = Counter()
-    for chunk in RrdReader(str(path)).stream():
-        if not chunk.is_static:
-            counts[chunk.entity_path] += chunk.num_rows
-    return counts
-
-
 def _partial_rows(path: Path) -> Counter:
     """Rows of a recording still being written (no footer yet); empty when not readable yet."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            return rows(path)
+            return rows_by_entity(path)
         except Exception:
             return Counter()
 
@@ -103,7 +94,7 @@ def test_view_draws_backlog_and_live_records_of_a_fleet(agent_session, tmp_path)
         out, err = view.communicate(timeout=60)
     assert view.returncode == 0, err
     assert f"{total} symptoms from 2 robot(s) (alpha, beta), 3 joint(s), 1 alarm records" in out
-    counts = rows(rrd)
+    counts = rows_by_entity(rrd)
     for robot, joint in (("alpha", 0), ("alpha", 1), ("beta", 3)):
         base = f"/robot/{robot}/joint/{joint}"
         assert counts[f"{base}/wear/estimate"] == backlog + live
@@ -131,7 +122,7 @@ def test_view_filters_one_robot_and_stops_on_sigint(agent_session, tmp_path):
         out, err = view.communicate(timeout=30)
     assert view.returncode == 0, err
     assert "5 symptoms from 1 robot(s) (beta)" in out
-    counts = rows(rrd)
+    counts = rows_by_entity(rrd)
     assert counts["/robot/beta/joint/0/wear/estimate"] == 5
     assert not any(path.startswith("/robot/alpha") for path in counts)
 
