@@ -147,14 +147,10 @@ class PlateauDetector:
     def classify(self, speed: NDArray[np.float64], exclude: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
         """Label per sample: ±(level+1) on a level, UNMATCHED (steady, no level) or 0, with hysteresis."""
         a = np.abs(speed)
-        pos = np.clip(np.searchsorted(self._sorted_speeds, a), 1, len(self._sorted_speeds) - 1) \
-            if len(self._sorted_speeds) > 1 else np.zeros(a.shape, dtype=np.int64)
-        if len(self._sorted_speeds) > 1:
-            left, right = pos - 1, pos
-            nearest = np.where(np.abs(a - self._sorted_speeds[left]) <= np.abs(a - self._sorted_speeds[right]),
-                               left, right)
-        else:
-            nearest = pos
+        levels = self._sorted_speeds
+        right = np.minimum(np.searchsorted(levels, a), levels.size - 1)
+        left = np.maximum(right - 1, 0)
+        nearest = np.where(np.abs(a - levels[left]) <= np.abs(a - levels[right]), left, right)
         dist = np.abs(a - self._sorted_speeds[nearest])
         band = self._band[nearest]
         level_label = np.sign(speed).astype(np.int64) * (self._sorted_index[nearest] + 1)
