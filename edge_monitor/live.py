@@ -24,7 +24,6 @@ class LiveRunner:
     source: LiveSource
     status_interval_s: float = 10.0
     stop_event: threading.Event = field(default_factory=threading.Event)
-    no_new_data: int = 0
     processing_errors: int = 0
     discarded_at_stop: int = 0
     link_failure: str | None = None
@@ -34,14 +33,14 @@ class LiveRunner:
         listener = self.source.listener
         h.update({"time": time.time(), "queue_depth": self.source.queue_depth(),
                   "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
-                  "no_new_data": self.no_new_data, "processing_errors": self.processing_errors,
+                  "no_new_data": self.agent.ingest.e2e.stats["no_new_data"], "processing_errors": self.processing_errors,
                   "malformed_lines": self.source.malformed_lines(), "link_failure": self.link_failure,
                   "discarded_at_stop": self.discarded_at_stop})
         h["e2e"] = dict(self.agent.ingest.e2e.stats)
         return h
 
     def _tick(self) -> None:
-        self.no_new_data += len(self.agent.ingest.e2e.poll(time.time()))
+        self.agent.ingest.e2e.poll(time.time())        # counts NO_NEW_DATA per identifier in its stats
         h = self.health()
         for sink in self.agent.sinks:
             self.agent._call(sink.on_health, h)
