@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from edge_monitor.friction_model import DEFAULT_PARAMS, FrictionParams
-from edge_monitor.segmentation import PlateauConfig
+from joint_model.friction import DEFAULT_PARAMS, FrictionParams
+from edge_monitor.features.segmentation import PlateauConfig
 
 
 class ConfigError(ValueError):
@@ -182,7 +182,7 @@ def _validate(cfg: AgentConfig) -> AgentConfig:
     for ok, message in checks:
         if not ok:
             raise ConfigError(message)
-    from edge_monitor.densities import min_points
+    from edge_monitor.stats.densities import min_points
     for quantity in cfg.decision.quantities:
         density = cfg.decision.density_joint if quantity == "joint" else cfg.decision.density
         need = min_points(density, 3 if quantity == "joint" else 1)

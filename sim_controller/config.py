@@ -13,15 +13,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
-from edge_monitor.friction_model import FRICTION_NOISE_STD, FrictionParams
+from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, FrictionParams
+from protocol.frames import MAX_JOINTS
 
 from sim_controller.faults import FaultSpec
 from sim_controller.wear_scenarios import WearEvent, WearProfile, parse_wear_ramp
 
-#: Default friction speed levels, ALGORITHMS.md §2 [rad/s].
-DEFAULT_SPEEDS: tuple[float, ...] = (2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1)
-#: Largest number of joints the wire format carries (protocol MAX_JOINTS).
-MAX_JOINTS = 8
+#: Default friction speed levels [rad/s] (defined once, in joint_model).
+DEFAULT_SPEEDS = DEFAULT_SPEED_LEVELS
 #: Largest |speed| the MotorState frame can carry [rad/s].
 MAX_SPEED = 600.0
 
@@ -231,6 +230,6 @@ def merge_wear(base: Sequence[WearProfile], extra: Sequence[WearProfile], joints
 
 
 __all__ = [
-    "DEFAULT_SPEEDS", "MAX_JOINTS", "JointOverride", "SimConfig", "SimConfigError",
+    "DEFAULT_SPEEDS", "JointOverride", "SimConfig", "SimConfigError",
     "load_speeds_file", "merge_wear", "parse_float", "parse_range", "parse_speeds", "wear_profiles_from_ramps",
 ]

@@ -26,7 +26,7 @@ from typing import Any, Iterator
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.friction_model import FrictionParams, friction_magnitude, nominal_friction, wear_friction
+from joint_model.friction import FrictionParams, friction_magnitude, nominal_friction, wear_friction
 from protocol import frames as pf
 
 from sim_controller.config import SimConfig

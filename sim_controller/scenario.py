@@ -27,7 +27,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from edge_monitor.friction_model import FrictionParams
+from joint_model.friction import FrictionParams
 
 from sim_controller.config import JointOverride, SimConfig, SimConfigError
 from sim_controller.faults import FaultSpec

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-SEGMENT_NONE = 0
-SEGMENT_PRODUCTION = 200
+from protocol.frames import SEGMENT_NONE, SEGMENT_PRODUCTION
+
 #: Displacements of the production moves as fractions of one production stroke (sum 0: returns).
 PRODUCTION_MOVES: tuple[float, ...] = (1.0, -0.5, 0.75, -1.25, 0.4, -0.4)
 #: Production stroke [rad, motor side].

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge_monitor.friction_model import friction_magnitude
+from joint_model.friction import friction_magnitude
 from protocol import frames as fr
 
 RATE = 500.0

@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from edge_monitor.agent import Agent
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, PlateauConfig
-from edge_monitor.friction_model import friction_magnitude
-from edge_monitor.state_store import StateStore
+from joint_model.friction import friction_magnitude
+from edge_monitor.pipeline.state_store import StateStore
 from synthetic_frames import make_frames
 
 SPEEDS = (8.7, 41.7, 133.5)

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from edge_monitor.bias_em import BiasEMError, SAEMBias, em_bias
-from edge_monitor.densities import GaussianMixture, fit_gaussian, fit_gce, fit_kde
+from edge_monitor.stats.bias_em import BiasEMError, SAEMBias, em_bias
+from edge_monitor.stats.densities import GaussianMixture, fit_gaussian, fit_gce, fit_kde
 
 
 def skewed_mixture() -> GaussianMixture:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from edge_monitor.commissioning import (
+from edge_monitor.offline.commissioning import (
     CommissioningDataError,
     identify,
     load_csv,
@@ -20,7 +20,7 @@ from edge_monitor.commissioning import (
     projected_residual,
     regressors,
 )
-from edge_monitor.friction_model import DEFAULT_PARAMS, FrictionParams, nominal_friction
+from joint_model.friction import DEFAULT_PARAMS, FrictionParams, nominal_friction
 
 NOISE = 4e-3
 SPEEDS = [2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1]

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from edge_monitor.densities import (DensityError, GaussianMixture, fit_density, fit_gaussian, fit_gce,
+from edge_monitor.stats.densities import (DensityError, GaussianMixture, fit_density, fit_gaussian, fit_gce,
                                     fit_kde, min_points)
 
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from edge_monitor.friction_extraction import FrictionExtractor
-from edge_monitor.friction_model import friction_magnitude
-from edge_monitor.segmentation import PlateauConfig, PlateauDetector
+from edge_monitor.features.friction_extraction import FrictionExtractor
+from joint_model.friction import friction_magnitude
+from edge_monitor.features.segmentation import PlateauConfig, PlateauDetector
 from synthetic_frames import cycle_profile, cycle_torque
 
 SPEEDS = PlateauConfig().speeds

@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from edge_monitor.bias_em import SAEMBias
-from edge_monitor.densities import fit_gaussian, fit_gce, fit_kde
-from edge_monitor.glr import (GLRError, WindowedGLR, bootstrap_threshold, glr_known_change,
+from edge_monitor.stats.bias_em import SAEMBias
+from edge_monitor.stats.densities import fit_gaussian, fit_gce, fit_kde
+from edge_monitor.stats.glr import (GLRError, WindowedGLR, bootstrap_threshold, glr_known_change,
                               glr_unknown_change, miss_probability, threshold_from_pf)
 
 

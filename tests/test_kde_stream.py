@@ -1,4 +1,4 @@
-"""Streaming KDE on a fixed grid and symmetric KL distance (edge_monitor.kde_stream)."""
+"""Streaming KDE on a fixed grid and symmetric KL distance (edge_monitor.stats.kde_stream)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import gaussian_kde
 
-from edge_monitor.kde_stream import (GridError, KDEDataError, StreamingKDE, choose_grid,
+from edge_monitor.stats.kde_stream import (GridError, KDEDataError, StreamingKDE, choose_grid,
                                      normal_reference_bandwidth, symmetric_kl)
 
 

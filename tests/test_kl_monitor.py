@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from edge_monitor.commands.fit_weights import simulate_cycles
-from edge_monitor.disturbance_weights import WeightFunction
-from edge_monitor.kl_monitor import (PROVISIONAL_GRID, SEGMENT_PRODUCTION, KLConfigError, KLMonitor, KLResult)
+from edge_monitor.features.disturbance_weights import WeightFunction
+from edge_monitor.features.kl_monitor import (PROVISIONAL_GRID, SEGMENT_PRODUCTION, KLConfigError, KLMonitor, KLResult)
 
 CONSTANT_TEMPERATURE = (40.0, 40.0)
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from edge_monitor.loopback import free_loopback_port as free_port
-from edge_monitor.publish_zenoh import SymptomPublisher, SymptomSubscriber, parse_key, to_json
-from edge_monitor.zenoh_session import ZenohOptions, ZenohSetupError, open_session
+from edge_monitor.sinks.loopback import free_loopback_port as free_port
+from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber, parse_key, to_json
+from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError, open_session
 from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from edge_monitor.rerun_view import CRITICAL_WEAR, FRICTION_SCALE, RerunSetupError, RerunSink, cycle_colors
+from edge_monitor.sinks.rerun_view import CRITICAL_WEAR, FRICTION_SCALE, RerunSetupError, RerunSink, cycle_colors
 from recordings import rows_by_entity
 
 pytestmark = pytest.mark.timeout(60)
@@ -134,7 +134,7 @@ def test_values_and_colours_read_back(tmp_path):
 
 def test_off_does_not_import_rerun():
     code = ("import sys\n"
-            "from edge_monitor.rerun_view import RerunSink\n"
+            "from edge_monitor.sinks.rerun_view import RerunSink\n"
             "sink = RerunSink.open('off')\n"
             "sink.log_symptom({'robot': 'r', 'joint': 0, 'cycle': 0})\n"
             "sink.log_alarm({}); sink.log_health({'x': 1}); sink.close()\n"

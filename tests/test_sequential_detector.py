@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from edge_monitor.glr import threshold_from_pf
-from edge_monitor.sequential_detector import DEFAULT_PF, DetectorConfigError, SequentialDetector
+from edge_monitor.stats.glr import threshold_from_pf
+from edge_monitor.stats.sequential_detector import DEFAULT_PF, DetectorConfigError, SequentialDetector
 
 RECORD_FIELDS = {"state", "statistic", "threshold", "alarm", "change_cycle", "delta", "miss_probability"}
 

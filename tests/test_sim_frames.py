@@ -132,7 +132,7 @@ def test_truth_file_format_and_parameter_sidecar(tmp_path):
 
 
 def test_single_joint_uses_the_exact_table():
-    from edge_monitor.friction_model import DEFAULT_PARAMS
+    from joint_model.friction import DEFAULT_PARAMS
     assert Controller(SimConfig(joints=1)).joints[0].friction == DEFAULT_PARAMS
     varied = Controller(SimConfig(joints=1, variation=0.1)).joints[0].friction
     assert varied != DEFAULT_PARAMS

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from edge_monitor import cli
-from edge_monitor.loopback import free_loopback_port as free_port
-from edge_monitor.publish_zenoh import SymptomPublisher
-from edge_monitor.zenoh_session import ZenohOptions, open_session
+from edge_monitor.sinks.loopback import free_loopback_port as free_port
+from edge_monitor.sinks.zenoh_publisher import SymptomPublisher
+from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
 from recordings import rows_by_entity
 
 pytestmark = pytest.mark.timeout(90)

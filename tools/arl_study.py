@@ -48,9 +48,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from scipy import stats  # noqa: E402
 
-from edge_monitor.densities import fit_density  # noqa: E402
-from edge_monitor.glr import bootstrap_statistics, glr_known_change, threshold_from_pf  # noqa: E402
-from edge_monitor.sequential_detector import SequentialDetector  # noqa: E402
+from edge_monitor.stats.densities import fit_density  # noqa: E402
+from edge_monitor.stats.glr import bootstrap_statistics, glr_known_change, threshold_from_pf  # noqa: E402
+from edge_monitor.stats.sequential_detector import SequentialDetector  # noqa: E402
 
 
 def _bimodal(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -23,10 +23,10 @@ from pathlib import Path
 import can
 import numpy as np
 
-from edge_monitor.agent import Agent
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, WearConfig
-from edge_monitor.frame_source import log_blocks
-from edge_monitor.wear_estimation import WearEstimator
+from edge_monitor.pipeline.frame_source import log_blocks
+from edge_monitor.features.wear_estimation import WearEstimator
 from sim_controller.config import SimConfig
 from sim_controller.output import record
 
@@ -73,7 +73,7 @@ def main() -> int:
     read, extract, full = (statistics.median(x) for x in (t_read, t_extract, t_full))
     est = WearEstimator(method="marginal")      # as the agent uses it
     speeds = np.array([2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1])
-    from edge_monitor.friction_model import friction_magnitude
+    from joint_model.friction import friction_magnitude
     tau = friction_magnitude(speeds, 0.5, 40.0, 20.0) + np.random.default_rng(0).normal(0, 5.7e-3, speeds.size)
     t = time.perf_counter()
     for _ in range(20):

@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge_monitor.densities import GaussianMixture  # noqa: E402
-from edge_monitor.glr import WindowedGLR, glr_unknown_change  # noqa: E402
+from edge_monitor.stats.densities import GaussianMixture  # noqa: E402
+from edge_monitor.stats.glr import WindowedGLR, glr_unknown_change  # noqa: E402
 
 WINDOW = 100
 

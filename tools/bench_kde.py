@@ -1,4 +1,4 @@
-"""Benchmark: per-cycle KDE + KL of edge_monitor.kde_stream vs KDEpy FFTKDE and scipy gaussian_kde.
+"""Benchmark: per-cycle KDE + KL of edge_monitor.stats.kde_stream vs KDEpy FFTKDE and scipy gaussian_kde.
 
 One cycle window of n samples (n = 1e4, 1e5: torque-like multimodal data). Each contender does the
 same job on the same 512-point grid with the same bandwidth: density of the window, then the
@@ -30,7 +30,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy.stats import gaussian_kde  # noqa: E402
 
-from edge_monitor.kde_stream import StreamingKDE, choose_grid, symmetric_kl  # noqa: E402
+from edge_monitor.stats.kde_stream import StreamingKDE, choose_grid, symmetric_kl  # noqa: E402
 
 N_GRID = 512
 BLOCKS = 10
@@ -54,7 +54,7 @@ def best_time(fn: Callable[[], object], repeats: int) -> float:
 def monitor_rows(rng: np.random.Generator) -> list[str]:
     """Per-cycle cost of the whole KLMonitor (raw + weighted channel, learned), uncentred vs
     centred (raw: capture grid of 16384 points + shift onto the working grid; weighted: causal mean)."""
-    from edge_monitor.kl_monitor import KLMonitor
+    from edge_monitor.features.kl_monitor import KLMonitor
 
     lines = ["### KLMonitor per cycle: centring (load invariance) vs uncentred", "",
              f"Learned monitor (K = 2), both channels, one cycle of n samples fed in {BLOCKS} blocks, then "

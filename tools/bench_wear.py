@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from edge_monitor.experiment_design import design_speeds
-from edge_monitor.friction_model import FRICTION_NOISE_STD, friction_magnitude
-from edge_monitor.wear_estimation import WearEstimator, data_covariance
+from edge_monitor.offline.experiment_design import design_speeds
+from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction_magnitude
+from edge_monitor.features.wear_estimation import WearEstimator, data_covariance
 
-DEFAULT_SPEEDS = [2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1]
+DEFAULT_SPEEDS = list(DEFAULT_SPEED_LEVELS)
 LOAD_MEAN, LOAD_STD = 0.5, 0.1
 BUDGET_MS = 50.0
 

@@ -33,8 +33,8 @@ from typing import Callable
 import numpy as np
 
 from edge_monitor.commands.fit_weights import causally_centred, simulate_cycles
-from edge_monitor.disturbance_weights import WeightFunction, fit_index_weights, fit_weight_function
-from edge_monitor.kl_monitor import KLMonitor
+from edge_monitor.features.disturbance_weights import WeightFunction, fit_index_weights, fit_weight_function
+from edge_monitor.features.kl_monitor import KLMonitor
 
 Source = Callable[[int, float, tuple[float, float], np.random.Generator], tuple[np.ndarray, np.ndarray]]
 

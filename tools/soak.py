@@ -20,10 +20,10 @@ import tempfile
 import threading
 from pathlib import Path
 
-from edge_monitor.agent import Agent
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.config import AgentConfig
-from edge_monitor.frame_source import LiveSource
-from edge_monitor.live import LiveRunner
+from edge_monitor.pipeline.frame_source import LiveSource
+from edge_monitor.pipeline.live import LiveRunner
 from protocol.links import open_bus
 from sim_controller.config import SimConfig
 from sim_controller.faults import FaultSpec

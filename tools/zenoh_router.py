@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge_monitor.zenoh_session import DEFAULT_ROUTER_PORT, ZenohOptions, ZenohSetupError, open_session  # noqa: E402
+from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, ZenohOptions, ZenohSetupError, open_session  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

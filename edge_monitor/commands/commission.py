@@ -15,8 +15,8 @@ import sys
 import tomllib
 from pathlib import Path
 
-from edge_monitor.commissioning import CommissioningDataError, identify, load_csv
-from edge_monitor.friction_model import DEFAULT_PARAMS, FrictionParams
+from edge_monitor.offline.commissioning import CommissioningDataError, identify, load_csv
+from joint_model.friction import DEFAULT_PARAMS, FrictionParams
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

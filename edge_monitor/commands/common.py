@@ -8,8 +8,8 @@ import sys
 from typing import Any
 
 from edge_monitor.config import AgentConfig, ConfigError, load_config, with_overrides
-from edge_monitor.state_store import StateError, StateStore
-from edge_monitor.strict_json import dumps
+from edge_monitor.pipeline.state_store import StateError, StateStore
+from edge_monitor.records import dumps
 
 log = logging.getLogger(__name__)
 

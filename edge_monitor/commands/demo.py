@@ -20,13 +20,13 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 
-from edge_monitor.agent import Agent
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.commands.common import LastSymptomSink, open_state_store, summary_table
 from edge_monitor.config import AgentConfig, ConfigError, DecisionConfig, KLConfig
-from edge_monitor.frame_source import LiveSource
-from edge_monitor.live import LiveRunner
-from edge_monitor.loopback import free_loopback_port
-from edge_monitor.segmentation import PlateauConfig
+from edge_monitor.pipeline.frame_source import LiveSource
+from edge_monitor.pipeline.live import LiveRunner
+from edge_monitor.sinks.loopback import free_loopback_port
+from edge_monitor.features.segmentation import PlateauConfig
 
 log = logging.getLogger(__name__)
 
@@ -197,8 +197,8 @@ class _CountingSubscriber:
         self.endpoint = endpoint
 
     def __enter__(self) -> "_CountingSubscriber":
-        from edge_monitor.publish_zenoh import SymptomSubscriber
-        from edge_monitor.zenoh_session import ZenohOptions, open_session
+        from edge_monitor.sinks.zenoh_publisher import SymptomSubscriber
+        from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
         self.session = open_session(ZenohOptions(mode="peer", connect=[self.endpoint]))
         self.sub = SymptomSubscriber(self.session, "edge/**", history=True)
         return self

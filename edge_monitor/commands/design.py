@@ -11,8 +11,8 @@ import json
 import sys
 from pathlib import Path
 
-from edge_monitor.experiment_design import DesignError, design_speeds
-from edge_monitor.friction_model import FRICTION_NOISE_STD
+from edge_monitor.offline.experiment_design import DesignError, design_speeds
+from joint_model.friction import FRICTION_NOISE_STD
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

@@ -25,11 +25,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.disturbance_weights import WeightFitError, fit_index_weights, fit_weight_function
-from edge_monitor.friction_model import CRITICAL_WEAR, FRICTION_NOISE_STD, friction
+from edge_monitor.features.disturbance_weights import WeightFitError, fit_index_weights, fit_weight_function
+from joint_model import CRITICAL_WEAR, DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction
 
-#: The default 12 speed levels of ALGORITHMS.md §2 [rad/s].
-SPEED_LEVELS = (2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1)
 
 
 class CycleDataError(ValueError):
@@ -48,7 +46,7 @@ class CycleModel:
     noise_std²)``. Inertial torque in the ramps is ignored (quasi-static).
     """
 
-    levels: tuple[float, ...] = SPEED_LEVELS
+    levels: tuple[float, ...] = DEFAULT_SPEED_LEVELS
     plateau_s: float = 1.1
     ramp_s: float = 0.1
     rate_hz: float = 500.0
@@ -142,7 +140,7 @@ def read_cycles_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64
 # -- command ------------------------------------------------------------------------------------
 def causally_centred(torque: NDArray[np.float64]) -> NDArray[np.float64]:
     """``τ_t − m_t`` per cycle (row), ``m_t`` the running mean of the cycle up to sample t: the
-    quantity the centred KL detector weights (:class:`edge_monitor.kl_monitor.KLMonitor`,
+    quantity the centred KL detector weights (:class:`edge_monitor.features.kl_monitor.KLMonitor`,
     ``center=True``); invariant to a per-cycle constant load torque."""
     return torque - np.cumsum(torque, axis=1) / np.arange(1, torque.shape[1] + 1)
 

@@ -8,7 +8,7 @@ import struct
 import sys
 import time
 
-from edge_monitor.agent import Agent
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.commands.common import (
     add_config_arguments,
     load_agent_config,
@@ -17,8 +17,8 @@ from edge_monitor.commands.common import (
     summary_table,
     LastSymptomSink,
 )
-from edge_monitor.frame_source import log_blocks
-from edge_monitor.jsonl_sink import JsonlSink
+from edge_monitor.pipeline.frame_source import log_blocks
+from edge_monitor.sinks.jsonl import JsonlSink
 
 log = logging.getLogger(__name__)
 

@@ -15,13 +15,13 @@ import threading
 from contextlib import ExitStack
 from typing import Any
 
-from edge_monitor.agent import Agent
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.commands.common import add_config_arguments, load_agent_config, open_state_store
 from edge_monitor.config import AgentConfig
-from edge_monitor.frame_source import LiveSource
-from edge_monitor.jsonl_sink import JsonlSink
-from edge_monitor.live import LiveRunner
-from edge_monitor.zenoh_session import ZenohOptions, ZenohSetupError
+from edge_monitor.pipeline.frame_source import LiveSource
+from edge_monitor.sinks.jsonl import JsonlSink
+from edge_monitor.pipeline.live import LiveRunner
+from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError
 
 log = logging.getLogger(__name__)
 
@@ -49,13 +49,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def build_sinks(cfg: AgentConfig, args: argparse.Namespace, stack: ExitStack,
                 state_provider=None, recording_id: str | None = None) -> list[Any]:
     """JSONL, Zenoh and Rerun sinks as configured; failures to open say what to fix."""
-    from edge_monitor.outputs import RerunViewSink, ZenohSink
+    from edge_monitor.sinks.adapters import RerunViewSink, ZenohSink
     sinks: list[Any] = []
     if cfg.jsonl:
         sinks.append(JsonlSink(cfg.jsonl, include_alarms=False))
     if not getattr(args, "no_zenoh", False):
-        from edge_monitor.publish_zenoh import SymptomPublisher
-        from edge_monitor.zenoh_session import open_session
+        from edge_monitor.sinks.zenoh_publisher import SymptomPublisher
+        from edge_monitor.sinks.zenoh_session import open_session
         options = ZenohOptions.from_args(args)
         session = open_session(options)
         stack.callback(session.close)
@@ -64,7 +64,7 @@ def build_sinks(cfg: AgentConfig, args: argparse.Namespace, stack: ExitStack,
         log.info("zenoh: %s", options.describe())
     spec = getattr(args, "rerun", None) or cfg.rerun
     if spec and spec != "off":
-        from edge_monitor.rerun_view import RerunSink
+        from edge_monitor.sinks.rerun_view import RerunSink
         sinks.append(RerunViewSink(RerunSink.open(spec, recording_id=recording_id, fallback_save="edge-monitor.rrd")))
     return sinks
 

@@ -14,9 +14,9 @@ import sys
 import threading
 import time
 
-from edge_monitor.publish_zenoh import ALARM, HEALTH, SYMPTOM, ReceivedRecord, SymptomSubscriber
-from edge_monitor.rerun_view import RerunSetupError, RerunSink
-from edge_monitor.zenoh_session import ZenohOptions, ZenohSetupError, open_session
+from edge_monitor.sinks.zenoh_publisher import ALARM, HEALTH, SYMPTOM, ReceivedRecord, SymptomSubscriber
+from edge_monitor.sinks.rerun_view import RerunSetupError, RerunSink
+from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError, open_session
 
 log = logging.getLogger(__name__)
 

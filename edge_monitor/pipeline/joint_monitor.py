@@ -16,17 +16,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.config import AgentConfig
-from edge_monitor.disturbance_weights import WeightFunction
-from edge_monitor.friction_extraction import FrictionCurve, FrictionExtractor
-from edge_monitor.kl_monitor import KLMonitor
-from edge_monitor.segmentation import PlateauDetector
-from edge_monitor.sequential_detector import SequentialDetector
-from edge_monitor.wear_estimation import WearEstimator
+from edge_monitor.records import SCHEMA_VERSION
+from protocol.frames import SEGMENT_PRODUCTION
+from edge_monitor.features.disturbance_weights import WeightFunction
+from edge_monitor.features.friction_extraction import FrictionCurve, FrictionExtractor
+from edge_monitor.features.kl_monitor import KLMonitor
+from edge_monitor.features.segmentation import PlateauDetector
+from edge_monitor.stats.sequential_detector import SequentialDetector
+from edge_monitor.features.wear_estimation import WearEstimator
 
 log = logging.getLogger(__name__)
 
-SCHEMA = 1
-SEGMENT_PRODUCTION = 200
 
 
 def _finite_or_none(x: Any) -> float | None:
@@ -168,7 +168,7 @@ class JointMonitor:
         self.cycles += 1
         load_mean = self._load.mean()
         symptom: dict[str, Any] = {
-            "schema": SCHEMA, "robot": robot, "joint": self.joint, "cycle": cycle,
+            "schema": SCHEMA_VERSION, "robot": robot, "joint": self.joint, "cycle": cycle,
             "t": self._last_tick / self.config.rate_hz,
             "friction": curve.to_record(),
             "wear": wear.to_record() if wear is not None else {"estimate": None, "std": None, "temperature": None},
@@ -244,7 +244,7 @@ class JointMonitor:
         return decisions, alarms
 
     def _alarm_record(self, robot: str, cycle: int, quantity: str, record: dict, state: str) -> dict:
-        return {"schema": SCHEMA, "robot": robot, "joint": self.joint, "cycle": cycle, "quantity": quantity,
+        return {"schema": SCHEMA_VERSION, "robot": robot, "joint": self.joint, "cycle": cycle, "quantity": quantity,
                 "state": state, "statistic": record.get("statistic"), "threshold": record.get("threshold"),
                 "miss_probability": record.get("miss_probability"), "change_cycle": record.get("change_cycle")}
 

@@ -6,8 +6,8 @@ import logging
 from pathlib import Path
 from typing import Any, TextIO
 
-from edge_monitor.joint_monitor import CycleOutput
-from edge_monitor.strict_json import dumps
+from edge_monitor.pipeline.joint_monitor import CycleOutput
+from edge_monitor.records import dumps
 
 log = logging.getLogger(__name__)
 

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize_scalar
 from scipy.special import logsumexp
 
-from edge_monitor.friction_model import (
+from joint_model.friction import (
     DEFAULT_PARAMS,
     FRICTION_NOISE_STD,
     FrictionParams,

@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from edge_monitor.bias_em import SAStep, check_gain, check_step, em_bias, step_matrix
-from edge_monitor.densities import GaussianMixture, as_observations
+from edge_monitor.stats.bias_em import SAStep, check_gain, check_step, em_bias, step_matrix
+from edge_monitor.stats.densities import GaussianMixture, as_observations
 
 GLRMode = Literal["exact", "recursive"]
 

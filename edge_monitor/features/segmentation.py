@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from joint_model import DEFAULT_SPEED_LEVELS
+
 #: Label of samples at an (apparently) constant speed that matches no configured level.
 UNMATCHED = 10_000
 
@@ -24,7 +26,7 @@ UNMATCHED = 10_000
 class PlateauConfig:
     """Plateau detection settings. Speeds in rad/s, durations in seconds."""
 
-    speeds: tuple[float, ...] = (2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1)
+    speeds: tuple[float, ...] = DEFAULT_SPEED_LEVELS
     rate_hz: float = 500.0
     tolerance_rel: float = 0.02      # enter a level when |v| is within rel·v + abs of it
     tolerance_abs: float = 0.3

@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from edge_monitor.strict_json import dumps
+from edge_monitor.records import dumps
 
 log = logging.getLogger(__name__)
 

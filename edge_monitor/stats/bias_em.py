@@ -19,7 +19,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge_monitor.densities import GaussianMixture, as_observations
+from edge_monitor.stats.densities import GaussianMixture, as_observations
 
 
 class BiasEMError(ValueError):

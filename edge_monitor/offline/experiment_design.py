@@ -22,14 +22,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
-from edge_monitor.friction_model import (
+from joint_model.friction import (
     DEFAULT_PARAMS,
     FRICTION_NOISE_STD,
     FrictionParams,
     jacobian_temperature_wear,
     load_sensitivity,
 )
-from edge_monitor.wear_estimation import crlb_wear, marginal_fisher_wear
+from edge_monitor.features.wear_estimation import crlb_wear, marginal_fisher_wear
 
 
 class DesignError(ValueError):

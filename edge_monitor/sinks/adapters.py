@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from edge_monitor.joint_monitor import CycleOutput
+from edge_monitor.pipeline.joint_monitor import CycleOutput
 
 log = logging.getLogger(__name__)
 

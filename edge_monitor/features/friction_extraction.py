@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge_monitor.segmentation import PlateauStat
+from edge_monitor.features.segmentation import PlateauStat
+from protocol.frames import TORQUE_SCALE
 
-#: |torque| at or beyond this is treated as saturated (wire range of the torque signal is ±1.6384).
-TORQUE_SATURATION = 1.6
+#: |torque| at or beyond this is treated as saturated: 32000 of the 32768 LSB of the wire range (±1.6384).
+TORQUE_SATURATION = TORQUE_SCALE * 32000
 
 
 @dataclass

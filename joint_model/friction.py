@@ -5,7 +5,8 @@ joint's maximum torque), load torque ``load`` dimensionless, lubricant temperatu
 in °C, wear level ``wear`` dimensionless on 0 … 100 (35 = critical).
 
 Friction is direction independent: ``friction(-v) == -friction(v)``. All functions broadcast
-over numpy arrays. The same implementation is the simulator's ground truth and the agent's model.
+over numpy arrays. The same implementation is the simulator's ground truth and the agent's model, which is why it
+lives in ``joint_model`` and not in either of them.
 """
 
 from __future__ import annotations
@@ -17,8 +18,12 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-#: Critical wear level to alarm on (ALGORITHMS.md units table).
+#: Critical wear level to alarm on (docs/ALGORITHMS.md, units).
 CRITICAL_WEAR = 35.0
+#: Top of the wear scale: 100 = failure.
+WEAR_MAX = 100.0
+#: Default friction speed levels of the repetitive test cycle [rad/s] (docs/ALGORITHMS.md §2).
+DEFAULT_SPEED_LEVELS: tuple[float, ...] = (2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1)
 #: Combined prediction error of a friction datum (std), used as measurement noise.
 FRICTION_NOISE_STD = 5.70e-3
 #: Smallest Stribeck speed used in evaluation [rad/s]. ``vs0 + vsξ·ξ`` is negative below

@@ -9,8 +9,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from edge_monitor.agent import Agent
-from edge_monitor.frame_source import LiveSource
+from edge_monitor.pipeline.agent import Agent
+from edge_monitor.pipeline.frame_source import LiveSource
 
 log = logging.getLogger(__name__)
 status_log = logging.getLogger("edge_monitor.status")

@@ -24,7 +24,7 @@ from typing import Any, Callable, Iterable
 import zenoh
 import zenoh.ext as zext
 
-from edge_monitor.strict_json import dumps as to_json
+from edge_monitor.records import SCHEMA_VERSION, dumps as to_json
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +125,7 @@ class SymptomPublisher:
 
     def publish_friction(self, joint: int, cycle: int, friction: dict) -> bool:
         """Publish the friction curve of a cycle: ``{"speeds", "torque", "stderr"}``."""
-        record = {"schema": 1, "robot": self.robot, "joint": joint, "cycle": cycle, **friction}
+        record = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": joint, "cycle": cycle, **friction}
         return self._put(FRICTION, joint, record)
 
     def publish_health(self, record: dict) -> bool:

@@ -2,7 +2,7 @@
 
 One detector watches one per-cycle quantity (wear estimate, ``kl.raw``, ``kl.weighted``) or a
 vector of them (``dim`` > 1). It collects ``n_nominal`` finite values, fits the nominal density
-(ALGORITHMS.md §5) and then runs :class:`~edge_monitor.glr.WindowedGLR` on every new value. An alarm
+(ALGORITHMS.md §5) and then runs :class:`~edge_monitor.stats.glr.WindowedGLR` on every new value. An alarm
 is latched after the first threshold crossing until :meth:`SequentialDetector.reset` (a declared
 maintenance), which also restarts learning. Non-finite values are skipped and counted and never
 touch the state.
@@ -23,9 +23,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from edge_monitor.bias_em import check_gain
-from edge_monitor.densities import DENSITY_KINDS, DensityError, GaussianMixture, fit_density, min_points
-from edge_monitor.glr import GLRError, WindowedGLR, check_pf
+from edge_monitor.stats.bias_em import check_gain
+from edge_monitor.stats.densities import DENSITY_KINDS, DensityError, GaussianMixture, fit_density, min_points
+from edge_monitor.stats.glr import GLRError, WindowedGLR, check_pf
 
 log = logging.getLogger(__name__)
 

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from edge_monitor.friction_model import DEFAULT_PARAMS, FrictionParams, nominal_friction
+from joint_model.friction import DEFAULT_PARAMS, FrictionParams, nominal_friction
 
 LINEAR_NAMES: tuple[str, ...] = ("fc0", "fcl", "fsl", "fs0", "fsxi", "fv0", "fvxi")
 NONLINEAR_NAMES: tuple[str, ...] = ("vsl", "vs0", "vsxi", "xi_vo")

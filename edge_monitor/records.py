@@ -9,6 +9,9 @@ from typing import Any
 
 import numpy as np
 
+#: Version of every published record (symptom, alarm, friction, health): the "schema" field.
+SCHEMA_VERSION = 1
+
 
 def to_strict(value: Any) -> Any:
     """``value`` with NaN/±inf → None and numpy scalars/arrays → Python types, recursively."""

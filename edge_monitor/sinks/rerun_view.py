@@ -31,14 +31,14 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from edge_monitor.loopback import free_loopback_port
+from joint_model import CRITICAL_WEAR, WEAR_MAX
+
+from edge_monitor.sinks.loopback import free_loopback_port
 
 log = logging.getLogger(__name__)
 
 APP_ID = "joint-wear-monitor"
-CRITICAL_WEAR = 35.0               # ALGORITHMS.md: wear level to alarm on
 FRICTION_SCALE = 1000.0            # friction drawn in ‰ of the joint's maximum torque
-WEAR_MAX = 100.0                   # wear scale: 0 … 100 (100 = failure)
 DENSITY_HEIGHT = 100.0             # nominal density peak drawn at this height
 DEFAULT_VIEWER_PORT = 9876
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)

@@ -2,7 +2,7 @@
 
 Per cycle, two streaming KDEs are fed block by block: ``raw`` bins the joint torque ``τ`` and
 ``weighted`` bins ``w(v)·τ`` (disturbance-rejecting weights of motor speed, see
-:mod:`edge_monitor.disturbance_weights`). At ``end_cycle`` each gives a density and its symmetric KL
+:mod:`edge_monitor.features.disturbance_weights`). At ``end_cycle`` each gives a density and its symmetric KL
 distance to the nominal density; these are ``kl.raw`` and ``kl.weighted`` of the symptom record.
 
 Grid choice (bounded memory): while no grid is fixed, the cycle is binned
@@ -52,17 +52,16 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge_monitor.disturbance_weights import WeightFunction
-from edge_monitor.kde_stream import StreamingKDE, choose_grid, symmetric_kl
+from edge_monitor.features.disturbance_weights import WeightFunction
+from protocol.frames import SEGMENT_PRODUCTION, TORQUE_SCALE
+from edge_monitor.stats.kde_stream import StreamingKDE, choose_grid, symmetric_kl
 
 log = logging.getLogger(__name__)
 
-#: Wire range of torque (docs/PROTOCOL.md: 16-bit signed, scale 5e-5).
-TORQUE_WIRE_LIMIT = 1.6384
+#: Wire range of torque (docs/PROTOCOL.md: 16-bit signed): ±1.6384.
+TORQUE_WIRE_LIMIT = TORQUE_SCALE * (1 << 15)
 #: Points of the provisional grid used until the working grid is fixed.
 PROVISIONAL_GRID = 16384
-#: Segment code of production motion (docs/PROTOCOL.md).
-SEGMENT_PRODUCTION = 200
 #: Grid margin: fraction of the occupied range, and minimum in bandwidths of the first cycle.
 GRID_MARGIN = 0.25
 GRID_MIN_MARGIN_BANDWIDTHS = 4.0

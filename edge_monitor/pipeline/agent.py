@@ -3,7 +3,7 @@
 ``Agent.process_frames`` takes a block of raw frames as numpy arrays and is shared by the live
 loop (``edge-monitor run``) and the deterministic replay (``edge-monitor replay``). Cycle
 boundaries come from the controller's status frame; without it, each joint infers them from the
-repetition of its plateau sequence (see :mod:`edge_monitor.joint_monitor`).
+repetition of its plateau sequence (see :mod:`edge_monitor.pipeline.joint_monitor`).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from typing import Any, Iterable, Protocol
 from numpy.typing import NDArray
 
 from edge_monitor.config import AgentConfig
-from edge_monitor.ingest import Ingest, IngestBlock
-from edge_monitor.joint_monitor import CycleOutput, JointMonitor
-from edge_monitor.state_store import StateStore
+from edge_monitor.pipeline.ingest import Ingest, IngestBlock
+from edge_monitor.pipeline.joint_monitor import CycleOutput, JointMonitor
+from edge_monitor.pipeline.state_store import StateStore
 
 log = logging.getLogger(__name__)
 

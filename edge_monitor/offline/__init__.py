@@ -1,0 +1,1 @@
+"""Offline engineering tools: commissioning (model identification) and experiment design."""
