@@ -14,42 +14,19 @@ import logging
 import sys
 from typing import Sequence
 
-#: (subcommand, module under edge_monitor.commands, issue that owns it)
-SUBCOMMANDS: tuple[tuple[str, str, int], ...] = (
-    ("run", "run", 7),
-    ("replay", "replay", 4),
-    ("demo", "demo", 7),
-    ("design", "design", 4),
-    ("commission", "commission", 4),
-    ("fit-weights", "fit_weights", 5),
-    ("glr", "glr", 6),
-    ("view", "view", 7),
+#: Subcommands and the module under ``edge_monitor.commands`` that defines each.
+SUBCOMMANDS: tuple[tuple[str, str], ...] = (
+    ("run", "run"), ("replay", "replay"), ("demo", "demo"), ("design", "design"),
+    ("commission", "commission"), ("fit-weights", "fit_weights"), ("glr", "glr"), ("view", "view"),
 )
-
-
-def _add_placeholder(subparsers: argparse._SubParsersAction, name: str, issue: int) -> None:
-    parser = subparsers.add_parser(name, help=f"(not available yet: issue #{issue})")
-
-    def _not_yet(_args: argparse.Namespace) -> int:
-        print(f"edge-monitor {name}: not implemented yet (owned by issue #{issue})", file=sys.stderr)
-        return 2
-
-    parser.set_defaults(func=_not_yet)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="edge-monitor", description=__doc__)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     subparsers = parser.add_subparsers(dest="command", required=True)
-    for name, module_name, issue in SUBCOMMANDS:
-        try:
-            module = importlib.import_module(f"edge_monitor.commands.{module_name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"edge_monitor.commands.{module_name}":
-                raise
-            _add_placeholder(subparsers, name, issue)
-            continue
-        module.add_parser(subparsers)
+    for _name, module_name in SUBCOMMANDS:
+        importlib.import_module(f"edge_monitor.commands.{module_name}").add_parser(subparsers)
     return parser
 
 

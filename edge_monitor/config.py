@@ -1,8 +1,9 @@
-"""Agent configuration: a TOML file with embedded defaults, validated at start.
+"""Agent configuration from a TOML file with embedded defaults, and command-line overrides.
 
-Every error names the offending field (``section.key``) and what is expected. The shipped example
-``edge_monitor/defaults/agent.toml`` documents every key; ``edge-monitor commission`` writes the
-``[friction]`` section.
+This module only parses: types are coerced here (with messages naming ``section.key``), values are
+validated by the components' own config dataclasses (:mod:`edge_monitor.pipeline.agent_config`).
+The shipped example ``edge_monitor/defaults/agent.toml`` documents every key; ``edge-monitor
+commission`` writes the ``[friction]`` section.
 """
 
 from __future__ import annotations
@@ -10,101 +11,20 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from joint_model.friction import DEFAULT_PARAMS, FrictionParams
+from edge_monitor.errors import ConfigError
+from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
+from edge_monitor.features.wear import WearConfig
+from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.detectors import DecisionConfig
+from joint_model import FrictionParams
+from protocol.frames import MAX_JOINTS
 
-
-class ConfigError(ValueError):
-    """A configuration value is missing, of the wrong type or out of range."""
-
-
-@dataclass(frozen=True)
-class WearConfig:
-    """Wear estimation settings (ALGORITHMS.md §3)."""
-
-    enabled: bool = True
-    # "marginal": ξ ~ U(temperature range) marginalised for every N (unbiased within tolerance and an
-    # honest std in the Monte Carlo study); "joint": §3's constrained NLS in [ξ, ϖ] for N ≥ 2, which is
-    # biased low by 0.3–0.6 σ at the design speeds (docs/WEAR_ESTIMATION.md).
-    method: str = "marginal"
-    noise_std: float = 5.70e-3           # σ of a friction datum
-    temperature_min: float = 30.0        # plausible lubricant temperature range of the site [°C]
-    temperature_max: float = 50.0
-    default_load_mean: float = 0.5       # μl when the controller sends no load estimate
-    default_load_std: float = 0.1        # σl when the controller sends none
-    critical: float = 35.0
-
-
-@dataclass(frozen=True)
-class KLConfig:
-    """Distribution-domain detector settings (ALGORITHMS.md §4)."""
-
-    enabled: bool = True
-    n_nominal_cycles: int = 10
-    n_grid: int = 512
-    window: str = "cycle"                # "cycle" | "production"
-    center: bool = True                  # compare densities of torque − cycle mean (load/gravity invariant)
-    alpha: float = 1.45e-2               # w(v) = sech(β·v)·tanh(α·v)
-    beta: float = 4.55e-2
-
-
-@dataclass(frozen=True)
-class DecisionConfig:
-    """Sequential GLR decision layer settings (ALGORITHMS.md §5–6)."""
-
-    enabled: bool = True
-    n_nominal: int = 60
-    density: str = "gce"                 # "gauss" | "kde" | "gce", for the scalar quantities
-    # For the joint vector (d = 3) the GCE mixture of 60 points is neither sparse nor smooth (29 of
-    # 60 points kept in the demo) and the windowed GLR then exceeds its χ² threshold on nominal data;
-    # the KDE (Silverman) stays calibrated there. See docs/DETECTION.md.
-    density_joint: str = "kde"
-    # Per-test false-alarm probability of the asymptotic threshold. The windowed GLR takes a max over
-    # candidate change times and the nominal density is learned from only 60 cycles, so the sequential
-    # false-alarm rate is far higher than Pf. Measured ARL0 (tools/arl_study.py, docs/DETECTION.md):
-    # Gaussian data 145 cycles at 1e-4; on surrogates of the agent's quantities at 1e-9: wear 2.9·10³,
-    # log KL 1.0–1.1·10⁴; at 1e-11 ≥ 1.67·10⁴ for all three. The joint 3-vector (KDE) needs 1e-12 (1.1·10⁴).
-    # These are the product defaults for ARL0 ≥ 10⁴ cycles.
-    pf: float = 1e-11
-    pf_joint: float = 1e-12
-    window: int = 100
-    gamma0: float = 0.6
-    rho: float = 1.0
-    quantities: tuple[str, ...] = ("wear", "kl_raw", "kl_weighted", "joint")
-    # KL distances are positive and right-skewed (≈ log-normal); a location-shift GLR on them has a
-    # short ARL0 (≈ 250 cycles for gamma-shaped data at the default Pf), so detectors watch log q.
-    log_kl: bool = True
-
-
-@dataclass(frozen=True)
-class AgentConfig:
-    robot: str = "robot1"
-    rate_hz: float = 500.0
-    joints: tuple[int, ...] | None = None      # None: every joint seen on the bus
-    friction: FrictionParams = DEFAULT_PARAMS
-    joint_friction: Mapping[int, FrictionParams] = field(default_factory=dict)
-    segmentation: PlateauConfig = field(default_factory=PlateauConfig)
-    wear: WearConfig = field(default_factory=WearConfig)
-    kl: KLConfig = field(default_factory=KLConfig)
-    decision: DecisionConfig = field(default_factory=DecisionConfig)
-    queue_size: int = 65536                   # bounded CAN receive queue (frames)
-    block_size: int = 4096                    # frames per processing block
-    status_interval_s: float = 10.0           # periodic status line / health publication
-    state_dir: str | None = None
-    jsonl: str | None = None
-    rerun: str = "off"
-    zenoh: Mapping[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        _validate(self)
-
-    def friction_for(self, joint: int) -> FrictionParams:
-        return self.joint_friction.get(joint, self.friction)
-
+__all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "PlateauConfig", "WearConfig", "config_from_mapping",
+           "load_config", "with_overrides"]
 
 def _coerce(where: str, value: Any, default: Any) -> Any:
     """Convert a TOML value to the type of the dataclass default, with a message naming ``where``."""
@@ -153,45 +73,6 @@ def _section(cls: type, values: Mapping[str, Any], where: str) -> Any:
         raise ConfigError(str(exc)) from None
 
 
-def _validate(cfg: AgentConfig) -> AgentConfig:
-    checks = [
-        (cfg.rate_hz > 0, "rate_hz: must be > 0"),
-        (cfg.queue_size > 0, "queue_size: must be > 0"),
-        (cfg.block_size > 0, "block_size: must be > 0"),
-        (cfg.wear.noise_std > 0, "wear.noise_std: must be > 0"),
-        (cfg.wear.method in ("marginal", "joint"), "wear.method: must be 'marginal' or 'joint'"),
-        (cfg.wear.temperature_min < cfg.wear.temperature_max,
-         "wear.temperature_min: must be below wear.temperature_max"),
-        (cfg.wear.default_load_std >= 0, "wear.default_load_std: must be >= 0"),
-        (cfg.kl.n_nominal_cycles >= 1, "kl.n_nominal_cycles: must be >= 1"),
-        (cfg.kl.n_grid >= 16, "kl.n_grid: must be >= 16"),
-        (cfg.kl.window in ("cycle", "production"), "kl.window: must be 'cycle' or 'production'"),
-        (cfg.decision.n_nominal >= 2, "decision.n_nominal: must be >= 2"),
-        (cfg.decision.density in ("gauss", "kde", "gce"), "decision.density: must be gauss, kde or gce"),
-        (cfg.decision.density_joint in ("gauss", "kde", "gce"), "decision.density_joint: must be gauss, kde or gce"),
-        (0 < cfg.decision.pf < 1, "decision.pf: the false-alarm probability must be in (0, 1)"),
-        (0 < cfg.decision.pf_joint < 1, "decision.pf_joint: the false-alarm probability must be in (0, 1)"),
-        (cfg.decision.window >= 1, "decision.window: must be >= 1"),
-        (0 < cfg.decision.gamma0 < 1, "decision.gamma0: must be in (0, 1)"),
-        (0.5 < cfg.decision.rho <= 1, "decision.rho: must be in (0.5, 1]"),
-        (set(cfg.decision.quantities) <= {"wear", "kl_raw", "kl_weighted", "joint"},
-         "decision.quantities: allowed are wear, kl_raw, kl_weighted, joint"),
-        (cfg.joints is None or all(isinstance(j, int) and 0 <= j < 8 for j in cfg.joints),
-         "joints: joint indices must be integers 0 … 7"),
-    ]
-    for ok, message in checks:
-        if not ok:
-            raise ConfigError(message)
-    from edge_monitor.stats.densities import min_points
-    for quantity in cfg.decision.quantities:
-        density = cfg.decision.density_joint if quantity == "joint" else cfg.decision.density
-        need = min_points(density, 3 if quantity == "joint" else 1)
-        if cfg.decision.n_nominal < need:
-            raise ConfigError(f"decision.n_nominal: {cfg.decision.n_nominal} cycles are too few for the "
-                              f"'{density}' density of quantity '{quantity}'; use at least {need}")
-    return cfg
-
-
 def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
     """Build a validated configuration from a parsed TOML document."""
     data = dict(data)
@@ -207,9 +88,14 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
             raise ConfigError(str(exc)) from None
     if "joint" in data:
         joint_friction = {}
-        for key, table in dict(data.pop("joint")).items():
-            if not str(key).isdigit() or not 0 <= int(key) < 8:
-                raise ConfigError(f"joint.{key}: joint index must be 0 … 7")
+        tables = data.pop("joint")
+        if not isinstance(tables, Mapping):
+            raise ConfigError("joint: expected tables [joint.N.friction]")
+        for key, table in tables.items():
+            if not str(key).isdigit() or not 0 <= int(key) < MAX_JOINTS:
+                raise ConfigError(f"joint.{key}: joint index must be 0 … {MAX_JOINTS - 1}")
+            if not isinstance(table, Mapping) or set(table) - {"friction"}:
+                raise ConfigError(f"joint.{key}: expected only a [joint.{key}.friction] table")
             try:
                 joint_friction[int(key)] = FrictionParams.from_mapping(table.get("friction", {}),
                                                                        f"joint.{key}.friction")
@@ -244,6 +130,9 @@ def load_config(path: str | Path | None) -> AgentConfig:
                           f"(example: edge_monitor/defaults/agent.toml)") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {p}: invalid TOML: {exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"config file {p}: cannot read it ({getattr(exc, 'strerror', None) or exc}); "
+                          "pass a readable UTF-8 TOML file") from None
     return config_from_mapping(data)
 
 

@@ -1,10 +1,15 @@
-"""Strict JSON for everything the agent writes (state file, JSONL, Zenoh payloads, CLI output):
-NaN and ±inf become ``null`` (JSON has no NaN), numpy scalars and arrays become Python values."""
+"""Typed records the agent publishes (symptom, decision, alarm, health) and their strict JSON form.
+
+Every record has ``to_dict()`` giving the published layout (docs/OUTPUTS.md) and is serialised with
+:func:`to_json`: NaN and ±inf become ``null`` (JSON has no NaN), numpy scalars and arrays become Python
+values. The same serialiser writes the state file, JSONL lines, Zenoh payloads and CLI output.
+"""
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,10 +33,140 @@ def to_strict(value: Any) -> Any:
     if isinstance(value, (float, np.floating)):
         number = float(value)
         return number if math.isfinite(number) else None
+    if hasattr(value, "to_dict"):
+        return to_strict(value.to_dict())
     return value
 
 
-def dumps(value: Any, **kwargs: Any) -> str:
+def to_json(value: Any, **kwargs: Any) -> str:
     """Compact strict JSON text of ``value`` (``kwargs`` go to ``json.dumps``, e.g. ``indent``)."""
     kwargs.setdefault("separators", (",", ":"))
     return json.dumps(to_strict(value), allow_nan=False, **kwargs)
+
+
+def finite_or_none(value: Any) -> float | None:
+    """``float(value)`` if it is a finite number, else None (for JSON-ready record fields)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One detector's answer for one cycle (the ``decisions[QUANTITY]`` record of a symptom).
+
+    ``statistic`` and ``threshold`` are the GLR log-likelihood ratio and its alarm level (natural log,
+    dimensionless); ``delta`` is the estimated shift in the quantity's own units; ``miss_probability``
+    is Pm at the current estimate. ``reason`` says why a field is missing (learning, skipped value).
+    ``calibration`` describes how the threshold was set (published only when present).
+    """
+
+    state: str                               # "learning" | "monitoring"
+    statistic: float | None = None
+    threshold: float | None = None
+    alarm: bool = False
+    change_cycle: int | None = None
+    delta: tuple[float, ...] | None = None
+    miss_probability: float | None = None
+    reason: str = ""
+    calibration: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "state": self.state, "statistic": finite_or_none(self.statistic),
+            "threshold": finite_or_none(self.threshold), "alarm": bool(self.alarm),
+            "change_cycle": self.change_cycle,
+            "delta": None if self.delta is None else [finite_or_none(v) for v in self.delta],
+            "miss_probability": finite_or_none(self.miss_probability)}
+        if self.reason:
+            out["reason"] = self.reason
+        if self.calibration is not None:
+            out["calibration"] = self.calibration
+        return out
+
+
+@dataclass(frozen=True)
+class Alarm:
+    """An alarm raised or cleared on one quantity of one joint."""
+
+    robot: str
+    joint: int
+    cycle: int
+    quantity: str
+    state: str                                # "raised" | "cleared"
+    statistic: float | None = None
+    threshold: float | None = None
+    miss_probability: float | None = None
+    change_cycle: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
+                "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
+                "threshold": finite_or_none(self.threshold),
+                "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
+
+
+@dataclass
+class Symptom:
+    """What one joint reports for one cycle.
+
+    ``sections`` holds one JSON-ready section per registered feature (``"wear"``, ``"kl"``, …), in
+    registration order; ``decisions`` one :class:`Decision` per watched quantity. ``alarms`` are the
+    alarm transitions of this cycle and ``extras`` data for viewers that are not published (e.g. the
+    cycle's torque density); neither is part of :meth:`to_dict`.
+    """
+
+    robot: str
+    joint: int
+    cycle: int
+    t: float                                  # controller time at the end of the cycle [s]
+    friction: dict[str, list[float]]          # {"speeds", "torque", "stderr"}
+    sections: dict[str, dict[str, Any]]
+    decisions: dict[str, Decision]
+    load: dict[str, float | None]             # the controller's load estimate {"mean", "std"}
+    skipped: dict[str, int]
+    critical_wear: float
+    reasons: dict[str, str] = field(default_factory=dict)
+    partial: bool = False
+    alarms: list[Alarm] = field(default_factory=list)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def alarm(self) -> bool:
+        """Whether any detector of this joint is in alarm (latched)."""
+        return any(d.alarm for d in self.decisions.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint,
+                               "cycle": self.cycle, "t": self.t, "friction": self.friction}
+        out.update(self.sections)
+        out.update({"decisions": {q: d.to_dict() for q, d in self.decisions.items()}, "alarm": self.alarm,
+                    "load": self.load, "skipped": self.skipped, "critical_wear": self.critical_wear})
+        if self.reasons:
+            out["reasons"] = self.reasons
+        if self.partial:
+            out["partial"] = True
+        return out
+
+    def friction_record(self) -> dict[str, Any]:
+        """The friction curve of the cycle as its own record (Zenoh key ``…/friction``)."""
+        return {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
+                **self.friction}
+
+
+@dataclass(frozen=True)
+class Health:
+    """The agent's health: frame and E2E counters, rates, queue depths, per-joint counters."""
+
+    robot: str
+    counters: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"robot": self.robot, **self.counters}
+
+    def numbers(self) -> dict[str, float]:
+        """The numeric top-level counters (for plotting)."""
+        return {k: float(v) for k, v in self.counters.items()
+                if isinstance(v, (int, float)) and not isinstance(v, bool)}

@@ -29,7 +29,7 @@ def feed(agent: Agent, frames, block=1000, start=0, stop=None):
     outs = []
     for s in range(start, stop, block):
         e = min(s + block, stop)
-        outs += agent.process_frames(ids[s:e], data[s:e], dlc[s:e], ts[s:e])
+        outs += agent.update(ids[s:e], data[s:e], dlc[s:e], ts[s:e])
     return outs
 
 
@@ -41,7 +41,7 @@ def frames():
 def test_one_symptom_per_joint_and_cycle_with_model_friction(frames):
     agent = Agent(small_config())
     outs = feed(agent, frames) + agent.finish()
-    symptoms = [o.symptom for o in outs]
+    symptoms = [o.to_dict() for o in outs]
     assert [(s["joint"], s["cycle"]) for s in symptoms] == [(j, c) for c in range(4) for j in (0, 1)]
     stats = agent.run_statistics()
     assert stats["frames_total"] == len(frames[0]) == stats["frames_ok"]
@@ -75,15 +75,15 @@ def test_corrupted_frames_are_counted_and_excluded(frames):
     clean = Agent(small_config())
     ref = feed(clean, frames) + clean.finish()
     for a, b in zip(outs, ref):
-        np.testing.assert_allclose(a.symptom["friction"]["torque"], b.symptom["friction"]["torque"], atol=2e-4)
+        np.testing.assert_allclose(a.to_dict()["friction"]["torque"], b.to_dict()["friction"]["torque"], atol=2e-4)
 
 
 def test_cycles_inferred_without_status_frames():
     frames = make_frames(3, joints=(0,), speeds=SPEEDS, status=False, seed=2)
     agent = Agent(small_config())
     outs = feed(agent, frames) + agent.finish()
-    assert [o.symptom["cycle"] for o in outs] == [0, 1, 2]
-    assert all(o.symptom["friction"]["speeds"] == list(SPEEDS) for o in outs)
+    assert [o.to_dict()["cycle"] for o in outs] == [0, 1, 2]
+    assert all(o.to_dict()["friction"]["speeds"] == list(SPEEDS) for o in outs)
 
 
 def test_restart_resumes_without_duplicates_or_gaps(frames, tmp_path):
@@ -95,21 +95,21 @@ def test_restart_resumes_without_duplicates_or_gaps(frames, tmp_path):
     first.close()
     second = Agent(cfg, state_store=StateStore(tmp_path))
     outs2 = feed(second, frames, start=split) + second.finish()
-    keys = [(o.symptom["joint"], o.symptom["cycle"]) for o in outs1 + outs2]
+    keys = [(o.to_dict()["joint"], o.to_dict()["cycle"]) for o in outs1 + outs2]
     assert sorted(keys) == [(j, c) for j in (0, 1) for c in range(4)]
     assert len(set(keys)) == len(keys)
     # the restored detectors carry on: no re-learning from scratch
-    assert outs2[-1].symptom["decisions"]["wear"]["state"] == "monitoring"
+    assert outs2[-1].to_dict()["decisions"]["wear"]["state"] == "monitoring"
     # the first cycle after the restart began before it: published, marked partial, kept from the detectors
-    first_after = [o.symptom for o in outs2 if o.symptom["joint"] == 0][0]
+    first_after = [o.to_dict() for o in outs2 if o.to_dict()["joint"] == 0][0]
     assert first_after.get("partial") is True
     assert first_after["decisions"]["wear"]["reason"].startswith("partial cycle")
     # the controller's cycle counter starting again at 0 (a controller restart) continues the numbering
     second.close()
     third = Agent(cfg, state_store=StateStore(tmp_path))
     outs3 = feed(third, frames) + third.finish()
-    assert sorted({o.symptom["cycle"] for o in outs3}) == [4, 5, 6, 7]
-    assert not any(o.symptom.get("partial") for o in outs3)
+    assert sorted({o.to_dict()["cycle"] for o in outs3}) == [4, 5, 6, 7]
+    assert not any(o.to_dict().get("partial") for o in outs3)
 
 
 def test_config_errors_name_the_field():
@@ -149,15 +149,15 @@ def test_alarm_is_raised_once_and_cleared_by_a_declared_maintenance():
 
     agent = Agent(small_config(), sinks=[Sink()])
     outs = feed(agent, frames)
-    raised = [a for a in sink_alarms if a["state"] == "raised"]
+    raised = [a.to_dict() for a in sink_alarms if a.state == "raised"]
     assert raised and {a["quantity"] for a in raised} >= {"wear"}
     assert len(raised) == len({a["quantity"] for a in raised})            # each quantity raised once
     assert all(a["cycle"] >= 5 for a in raised)                            # never before the wear
-    assert outs[-1].symptom["alarm"] is True
-    cleared = agent.declare_maintenance(0)
+    assert outs[-1].to_dict()["alarm"] is True
+    cleared = [a.to_dict() for a in agent.declare_maintenance(0)]
     assert {a["quantity"] for a in cleared} == {a["quantity"] for a in raised}
     assert all(a["state"] == "cleared" for a in cleared)
     assert agent.joints[0].maintenances == 1
     after = agent.finish()
-    assert after[-1].symptom["decisions"]["wear"]["state"] == "learning"
-    assert after[-1].symptom["alarm"] is False
+    assert after[-1].to_dict()["decisions"]["wear"]["state"] == "learning"
+    assert after[-1].to_dict()["alarm"] is False

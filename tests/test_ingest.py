@@ -14,7 +14,7 @@ def joint_ticks(ingest: Ingest, frames, joint: int = 0, block: int = 700) -> np.
     ids, data, dlc, ts = frames
     out = []
     for s in range(0, len(ids), block):
-        for run in ingest.process(ids[s:s + block], data[s:s + block], dlc[s:s + block], ts[s:s + block]).runs:
+        for run in ingest.update(ids[s:s + block], data[s:s + block], dlc[s:s + block], ts[s:s + block]).runs:
             if joint in run.samples:
                 out.append(run.samples[joint].tick)
     return np.concatenate(out)
@@ -39,11 +39,11 @@ def test_cycle_numbering_continues_after_a_controller_restart_and_an_agent_resta
     seen = []
     for frames in (first, again):
         ids, data, dlc, ts = frames
-        seen += [r.cycle for r in ingest.process(ids, data, dlc, ts).runs]
+        seen += [r.cycle for r in ingest.update(ids, data, dlc, ts).runs]
     assert sorted(set(seen)) == [0, 1, 2, 3]
     # an agent restart restores the unwrapping state and keeps the numbering
     restored = Ingest()
     restored.load_state(ingest.state_dict())
     ids, data, dlc, ts = make_frames(1, joints=(0,), speeds=SPEEDS, seed=6, first_cycle=2)
-    runs = restored.process(ids, data, dlc, ts).runs
+    runs = restored.update(ids, data, dlc, ts).runs
     assert [r.cycle for r in runs] == [4] and runs[0].starts_at_boundary is True

@@ -29,7 +29,7 @@ def test_density_matches_scipy_gaussian_kde_within_one_percent_of_peak(seed: int
     lo, hi = choose_grid(float(y.min()), float(y.max()), margin=0.25)
     kde = StreamingKDE(lo, hi, 512)
     for block in np.array_split(y, 5):
-        kde.add(block)
+        kde.update(block)
     # same samples and same bandwidth: scipy's factor multiplies the ddof=1 standard deviation
     reference = gaussian_kde(y, bw_method=kde.bandwidth / y.std(ddof=1))(kde.grid)
     ours = kde.density()
@@ -43,9 +43,9 @@ def test_blocks_give_the_same_state_as_one_block(seed: int, cuts: list[int]) -> 
     y = rng.normal(0.1, 0.05, 3000)
     w = rng.uniform(0.0, 2.0, 3000)
     whole, parts = StreamingKDE(-0.1, 0.3, 128), StreamingKDE(-0.1, 0.3, 128)
-    whole.add(y, w)
+    whole.update(y, w)
     for ys, ws in zip(np.split(y, sorted(cuts)), np.split(w, sorted(cuts))):
-        parts.add(ys, ws)
+        parts.update(ys, ws)
     np.testing.assert_allclose(parts.mass, whole.mass, rtol=1e-9, atol=1e-9)
     assert parts.mean == pytest.approx(whole.mean, rel=1e-9)
     assert parts.std == pytest.approx(whole.std, rel=1e-9)
@@ -55,7 +55,7 @@ def test_blocks_give_the_same_state_as_one_block(seed: int, cuts: list[int]) -> 
 def test_moments_and_bandwidth_follow_the_normal_reference_rule() -> None:
     y = np.random.default_rng(3).normal(2.0, 0.5, 10_000)
     kde = StreamingKDE(0.0, 4.0)
-    kde.add(y)
+    kde.update(y)
     assert kde.mean == pytest.approx(y.mean(), rel=1e-12)
     assert kde.std == pytest.approx(y.std(ddof=1), rel=1e-12)
     assert kde.bandwidth == pytest.approx((4 / (3 * 10_000)) ** 0.2 * y.std(ddof=1), rel=1e-12)
@@ -66,8 +66,8 @@ def test_integer_weights_equal_repeated_samples() -> None:
     y = rng.normal(0.0, 1.0, 500)
     reps = rng.integers(1, 4, 500)
     weighted, repeated = StreamingKDE(-5, 5, 256), StreamingKDE(-5, 5, 256)
-    weighted.add(y, reps.astype(float))
-    repeated.add(np.repeat(y, reps))
+    weighted.update(y, reps.astype(float))
+    repeated.update(np.repeat(y, reps))
     np.testing.assert_allclose(weighted.mass, repeated.mass, atol=1e-9)
     assert weighted.mean == pytest.approx(repeated.mean, rel=1e-12)
     np.testing.assert_allclose(weighted.density(bandwidth=0.3), repeated.density(bandwidth=0.3), atol=1e-12)
@@ -76,7 +76,7 @@ def test_integer_weights_equal_repeated_samples() -> None:
 def test_linear_binning_conserves_mass_and_first_moment() -> None:
     y = np.random.default_rng(5).uniform(-1, 1, 1000)
     kde = StreamingKDE(-1.0, 1.0, 64)
-    kde.add(np.append(y, [-1.0, 1.0]))       # grid ends are inside
+    kde.update(np.append(y, [-1.0, 1.0]))       # grid ends are inside
     assert kde.mass.sum() == pytest.approx(1002, rel=1e-12)
     assert np.dot(kde.grid, kde.mass) / kde.mass.sum() == pytest.approx(np.append(y, [-1, 1]).mean(), abs=1e-12)
     assert kde.n_outside == 0
@@ -85,9 +85,9 @@ def test_linear_binning_conserves_mass_and_first_moment() -> None:
 def test_samples_outside_the_grid_are_counted_and_lower_the_density_mass() -> None:
     rng = np.random.default_rng(6)
     kde = StreamingKDE(-1.0, 1.0, 512)
-    kde.add(rng.normal(0, 0.1, 9000))
-    kde.add(np.full(600, -3.0))
-    kde.add(np.full(400, 5.0))
+    kde.update(rng.normal(0, 0.1, 9000))
+    kde.update(np.full(600, -3.0))
+    kde.update(np.full(400, 5.0))
     assert (kde.n_below, kde.n_above, kde.n_outside) == (600, 400, 1000)
     # in-grid fraction 0.9. The rule bandwidth uses all finite samples (the far outliers widen it),
     # so fix h = 0.05 here: then the kernel mass spilling over the grid ends is < 1e-12.
@@ -98,7 +98,7 @@ def test_samples_outside_the_grid_are_counted_and_lower_the_density_mass() -> No
 def test_nonfinite_samples_are_counted_and_skipped() -> None:
     y = np.array([0.1, np.nan, 0.2, np.inf, -np.inf, 0.3])
     kde = StreamingKDE(0.0, 1.0, 64)
-    kde.add(y)
+    kde.update(y)
     assert kde.n_nonfinite == 3 and kde.n_samples == 3
     assert kde.mean == pytest.approx(0.2)
     assert np.all(np.isfinite(kde.density()))
@@ -107,15 +107,15 @@ def test_nonfinite_samples_are_counted_and_skipped() -> None:
 @pytest.mark.parametrize("samples", [[], [0.5], [0.5] * 100, [np.nan] * 10])
 def test_degenerate_windows_raise_a_typed_error(samples: list[float]) -> None:
     kde = StreamingKDE(0.0, 1.0, 64)
-    kde.add(np.asarray(samples, dtype=float))
+    kde.update(np.asarray(samples, dtype=float))
     with pytest.raises(KDEDataError):
         kde.density()
 
 
 def test_state_round_trips_through_json() -> None:
     kde = StreamingKDE(-1.0, 1.0, 128)
-    kde.add(np.random.default_rng(7).normal(0, 0.3, 1000))
-    kde.add(np.array([7.0, np.nan]))
+    kde.update(np.random.default_rng(7).normal(0, 0.3, 1000))
+    kde.update(np.array([7.0, np.nan]))
     clone = StreamingKDE.from_state(json.loads(json.dumps(kde.state_dict())))
     np.testing.assert_array_equal(clone.density(), kde.density())
     assert (clone.n_above, clone.n_nonfinite, clone.bandwidth) == (kde.n_above, kde.n_nonfinite, kde.bandwidth)
@@ -124,7 +124,7 @@ def test_state_round_trips_through_json() -> None:
 def test_state_stores_only_the_occupied_bins_and_reads_full_grid_states() -> None:
     kde = StreamingKDE(-1.6384, 1.6384, 16384)
     assert StreamingKDE.from_state(kde.state_dict()).mass.sum() == 0 and kde.state_dict()["mass"] == []
-    kde.add(np.random.default_rng(9).normal(0.3, 0.01, 2000))
+    kde.update(np.random.default_rng(9).normal(0.3, 0.01, 2000))
     state = kde.state_dict()
     assert 0 < len(state["mass"]) < 1000              # ±6σ = 0.12 → about 600 bins of 2e-4
     np.testing.assert_array_equal(StreamingKDE.from_state(state).mass, kde.mass)
@@ -138,11 +138,11 @@ def test_state_stores_only_the_occupied_bins_and_reads_full_grid_states() -> Non
 def test_regrid_keeps_moments_and_moves_mass_by_less_than_a_bin() -> None:
     y = np.random.default_rng(8).normal(0.2, 0.05, 5000)
     wide = StreamingKDE(-1.6384, 1.6384, 16384)
-    wide.add(y)
+    wide.update(y)
     lo, hi = choose_grid(*wide.occupied_range(), margin=0.25)
     narrow = wide.regrid(lo, hi, 512)
     direct = StreamingKDE(lo, hi, 512)
-    direct.add(y)
+    direct.update(y)
     assert narrow.mass.sum() == pytest.approx(5000, rel=1e-12)
     assert narrow.bandwidth == direct.bandwidth
     peak = direct.density().max()
@@ -164,8 +164,8 @@ def test_choose_grid_margins_and_errors() -> None:
 def test_symmetric_kl_is_a_nonnegative_symmetric_scale_invariant_distance(seed: int, scale: float) -> None:
     rng = np.random.default_rng(seed)
     a, b = StreamingKDE(-3, 3, 256), StreamingKDE(-3, 3, 256)
-    a.add(rng.normal(0, 0.5, 2000))
-    b.add(rng.normal(rng.uniform(-1, 1), rng.uniform(0.2, 1), 2000))
+    a.update(rng.normal(0, 0.5, 2000))
+    b.update(rng.normal(rng.uniform(-1, 1), rng.uniform(0.2, 1), 2000))
     pa, pb = a.density(), b.density()
     q = symmetric_kl(pa, pb, a.dx)
     assert q >= 0 and np.isfinite(q)

@@ -9,7 +9,10 @@ import pytest
 
 from edge_monitor.commands.fit_weights import simulate_cycles
 from edge_monitor.features.disturbance_weights import WeightFunction
-from edge_monitor.features.kl_monitor import (PROVISIONAL_GRID, SEGMENT_PRODUCTION, KLConfigError, KLMonitor, KLResult)
+from edge_monitor.errors import ConfigError, StateMismatch
+from edge_monitor.features.kl_channel import PROVISIONAL_GRID
+from edge_monitor.features.kl_monitor import KLConfig, KLMonitor, KLResult
+from protocol.frames import SEGMENT_PRODUCTION
 
 CONSTANT_TEMPERATURE = (40.0, 40.0)
 
@@ -20,13 +23,13 @@ def _feed(mon: KLMonitor, torque: np.ndarray, speed: np.ndarray, first_cycle: in
     results = []
     for c in range(torque.shape[0]):
         for tau, v in zip(np.array_split(torque[c], n_blocks), np.array_split(speed, n_blocks)):
-            mon.add(tau, v)
+            mon.update_samples(tau, v)
         results.append(mon.end_cycle(first_cycle + c))
     return results
 
 
 def _learned_monitor(rng: np.random.Generator, k: int = 10, temperature=CONSTANT_TEMPERATURE) -> KLMonitor:
-    mon = KLMonitor(n_nominal_cycles=k)
+    mon = kl(n_nominal_cycles=k)
     torque, speed, _ = simulate_cycles(k, 0.0, temperature, rng)
     results = _feed(mon, torque, speed)
     assert [r.reason for r in results] == [f"learning {i}/{k}" for i in range(1, k + 1)]
@@ -73,7 +76,7 @@ def test_kl_raw_stays_nominal_without_wear_and_rises_with_wear() -> None:
 
 def test_learning_sets_grid_from_the_first_cycle_and_reports_thresholds() -> None:
     rng = np.random.default_rng(1)
-    mon = KLMonitor(n_nominal_cycles=3)
+    mon = kl(n_nominal_cycles=3)
     torque, speed, _ = simulate_cycles(4, 0.0, CONSTANT_TEMPERATURE, rng)
     assert mon.grid is None
     first = _feed(mon, torque[:1], speed)[0]
@@ -88,7 +91,8 @@ def test_learning_sets_grid_from_the_first_cycle_and_reports_thresholds() -> Non
     assert rest[1].reason == "learning 3/3"
     assert set(rest[1].threshold_3sigma) == {"raw", "weighted"}
     assert rest[2].reason is None and rest[2].raw >= 0 and rest[2].weighted >= 0
-    assert rest[2].to_record() == {"raw": rest[2].raw, "weighted": rest[2].weighted}
+    section = rest[2].to_section()
+    assert (section["raw"], section["weighted"]) == (rest[2].raw, rest[2].weighted)
     assert rest[2].density["nominal"] is not None
     # the grid stays fixed while monitoring
     np.testing.assert_array_equal(mon.grid, grid)
@@ -96,7 +100,7 @@ def test_learning_sets_grid_from_the_first_cycle_and_reports_thresholds() -> Non
 
 def _monitor_after(k: int = 2, rng_seed: int = 2) -> tuple[KLMonitor, np.ndarray]:
     rng = np.random.default_rng(rng_seed)
-    mon = KLMonitor(n_nominal_cycles=k)
+    mon = kl(n_nominal_cycles=k)
     torque, speed, _ = simulate_cycles(k, 0.0, CONSTANT_TEMPERATURE, rng)
     _feed(mon, torque, speed)
     return mon, speed
@@ -111,13 +115,14 @@ def _monitor_after(k: int = 2, rng_seed: int = 2) -> tuple[KLMonitor, np.ndarray
 ])
 def test_bad_cycles_get_a_reason_and_no_numeric_error(torque: np.ndarray, speed: np.ndarray, reason: str) -> None:
     for learned in (False, True):
-        mon = _monitor_after()[0] if learned else KLMonitor(n_nominal_cycles=2)
+        mon = _monitor_after()[0] if learned else kl(n_nominal_cycles=2)
         with np.errstate(all="raise"):       # no division by zero, no log(0), no invalid op
-            mon.add(torque, speed)
+            mon.update_samples(torque, speed)
             result = mon.end_cycle(7)
         assert result.reason == reason
         assert result.raw is None and result.weighted is None
-        assert result.to_record() == {"raw": None, "weighted": None}
+        section = result.to_section()
+        assert (section["raw"], section["weighted"]) == (None, None)
         assert mon.learned is learned        # a bad cycle does not count as a learning cycle
 
 
@@ -128,7 +133,7 @@ def test_nan_samples_are_counted_and_the_rest_is_used() -> None:
     tau[::100] = np.nan
     v = speed.copy()
     v[1::100] = np.nan
-    mon.add(tau, v)
+    mon.update_samples(tau, v)
     result = mon.end_cycle(3)
     assert result.reason is None and np.isfinite(result.raw) and np.isfinite(result.weighted)
     assert result.outside["raw"]["nonfinite"] == tau.size // 100
@@ -139,14 +144,14 @@ def test_nan_samples_are_counted_and_the_rest_is_used() -> None:
 @pytest.mark.parametrize("center", [False, True])
 def test_samples_outside_the_grid_are_reported_and_raise_kl(center: bool) -> None:
     rng = np.random.default_rng(4)
-    mon = KLMonitor(n_nominal_cycles=2, center=center)
+    mon = kl(n_nominal_cycles=2, center=center)
     torque, speed, _ = simulate_cycles(4, 0.0, CONSTANT_TEMPERATURE, rng)
     _feed(mon, torque[:2], speed)
     normal = _feed(mon, torque[2:3], speed)[0]
     # uncentred: a shift of +0.5 leaves the working grid; centred, a shift is removed, so stretch
     # the cycle about its mean instead (a change of shape the centring must not hide)
     moved = torque[3] + 0.5 if not center else torque[3].mean() + 6.0 * (torque[3] - torque[3].mean())
-    mon.add(moved, speed)
+    mon.update_samples(moved, speed)
     result = mon.end_cycle(9)
     assert normal.outside["raw"]["above"] == 0
     # every sample beyond the working grid is counted; mass is counted by (capture or working) bin,
@@ -168,27 +173,27 @@ def test_production_window_uses_only_segment_200_samples() -> None:
     segment = np.where(np.arange(n) < n // 2, SEGMENT_PRODUCTION, 3)
     junk = rng.uniform(-1.5, 1.5, (3, n))          # samples outside segment 200 must not matter
     mixed = np.where(segment == SEGMENT_PRODUCTION, torque, junk)
-    a = KLMonitor(n_nominal_cycles=2, window="production")
-    b = KLMonitor(n_nominal_cycles=2, window="cycle")
+    a = kl(n_nominal_cycles=2, window="production")
+    b = kl(n_nominal_cycles=2, window="cycle")
     for c in range(3):
-        a.add(mixed[c], speed, segment)
-        b.add(torque[c, : n // 2], speed[: n // 2])
+        a.update_samples(mixed[c], speed, segment)
+        b.update_samples(torque[c, : n // 2], speed[: n // 2])
         ra, rb = a.end_cycle(c), b.end_cycle(c)
     assert ra.raw == rb.raw and ra.weighted == rb.weighted and ra.n_samples == n // 2
     # no segment information at all: nothing is production
-    a.add(torque[0], speed)
+    a.update_samples(torque[0], speed)
     assert a.end_cycle(4).reason == "empty window: no samples in the production segment"
 
 
 def test_state_round_trip_mid_learning_and_mid_cycle_gives_identical_results() -> None:
     rng = np.random.default_rng(6)
     torque, speed, _ = simulate_cycles(6, 5.0, CONSTANT_TEMPERATURE, rng)
-    original = KLMonitor(n_nominal_cycles=3, weights=WeightFunction(0.01, 0.02))
+    original = kl(n_nominal_cycles=3, alpha=0.01, beta=0.02)
     _feed(original, torque[:2], speed)
-    original.add(torque[2, :4000], speed[:4000])                 # mid-cycle
-    restored = KLMonitor.from_state(json.loads(json.dumps(original.state_dict())))
+    original.update_samples(torque[2, :4000], speed[:4000])                 # mid-cycle
+    restored = KLMonitor.from_state(original.config, json.loads(json.dumps(original.state_dict())))
     for mon in (original, restored):
-        mon.add(torque[2, 4000:], speed[4000:])
+        mon.update_samples(torque[2, 4000:], speed[4000:])
         mon.end_cycle(2)
     a = _feed(original, torque[3:], speed, first_cycle=3)
     b = _feed(restored, torque[3:], speed, first_cycle=3)
@@ -214,28 +219,30 @@ def test_nearest_mode_isolates_a_stored_wear_mode() -> None:
     assert {r.nearest_mode for r in _feed(mon, worn[3:], speed)} == {"wear40"}
     healthy, _, _ = simulate_cycles(3, 0.0, CONSTANT_TEMPERATURE, rng)
     assert {r.nearest_mode for r in _feed(mon, healthy, speed)} == {"nominal"}
-    with pytest.raises(KLConfigError):
+    with pytest.raises(ValueError):
         mon.add_mode("bad", np.ones(3))
 
 
 def test_configuration_errors_name_the_field() -> None:
-    with pytest.raises(KLConfigError, match="n_nominal_cycles"):
-        KLMonitor(n_nominal_cycles=1)
-    with pytest.raises(KLConfigError, match="window"):
-        KLMonitor(window="shift")  # type: ignore[arg-type]
-    with pytest.raises(KLConfigError, match="add_mode"):
-        KLMonitor().add_mode("x", np.zeros(512))
+    with pytest.raises(ConfigError, match="kl.n_nominal_cycles"):
+        kl(n_nominal_cycles=1)
+    with pytest.raises(ConfigError, match="kl.window"):
+        kl(window="shift")
+    with pytest.raises(ConfigError, match="kl.n_grid"):
+        kl(n_grid=16)
+    with pytest.raises(ValueError, match="add_mode"):
+        KLMonitor(KLConfig()).add_mode("x", np.zeros(512))
     with pytest.raises(ValueError, match="speed"):
-        KLMonitor().add(np.zeros(3), np.zeros(4))
+        KLMonitor(KLConfig()).update_samples(np.zeros(3), np.zeros(4))
 
 
 def test_memory_is_bounded_by_the_grid() -> None:
     mon, speed = _monitor_after()
     torque, _, _ = simulate_cycles(1, 0.0, CONSTANT_TEMPERATURE, np.random.default_rng(9))
-    mon.add(torque[0], speed)
+    mon.update_samples(torque[0], speed)
     size_one_cycle = len(json.dumps(mon.state_dict()))
     for _ in range(19):                       # a cycle 20 times longer than usual
-        mon.add(torque[0], speed)
+        mon.update_samples(torque[0], speed)
     state = mon.state_dict()
     # raw channel (centred): fixed capture grid over the wire range (stored from the first to the
     # last occupied bin); weighted: the working grid
@@ -268,7 +275,7 @@ def test_centring_removes_a_pure_shift_up_to_the_binning_error() -> None:
     rng = np.random.default_rng(11)
     torque, speed, _ = simulate_cycles(1, 10.0, CONSTANT_TEMPERATURE, rng)
     cycle = torque[0]
-    mon = KLMonitor(n_nominal_cycles=2)
+    mon = kl(n_nominal_cycles=2)
     _feed(mon, np.stack([cycle, cycle]), speed)            # nominal density = this cycle's density
     n = cycle.size
     h = (4.0 / (3.0 * n)) ** 0.2 * cycle.std(ddof=1)      # normal reference rule, as the KDE uses
@@ -298,7 +305,7 @@ def _spearman(a: np.ndarray, b: np.ndarray) -> float:
 def test_load_spread_centred_stays_nominal_and_sees_wear_uncentred_sees_the_load(center: bool) -> None:
     rng = np.random.default_rng(20261123)
     k, n = 10, 40
-    mon = KLMonitor(n_nominal_cycles=k, center=center)
+    mon = kl(n_nominal_cycles=k, center=center)
     torque, speed, _ = simulate_cycles(k, 0.0, CONSTANT_TEMPERATURE, rng, gravity=LOAD_SPREAD)
     _feed(mon, torque, speed)
     nominal_mean = torque.mean()
@@ -330,18 +337,20 @@ def test_load_spread_centred_stays_nominal_and_sees_wear_uncentred_sees_the_load
         assert h1[:, j].mean() > thresholds[name], name
 
 
-def test_old_states_without_the_center_key_load_uncentred() -> None:
+def test_a_state_learned_with_another_config_is_refused_naming_the_change() -> None:
     rng = np.random.default_rng(12)
     torque, speed, _ = simulate_cycles(3, 0.0, CONSTANT_TEMPERATURE, rng)
-    old = KLMonitor(n_nominal_cycles=2, center=False)
+    old = kl(n_nominal_cycles=2, center=False)
     _feed(old, torque[:2], speed)
     state = json.loads(json.dumps(old.state_dict()))
-    for key in ("center", "torque_sum", "torque_count"):     # keys added with centring
-        del state[key]
-    for ch in state["channels"].values():
-        del ch["lo"], ch["hi"]
-    restored = KLMonitor.from_state(state)
-    assert restored.center is False
+    restored = KLMonitor.from_state(old.config, state)
     a, b = _feed(old, torque[2:], speed)[0], _feed(restored, torque[2:], speed)[0]
     assert (a.raw, a.weighted) == (b.raw, b.weighted)
     np.testing.assert_array_equal(restored.grid, old.grid)
+    with pytest.raises(StateMismatch, match="center False → True"):
+        KLMonitor.from_state(KLConfig(n_nominal_cycles=2, center=True), state)
+
+
+def kl(**settings) -> KLMonitor:
+    """A monitor with ``KLConfig(**settings)``."""
+    return KLMonitor(KLConfig(**settings))

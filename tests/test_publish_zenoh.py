@@ -17,7 +17,10 @@ import pytest
 import zenoh
 
 from edge_monitor.sinks.loopback import free_loopback_port as free_port
-from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber, parse_key, to_json
+from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
+from edge_monitor.records import to_json
+from edge_monitor.sinks.keys import KeyParts, parse_key
+from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError, open_session
 from waiting import wait_until
 
@@ -184,12 +187,13 @@ def test_disconnected_subscriber_recovers_cache_and_counts_the_rest():
 def test_friction_and_health_telemetry_arrive(peers):
     """DROP telemetry: once the subscription has reached the publisher, puts arrive intact."""
     pub_session, sub_session = peers
-    friction = {"speeds": [2.1, 41.7], "torque": [0.05, math.nan], "stderr": [1e-3, 2e-3]}
+    friction = {"schema": 1, "robot": "r1", "joint": 4, "cycle": 17, "speeds": [2.1, 41.7],
+                "torque": [0.05, math.nan], "stderr": [1e-3, 2e-3]}
     with SymptomSubscriber(sub_session, history=False) as subscriber, \
             SymptomPublisher(pub_session, "r1", joints=[4]) as publisher:
         def delivered(s: SymptomSubscriber) -> bool:
             if not (s.count("friction") and s.count("health")):
-                publisher.publish_friction(4, 17, friction)
+                publisher.publish_friction(friction)
                 publisher.publish_health({"frames_total": 1200, "queue_depth": 0})
             return bool(s.count("friction") and s.count("health"))
 
@@ -249,21 +253,22 @@ def test_to_json_is_strict():
 
 
 def test_parse_key():
-    assert parse_key("edge/r1/3/symptom") == ("r1", 3, "symptom")
-    assert parse_key("edge/r1/agent/health") == ("r1", None, "health")
-    assert parse_key("edge/r1/x/symptom") is None
-    assert parse_key("other/r1/3/symptom") is None
+    assert parse_key("edge/r1/3/symptom") == KeyParts("r1", 3, "symptom")
+    assert parse_key("edge/r1/agent/health") == KeyParts("r1", None, "health")
+    for bad in ("edge/r1/x/symptom", "other/r1/3/symptom", "edge/r*/3/symptom", "edge/r1/3", "edge/r1/3/symptom/x",
+                "edge/r1/-1/maintenance", "edge/r1/12345/maintenance", "edge/r1/3/"):
+        assert parse_key(bad) is None, bad
 
 
 def test_default_options_stay_private():
     parser = argparse.ArgumentParser()
-    ZenohOptions.add_arguments(parser)
-    options = ZenohOptions.from_args(parser.parse_args([]))
+    add_zenoh_arguments(parser)
+    options = zenoh_options(parser.parse_args([]))
     assert (options.mode, options.listen, options.connect) == ("peer", [], [])
     config = options.to_config()
     assert json.loads(config.get_json("scouting/multicast/enabled")) is False
     assert json.loads(config.get_json("listen/endpoints")) == []
-    options = ZenohOptions.from_args(parser.parse_args(
+    options = zenoh_options(parser.parse_args(
         ["--zenoh-mode", "client", "--zenoh-connect", "tcp/127.0.0.1:7447"]))
     assert json.loads(options.to_config().get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
 

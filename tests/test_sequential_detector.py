@@ -9,21 +9,21 @@ import numpy as np
 import pytest
 
 from edge_monitor.stats.glr import threshold_from_pf
-from edge_monitor.stats.sequential_detector import DEFAULT_PF, DetectorConfigError, SequentialDetector
+from edge_monitor.stats.sequential_detector import DEFAULT_PF, DetectorConfig, DetectorConfigError, SequentialDetector
 
-RECORD_FIELDS = {"state", "statistic", "threshold", "alarm", "change_cycle", "delta", "miss_probability"}
+RECORD_FIELDS = {"state", "statistic", "threshold", "alarm", "change_cycle", "delta", "miss_probability", "reason"}
 
 
 def test_learning_then_monitoring_with_the_decision_record_fields() -> None:
     rng = np.random.default_rng(0)
-    det = SequentialDetector(n_nominal=20, window=30)
+    det = SequentialDetector(DetectorConfig(n_nominal=20, window=30))
     first = det.update(0.1, cycle=100)
     assert first.state == "learning" and first.reason == "learning 1/20"
-    assert set(first.to_record()) == RECORD_FIELDS
+    assert set(first.to_dict()) == RECORD_FIELDS
     decisions = [det.update(v, cycle=101 + i) for i, v in enumerate(rng.normal(size=40))]
     assert decisions[17].state == "learning"
     assert decisions[18].state == "monitoring" and "learned" in decisions[18].reason
-    record = decisions[-1].to_record()
+    record = decisions[-1].to_dict()
     assert set(record) == RECORD_FIELDS and record["state"] == "monitoring"
     assert record["threshold"] == pytest.approx(threshold_from_pf(DEFAULT_PF, 1))
     assert json.loads(json.dumps(record)) == record
@@ -32,7 +32,7 @@ def test_learning_then_monitoring_with_the_decision_record_fields() -> None:
 
 def test_alarm_on_a_three_sigma_change_is_latched_until_reset() -> None:
     rng = np.random.default_rng(1)
-    det = SequentialDetector(n_nominal=60, window=100)
+    det = SequentialDetector(DetectorConfig(n_nominal=60, window=100))
     values = np.r_[rng.normal(size=60 + 100), rng.normal(size=40) + 3.0]
     decisions = [det.update(v, cycle=1000 + i) for i, v in enumerate(values)]
     change_cycle = 1000 + 160
@@ -56,7 +56,7 @@ def test_quiet_on_nominal_data_at_the_default_pf() -> None:
     rng = np.random.default_rng(2)
     runs_with_alarm = 0
     for _ in range(20):
-        det = SequentialDetector()
+        det = SequentialDetector(DetectorConfig())
         for i, v in enumerate(rng.normal(size=560)):
             decision = det.update(v, i)
         runs_with_alarm += decision.alarm
@@ -65,7 +65,7 @@ def test_quiet_on_nominal_data_at_the_default_pf() -> None:
 
 def test_non_finite_values_are_skipped_counted_and_do_not_touch_state() -> None:
     rng = np.random.default_rng(3)
-    det = SequentialDetector(n_nominal=15, window=10, density="kde")
+    det = SequentialDetector(DetectorConfig(n_nominal=15, window=10, density="kde"))
     for i, v in enumerate(rng.normal(size=25)):
         det.update(v, i)
     before = json.dumps(det.state_dict(), sort_keys=True)
@@ -83,7 +83,7 @@ def test_non_finite_values_are_skipped_counted_and_do_not_touch_state() -> None:
 
 
 def test_constant_nominal_data_keep_the_detector_learning_with_a_reason() -> None:
-    det = SequentialDetector(n_nominal=12, window=10)
+    det = SequentialDetector(DetectorConfig(n_nominal=12, window=10))
     for i in range(30):
         d = det.update(0.25, i)
     assert d.state == "learning" and "constant" in d.reason
@@ -95,26 +95,26 @@ def test_constant_nominal_data_keep_the_detector_learning_with_a_reason() -> Non
 
 def test_vector_detector_and_state_round_trip_continue_identically() -> None:
     rng = np.random.default_rng(5)
-    det = SequentialDetector(dim=3, n_nominal=40, window=25, density="gce", mode="exact")
+    det = SequentialDetector(DetectorConfig(dim=3, n_nominal=40, window=25, density="gce", mode="exact"))
     for i, v in enumerate(rng.normal(size=(70, 3))):
         det.update(v, i)
-    back = SequentialDetector.from_state(json.loads(json.dumps(det.state_dict())))
+    back = SequentialDetector.from_state(det.config, json.loads(json.dumps(det.state_dict())))
     for i, v in enumerate(rng.normal(size=(30, 3)) + [0.0, 1.0, 0.0]):
         a, b = det.update(v, 70 + i), back.update(v, 70 + i)
-        assert a.to_record() == b.to_record()
+        assert a.to_dict() == b.to_dict()
         assert len(a.delta) == 3
 
 
 def test_state_round_trip_during_learning() -> None:
-    det = SequentialDetector(n_nominal=10, window=5, density="gauss")
+    det = SequentialDetector(DetectorConfig(n_nominal=10, window=5, density="gauss"))
     for i in range(6):
         det.update(float(i), i)
-    back = SequentialDetector.from_state(json.loads(json.dumps(det.state_dict())))
+    back = SequentialDetector.from_state(det.config, json.loads(json.dumps(det.state_dict())))
     assert back.update(7.0, 7).reason == det.update(7.0, 7).reason == "learning 7/10"
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"n_nominal": 3}, "at least 10"),
+    ({"n_nominal": 3}, "needs 10"),
     ({"density": "parzen"}, "choose one of"),
     ({"pf": 0.0}, "between 0 and 1"),
     ({"window": 0}, "window"),
@@ -124,8 +124,8 @@ def test_state_round_trip_during_learning() -> None:
 ])
 def test_bad_configuration_is_a_clear_error(kwargs: dict, match: str) -> None:
     with pytest.raises(DetectorConfigError, match=match):
-        SequentialDetector(**kwargs)
+        SequentialDetector(DetectorConfig(**kwargs))
 
 
 def test_default_pf_is_the_documented_product_default() -> None:
-    assert SequentialDetector().pf == DEFAULT_PF
+    assert SequentialDetector(DetectorConfig()).pf == DEFAULT_PF

@@ -41,7 +41,7 @@ def time_replay(path: Path, cfg: AgentConfig) -> tuple[float, int]:
     agent = Agent(cfg)
     t = time.perf_counter()
     for block in log_blocks(path, cfg.block_size):
-        agent.process_frames(*block)
+        agent.update(*block)
     agent.finish()
     return time.perf_counter() - t, agent.stats.symptoms
 

@@ -8,8 +8,10 @@ import sys
 from typing import Any
 
 from edge_monitor.config import AgentConfig, ConfigError, load_config, with_overrides
-from edge_monitor.pipeline.state_store import StateError, StateStore
-from edge_monitor.records import dumps
+from edge_monitor.errors import StateError
+from edge_monitor.pipeline.state_store import StateStore
+from edge_monitor.records import to_json
+from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, MODES, ZenohOptions
 
 log = logging.getLogger(__name__)
 
@@ -20,6 +22,29 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
     parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")
     parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--zenoh-mode/--zenoh-listen/--zenoh-connect/--zenoh-config`` (multicast scouting is always off)."""
+    group = parser.add_argument_group("zenoh", "Zenoh session (multicast scouting is always off)")
+    group.add_argument("--zenoh-mode", choices=MODES, default=None,
+                       help="peer (default), client (through a router) or router")
+    group.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable; default: none)")
+    group.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+                       help=f"peer or router to connect to, e.g. tcp/127.0.0.1:{DEFAULT_ROUTER_PORT} (repeatable)")
+    group.add_argument("--zenoh-config", default=None, metavar="FILE.json5",
+                       help="Zenoh JSON5 config file; the flags above override it")
+
+
+def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+    """The session the ``--zenoh-*`` flags describe (peer mode unless a config file says otherwise)."""
+    config_file = getattr(args, "zenoh_config", None)
+    mode = getattr(args, "zenoh_mode", None)
+    if mode is None and config_file is None:
+        mode = "peer"
+    return ZenohOptions(mode=mode, listen=list(getattr(args, "zenoh_listen", []) or []),
+                        connect=list(getattr(args, "zenoh_connect", []) or []), config_file=config_file)
 
 
 def load_agent_config(args: argparse.Namespace) -> AgentConfig:
@@ -46,7 +71,7 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
 
 
 def print_json(obj: Any) -> None:
-    sys.stdout.write(dumps(obj, indent=2, separators=(",", ": ")) + "\n")
+    sys.stdout.write(to_json(obj, indent=2, separators=(",", ": ")) + "\n")
 
 
 def fmt(x: Any, spec: str = ".3g") -> str:
@@ -74,22 +99,3 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: flo
     lines.append("Pf: false-alarm probability per test of the scalar detectors (the joint-vector detector uses "
                  "decision.pf_joint); Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)
-
-
-class LastSymptomSink:
-    """Keeps the last symptom record per joint (for the summary table)."""
-
-    def __init__(self, store: dict[int, dict]) -> None:
-        self.store = store
-
-    def on_symptom(self, output) -> None:
-        self.store[output.symptom["joint"]] = output.symptom
-
-    def on_alarm(self, alarm) -> None:
-        pass
-
-    def on_health(self, health) -> None:
-        pass
-
-    def close(self) -> None:
-        pass

@@ -20,13 +20,18 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 
-from edge_monitor.pipeline.agent import Agent
-from edge_monitor.commands.common import LastSymptomSink, open_state_store, summary_table
-from edge_monitor.config import AgentConfig, ConfigError, DecisionConfig, KLConfig
+from edge_monitor.app import Outputs, build_app
+from edge_monitor.commands.common import open_state_store, summary_table
+from edge_monitor.errors import ConfigError
+from edge_monitor.features.kl_monitor import KLConfig
+from edge_monitor.features.segmentation import PlateauConfig
+from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
+from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.loopback import free_loopback_port
-from edge_monitor.features.segmentation import PlateauConfig
+from edge_monitor.sinks.zenoh_session import ZenohOptions
 
 log = logging.getLogger(__name__)
 
@@ -118,15 +123,16 @@ def run(args: argparse.Namespace) -> int:
         sim_link, agent_link, link_desc = choose_link(args.link, stack)
         print(f"demo: link {link_desc}; zenoh peer on {endpoint}; rerun {spec}; {args.cycles} cycles, "
               f"{args.joints} joints, wear ramp on joint {WORN_JOINT}", flush=True)
-        from edge_monitor.commands.run import build_sinks
-        ns = argparse.Namespace(no_zenoh=False, rerun=spec, zenoh_mode="peer", zenoh_listen=[endpoint],
-                                zenoh_connect=[], zenoh_config=None)
-        agent_ref: dict[str, Agent] = {}
-        sinks = build_sinks(cfg, ns, stack, state_provider=lambda j: agent_ref["agent"].joint_state(j))
-        agent = Agent(cfg, sinks=sinks, state_store=open_state_store(cfg))
-        agent_ref["agent"] = agent
-        last: dict[int, dict] = {}
-        agent.sinks.append(LastSymptomSink(last))
+        try:
+            app = build_app(cfg, Outputs(jsonl=cfg.jsonl, zenoh=ZenohOptions(mode="peer", listen=[endpoint]),
+                                         rerun=spec, rerun_fallback=str(out / "demo.rrd"), maintenance=True),
+                            stack, open_state_store(cfg))
+        except ValueError as exc:      # ZenohSetupError, RerunSetupError: say what to fix
+            print(f"edge-monitor demo: {exc}", file=sys.stderr)
+            return 2
+        agent = app.agent
+        last = LastSymptomSink()
+        agent.sinks.append(last)
         subscriber = stack.enter_context(_CountingSubscriber(endpoint))
         try:
             bus = open_bus(agent_link)
@@ -150,10 +156,9 @@ def run(args: argparse.Namespace) -> int:
         agent_thread.join(timeout=30)
         agent.finish(close_open_cycle=True)
         frames = agent.run_statistics()
-        published = _published(agent)
+        published = app.symptoms_published()
         subscriber.wait_for(published, timeout=10.0)
         received = subscriber.count()
-        agent.close()
     summary = {
         "alarms": frames["alarms"], "symptoms_published": published, "symptoms_received": received,
         "rrd": spec.partition(":")[2] if spec.startswith("save:") else None, "rerun": spec,
@@ -163,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_s": round(time.monotonic() - started, 1), "pf": cfg.decision.pf, "pf_joint": cfg.decision.pf_joint, "link": link_desc,
         "jsonl": cfg.jsonl, "truth": str(truth),
     }
-    print(summary_table(last, frames, cfg.decision.pf))
+    print(summary_table(last.last, frames, cfg.decision.pf))
     print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
           f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['wall_s']} s")
     if summary["rrd"]:
@@ -172,14 +177,6 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_summary).write_text(json.dumps(summary, indent=2))
     return 0 if sim_rc == 0 else 1
-
-
-def _published(agent: Agent) -> int:
-    for sink in agent.sinks:
-        publisher = getattr(sink, "publisher", None)
-        if publisher is not None:
-            return int(publisher.published.get("symptom", 0))
-    return 0
 
 
 def _frames_sent(truth: Path) -> int | None:
@@ -198,7 +195,7 @@ class _CountingSubscriber:
 
     def __enter__(self) -> "_CountingSubscriber":
         from edge_monitor.sinks.zenoh_publisher import SymptomSubscriber
-        from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
+        from edge_monitor.sinks.zenoh_session import open_session
         self.session = open_session(ZenohOptions(mode="peer", connect=[self.endpoint]))
         self.sub = SymptomSubscriber(self.session, "edge/**", history=True)
         return self

@@ -8,17 +8,13 @@ import struct
 import sys
 import time
 
+from contextlib import ExitStack
+
+from edge_monitor.app import Outputs, build_app
+from edge_monitor.commands.common import add_config_arguments, load_agent_config, open_state_store, print_json, summary_table
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.commands.common import (
-    add_config_arguments,
-    load_agent_config,
-    open_state_store,
-    print_json,
-    summary_table,
-    LastSymptomSink,
-)
 from edge_monitor.pipeline.frame_source import log_blocks
-from edge_monitor.sinks.jsonl import JsonlSink
+from edge_monitor.sinks.base import LastSymptomSink
 
 log = logging.getLogger(__name__)
 
@@ -56,35 +52,31 @@ def _blocks(path: str, block_size: int):
 def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0) -> None:
     next_report = time.monotonic() + progress_s
     for ids, data, dlc, ts in _blocks(path, block_size):
-        agent.process_frames(ids, data, dlc, ts)
+        agent.update(ids, data, dlc, ts)
         if time.monotonic() >= next_report:
-            h = agent.ingest.counters()
-            log.warning("replay: %d frames, %d cycles, %d symptoms", h["frames_total"], agent.stats.cycles,
+            log.warning("replay: %d frames, %d cycles, %d symptoms", agent.frames_total, agent.stats.cycles,
                         agent.stats.symptoms)
             next_report = time.monotonic() + progress_s
 
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_agent_config(args)
-    sinks = [JsonlSink(cfg.jsonl)] if cfg.jsonl else []
-    agent = Agent(cfg, sinks=sinks, state_store=open_state_store(cfg))
-    last: dict[int, dict] = {}
-    agent.sinks.append(LastSymptomSink(last))
-    try:
-        replay(agent, args.file, cfg.block_size)
-    except (FileNotFoundError, LogReadError) as exc:
-        print(f"edge-monitor replay: {exc}", file=sys.stderr)
-        agent.close()
-        return 2
-    agent.finish(close_open_cycle=not args.no_close)
-    stats = agent.run_statistics()
-    agent.close()
+    last = LastSymptomSink()
+    with ExitStack() as stack:
+        agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg)).agent
+        agent.sinks.append(last)
+        try:
+            replay(agent, args.file, cfg.block_size)
+        except (FileNotFoundError, LogReadError) as exc:
+            print(f"edge-monitor replay: {exc}", file=sys.stderr)
+            return 2
+        agent.finish(close_open_cycle=not args.no_close)
+        stats = agent.run_statistics()
     if args.json:
         print_json(stats)
     else:
-        print(summary_table(last, stats, cfg.decision.pf))
+        print(summary_table(last.last, stats, cfg.decision.pf))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
               f"{stats['frames_per_second']:.0f} frames/s")
     return 0
-

@@ -14,9 +14,11 @@ import sys
 import threading
 import time
 
-from edge_monitor.sinks.zenoh_publisher import ALARM, HEALTH, SYMPTOM, ReceivedRecord, SymptomSubscriber
+from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
+from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
 from edge_monitor.sinks.rerun_view import RerunSetupError, RerunSink
-from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError, open_session
+from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
+from edge_monitor.sinks.zenoh_session import ZenohSetupError, open_session
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +29,7 @@ QUEUE_SIZE = 100_000      # bounded hand-over from Zenoh's thread; overflow is c
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("view", help="draw the symptoms of any number of robots in Rerun",
                                    description=__doc__.replace("``", ""))
-    ZenohOptions.add_arguments(parser)
+    add_zenoh_arguments(parser)
     parser.add_argument("--robot", default=None, help="only this robot (default: every robot under edge/)")
     parser.add_argument("--rerun", default="spawn", metavar="SPEC",
                         help="save:PATH | spawn | connect[:URL] (default spawn; without a display: "
@@ -51,13 +53,12 @@ class _Counts:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.robot is not None and any(c in args.robot for c in "/*$?#"):
-        print(f"edge-monitor view: --robot {args.robot!r} must be a plain robot name", file=sys.stderr)
-        return 2
     try:
-        options = ZenohOptions.from_args(args)
+        if args.robot is not None:
+            check_robot_name(args.robot)
+        options = zenoh_options(args)
         sink = RerunSink.open(args.rerun, fallback_save="edge-view.rrd")
-    except (ZenohSetupError, RerunSetupError) as exc:
+    except (ZenohSetupError, RerunSetupError, ValueError) as exc:
         print(f"edge-monitor view: {exc}", file=sys.stderr)
         return 2
     if sink.fallback_reason:

@@ -46,32 +46,68 @@ Units: torque dimensionless (fraction of max. joint torque), speed rad/s, KL dim
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+import math
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge_monitor.features.disturbance_weights import WeightFunction
-from protocol.frames import SEGMENT_PRODUCTION, TORQUE_SCALE
-from edge_monitor.stats.kde_stream import StreamingKDE, choose_grid, symmetric_kl
+from edge_monitor.errors import StateMismatch, config_changes, require
+from edge_monitor.features.base import CycleInput, FeatureOutput
+from edge_monitor.features.disturbance_weights import DEFAULT_ALPHA, DEFAULT_BETA, WeightFunction
+from edge_monitor.features.kl_channel import KLChannel
+from edge_monitor.records import finite_or_none
+from edge_monitor.stats.kde_stream import symmetric_kl
+from protocol.frames import SEGMENT_PRODUCTION
 
 log = logging.getLogger(__name__)
 
-#: Wire range of torque (docs/PROTOCOL.md: 16-bit signed): ±1.6384.
-TORQUE_WIRE_LIMIT = TORQUE_SCALE * (1 << 15)
-#: Points of the provisional grid used until the working grid is fixed.
-PROVISIONAL_GRID = 16384
-#: Grid margin: fraction of the occupied range, and minimum in bandwidths of the first cycle.
-GRID_MARGIN = 0.25
-GRID_MIN_MARGIN_BANDWIDTHS = 4.0
-
 Window = Literal["cycle", "production"]
 CHANNELS = ("raw", "weighted")
+#: Section of a symptom when there is no KL value (feature off, or a partial cycle).
+EMPTY_SECTION: dict[str, Any] = {"raw": None, "weighted": None}
+#: Largest KDE grid [points]: memory per channel is O(grid); 65536 points is 0.5 MB.
+MAX_GRID = 65536
 
 
-class KLConfigError(ValueError):
-    """Invalid KLMonitor configuration."""
+@dataclass(frozen=True)
+class KLConfig:
+    """Distribution-domain detector settings (the ``[kl]`` table), validated once, here.
+
+    ``window``: "cycle" (every sample) or "production" (segment 200 only); ``center``: compare
+    densities of torque − cycle mean; ``alpha``, ``beta`` [s/rad]: weights w(v) = sech(β·v)·tanh(α·v);
+    ``min_samples``: fewest samples a cycle needs for a KL value.
+    """
+
+    enabled: bool = True
+    n_nominal_cycles: int = 10
+    n_grid: int = 512
+    window: str = "cycle"
+    center: bool = True
+    alpha: float = DEFAULT_ALPHA
+    beta: float = DEFAULT_BETA
+    min_samples: int = 1000
+
+    def __post_init__(self) -> None:
+        require(2 <= self.n_nominal_cycles <= 1000, "kl.n_nominal_cycles",
+                f"need 2 … 1000 cycles (2 for σ0), got {self.n_nominal_cycles}")
+        require(64 <= self.n_grid <= MAX_GRID, "kl.n_grid", f"need 64 … {MAX_GRID} grid points, got {self.n_grid}")
+        require(self.window in ("cycle", "production"), "kl.window", f"must be 'cycle' or 'production', got {self.window!r}")
+        for name in ("alpha", "beta"):
+            value = getattr(self, name)
+            require(math.isfinite(value) and 0 <= value <= 10, f"kl.{name}", f"must be 0 … 10 s/rad, got {value}")
+        require(2 <= self.min_samples <= 10_000_000, "kl.min_samples", f"need 2 … 1e7, got {self.min_samples}")
+
+    def fingerprint(self) -> dict[str, Any]:
+        """The settings the learned grid and nominal densities depend on."""
+        out = asdict(self)
+        del out["enabled"]
+        return out
+
+    @property
+    def weights(self) -> WeightFunction:
+        return WeightFunction(alpha=self.alpha, beta=self.beta)
 
 
 @dataclass
@@ -92,125 +128,41 @@ class KLResult:
     #: raw channel for plotting: {"grid", "cycle", "nominal"} (ndarrays; nominal None while learning)
     density: dict[str, NDArray[np.float64] | None] | None = None
 
-    def to_record(self) -> dict[str, float | None]:
-        """The ``kl`` part of the symptom record."""
-        return {"raw": self.raw, "weighted": self.weighted}
-
-
-class _Channel:
-    """One quantity (raw torque or weighted torque): its KDE, grid and nominal model.
-
-    Without centring, ``kde`` bins on the provisional grid until the working grid is fixed and on
-    the working grid afterwards (:meth:`window_kde` is ``kde`` itself). With centring, ``kde`` always
-    bins on the fine provisional grid over the wire range and :meth:`window_kde` moves the cycle's
-    mass by −(cycle mean) onto the working grid ``[lo, hi]`` (linear interpolation)."""
-
-    def __init__(self, n_grid: int, center: bool) -> None:
-        self.n_grid = n_grid
-        self.center = center
-        self.kde = StreamingKDE(-TORQUE_WIRE_LIMIT, TORQUE_WIRE_LIMIT, PROVISIONAL_GRID)
-        self.grid_fixed = False
-        self.lo = self.hi = None  # type: float | None   # working grid bounds once fixed
-        self.learning: list[NDArray[np.float64]] = []   # densities of the learning cycles
-        self.nominal: NDArray[np.float64] | None = None
-        self.mu0 = self.sigma0 = None  # type: float | None
-
-    @property
-    def shift(self) -> float:
-        """Location removed from this window: the cycle mean with centring, else 0."""
-        return self.kde.mean if self.center else 0.0
-
-    def fix_grid(self) -> None:
-        occupied = self.kde.occupied_range()
-        assert occupied is not None
-        lo, hi = choose_grid(occupied[0] - self.shift, occupied[1] - self.shift, margin=GRID_MARGIN,
-                             min_margin=max(GRID_MIN_MARGIN_BANDWIDTHS * self.kde.bandwidth, 10 * 5e-5),
-                             bounds=(-TORQUE_WIRE_LIMIT, TORQUE_WIRE_LIMIT))
-        self.lo, self.hi = lo, hi
-        if not self.center:
-            self.kde = self.kde.regrid(lo, hi, self.n_grid)
-        self.grid_fixed = True
-        log.info("KL grid fixed to [%.5f, %.5f] with %d points%s", lo, hi, self.n_grid,
-                 " (centred)" if self.center else "")
-
-    def window_kde(self) -> StreamingKDE:
-        """The window on the working grid (grid fixed): centred copy, or ``kde`` itself."""
-        if not self.center:
-            return self.kde
-        return self.kde.regrid(self.lo, self.hi, self.n_grid, shift=self.kde.mean)  # type: ignore[arg-type]
-
-    @property
-    def grid(self) -> NDArray[np.float64]:
-        return np.linspace(self.lo, self.hi, self.n_grid)  # type: ignore[arg-type]
-
-    @property
-    def dx(self) -> float:
-        return (self.hi - self.lo) / (self.n_grid - 1)  # type: ignore[operator]
-
-    def finish_learning(self) -> None:
-        stack = np.asarray(self.learning)
-        k = stack.shape[0]
-        self.nominal = stack.mean(axis=0)
-        others = (stack.sum(axis=0)[None, :] - stack) / (k - 1)
-        q = np.array([symmetric_kl(others[i], stack[i], self.dx) for i in range(k)])
-        self.mu0, self.sigma0 = float(q.mean()), float(q.std(ddof=1))
-        self.learning = []
-
-    @property
-    def threshold(self) -> float | None:
-        return None if self.mu0 is None else self.mu0 + 3.0 * self.sigma0
-
-    def new_window(self) -> None:
-        self.kde.reset()
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"kde": self.kde.state_dict(), "grid_fixed": self.grid_fixed, "lo": self.lo, "hi": self.hi,
-                "learning": [d.tolist() for d in self.learning],
-                "nominal": None if self.nominal is None else self.nominal.tolist(),
-                "mu0": self.mu0, "sigma0": self.sigma0}
-
-    @classmethod
-    def from_state(cls, n_grid: int, center: bool, state: dict[str, Any]) -> "_Channel":
-        ch = cls(n_grid, center)
-        ch.kde = StreamingKDE.from_state(state["kde"])
-        ch.grid_fixed = bool(state["grid_fixed"])
-        if ch.grid_fixed:     # states before centring existed: the working grid is the kde's grid
-            ch.lo = float(state["lo"]) if state.get("lo") is not None else ch.kde.lo
-            ch.hi = float(state["hi"]) if state.get("hi") is not None else ch.kde.hi
-        ch.learning = [np.asarray(d, dtype=float) for d in state["learning"]]
-        ch.nominal = None if state["nominal"] is None else np.asarray(state["nominal"], dtype=float)
-        ch.mu0, ch.sigma0 = state["mu0"], state["sigma0"]
-        return ch
+    def to_section(self) -> dict[str, Any]:
+        """The ``"kl"`` section of the symptom record: raw/weighted KL, the μ0 + 3σ0 thresholds, the
+        samples outside the grid, the nearest stored mode and the number of samples."""
+        out: dict[str, Any] = {"raw": finite_or_none(self.raw), "weighted": finite_or_none(self.weighted)}
+        if self.threshold_3sigma:
+            out["threshold_3sigma"] = {k: finite_or_none(v) for k, v in self.threshold_3sigma.items()}
+        if self.outside:
+            out["outside"] = self.outside
+        if self.nearest_mode is not None:
+            out["nearest_mode"] = self.nearest_mode
+        out["n_samples"] = self.n_samples
+        return out
 
 
 class KLMonitor:
-    """Distribution-domain detector of one joint. Feed blocks with :meth:`add`, close each cycle
-    with :meth:`end_cycle`.
+    """Distribution-domain detector of one joint. Feed sample blocks with :meth:`update`, close each
+    cycle with :meth:`end_cycle`.
 
     ``window="cycle"`` uses every sample of the cycle, ``"production"`` only samples whose segment
-    code is 200 (production motion). ``weights=None`` disables the weighted channel. ``center=True``
-    compares the densities of the cycle's values minus their own cycle mean (invariant to a
-    per-cycle load/gravity torque); ``False`` compares the densities of the values themselves.
+    code is 200 (production motion). ``center=True`` compares the densities of the cycle's values
+    minus their own cycle mean (invariant to a per-cycle load/gravity torque); ``False`` compares the
+    densities of the values themselves.
     """
 
-    def __init__(self, n_nominal_cycles: int = 10, n_grid: int = 512,
-                 weights: WeightFunction | None = WeightFunction(), window: Window = "cycle",
-                 min_samples: int = 1000, center: bool = True) -> None:
-        if int(n_nominal_cycles) < 2:
-            raise KLConfigError(f"n_nominal_cycles: need >= 2 (for σ0), got {n_nominal_cycles}")
-        if int(n_grid) < 64:
-            raise KLConfigError(f"n_grid: need >= 64 grid points, got {n_grid}")
-        if window not in ("cycle", "production"):
-            raise KLConfigError(f"window: must be 'cycle' or 'production', got {window!r}")
-        if int(min_samples) < 2:
-            raise KLConfigError(f"min_samples: need >= 2, got {min_samples}")
-        self.n_nominal_cycles = int(n_nominal_cycles)
-        self.n_grid = int(n_grid)
-        self.weights = weights
-        self.window: Window = window
-        self.min_samples = int(min_samples)
-        self.center = bool(center)
-        self.modes: dict[str, NDArray[np.float64]] = {}
+    name = "kl"
+    quantities = ("kl_raw", "kl_weighted")
+
+    def __init__(self, config: KLConfig = KLConfig()) -> None:
+        self.config = config
+        self.n_nominal_cycles = config.n_nominal_cycles
+        self.n_grid = config.n_grid
+        self.weights: WeightFunction | None = config.weights
+        self.window: Window = config.window  # type: ignore[assignment]
+        self.min_samples = config.min_samples
+        self.center = config.center
         self.reset()
 
     # -- configuration / lifecycle ------------------------------------------------------------
@@ -221,7 +173,8 @@ class KLMonitor:
     def reset(self) -> None:
         """Forget grid, nominal model and stored modes (they live on the old grid), e.g. after a
         declared gearbox replacement; the next valid cycles relearn them."""
-        self.channels = {name: _Channel(self.n_grid, self._centred_by_mean(name)) for name in self.channel_names}
+        self.channels = {name: KLChannel(self.n_grid, self._centred_by_mean(name)) for name in self.channel_names}
+        self.modes: dict[str, NDArray[np.float64]] = {}
         self.n_learned = 0
         self._new_window()
 
@@ -245,7 +198,6 @@ class KLMonitor:
         if tau.size:
             self.torque_sum, self.torque_count = float(sums[-1]), int(counts[-1])
         return tau - sums / np.maximum(counts, 1)
-        self.modes = {}
 
     @property
     def learned(self) -> bool:
@@ -259,32 +211,44 @@ class KLMonitor:
     def add_mode(self, name: str, density: ArrayLike) -> None:
         """Store the raw-channel density of a known mode (on this monitor's working grid)."""
         if self.grid is None:
-            raise KLConfigError("add_mode: the working grid is not fixed yet (learn nominal cycles first)")
+            raise ValueError("add_mode: the working grid is not fixed yet (learn nominal cycles first)")
         d = np.asarray(density, dtype=float)
         if d.shape != (self.n_grid,) or not np.all(np.isfinite(d)) or np.any(d < 0):
-            raise KLConfigError(f"add_mode({name!r}): need {self.n_grid} finite non-negative density values")
+            raise ValueError(f"add_mode({name!r}): need {self.n_grid} finite non-negative density values")
         self.modes[str(name)] = d
 
     # -- streaming ----------------------------------------------------------------------------
-    def add(self, torque: ArrayLike, speed: ArrayLike, segment: ArrayLike | None = None) -> None:
-        """Add a block of samples of this joint (torque dimensionless, speed rad/s, segment codes)."""
+    def update_samples(self, torque: ArrayLike, speed: ArrayLike, segment: ArrayLike | None = None) -> None:
+        """Bin a block of samples of this joint (torque dimensionless, speed rad/s, segment codes)."""
         tau = np.asarray(torque, dtype=float).reshape(-1)
         v = np.asarray(speed, dtype=float).reshape(-1)
         if v.shape != tau.shape:
-            raise ValueError(f"KLMonitor.add: speed has {v.size} samples, torque {tau.size}")
+            raise ValueError(f"KLMonitor.update_samples: speed has {v.size} samples, torque {tau.size}")
         if self.window == "production":
             if segment is None:
                 return                       # no segment information: nothing is production
             seg = np.asarray(segment).reshape(-1)
             if seg.shape != tau.shape:
-                raise ValueError(f"KLMonitor.add: segment has {seg.size} samples, torque {tau.size}")
+                raise ValueError(f"KLMonitor.update_samples: segment has {seg.size} samples, torque {tau.size}")
             keep = seg == SEGMENT_PRODUCTION
             tau, v = tau[keep], v[keep]
         self.n_window += tau.size
-        self.channels["raw"].kde.add(tau)
+        self.channels["raw"].kde.update(tau)
         if self.weights is not None:
             located = self._causally_centred(tau) if self.center else tau
-            self.channels["weighted"].kde.add(self.weights(v) * located)
+            self.channels["weighted"].kde.update(self.weights(v) * located)
+
+    def update(self, cycle: CycleInput) -> FeatureOutput:
+        """The feature step (:class:`~edge_monitor.features.base.Feature`): close the cycle and give the
+        ``"kl"`` section, the quantities ``kl_raw``/``kl_weighted`` and the raw density for viewers. A
+        partial cycle is discarded (its window lacks the cycle's start)."""
+        if cycle.partial:
+            self.discard_cycle()
+            return FeatureOutput(section=dict(EMPTY_SECTION), values={q: math.nan for q in self.quantities})
+        result = self.end_cycle(cycle.cycle)
+        values = {"kl_raw": _nan_if_none(result.raw), "kl_weighted": _nan_if_none(result.weighted)}
+        extras = {"density": result.density} if result.density is not None else {}
+        return FeatureOutput(section=result.to_section(), values=values, reason=result.reason, extras=extras)
 
     def discard_cycle(self) -> None:
         """Drop the open window without evaluating or learning (partial or duplicate cycles)."""
@@ -370,10 +334,9 @@ class KLMonitor:
 
     # -- persistence ------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
+        """Learned grid and nominal densities, the open window, and the config they were learned with."""
         return {
-            "n_nominal_cycles": self.n_nominal_cycles, "n_grid": self.n_grid,
-            "weights": None if self.weights is None else self.weights.to_dict(),
-            "window": self.window, "min_samples": self.min_samples, "center": self.center,
+            "config": self.config.fingerprint(),
             "n_learned": self.n_learned, "n_window": self.n_window,
             "torque_sum": self.torque_sum, "torque_count": self.torque_count,
             "channels": {name: ch.state_dict() for name, ch in self.channels.items()},
@@ -381,17 +344,22 @@ class KLMonitor:
         }
 
     @classmethod
-    def from_state(cls, state: dict[str, Any]) -> "KLMonitor":
-        weights = None if state["weights"] is None else WeightFunction.from_dict(state["weights"])
-        # states written before centring existed learned uncentred densities: missing key → False
-        mon = cls(n_nominal_cycles=state["n_nominal_cycles"], n_grid=state["n_grid"], weights=weights,
-                  window=state["window"], min_samples=state["min_samples"],
-                  center=bool(state.get("center", False)))
+    def from_state(cls, config: KLConfig, state: dict[str, Any]) -> "KLMonitor":
+        """Restore a monitor learned with ``config``; :class:`StateMismatch` if it was learned with another."""
+        changes = config_changes(state.get("config", {}), config.fingerprint())
+        if changes:
+            raise StateMismatch("kl", changes)
+        mon = cls(config)
         mon.n_learned = int(state["n_learned"])
         mon.n_window = int(state["n_window"])
         mon.torque_sum = float(state.get("torque_sum", 0.0))
         mon.torque_count = int(state.get("torque_count", 0))
-        mon.channels = {name: _Channel.from_state(mon.n_grid, mon._centred_by_mean(name), s)
-                        for name, s in state["channels"].items()}
+        mon.channels = {name: KLChannel.from_state(mon.n_grid, mon._centred_by_mean(name), state["channels"][name])
+                        for name in mon.channel_names}
         mon.modes = {name: np.asarray(d, dtype=float) for name, d in state["modes"].items()}
         return mon
+
+
+def _nan_if_none(x: float | None) -> float:
+    value = finite_or_none(x)
+    return math.nan if value is None else value

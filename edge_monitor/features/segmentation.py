@@ -11,12 +11,16 @@ Units: speed rad/s (motor side), torque dimensionless, time in controller ticks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from edge_monitor.errors import require
 from joint_model import DEFAULT_SPEED_LEVELS
+from protocol.frames import MAX_SPEED_LEVELS
 
 #: Label of samples at an (apparently) constant speed that matches no configured level.
 UNMATCHED = 10_000
@@ -24,10 +28,12 @@ UNMATCHED = 10_000
 
 @dataclass(frozen=True)
 class PlateauConfig:
-    """Plateau detection settings. Speeds in rad/s, durations in seconds."""
+    """Plateau detection settings (the ``[segmentation]`` table). Speeds in rad/s, durations in s.
+
+    Validated here, once; a bad value raises :class:`ConfigError` naming ``segmentation.<field>``.
+    """
 
     speeds: tuple[float, ...] = DEFAULT_SPEED_LEVELS
-    rate_hz: float = 500.0
     tolerance_rel: float = 0.02      # enter a level when |v| is within rel·v + abs of it
     tolerance_abs: float = 0.3
     hysteresis: float = 2.0          # stay on a level while within hysteresis × the entry band
@@ -38,19 +44,27 @@ class PlateauConfig:
 
     def __post_init__(self) -> None:
         speeds = np.asarray(self.speeds, dtype=float)
-        if speeds.size == 0 or not np.all(np.isfinite(speeds)) or np.any(speeds <= 0):
-            raise ValueError(f"segmentation.speeds: need positive finite speeds in rad/s, got {list(self.speeds)}")
-        if np.any(np.diff(np.sort(speeds)) <= 0):
-            raise ValueError(f"segmentation.speeds: speeds must be distinct, got {list(self.speeds)}")
-        for name in ("rate_hz", "tolerance_rel", "hysteresis", "min_steady_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"segmentation.{name}: must be > 0, got {getattr(self, name)}")
-        for name in ("tolerance_abs", "settle_s", "guard_s"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"segmentation.{name}: must be >= 0, got {getattr(self, name)}")
+        require(1 <= speeds.size <= MAX_SPEED_LEVELS, "segmentation.speeds",
+                f"need 1 … {MAX_SPEED_LEVELS} speed levels, got {speeds.size}")
+        require(bool(np.all(np.isfinite(speeds)) and np.all(speeds > 0)), "segmentation.speeds",
+                f"need positive finite speeds in rad/s, got {list(self.speeds)}")
+        require(bool(np.all(np.diff(np.sort(speeds)) > 0)), "segmentation.speeds",
+                f"speeds must be distinct, got {list(self.speeds)}")
+        for name in ("tolerance_rel", "hysteresis", "min_steady_s"):
+            require(_finite(getattr(self, name)) and getattr(self, name) > 0, f"segmentation.{name}",
+                    f"must be > 0, got {getattr(self, name)}")
+        for name in ("tolerance_abs", "settle_s", "guard_s", "unmatched_min_speed"):
+            require(_finite(getattr(self, name)) and getattr(self, name) >= 0, f"segmentation.{name}",
+                    f"must be >= 0, got {getattr(self, name)}")
+        for name in ("settle_s", "guard_s", "min_steady_s"):
+            require(getattr(self, name) <= 60.0, f"segmentation.{name}", f"must be <= 60 s, got {getattr(self, name)}")
 
-    def ticks(self, seconds: float) -> int:
-        return int(round(seconds * self.rate_hz))
+    def fingerprint(self) -> dict[str, Any]:
+        return {**asdict(self), "speeds": list(self.speeds)}
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @dataclass
@@ -123,9 +137,13 @@ class SegmentationCounters:
 
 @dataclass
 class PlateauDetector:
-    """Streaming plateau detector for one joint: ``update(block) -> list[PlateauStat]``."""
+    """Streaming plateau detector for one joint: ``update(block) -> list[PlateauStat]``.
+
+    ``rate_hz`` is the controller tick rate [Hz]: durations of the config are converted to ticks.
+    """
 
     config: PlateauConfig = field(default_factory=PlateauConfig)
+    rate_hz: float = 500.0
     counters: SegmentationCounters = field(default_factory=SegmentationCounters)
     _label: int = 0
     _run_len: int = 0
@@ -141,9 +159,12 @@ class PlateauDetector:
         self._sorted_speeds = speeds[order]
         self._sorted_index = order
         self._band = self.config.tolerance_rel * self._sorted_speeds + self.config.tolerance_abs
-        self._settle = self.config.ticks(self.config.settle_s)
-        self._guard = self.config.ticks(self.config.guard_s)
-        self._min_steady = max(self.config.ticks(self.config.min_steady_s), 2)
+        self._settle = self._ticks(self.config.settle_s)
+        self._guard = self._ticks(self.config.guard_s)
+        self._min_steady = max(self._ticks(self.config.min_steady_s), 2)
+
+    def _ticks(self, seconds: float) -> int:
+        return int(round(seconds * self.rate_hz))
 
     # ------------------------------------------------------------------ classification
     def classify(self, speed: NDArray[np.float64], exclude: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
@@ -252,9 +273,11 @@ class PlateauDetector:
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict:
-        """Only configuration and counters persist: a restart begins with no plateau in progress."""
+        """Only counters persist: a restart begins with no plateau in progress (nothing is learned)."""
         return {"counters": self.counters.as_dict()}
 
     @classmethod
-    def from_state(cls, state: dict, config: PlateauConfig) -> "PlateauDetector":
-        return cls(config=config, counters=SegmentationCounters(**state.get("counters", {})))
+    def from_state(cls, config: PlateauConfig, state: dict, rate_hz: float = 500.0) -> "PlateauDetector":
+        counts = state.get("counters", {})
+        known = {k: int(counts[k]) for k in SegmentationCounters().as_dict() if isinstance(counts.get(k), int)}
+        return cls(config=config, rate_hz=rate_hz, counters=SegmentationCounters(**known))

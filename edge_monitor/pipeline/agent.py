@@ -1,9 +1,9 @@
 """The agent pipeline: frames → E2E checks → per-joint samples → cycles → symptoms → sinks.
 
-``Agent.process_frames`` takes a block of raw frames as numpy arrays and is shared by the live
-loop (``edge-monitor run``) and the deterministic replay (``edge-monitor replay``). Cycle
-boundaries come from the controller's status frame; without it, each joint infers them from the
-repetition of its plateau sequence (see :mod:`edge_monitor.pipeline.joint_monitor`).
+``Agent.update`` takes a block of raw frames as numpy arrays and is shared by the live loop
+(``edge-monitor run``) and the deterministic replay (``edge-monitor replay``). Cycle boundaries come
+from the controller's status frame; without it, each joint infers them from the repetition of its
+plateau sequence (see :mod:`edge_monitor.pipeline.cycle_assembly`).
 """
 
 from __future__ import annotations
@@ -12,25 +12,18 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Protocol
+from typing import Any, Callable, Iterable
 
 from numpy.typing import NDArray
 
-from edge_monitor.config import AgentConfig
+from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.ingest import Ingest, IngestBlock
-from edge_monitor.pipeline.joint_monitor import CycleOutput, JointMonitor
+from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateStore
+from edge_monitor.records import Alarm, Health, Symptom
+from edge_monitor.sinks.base import Sink
 
 log = logging.getLogger(__name__)
-
-
-class Sink(Protocol):
-    """Where symptoms go (JSONL file, Zenoh, Rerun). Sinks must not raise; they count failures."""
-
-    def on_symptom(self, output: CycleOutput) -> None: ...
-    def on_alarm(self, alarm: dict[str, Any]) -> None: ...
-    def on_health(self, health: dict[str, Any]) -> None: ...
-    def close(self) -> None: ...
 
 
 @dataclass
@@ -63,11 +56,16 @@ class Agent:
             self._restore(state_store.load())
 
     # ------------------------------------------------------------------ input
-    def process_frames(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> list[CycleOutput]:
+    def update(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> list[Symptom]:
         """Process one block of frames (``ids`` (n,), ``data`` (n, 8) uint8, ``dlc`` (n,), ``timestamps`` s)."""
         with self.lock:
-            block = self.ingest.process(ids, data, dlc, timestamps)
+            block = self.ingest.update(ids, data, dlc, timestamps)
             return self._route(block)
+
+    @property
+    def frames_total(self) -> int:
+        """Frames taken in so far (all of them, including rejected ones)."""
+        return self.ingest.c.frames_total
 
     def joint_state(self, joint: int) -> dict[str, Any]:
         """Snapshot of one joint's models and detector state (for the read-only state queryable)."""
@@ -78,8 +76,8 @@ class Agent:
             return {"joint": joint, "known": True, "last_cycle": self._last_emitted.get(joint),
                     **monitor.state_dict()}
 
-    def _route(self, block: IngestBlock) -> list[CycleOutput]:
-        outputs: list[CycleOutput] = []
+    def _route(self, block: IngestBlock) -> list[Symptom]:
+        outputs: list[Symptom] = []
         for run in block.runs:
             if run.cycle is not None and run.cycle != self._open_cycle:
                 if self._open_cycle is not None:
@@ -89,26 +87,27 @@ class Agent:
                 self._open_cycle = run.cycle
             for joint, samples in run.samples.items():
                 monitor = self._monitor(joint)
-                auto = monitor.add_samples(samples.tick, samples.speed, samples.torque,
-                                           samples.segment if run.cycle is not None else None)
-                for out in auto:     # no status frame: cycle inferred by the joint itself
-                    outputs += self._emit(joint, out)
-            for joint, estimate, std in run.load_estimates:
-                self._monitor(joint).add_load_estimate(estimate, std)
+                inferred = monitor.update(samples.tick, samples.speed, samples.torque,
+                                          samples.segment if run.cycle is not None else None)
+                for symptom in inferred:     # no status frame: cycle inferred by the joint itself
+                    outputs += self._emit(symptom)
+            for status in run.joint_status:
+                self._monitor(status.joint).add_status(status.load_estimate, status.load_std,
+                                                       status.motor_temperature)
         return outputs
 
     def _monitor(self, joint: int) -> JointMonitor:
         monitor = self.joints.get(joint)
         if monitor is None:
-            monitor = JointMonitor(joint, self.config)
-            if joint in self._restored_joint_states:
-                monitor.load_state(self._restored_joint_states.pop(joint))
+            saved = self._restored_joint_states.pop(joint, None)
+            monitor = JointMonitor(joint, self.config) if saved is None else \
+                JointMonitor.from_state(joint, self.config, saved)
             self.joints[joint] = monitor
             log.info("joint %d: monitoring started", joint)
         return monitor
 
-    def _close_cycle(self, cycle: int) -> list[CycleOutput]:
-        outputs: list[CycleOutput] = []
+    def _close_cycle(self, cycle: int) -> list[Symptom]:
+        outputs: list[Symptom] = []
         self.stats.cycles += 1
         partial = cycle == self._partial_cycle
         for joint in sorted(self.joints):
@@ -119,57 +118,56 @@ class Agent:
                 monitor.discard_cycle()
                 self.stats.duplicate_cycles_skipped += 1
                 continue
-            out = monitor.end_cycle(cycle, self.config.robot, partial=partial)
+            symptom = monitor.end_cycle(cycle, partial=partial)
             if partial:
-                out.symptom["partial"] = True
                 self.stats.partial_cycles += 1
-            outputs += self._emit(joint, out)
+            outputs += self._emit(symptom)
         return outputs
 
-    def _emit(self, joint: int, out: CycleOutput) -> list[CycleOutput]:
-        cycle = out.symptom["cycle"]
-        self._last_emitted[joint] = cycle
+    def _emit(self, symptom: Symptom) -> list[Symptom]:
+        self._last_emitted[symptom.joint] = symptom.cycle
         self.stats.symptoms += 1
-        for alarm in out.alarms:
-            self.stats.alarms.append({"joint": alarm["joint"], "cycle": alarm["cycle"], "quantity": alarm["quantity"]})
+        for alarm in symptom.alarms:
+            self.stats.alarms.append({"joint": alarm.joint, "cycle": alarm.cycle, "quantity": alarm.quantity})
             log.warning("ALARM robot %s joint %d cycle %d: %s statistic %.3g > threshold %.3g",
-                        alarm["robot"], joint, cycle, alarm["quantity"], alarm.get("statistic") or float("nan"),
-                        alarm.get("threshold") or float("nan"))
+                        alarm.robot, alarm.joint, alarm.cycle, alarm.quantity,
+                        alarm.statistic if alarm.statistic is not None else float("nan"),
+                        alarm.threshold if alarm.threshold is not None else float("nan"))
         for sink in self.sinks:
-            self._call(sink.on_symptom, out)
-            for alarm in out.alarms:
-                self._call(sink.on_alarm, alarm)
-        return [out]
+            self._deliver(sink.on_symptom, symptom)
+            for alarm in symptom.alarms:
+                self._deliver(sink.on_alarm, alarm)
+        return [symptom]
 
-    def _call(self, fn, arg) -> None:
+    def _deliver(self, fn: Callable[[Any], None], record: Any) -> None:
         try:
-            fn(arg)
+            fn(record)
         except Exception:  # a sink must never stop the agent
             self.stats.sink_errors += 1
             log.exception("output sink failed; counted and continuing")
 
     # ------------------------------------------------------------------ control
-    def finish(self, close_open_cycle: bool = True) -> list[CycleOutput]:
+    def finish(self, close_open_cycle: bool = True) -> list[Symptom]:
         """End of stream: optionally close the open cycle (replay of a complete log)."""
         with self.lock:
             return self._finish(close_open_cycle)
 
-    def _finish(self, close_open_cycle: bool) -> list[CycleOutput]:
-        outputs: list[CycleOutput] = []
+    def _finish(self, close_open_cycle: bool) -> list[Symptom]:
+        outputs: list[Symptom] = []
         if not close_open_cycle:
             return outputs
         for monitor in self.joints.values():
-            monitor.plateaus_flush()
+            monitor.flush()
         if self._open_cycle is not None:
             outputs = self._close_cycle(self._open_cycle)
             self._open_cycle = None
         else:   # no status frames: each joint closes its own inferred cycle if it holds data
             for joint, monitor in sorted(self.joints.items()):
                 if monitor.has_cycle_data():
-                    outputs += self._emit(joint, monitor.end_cycle(monitor.cycles, self.config.robot))
+                    outputs += self._emit(monitor.end_cycle(monitor.cycles))
         return outputs
 
-    def declare_maintenance(self, joint: int) -> list[dict[str, Any]]:
+    def declare_maintenance(self, joint: int) -> list[Alarm]:
         """Gearbox replaced or serviced: relearn the joint's nominal models; raised alarms are cleared
         (one "cleared" alarm record per quantity, returned and sent to the sinks). Thread-safe.
         Only for a joint the agent monitors (seen on the bus or restored from the state)."""
@@ -180,42 +178,53 @@ class Agent:
             if joint not in self.joints and joint not in self._restored_joint_states:
                 raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
                                  "a maintenance declaration is only needed for a joint with learned models")
-            monitor = self._monitor(int(joint))
-            cycle = self._last_emitted.get(int(joint), -1)
-            cleared = monitor.declare_maintenance(self.config.robot, cycle)
+            cycle = self._last_emitted.get(joint, -1)
+            cleared = self._monitor(joint).declare_maintenance(cycle)
             log.warning("joint %d: maintenance declared after cycle %d; nominal models are relearned", joint, cycle)
             for alarm in cleared:
                 for sink in self.sinks:
-                    self._call(sink.on_alarm, alarm)
+                    self._deliver(sink.on_alarm, alarm)
             self.save_state()
             return cleared
 
-    def health(self) -> dict[str, Any]:
+    def poll(self, now: float) -> None:
+        """Periodic work without frames: E2E timeout supervision (NO_NEW_DATA per identifier)."""
         with self.lock:
-            return self._health()
+            self.ingest.e2e.poll(now)
 
-    def _health(self) -> dict[str, Any]:
-        wall = time.perf_counter() - self.stats.started
-        h = self.ingest.counters()
-        h.update({
-            "robot": self.config.robot, "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
-            "alarms": len(self.stats.alarms), "sink_errors": self.stats.sink_errors,
-            "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
-            "partial_cycles": self.stats.partial_cycles,
-            "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
-            "segmentation": {str(j): m.plateaus.counters.as_dict() for j, m in self.joints.items()},
-            "skipped": {str(j): dict(m.extractor.totals) for j, m in self.joints.items()},
-        })
-        return h
+    def publish_health(self, extra: dict[str, Any] | None = None) -> Health:
+        """Build the health record (plus ``extra`` counters of the caller) and send it to every sink."""
+        health = self.health(extra)
+        for sink in self.sinks:
+            self._deliver(sink.on_health, health)
+        return health
+
+    def health(self, extra: dict[str, Any] | None = None) -> Health:
+        with self.lock:
+            wall = time.perf_counter() - self.stats.started
+            h: dict[str, Any] = self.ingest.counters()
+            h.update({
+                "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
+                "alarms": len(self.stats.alarms), "sink_errors": self.stats.sink_errors,
+                "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
+                "partial_cycles": self.stats.partial_cycles,
+                "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
+                "segmentation": {str(j): m.counters()["segmentation"] for j, m in self.joints.items()},
+                "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
+                "e2e": dict(self.ingest.e2e.stats),
+                "no_new_data": self.ingest.e2e.stats["no_new_data"],
+            })
+            h.update(extra or {})
+            return Health(self.config.robot, h)
 
     def run_statistics(self) -> dict[str, Any]:
-        """The run statistics of SYSTEM.md (``replay --json``)."""
-        h = self.health()
+        """The run statistics (``replay --json``, docs/OUTPUTS.md)."""
+        h = self.health().counters
         keys = ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated", "unknown_id", "malformed")
         out = {k: h[k] for k in keys}
         out.update({"cycles": self.stats.cycles, "symptoms": self.stats.symptoms, "alarms": list(self.stats.alarms),
                     "frames_per_second": h["frames_per_second"], "wall_s": h["wall_s"]})
-        out["details"] = {k: v for k, v in h.items() if k not in out and k not in ("robot",)}
+        out["details"] = {k: v for k, v in h.items() if k not in out and k not in ("e2e", "no_new_data")}
         return out
 
     # ------------------------------------------------------------------ persistence
@@ -245,4 +254,4 @@ class Agent:
     def close(self) -> None:
         self.save_state()
         for sink in self.sinks:
-            self._call(lambda _: sink.close(), None)
+            self._deliver(lambda _: sink.close(), None)

@@ -38,13 +38,24 @@ class JointSamples:
     segment: NDArray[np.int64]      # controller segment code in force (-1: unknown)
 
 
+@dataclass(frozen=True)
+class JointStatusSample:
+    """One JointStatus frame: the controller's load estimate μl and its σl (fraction of max. torque)
+    and the motor temperature [°C]."""
+
+    joint: int
+    load_estimate: float
+    load_std: float
+    motor_temperature: float
+
+
 @dataclass
 class CycleRun:
     """A maximal run of rows of a block under one controller cycle number (``None``: unknown)."""
 
     cycle: int | None
     samples: dict[int, JointSamples]
-    load_estimates: list[tuple[int, float, float]]     # (joint, μl, σl)
+    joint_status: list[JointStatusSample]
     starts_at_boundary: bool | None = None              # first run of a cycle: was its start seen?
 
 
@@ -88,7 +99,8 @@ class Ingest:
     def counters(self) -> dict[str, int]:
         return dict(self.c.__dict__)
 
-    def process(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> IngestBlock:
+    def update(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> IngestBlock:
+        """Decode, check and split one block of frames (``data`` (n, 8) uint8, timestamps in s)."""
         n = int(np.asarray(ids).shape[0])
         if n == 0:
             return IngestBlock()
@@ -234,8 +246,9 @@ class Ingest:
                     samples[int(joint)] = JointSamples(tick=ticks[r], speed=dec.speed[r], torque=dec.torque[r],
                                                        segment=row_segment[r])
             js = np.flatnonzero(jstatus[sl]) + s
-            loads = [(int(dec.joint[r]), float(dec.load_estimate[r]), float(dec.load_std[r])) for r in js]
-            runs.append(CycleRun(cycle=None if cyc < 0 else cyc, samples=samples, load_estimates=loads,
+            status = [JointStatusSample(int(dec.joint[r]), float(dec.load_estimate[r]), float(dec.load_std[r]),
+                                        float(dec.motor_temperature[r])) for r in js]
+            runs.append(CycleRun(cycle=None if cyc < 0 else cyc, samples=samples, joint_status=status,
                                  starts_at_boundary=first_seen.get(cyc)))
         return runs
 

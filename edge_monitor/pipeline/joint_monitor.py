@@ -1,294 +1,158 @@
-"""Per-joint monitor: chains plateau detection → friction extraction → wear estimation, the
-streaming KDE/KL detector, and one sequential GLR detector per per-cycle quantity, and builds the
-per-cycle symptom record of SYSTEM.md.
+"""Per-joint monitor: sample blocks → cycle assembly → registered features → detectors → symptom.
 
-Per-joint memory is bounded: O(speed levels) + O(KDE grid) + O(GLR window · components).
+Two entry points share the per-cycle pipeline: the streaming path (:meth:`JointMonitor.update` with
+sample blocks, :meth:`JointMonitor.end_cycle` on the controller's cycle boundary) and the cycle-level
+path (:meth:`JointMonitor.update_cycle` with a ready :class:`CycleInput`, e.g. the simulator's fast
+mode). Per-joint memory is bounded: O(speed levels) + O(KDE grid) + O(GLR window · components).
 """
 
 from __future__ import annotations
 
 import logging
-import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.config import AgentConfig
-from edge_monitor.records import SCHEMA_VERSION
-from protocol.frames import SEGMENT_PRODUCTION
-from edge_monitor.features.disturbance_weights import WeightFunction
-from edge_monitor.features.friction_extraction import FrictionCurve, FrictionExtractor
-from edge_monitor.features.kl_monitor import KLMonitor
-from edge_monitor.features.segmentation import PlateauDetector
-from edge_monitor.stats.sequential_detector import SequentialDetector
-from edge_monitor.features.wear_estimation import WearEstimator
+from edge_monitor.errors import StateMismatch
+from edge_monitor.features.base import CycleInput, Feature
+from edge_monitor.features.registry import FEATURES, FeatureSpec
+from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.cycle_assembly import CycleAssembler
+from edge_monitor.pipeline.detectors import DetectorBank
+from edge_monitor.records import Alarm, Symptom, finite_or_none
 
 log = logging.getLogger(__name__)
 
 
-
-def _finite_or_none(x: Any) -> float | None:
-    try:
-        f = float(x)
-    except (TypeError, ValueError):
-        return None
-    return f if math.isfinite(f) else None
-
-
-@dataclass
-class CycleOutput:
-    """What a joint produces at the end of a cycle: the symptom record (JSON-ready), alarm
-    transitions, and extras for visualisation that are not part of the published record."""
-
-    symptom: dict[str, Any]
-    alarms: list[dict[str, Any]] = field(default_factory=list)
-    extras: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
-class _LoadAccumulator:
-    """Mean of the controller's load estimates received during the cycle."""
-
-    n: int = 0
-    total: float = 0.0
-    std: float = float("nan")
-
-    def add(self, estimate: float, std: float) -> None:
-        if math.isfinite(estimate):
-            self.n += 1
-            self.total += estimate
-        if math.isfinite(std):
-            self.std = std
-
-    def mean(self) -> float:
-        return self.total / self.n if self.n else float("nan")
-
-
 class JointMonitor:
-    """All detectors of one joint. Feed sample blocks and load estimates; call ``end_cycle``."""
+    """All features and detectors of one joint (see the module docstring)."""
 
     def __init__(self, joint: int, config: AgentConfig) -> None:
         self.joint = joint
         self.config = config
-        self.plateaus = PlateauDetector(config.segmentation)
-        self.extractor = FrictionExtractor(config.segmentation.speeds)
-        self.wear = WearEstimator(params=config.friction_for(joint), noise_std=config.wear.noise_std,
-                                  temperature_range=(config.wear.temperature_min, config.wear.temperature_max),
-                                  method=config.wear.method)
-        self.kl = self._new_kl_monitor() if config.kl.enabled else None
-        self.detectors = {q: self._new_detector(q) for q in config.decision.quantities} \
-            if config.decision.enabled else {}
-        self._load = _LoadAccumulator()
-        self._alarmed: dict[str, bool] = {}     # latched alarm per quantity (raised once, until maintenance)
-        self._last_tick = 0
-        self._cut_short_seen = 0
-        self.cycles = 0
+        self.assembler = CycleAssembler(joint, config.segmentation, config.rate_hz)
+        self.features: dict[str, Feature] = {spec.name: spec.build(joint, config)
+                                             for spec in FEATURES if spec.enabled(config)}
+        self.detectors = DetectorBank(config.decision, self._sources())
         self.maintenances = 0
 
-    # ------------------------------------------------------------------ construction
-    def _new_kl_monitor(self) -> KLMonitor:
-        k = self.config.kl
-        return KLMonitor(n_nominal_cycles=k.n_nominal_cycles, n_grid=k.n_grid,
-                         weights=WeightFunction(alpha=k.alpha, beta=k.beta), window=k.window, center=k.center)
+    def _sources(self) -> dict[str, dict[str, Any]]:
+        return {name: feature.state_dict().get("config", {}) for name, feature in self.features.items()}
 
-    def _new_detector(self, quantity: str) -> SequentialDetector:
-        d = self.config.decision
-        dim = 3 if quantity == "joint" else 1
-        density = d.density_joint if quantity == "joint" else d.density
-        pf = d.pf_joint if quantity == "joint" else d.pf
-        return SequentialDetector(dim=dim, n_nominal=d.n_nominal, density=density, pf=pf, window=d.window,
-                                  gamma0=d.gamma0, rho=d.rho)
+    @property
+    def cycles(self) -> int:
+        """Cycles this joint has closed."""
+        return self.assembler.closed
 
     # ------------------------------------------------------------------ streaming input
-    def add_samples(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
-                    segment: NDArray[np.int64] | None = None) -> list[CycleOutput]:
+    def update(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
+               segment: NDArray[np.int64] | None = None) -> list[Symptom]:
         """One block of this joint's samples in tick order (speed rad/s, torque fraction).
 
         ``segment`` is the controller's segment code per sample, or ``None`` when the controller
-        sends no status frame; then the joint infers cycle boundaries itself: a plateau of a
-        (level, direction) already measured in the current cycle starts a new cycle, and the
-        finished cycle's output is returned.
+        sends no status frame; then the joint infers cycle boundaries itself and returns the symptoms
+        of the cycles it closed.
         """
         if tick.size == 0:
             return []
-        outputs: list[CycleOutput] = []
-        exclude = None if segment is None else (segment == SEGMENT_PRODUCTION)
-        for plateau in self.plateaus.update(tick, speed, torque, exclude):
-            if segment is None and self.extractor.has(plateau.level, plateau.direction):
-                outputs.append(self.end_cycle(self.cycles, self.config.robot))
-            self.extractor.update(plateau)
-        if self.kl is not None:
-            self.kl.add(torque, speed, segment)
-        self._last_tick = int(tick[-1])
-        return outputs
+        symptoms = [self.update_cycle(cycle) for cycle in self.assembler.update(tick, speed, torque, segment)]
+        for feature in self.features.values():
+            feature.update_samples(torque, speed, segment)
+        return symptoms
+
+    def add_status(self, load_estimate: float, load_std: float, motor_temperature: float) -> None:
+        """One JointStatus frame of this joint (load estimate and σl dimensionless, temperature °C)."""
+        self.assembler.add_status(load_estimate, load_std, motor_temperature)
 
     def has_cycle_data(self) -> bool:
         """Whether the open cycle holds any friction data."""
-        return self.extractor.n_pending > 0
+        return self.assembler.has_data()
 
-    def plateaus_flush(self) -> None:
+    def flush(self) -> None:
         """End of stream: close a plateau still in progress."""
-        for plateau in self.plateaus.flush():
-            self.extractor.update(plateau)
+        self.assembler.flush()
 
-    def add_load_estimate(self, estimate: float, std: float) -> None:
-        self._load.add(estimate, std)
-
-    # ------------------------------------------------------------------ cycle end
     def discard_cycle(self) -> None:
         """Drop the open cycle's data (a cycle already published before a restart)."""
-        self.extractor.end_cycle()
-        if self.kl is not None:
-            self.kl.discard_cycle()
-        self._load = _LoadAccumulator()
+        self.assembler.discard_cycle()
+        for feature in self.features.values():
+            feature.discard_cycle()
 
-    def end_cycle(self, cycle: int, robot: str, partial: bool = False) -> CycleOutput:
-        """Close the cycle. A ``partial`` cycle (its beginning was not seen) is published with its
-        friction data and wear estimate, but feeds neither KL learning nor the detectors."""
-        cut = self.plateaus.counters.cut_short - self._cut_short_seen
-        if cut:
-            self.extractor.skip("plateau cut short", cut)
-            self._cut_short_seen = self.plateaus.counters.cut_short
-        curve = self.extractor.end_cycle()
-        wear = self._estimate_wear(curve)
-        kl = None
-        if self.kl is not None:
-            if partial:
-                self.kl.discard_cycle()
-            else:
-                kl = self.kl.end_cycle(cycle)
-        kl_record = self._kl_record(kl)
-        kl_transform = _safe_log if self.config.decision.log_kl else (lambda x: x)
-        values = {"wear": wear.estimate if wear is not None else float("nan"),
-                  "kl_raw": kl_transform(_nan_if_none(kl_record["raw"])),
-                  "kl_weighted": kl_transform(_nan_if_none(kl_record["weighted"]))}
-        decisions, alarms = self._decide(values, cycle, robot) if not partial else (self._idle_decisions(), [])
-        self.cycles += 1
-        load_mean = self._load.mean()
-        symptom: dict[str, Any] = {
-            "schema": SCHEMA_VERSION, "robot": robot, "joint": self.joint, "cycle": cycle,
-            "t": self._last_tick / self.config.rate_hz,
-            "friction": curve.to_record(),
-            "wear": wear.to_record() if wear is not None else {"estimate": None, "std": None, "temperature": None},
-            "kl": kl_record,
-            "decisions": decisions,
-            "alarm": any(d.get("alarm") for d in decisions.values()),
-            "load": {"mean": _finite_or_none(load_mean), "std": _finite_or_none(self._load.std)},
-            "skipped": curve.skipped,
-            "critical_wear": self.config.wear.critical,
-        }
-        reasons = {k: v for k, v in (("wear", getattr(wear, "reason", None)),
-                                     ("kl", getattr(kl, "reason", None))) if v}
-        if reasons:
-            symptom["reasons"] = reasons
+    def end_cycle(self, cycle: int, partial: bool = False) -> Symptom:
+        """Close the open cycle ``cycle``. A ``partial`` cycle (its beginning was not seen) is published
+        with its friction data and wear estimate but feeds neither learning nor the detectors."""
+        return self.update_cycle(self.assembler.end_cycle(cycle, partial))
+
+    # ------------------------------------------------------------------ per-cycle pipeline
+    def update_cycle(self, cycle: CycleInput) -> Symptom:
+        """Features → detectors → symptom for one closed cycle of this joint."""
+        robot = self.config.robot
+        sections: dict[str, dict[str, Any]] = {}
+        values: dict[str, float] = {}
+        reasons: dict[str, str] = {}
         extras: dict[str, Any] = {}
-        density = getattr(kl, "density", None)
-        if density is not None:
-            extras["density"] = density
-        self._load = _LoadAccumulator()
-        return CycleOutput(symptom=symptom, alarms=alarms, extras=extras)
+        for spec in FEATURES:
+            feature = self.features.get(spec.name)
+            if feature is None:
+                sections[spec.name] = dict(spec.empty_section)
+                values.update({q: float("nan") for q in spec.quantities})
+                continue
+            out = feature.update(cycle)
+            sections[spec.name], extras = out.section, {**extras, **out.extras}
+            values.update(out.values)
+            if out.reason:
+                reasons[spec.name] = out.reason
+        if cycle.partial:
+            decisions, alarms = self.detectors.idle(), []
+        else:
+            decisions, alarms = self.detectors.update(values, robot, self.joint, cycle.cycle)
+        return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
+                       friction=cycle.friction.to_record(), sections=sections, decisions=decisions,
+                       load={"mean": finite_or_none(cycle.load_mean), "std": finite_or_none(cycle.load_std)},
+                       skipped=cycle.friction.skipped, critical_wear=self.config.wear.critical,
+                       reasons=reasons, partial=cycle.partial, alarms=alarms, extras=extras)
 
-    @staticmethod
-    def _kl_record(kl: Any) -> dict[str, Any]:
-        """``kl`` field: raw/weighted (SYSTEM.md) plus the simple μ0 + 3σ0 thresholds, tail counts
-        and the nearest stored mode when available."""
-        if kl is None:
-            return {"raw": None, "weighted": None}
-        out: dict[str, Any] = {"raw": _finite_or_none(kl.raw), "weighted": _finite_or_none(kl.weighted)}
-        if kl.threshold_3sigma:
-            out["threshold_3sigma"] = {k: _finite_or_none(v) for k, v in kl.threshold_3sigma.items()}
-        if kl.outside:
-            out["outside"] = kl.outside
-        if kl.nearest_mode is not None:
-            out["nearest_mode"] = kl.nearest_mode
-        out["n_samples"] = kl.n_samples
-        return out
-
-    def _estimate_wear(self, curve: FrictionCurve):
-        if not self.config.wear.enabled:
-            return None
-        load_mean = self._load.mean()
-        load_std = self._load.std if math.isfinite(self._load.std) else self.config.wear.default_load_std
-        if not math.isfinite(load_mean):   # no JointStatus frame this cycle: the configured prior
-            load_mean = self.config.wear.default_load_mean
-        return self.wear.estimate(np.asarray(curve.speeds), np.asarray(curve.torque), load_mean, load_std,
-                                  friction_stderr=np.asarray(curve.stderr) if curve.stderr else None)
-
-    def _idle_decisions(self) -> dict[str, dict]:
-        """Decision fields of a cycle that did not enter the detectors (state unchanged)."""
-        return {q: {"state": d.state,
-                    "statistic": None, "threshold": None, "alarm": self._alarmed.get(q, False),
-                    "change_cycle": None, "delta": None, "miss_probability": None,
-                    "reason": "partial cycle: not used by the detectors"}
-                for q, d in self.detectors.items()}
-
-    def _decide(self, values: dict[str, float], cycle: int, robot: str) -> tuple[dict, list]:
-        decisions: dict[str, dict] = {}
-        alarms: list[dict] = []
-        for quantity, detector in self.detectors.items():
-            if quantity == "joint":
-                value: Any = [values["wear"], values["kl_raw"], values["kl_weighted"]]
-            else:
-                value = values[quantity]
-            was_alarmed = self._alarmed.get(quantity, False)
-            decision = detector.update(value, cycle)
-            self._alarmed[quantity] = bool(decision.alarm)
-            record = decision.to_record()
-            if getattr(decision, "reason", None):
-                record["reason"] = decision.reason
-            decisions[quantity] = record
-            if record.get("alarm") and not was_alarmed:
-                alarms.append(self._alarm_record(robot, cycle, quantity, record, "raised"))
-        return decisions, alarms
-
-    def _alarm_record(self, robot: str, cycle: int, quantity: str, record: dict, state: str) -> dict:
-        return {"schema": SCHEMA_VERSION, "robot": robot, "joint": self.joint, "cycle": cycle, "quantity": quantity,
-                "state": state, "statistic": record.get("statistic"), "threshold": record.get("threshold"),
-                "miss_probability": record.get("miss_probability"), "change_cycle": record.get("change_cycle")}
-
-    def declare_maintenance(self, robot: str, cycle: int) -> list[dict]:
-        """Gearbox replaced or serviced: relearn nominal models; clear raised alarms."""
-        cleared = [self._alarm_record(robot, cycle, q, {}, "cleared")
-                   for q in self.detectors if self._alarmed.get(q)]
-        for det in self.detectors.values():
-            det.reset()
-        self._alarmed.clear()
-        if self.kl is not None:
-            self.kl.reset()
+    def declare_maintenance(self, cycle: int) -> list[Alarm]:
+        """Gearbox replaced or serviced: relearn the nominal models; one "cleared" alarm per raised one."""
+        cleared = self.detectors.reset(self.config.robot, self.joint, cycle)
+        for feature in self.features.values():
+            feature.reset()
         self.maintenances += 1
         return cleared
 
+    def counters(self) -> dict[str, Any]:
+        return self.assembler.counters()
+
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        return {
-            "joint": self.joint, "cycles": self.cycles, "alarmed": dict(self._alarmed),
-            "maintenances": self.maintenances,
-            "plateaus": self.plateaus.state_dict(), "extractor": self.extractor.state_dict(),
-            "kl": self.kl.state_dict() if self.kl is not None else None,
-            "detectors": {q: d.state_dict() for q, d in self.detectors.items()},
-        }
+        return {"joint": self.joint, "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
+                "features": {name: f.state_dict() for name, f in self.features.items()},
+                "detectors": self.detectors.state_dict()}
 
-    def load_state(self, state: dict[str, Any]) -> None:
-        """Restore learned models and detector state (configuration comes from the current config)."""
-        self.cycles = int(state.get("cycles", 0))
-        self.maintenances = int(state.get("maintenances", 0))
-        self._alarmed = {str(q): bool(v) for q, v in state.get("alarmed", {}).items()}
-        self.plateaus = PlateauDetector.from_state(state.get("plateaus", {}), self.config.segmentation)
-        self._cut_short_seen = self.plateaus.counters.cut_short
-        if self.kl is not None and state.get("kl") is not None:
-            self.kl = KLMonitor.from_state(state["kl"])
-        for q, s in state.get("detectors", {}).items():
-            if q in self.detectors:
-                self.detectors[q] = SequentialDetector.from_state(s)
+    @classmethod
+    def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any]) -> "JointMonitor":
+        """A monitor with the learned models of ``state``. A component learned with another config is
+        relearned and the change is logged as a warning (``on_config_change = "keep"`` is handled by
+        the caller, which passes the saved config instead)."""
+        monitor = cls(joint, config)
+        monitor.maintenances = int(state.get("maintenances", 0))
+        assembly = state.get("assembly")
+        if isinstance(assembly, dict):
+            monitor.assembler.load_state(assembly)
+        saved = state.get("features", {})
+        for spec in FEATURES:
+            if spec.name in monitor.features and isinstance(saved.get(spec.name), dict):
+                monitor._restore_feature(spec, saved[spec.name])
+        monitor.detectors = DetectorBank(config.decision, monitor._sources())
+        for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
+            log.warning("%s", message)
+        return monitor
 
-
-def _safe_log(x: float) -> float:
-    """log of a KL distance for the detectors; non-positive or non-finite values become NaN (skipped)."""
-    return math.log(x) if math.isfinite(x) and x > 0 else float("nan")
-
-
-def _nan_if_none(x: Any) -> float:
-    f = _finite_or_none(x)
-    return float("nan") if f is None else f
+    def _restore_feature(self, spec: FeatureSpec, state: dict[str, Any]) -> None:
+        try:
+            self.features[spec.name] = spec.restore(self.joint, self.config, state)
+        except StateMismatch as exc:
+            log.warning("joint %d: %s; relearning it", self.joint, exc)
+        except (KeyError, TypeError, ValueError) as exc:
+            log.warning("joint %d: saved %s state unusable (%s); relearning it", self.joint, spec.name, exc)

@@ -11,6 +11,7 @@ from typing import Any
 
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import LiveSource
+from edge_monitor.records import Health
 
 log = logging.getLogger(__name__)
 status_log = logging.getLogger("edge_monitor.status")
@@ -28,22 +29,20 @@ class LiveRunner:
     discarded_at_stop: int = 0
     link_failure: str | None = None
 
-    def health(self) -> dict[str, Any]:
-        h = self.agent.health()
+    def link_counters(self) -> dict[str, Any]:
+        """The live loop's own counters (receive queue, bus, processing), added to the agent's health."""
         listener = self.source.listener
-        h.update({"time": time.time(), "queue_depth": self.source.queue_depth(),
-                  "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
-                  "no_new_data": self.agent.ingest.e2e.stats["no_new_data"], "processing_errors": self.processing_errors,
-                  "malformed_lines": self.source.malformed_lines(), "link_failure": self.link_failure,
-                  "discarded_at_stop": self.discarded_at_stop})
-        h["e2e"] = dict(self.agent.ingest.e2e.stats)
-        return h
+        return {"time": time.time(), "queue_depth": self.source.queue_depth(),
+                "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
+                "processing_errors": self.processing_errors, "malformed_lines": self.source.malformed_lines(),
+                "link_failure": self.link_failure, "discarded_at_stop": self.discarded_at_stop}
+
+    def health(self) -> Health:
+        return self.agent.health(self.link_counters())
 
     def _tick(self) -> None:
-        self.agent.ingest.e2e.poll(time.time())        # counts NO_NEW_DATA per identifier in its stats
-        h = self.health()
-        for sink in self.agent.sinks:
-            self.agent._call(sink.on_health, h)
+        self.agent.poll(time.time())        # counts NO_NEW_DATA per identifier in the E2E statistics
+        h = self.agent.publish_health(self.link_counters()).counters
         status_log.info("status: %d frames (%.0f/s), ok %d, crc %d, lost %d, queue %d (dropped %d), "
                         "cycles %d, symptoms %d, alarms %d", h["frames_total"], h["frames_per_second"],
                         h["frames_ok"], h["crc_errors"], h["counter_lost"], h["queue_depth"], h["queue_dropped"],
@@ -92,14 +91,14 @@ class LiveRunner:
         until every received frame is processed and none has arrived for ``quiet_s``; False if
         ``limit_s`` passed first."""
         deadline = time.monotonic() + limit_s
-        listener, counters = self.source.listener, self.agent.ingest.c
+        listener = self.source.listener
         last, last_change = -1, time.monotonic()
         while time.monotonic() < deadline:
             received = listener.received
             if received != last:
                 last, last_change = received, time.monotonic()
             elif (time.monotonic() - last_change >= quiet_s and self.source.queue_depth() == 0
-                  and counters.frames_total >= received):
+                  and self.agent.frames_total >= received):
                 return True
             time.sleep(poll_s)
         return False
@@ -108,7 +107,7 @@ class LiveRunner:
         """One block through the agent; an unexpected error is logged and counted, never fatal."""
         cycles_before = self.agent.stats.cycles
         try:
-            self.agent.process_frames(*block)
+            self.agent.update(*block)
         except Exception:
             self.processing_errors += 1
             if self.processing_errors in (1, 10, 100) or self.processing_errors % 1000 == 0:

@@ -14,16 +14,13 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from edge_monitor.records import dumps
+from edge_monitor.errors import StateError
+from edge_monitor.records import to_json
 
 log = logging.getLogger(__name__)
 
 STATE_FILE = "agent_state.json"
 STATE_VERSION = 1
-
-
-class StateError(ValueError):
-    """The state directory or file cannot be used."""
 
 
 class StateStore:
@@ -54,7 +51,7 @@ class StateStore:
         return state
 
     def save(self, state: dict[str, Any]) -> None:
-        payload = dumps({"version": STATE_VERSION, **state})
+        payload = to_json({"version": STATE_VERSION, **state})
         fd, tmp = tempfile.mkstemp(prefix=".agent_state.", suffix=".tmp", dir=self.dir)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as fh:

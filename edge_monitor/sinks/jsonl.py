@@ -6,8 +6,7 @@ import logging
 from pathlib import Path
 from typing import Any, TextIO
 
-from edge_monitor.pipeline.joint_monitor import CycleOutput
-from edge_monitor.records import dumps
+from edge_monitor.records import Alarm, Health, Symptom, to_json
 
 log = logging.getLogger(__name__)
 
@@ -37,21 +36,21 @@ class JsonlSink:
             self.failed += 1
             return
         try:
-            self._fh.write(dumps(record) + "\n")
+            self._fh.write(to_json(record) + "\n")
             self.written += 1
         except (OSError, ValueError) as exc:
             self.failed += 1
             log.error("JSONL output %s: write failed (%s)", self.path, exc)
 
-    def on_symptom(self, output: CycleOutput) -> None:
-        self._write(output.symptom)
+    def on_symptom(self, symptom: Symptom) -> None:
+        self._write(symptom.to_dict())
 
-    def on_alarm(self, alarm: dict[str, Any]) -> None:
+    def on_alarm(self, alarm: Alarm) -> None:
         if self.include_alarms:
-            self._write({"kind": "alarm", **alarm})
+            self._write({"kind": "alarm", **alarm.to_dict()})
 
-    def on_health(self, health: dict[str, Any]) -> None:
-        pass
+    def on_health(self, health: Health) -> None:
+        """Health is not written to the symptom file."""
 
     def close(self) -> None:
         if self._fh is not None and self.path != "-":

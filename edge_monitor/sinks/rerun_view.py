@@ -31,6 +31,8 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from edge_monitor.records import Alarm, Health, Symptom
+from edge_monitor.sinks.rerun_blueprint import fleet_blueprint, joint_path
 from joint_model import CRITICAL_WEAR, WEAR_MAX
 
 from edge_monitor.sinks.loopback import free_loopback_port
@@ -56,10 +58,6 @@ def cycle_colors(cycles: np.ndarray, span: int) -> np.ndarray:
     anchors = np.arange(len(_VIRIDIS))
     rgb = np.stack([np.interp(x, anchors, _VIRIDIS[:, c]) for c in range(3)], axis=-1)
     return rgb.round().astype(np.uint8)
-
-
-def joint_path(robot: str, joint: int | str) -> str:
-    return f"/robot/{robot}/joint/{joint}"
 
 
 def _display_available() -> bool:
@@ -373,41 +371,34 @@ class RerunSink:
 
     def _send_blueprint(self) -> None:
         try:
-            self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+            self.rec.send_blueprint(fleet_blueprint(self._layout, self._health_robots), make_active=True,
+                                    make_default=True)
         except Exception as exc:
             self._fail("blueprint", exc)
 
-    def blueprint(self) -> Any:
-        """Tabs: fleet wear overview, one tab per robot joint, one per robot agent."""
-        import rerun.blueprint as rrb
 
-        all_cycles = rrb.VisibleTimeRange("cycle", start=rrb.TimeRangeBoundary.infinite(),
-                                          end=rrb.TimeRangeBoundary.cursor_relative())
-        overview, tabs = [], []
-        for robot in sorted(self._layout):
-            for joint in sorted(self._layout[robot]):
-                base = joint_path(robot, joint)
-                overview.append(rrb.TimeSeriesView(origin=f"{base}/wear", name=f"{robot} · joint {joint} wear"))
-                tabs.append(rrb.Grid(
-                    rrb.TimeSeriesView(origin=f"{base}/wear", name="wear estimate ± 2σ"),
-                    rrb.TimeSeriesView(origin=f"{base}/kl", name="KL distance"),
-                    rrb.TimeSeriesView(origin=f"{base}/glr", name="GLR statistic vs threshold"),
-                    rrb.TimeSeriesView(origin=f"{base}/miss", name="miss probability",
-                                       axis_y=rrb.ScalarAxis(range=(0.0, 1.0))),
-                    rrb.Spatial2DView(origin=f"{base}/friction", name="friction ‰ vs speed rad/s (by cycle)",
-                                      time_ranges=[all_cycles]),
-                    rrb.Spatial2DView(origin=f"{base}/density", name="torque density: cycle vs nominal"),
-                    rrb.TimeSeriesView(origin=f"{base}/temperature", name="lubricant temperature °C"),
-                    rrb.TextLogView(origin=f"{base}/alarms", name="alarms"),
-                    grid_columns=2, name=f"{robot} · joint {joint}"))
-        for robot in sorted(set(self._layout) | self._health_robots):
-            tabs.append(rrb.Vertical(
-                rrb.TextLogView(origin=f"/robot/{robot}", name=f"{robot} alarms"),
-                rrb.TimeSeriesView(origin=f"/robot/{robot}/agent/health", name=f"{robot} agent health"),
-                name=f"{robot} · agent"))
-        if overview:
-            tabs.insert(0, rrb.Grid(*overview, name="fleet wear"))
-        return rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=False)
+class RerunViewSink:
+    """Sink adapter: draws each symptom (with the cycle's torque density over the nominal one), alarm
+    and health record."""
+
+    def __init__(self, rerun_sink: RerunSink) -> None:
+        self.rerun = rerun_sink
+
+    def on_symptom(self, symptom: Symptom) -> None:
+        record = symptom.to_dict()
+        density = symptom.extras.get("density")
+        if density:
+            record["density"] = density
+        self.rerun.log_symptom(record)
+
+    def on_alarm(self, alarm: Alarm) -> None:
+        self.rerun.log_alarm(alarm.to_dict())
+
+    def on_health(self, health: Health) -> None:
+        self.rerun.log_health(health.numbers(), robot=health.robot)
+
+    def close(self) -> None:
+        self.rerun.close()
 
 
 def _grpc_url(arg: str) -> str:

@@ -24,31 +24,16 @@ from typing import Any, Callable, Iterable
 import zenoh
 import zenoh.ext as zext
 
-from edge_monitor.records import SCHEMA_VERSION, dumps as to_json
+from edge_monitor.records import Alarm, Health, Symptom, to_json
+from edge_monitor.sinks.keys import (ALARM, FRICTION, HEALTH, KINDS, STATE, SYMPTOM, agent_key, check_robot_name,
+                                     joint_key, parse_key, robot_of)
 
 log = logging.getLogger(__name__)
 
-SYMPTOM = "symptom"
-ALARM = "alarm"
-FRICTION = "friction"
-HEALTH = "health"
-KINDS = (SYMPTOM, ALARM, FRICTION, HEALTH)
 _STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", FRICTION: "friction", HEALTH: "health"}
 
 DEFAULT_CACHE_SIZE = 256          # samples per advanced publisher (≈ 2 h of 30 s cycles)
 HEARTBEAT_S = 0.5                 # sample-miss heartbeat period, s
-
-
-def symptom_key(robot: str, joint: int | str, kind: str) -> str:
-    """``edge/<robot>/<joint>/<kind>``."""
-    return f"edge/{robot}/{joint}/{kind}"
-
-
-def _check_robot_name(robot: str) -> str:
-    if not robot or any(c in robot for c in "/*$?#"):
-        raise ValueError(f"robot name {robot!r} must be non-empty without '/', '*', '$', '?', '#'; "
-                         "fix the robot name in the config")
-    return robot
 
 
 class SymptomPublisher:
@@ -65,7 +50,7 @@ class SymptomPublisher:
         if cache_size < 1:
             raise ValueError(f"cache_size={cache_size} must be >= 1; fix the zenoh cache size")
         self.session = session
-        self.robot = _check_robot_name(robot)
+        self.robot = check_robot_name(robot)
         self.cache_size = int(cache_size)
         self.state_provider = state_provider
         self.published = {kind: 0 for kind in KINDS}
@@ -76,12 +61,12 @@ class SymptomPublisher:
         self._joint_publishers: dict[int, dict[str, Any]] = {}
         self._closed = False
         self._health = session.declare_publisher(
-            f"edge/{robot}/agent/{HEALTH}", encoding=zenoh.Encoding.APPLICATION_JSON,
+            agent_key(robot, HEALTH), encoding=zenoh.Encoding.APPLICATION_JSON,
             congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE)
-        self._token = session.liveliness().declare_token(f"edge/{robot}/agent")
+        self._token = session.liveliness().declare_token(agent_key(robot))
         self._queryable = None
         if state_provider is not None:
-            self._queryable = session.declare_queryable(f"edge/{robot}/*/state", self._answer_state)
+            self._queryable = session.declare_queryable(joint_key(robot, "*", STATE), self._answer_state)
         for joint in joints:
             self._publishers_for(int(joint))
 
@@ -100,10 +85,10 @@ class SymptomPublisher:
             publishers = self._joint_publishers.get(joint)
             if publishers is None:
                 publishers = {
-                    SYMPTOM: self._advanced(symptom_key(self.robot, joint, SYMPTOM)),
-                    ALARM: self._advanced(symptom_key(self.robot, joint, ALARM)),
+                    SYMPTOM: self._advanced(joint_key(self.robot, joint, SYMPTOM)),
+                    ALARM: self._advanced(joint_key(self.robot, joint, ALARM)),
                     FRICTION: self.session.declare_publisher(
-                        symptom_key(self.robot, joint, FRICTION), encoding=zenoh.Encoding.APPLICATION_JSON,
+                        joint_key(self.robot, joint, FRICTION), encoding=zenoh.Encoding.APPLICATION_JSON,
                         congestion_control=zenoh.CongestionControl.DROP),
                 }
                 self._joint_publishers[joint] = publishers
@@ -123,10 +108,9 @@ class SymptomPublisher:
         """Publish one alarm raised/cleared record."""
         return self._put(ALARM, record.get("joint"), record)
 
-    def publish_friction(self, joint: int, cycle: int, friction: dict) -> bool:
-        """Publish the friction curve of a cycle: ``{"speeds", "torque", "stderr"}``."""
-        record = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": joint, "cycle": cycle, **friction}
-        return self._put(FRICTION, joint, record)
+    def publish_friction(self, record: dict) -> bool:
+        """Publish the friction curve of a cycle (``Symptom.friction_record()``)."""
+        return self._put(FRICTION, record.get("joint"), record)
 
     def publish_health(self, record: dict) -> bool:
         """Publish the agent's health counters/rates."""
@@ -169,7 +153,7 @@ class SymptomPublisher:
         try:
             selector = zenoh.KeyExpr(str(query.key_expr))
             for joint in self.joints:
-                key = zenoh.KeyExpr(symptom_key(self.robot, joint, "state"))
+                key = zenoh.KeyExpr(joint_key(self.robot, joint, STATE))
                 if key.intersects(selector):
                     state = self.state_provider(joint) if self.state_provider else {}
                     query.reply(key, to_json(state), encoding=zenoh.Encoding.APPLICATION_JSON)
@@ -215,22 +199,6 @@ class ReceivedRecord:
     record: dict
 
 
-def parse_key(key: str) -> tuple[str, int | None, str] | None:
-    """``edge/<robot>/<joint|agent>/<kind>`` → (robot, joint or None, kind); None for other keys."""
-    parts = key.split("/")
-    if len(parts) != 4 or parts[0] != "edge":
-        return None
-    joint: int | None
-    if parts[2] == "agent":
-        joint = None
-    else:
-        try:
-            joint = int(parts[2])
-        except ValueError:
-            return None
-    return parts[1], joint, parts[3]
-
-
 class SymptomSubscriber:
     """Advanced subscriber on ``key_expr`` collecting decoded records (thread-safe) and counting misses.
 
@@ -257,7 +225,7 @@ class SymptomSubscriber:
             recovery=zext.RecoveryConfig(periodic_queries=None, heartbeat=True))
         self._miss_listener = self._subscriber.sample_miss_listener(self._on_miss)
         self._liveliness = session.liveliness().declare_subscriber(
-            "edge/*/agent", self._on_liveliness, history=True)
+            agent_key("*"), self._on_liveliness, history=True)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -271,7 +239,7 @@ class SymptomSubscriber:
                 self.decode_errors += 1
             log.debug("undecodable sample on %s: %s", key, exc)
             return
-        received = ReceivedRecord(key, parsed[0], parsed[1], parsed[2], record)
+        received = ReceivedRecord(key, parsed.robot, parsed.joint, parsed.kind, record)
         with self._condition:
             if self.keep:
                 self._records.append(received)
@@ -288,7 +256,9 @@ class SymptomSubscriber:
         log.warning("missed %d sample(s) from publisher %s", miss.nb, miss.source)
 
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
-        robot = str(sample.key_expr).split("/")[1]
+        robot = robot_of(str(sample.key_expr))
+        if robot is None:
+            return
         with self._condition:
             if sample.kind == zenoh.SampleKind.PUT:
                 self.agents.add(robot)
@@ -326,3 +296,23 @@ class SymptomSubscriber:
 
     def __exit__(self, *_exc: object) -> None:
         self.close()
+
+
+class ZenohSink:
+    """Sink adapter: publishes symptoms, friction curves, alarms and health through a publisher."""
+
+    def __init__(self, publisher: SymptomPublisher) -> None:
+        self.publisher = publisher
+
+    def on_symptom(self, symptom: Symptom) -> None:
+        self.publisher.publish_symptom(symptom.to_dict())
+        self.publisher.publish_friction(symptom.friction_record())
+
+    def on_alarm(self, alarm: Alarm) -> None:
+        self.publisher.publish_alarm(alarm.to_dict())
+
+    def on_health(self, health: Health) -> None:
+        self.publisher.publish_health(health.to_dict())
+
+    def close(self) -> None:
+        self.publisher.close()

@@ -9,7 +9,6 @@ multicast scouting on, a warning says so.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import re
@@ -56,30 +55,6 @@ class ZenohOptions:
                     )
         if self.config_file is not None and not Path(self.config_file).is_file():
             raise ZenohSetupError(f"zenoh config file {self.config_file!r} does not exist; fix --zenoh-config")
-
-    @staticmethod
-    def add_arguments(parser: argparse.ArgumentParser) -> None:
-        """Add ``--zenoh-mode/--zenoh-listen/--zenoh-connect/--zenoh-config`` to ``parser``."""
-        group = parser.add_argument_group("zenoh", "Zenoh session (multicast scouting is always off)")
-        group.add_argument("--zenoh-mode", choices=MODES, default=None,
-                           help="peer (default), client (through a router) or router")
-        group.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
-                           help="endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable; default: none)")
-        group.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
-                           help=f"peer or router to connect to, e.g. tcp/127.0.0.1:{DEFAULT_ROUTER_PORT} "
-                                "(repeatable)")
-        group.add_argument("--zenoh-config", default=None, metavar="FILE.json5",
-                           help="Zenoh JSON5 config file; the flags above override it")
-
-    @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "ZenohOptions":
-        """Build options from the flags of :meth:`add_arguments`."""
-        config_file = getattr(args, "zenoh_config", None)
-        mode = getattr(args, "zenoh_mode", None)
-        if mode is None and config_file is None:
-            mode = "peer"
-        return cls(mode=mode, listen=list(getattr(args, "zenoh_listen", []) or []),
-                   connect=list(getattr(args, "zenoh_connect", []) or []), config_file=config_file)
 
     def to_config(self) -> zenoh.Config:
         """The ``zenoh.Config`` these options describe."""

@@ -138,7 +138,7 @@ class StreamingKDE:
     def n_outside(self) -> int:
         return self.n_below + self.n_above
 
-    def add(self, samples: ArrayLike, weights: ArrayLike | None = None) -> None:
+    def update(self, samples: ArrayLike, weights: ArrayLike | None = None) -> None:
         """Bin a block of samples. Non-finite samples (or weights) are counted in ``n_nonfinite``
         and skipped; samples outside ``[lo, hi]`` count in ``n_below``/``n_above`` and in the total
         mass (so the density integrates to the in-grid fraction) but are not binned. Samples with

@@ -1,0 +1,102 @@
+"""Wiring: one builder for the agent with its sinks, shared by ``run``, ``replay`` and ``demo``.
+
+The command modules only parse arguments into an :class:`AgentConfig` and :class:`Outputs`;
+:func:`build_app` opens what the outputs name (JSONL file, Zenoh session and publisher, Rerun
+recording, the maintenance subscriber) with the agent, and registers their closing on an ExitStack.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from edge_monitor.pipeline.agent import Agent
+from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.state_store import StateStore
+from edge_monitor.sinks.base import Sink
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """Where the agent's records go besides its return values.
+
+    ``zenoh``: a :class:`~edge_monitor.sinks.zenoh_session.ZenohOptions`, or None for no Zenoh;
+    ``rerun``: ``off`` | ``save:PATH`` | ``spawn`` | ``connect:URL``; ``maintenance``: accept
+    maintenance declarations put on Zenoh.
+    """
+
+    jsonl: str | None = None
+    zenoh: Any = None
+    rerun: str = "off"
+    rerun_fallback: str | None = None
+    recording_id: str | None = None
+    maintenance: bool = False
+
+
+@dataclass
+class App:
+    """An agent with its sinks; ``session`` is the Zenoh session (None without Zenoh)."""
+
+    agent: Agent
+    sinks: list[Sink] = field(default_factory=list)
+    session: Any = None
+    publisher: Any = None
+
+    def symptoms_published(self) -> int:
+        """Symptoms handed to Zenoh so far (0 without Zenoh)."""
+        return 0 if self.publisher is None else int(self.publisher.published.get("symptom", 0))
+
+
+def _jsonl(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) -> Sink | None:
+    if not outputs.jsonl:
+        return None
+    from edge_monitor.sinks.jsonl import JsonlSink
+    return JsonlSink(outputs.jsonl)
+
+
+def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) -> Sink | None:
+    if outputs.zenoh is None:
+        return None
+    from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, ZenohSink
+    from edge_monitor.sinks.zenoh_session import open_session
+    app.session = open_session(outputs.zenoh)
+    stack.callback(app.session.close)
+    app.publisher = SymptomPublisher(app.session, config.robot, config.joints or (),
+                                     state_provider=app.agent.joint_state)
+    log.info("zenoh: %s", outputs.zenoh.describe())
+    if outputs.maintenance:
+        from edge_monitor.sinks.maintenance import listen_for_maintenance
+        stack.callback(listen_for_maintenance(app.session, config.robot, app.agent.declare_maintenance).undeclare)
+    return ZenohSink(app.publisher)
+
+
+def _rerun(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) -> Sink | None:
+    if not outputs.rerun or outputs.rerun == "off":
+        return None
+    from edge_monitor.sinks.rerun_view import RerunSink, RerunViewSink
+    return RerunViewSink(RerunSink.open(outputs.rerun, recording_id=outputs.recording_id,
+                                        fallback_save=outputs.rerun_fallback))
+
+
+#: Sink builders by name, in the order sinks receive records.
+SINK_BUILDERS: dict[str, Callable[[AgentConfig, Outputs, App, ExitStack], Sink | None]] = {
+    "jsonl": _jsonl, "zenoh": _zenoh, "rerun": _rerun}
+
+
+def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: StateStore | None = None) -> App:
+    """The agent and every sink ``outputs`` asks for. Opening failures raise
+    :class:`~edge_monitor.sinks.zenoh_session.ZenohSetupError` or
+    :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix."""
+    app = App(Agent(config, state_store=store))
+    for name, build in SINK_BUILDERS.items():
+        sink = build(config, outputs, app, stack)
+        if sink is not None:
+            app.sinks.append(sink)
+            app.agent.sinks.append(sink)
+            log.debug("sink %s open", name)
+    stack.callback(app.agent.close)     # first on exit: saves the state and closes the sinks
+    return app

@@ -1,0 +1,81 @@
+"""The agent's configuration: one frozen dataclass composed of the components' own configs.
+
+Every component validates its own section once, in its dataclass (:class:`PlateauConfig`,
+:class:`WearConfig`, :class:`KLConfig`, :class:`DecisionConfig`); this class checks the top-level
+keys. Reading TOML and command-line overrides is :mod:`edge_monitor.config`. A bad value raises
+:class:`~edge_monitor.errors.ConfigError` naming the field.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field
+from typing import Any, Mapping
+
+from edge_monitor.errors import require
+from edge_monitor.features.kl_monitor import KLConfig
+from edge_monitor.features.segmentation import PlateauConfig
+from edge_monitor.features.wear import WearConfig
+from edge_monitor.pipeline.detectors import DecisionConfig
+from joint_model import DEFAULT_PARAMS, FrictionParams
+from protocol.frames import MAX_JOINTS
+
+#: Bounds of the sizes a config may ask for (memory and time stay bounded whatever the file says).
+MAX_QUEUE = 10_000_000          # frames
+MAX_BLOCK = 1_000_000           # frames per processing block
+#: What a restored component learned with another configuration becomes: relearned, or kept.
+ON_CONFIG_CHANGE = ("relearn", "keep")
+#: Robot names: Zenoh key segment and file-name safe.
+ROBOT_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Everything that configures an agent (see ``edge_monitor/defaults/agent.toml`` for every key)."""
+
+    robot: str = "robot1"
+    rate_hz: float = 500.0
+    joints: tuple[int, ...] | None = None      # None: every joint seen on the bus
+    friction: FrictionParams = DEFAULT_PARAMS
+    joint_friction: Mapping[int, FrictionParams] = field(default_factory=dict)
+    segmentation: PlateauConfig = field(default_factory=PlateauConfig)
+    wear: WearConfig = field(default_factory=WearConfig)
+    kl: KLConfig = field(default_factory=KLConfig)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
+    on_config_change: str = "relearn"          # relearn | keep (what was learned with another config)
+    queue_size: int = 65536                    # bounded CAN receive queue [frames]
+    block_size: int = 4096                     # frames per processing block
+    status_interval_s: float = 10.0            # periodic status line / health publication [s]
+    state_dir: str | None = None
+    jsonl: str | None = None
+    rerun: str = "off"
+    zenoh: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        require(isinstance(self.robot, str) and bool(ROBOT_NAME.match(self.robot)), "robot",
+                f"{self.robot!r}: use 1 … 64 letters, digits, '_', '-' or '.' (it is a Zenoh key segment)")
+        require(math.isfinite(self.rate_hz) and 1 <= self.rate_hz <= 100_000, "rate_hz",
+                f"must be 1 … 100000 Hz, got {self.rate_hz}")
+        if self.joints is not None:
+            require(len(self.joints) > 0, "joints", "an empty list monitors nothing; omit the key to monitor every joint")
+            require(all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < MAX_JOINTS for j in self.joints),
+                    "joints", f"joint indices must be integers 0 … {MAX_JOINTS - 1}, got {list(self.joints)}")
+        require(all(0 <= j < MAX_JOINTS for j in self.joint_friction), "joint",
+                f"joint indices must be 0 … {MAX_JOINTS - 1}")
+        require(self.on_config_change in ON_CONFIG_CHANGE, "on_config_change",
+                f"must be one of {ON_CONFIG_CHANGE}, got {self.on_config_change!r}")
+        require(1 <= self.queue_size <= MAX_QUEUE, "queue_size", f"must be 1 … {MAX_QUEUE} frames, got {self.queue_size}")
+        require(1 <= self.block_size <= MAX_BLOCK, "block_size", f"must be 1 … {MAX_BLOCK} frames, got {self.block_size}")
+        require(math.isfinite(self.status_interval_s) and 0.1 <= self.status_interval_s <= 86_400,
+                "status_interval_s", f"must be 0.1 … 86400 s, got {self.status_interval_s}")
+
+    def friction_for(self, joint: int) -> FrictionParams:
+        """The friction parameters of ``joint``: its own table if configured, else the common one."""
+        return self.joint_friction.get(joint, self.friction)
+
+    def fingerprint(self) -> dict[str, Any]:
+        """The settings learned state depends on, by section (compared when a state is restored)."""
+        return {"segmentation": self.segmentation.fingerprint(), "wear": self.wear.fingerprint(),
+                "kl": self.kl.fingerprint(), "decision": self.decision.fingerprint(),
+                "friction": asdict(self.friction)}

@@ -1,0 +1,150 @@
+"""The decision layer of one joint: one sequential detector per watched quantity (docs/ALGORITHMS.md §6).
+
+:class:`DecisionConfig` (the ``[decision]`` table) says which registered quantities are watched and
+how; :class:`DetectorBank` turns the feature values of a cycle into one :class:`Decision` per quantity
+and the alarm transitions of that cycle. Positive, right-skewed quantities (KL distances) are watched
+as their logarithm when ``log_kl`` is on; a vector quantity is made of its inputs' (transformed) values.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from edge_monitor.errors import ConfigError, StateMismatch, require
+from edge_monitor.features.registry import QUANTITIES, QuantitySpec, feature_of
+from edge_monitor.records import Alarm, Decision
+from edge_monitor.stats.sequential_detector import (DEFAULT_NOMINAL, DEFAULT_PF, DEFAULT_PF_VECTOR, DEFAULT_WINDOW,
+                                                    DetectorConfig, SequentialDetector)
+
+log = logging.getLogger(__name__)
+
+#: Reason of the decisions of a cycle that is kept out of the detectors.
+PARTIAL_REASON = "partial cycle: not used by the detectors"
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """Sequential GLR decision layer settings (the ``[decision]`` table), validated once, here.
+
+    ``density``/``pf`` apply to scalar quantities, ``density_joint``/``pf_joint`` to vector ones (the
+    3-d joint vector): a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE stays
+    calibrated there (docs/DETECTION.md). ``pf`` is the per-test false-alarm probability of the
+    asymptotic threshold; the sequential false-alarm rate is far higher (docs/DETECTION.md).
+    """
+
+    enabled: bool = True
+    n_nominal: int = DEFAULT_NOMINAL
+    density: str = "gce"
+    density_joint: str = "kde"
+    pf: float = DEFAULT_PF
+    pf_joint: float = DEFAULT_PF_VECTOR
+    window: int = DEFAULT_WINDOW
+    gamma0: float = 0.6
+    rho: float = 1.0
+    quantities: tuple[str, ...] = tuple(QUANTITIES)
+    log_kl: bool = True
+
+    def __post_init__(self) -> None:
+        unknown = [q for q in self.quantities if q not in QUANTITIES]
+        require(not unknown, "decision.quantities", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
+        require(len(set(self.quantities)) == len(self.quantities), "decision.quantities",
+                f"listed twice: {list(self.quantities)}")
+        for quantity in self.quantities:
+            try:
+                self.detector_config(quantity)
+            except ConfigError as exc:      # "field: message" → "decision.<config key> (quantity …): message"
+                field, _, message = str(exc).partition(": ")
+                if QUANTITIES[quantity].dim > 1:
+                    field = {"pf": "pf_joint", "density": "density_joint"}.get(field, field)
+                raise ConfigError(f"decision.{field} (quantity '{quantity}'): {message}") from None
+
+    def detector_config(self, quantity: str) -> DetectorConfig:
+        spec = QUANTITIES[quantity]
+        vector = spec.dim > 1
+        return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
+                              density=self.density_joint if vector else self.density,
+                              pf=self.pf_joint if vector else self.pf, window=self.window,
+                              gamma0=self.gamma0, rho=self.rho)
+
+    def fingerprint(self) -> dict[str, Any]:
+        return {**asdict(self), "quantities": list(self.quantities)}
+
+
+def _log_or_nan(x: float) -> float:
+    """log of a positive finite value; NaN otherwise (the detector skips and counts it)."""
+    return math.log(x) if math.isfinite(x) and x > 0 else math.nan
+
+
+class DetectorBank:
+    """The detectors of one joint. ``sources`` maps each feature name to the fingerprint of what its
+    values depend on: a detector learned on values of another feature configuration is relearned."""
+
+    def __init__(self, config: DecisionConfig, sources: dict[str, dict[str, Any]]) -> None:
+        self.config = config
+        self.sources = sources
+        self.detectors = {q: SequentialDetector(config.detector_config(q)) for q in config.quantities} \
+            if config.enabled else {}
+
+    def _transform(self, values: dict[str, float]) -> dict[str, float]:
+        logged = {q for q, spec in QUANTITIES.items() if spec.log_scale and spec.dim == 1}
+        return {q: _log_or_nan(v) if self.config.log_kl and q in logged else v for q, v in values.items()}
+
+    def update(self, values: dict[str, float], robot: str, joint: int, cycle: int
+               ) -> tuple[dict[str, Decision], list[Alarm]]:
+        """Feed one cycle's feature values (NaN when missing); decisions and raised alarms."""
+        watched = self._transform(values)
+        decisions: dict[str, Decision] = {}
+        alarms: list[Alarm] = []
+        for quantity, detector in self.detectors.items():
+            spec = QUANTITIES[quantity]
+            value = [watched.get(q, math.nan) for q in spec.inputs]
+            was_alarmed = detector.alarmed
+            decision = detector.update(value[0] if spec.dim == 1 else value, cycle)
+            decisions[quantity] = decision
+            if decision.alarm and not was_alarmed:
+                alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
+                                    decision.miss_probability, decision.change_cycle))
+        return decisions, alarms
+
+    def idle(self, reason: str = PARTIAL_REASON) -> dict[str, Decision]:
+        """Decisions of a cycle that did not enter the detectors (state unchanged)."""
+        return {q: d.idle(reason) for q, d in self.detectors.items()}
+
+    def reset(self, robot: str, joint: int, cycle: int) -> list[Alarm]:
+        """Declared maintenance: every detector relearns; one "cleared" alarm per latched quantity."""
+        cleared = [Alarm(robot, joint, cycle, q, "cleared") for q, d in self.detectors.items() if d.alarmed]
+        for detector in self.detectors.values():
+            detector.reset()
+        return cleared
+
+    # ------------------------------------------------------------------ persistence
+    def _fingerprint(self, quantity: str) -> dict[str, Any]:
+        spec = QUANTITIES[quantity]
+        features = sorted({feature_of(q) for q in spec.inputs})
+        return {"log": self.config.log_kl and spec.log_scale,
+                "sources": {f: self.sources.get(f, {}) for f in features}}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
+
+    def load_state(self, state: dict[str, Any], joint: int) -> list[str]:
+        """Restore detectors from ``state``; a detector whose settings or inputs changed since it was
+        learned starts learning again. Returns one message per relearned detector."""
+        messages: list[str] = []
+        for quantity in self.detectors:
+            saved = state.get(quantity)
+            if saved is None:
+                continue
+            try:
+                if saved.get("inputs") != self._fingerprint(quantity):
+                    raise StateMismatch(f"detector {quantity}", {"inputs": (saved.get("inputs"), self._fingerprint(quantity))})
+                self.detectors[quantity] = SequentialDetector.from_state(self.config.detector_config(quantity), saved)
+            except StateMismatch as exc:
+                messages.append(f"joint {joint}: {exc}; relearning the {quantity} detector")
+        return messages
+
+
+__all__ = ["DecisionConfig", "DetectorBank", "PARTIAL_REASON", "QuantitySpec"]
