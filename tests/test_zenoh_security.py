@@ -5,7 +5,8 @@ Certificates are made by the tests (tests/certs.py): a fleet CA issuing the rout
 (127.0.0.1/localhost) and client certificates with CNs agent-r1, viewer, operator, intruder; a second
 "rogue" CA issuing a certificate with CN operator. Multicast scouting is off everywhere.
 
-"Not delivered" is shown without waiting for a timeout. After the forbidden put, the sender makes a
+"Not delivered" is shown without waiting for a timeout. First the receiver's subscription is shown to
+be in place at the router (warm-up samples from an allowed sender arrive). After the forbidden put, the sender makes a
 query that the router answers (a final reply, also when access control drops the query): the router
 handles a link's messages in order, so by then it has dropped or forwarded the put. Then an allowed
 marker is sent to the same receiver and awaited: Zenoh delivers in order per link and priority, so a
@@ -37,6 +38,7 @@ from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[1]
 ZENOH_DEFAULTS = REPO / "edge_monitor" / "defaults" / "zenoh"
+WARM_UP = "warm-up"
 WAIT_S = 20.0    # generous bound for deliveries on a loaded machine; never a speed assertion
 IDENTITIES = ("agent-r1", "viewer", "operator", "intruder")
 CLIENT_FILE = {"agent-r1": "agent_client.json5", "viewer": "viewer_client.json5",
@@ -82,7 +84,8 @@ class Router:
     def __init__(self, pki: Pki) -> None:
         self.endpoint = f"tls/127.0.0.1:{free_loopback_port()}"
         config = zenoh.Config.from_file(str(ZENOH_DEFAULTS / "router_acl.json5"))
-        apply_settings(config, {**router_tls_settings(TlsFiles(pki.fleet.cert, pki.router.cert, pki.router.key)),
+        files = TlsFiles(pki.fleet.cert, pki.router.cert, pki.router.key)   # enable_mtls stays the file's
+        apply_settings(config, {**router_tls_settings(files, mtls=None),
                                 "listen/endpoints": [self.endpoint]})
         self.session = zenoh.open(config)
 
@@ -127,10 +130,19 @@ class Inbox:
         self.declared.append(joint)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_string()
         with self._lock:
-            self.items.append((str(sample.key_expr), sample.payload.to_string()))
-        if self.gate_callback:
+            self.items.append((str(sample.key_expr), payload))
+        if self.gate_callback and payload != WARM_UP:
             self.gate_callback(sample)
+
+    def warm_up(self, sender: zenoh.Session, key: str) -> None:
+        """Put ``WARM_UP`` from an allowed sender until one arrives: the route exists at the router."""
+        def arrived() -> bool:
+            sender.put(key, WARM_UP)
+            return WARM_UP in self.payloads()
+
+        assert wait_until(arrived, WAIT_S, poll_s=0.1), f"no route from the allowed sender on {key}"
 
     def payloads(self) -> list[str]:
         with self._lock:
@@ -177,6 +189,7 @@ def test_handshake_refused_without_a_fleet_certificate(pki, router, case):
 def test_only_an_operator_declares_maintenance(pki, router, sessions, sender, key, delivered):
     inbox = Inbox(sessions["agent-r1"], "edge/r1/*/maintenance")
     try:
+        inbox.warm_up(sessions["operator"], "edge/r1/2/maintenance")
         payload = f"from {sender} ({key})"
         sessions[sender].put(key, payload)
         through_router(sessions[sender])
@@ -198,6 +211,7 @@ def test_only_an_operator_declares_maintenance(pki, router, sessions, sender, ke
 def test_only_the_robots_agent_publishes_its_records(pki, router, sessions, sender, key, delivered):
     inbox = Inbox(sessions["viewer#2"], "edge/**")
     try:
+        inbox.warm_up(sessions["agent-r1"], "edge/r1/9/symptom")
         payload = json.dumps({"forged_by": sender, "key": key})
         sessions[sender].put(key, payload)
         through_router(sessions[sender])
@@ -230,7 +244,7 @@ def test_intruder_subscription_receives_nothing(pki, router, sessions):
     control = Inbox(sessions["viewer"], "edge/**")
     try:
         through_router(sessions["intruder"])      # the router has handled the intruder's subscription
-        through_router(sessions["viewer"])
+        control.warm_up(sessions["agent-r1"], "edge/r1/9/symptom")
         sessions["agent-r1"].put("edge/r1/9/symptom", "marker")
         assert wait_until(lambda: "marker" in control.payloads(), WAIT_S)   # routed to every subscriber
         through_router(sessions["intruder"])      # its final reply comes after the marker, if routed there
@@ -246,11 +260,12 @@ def test_gate_on_the_agent_refuses_what_the_acl_lets_through(pki, router, sessio
     gate = MaintenanceGate("r1", allow=True, max_per_joint=1, window_s=3600.0)
     inbox = Inbox(sessions["agent-r1"], gate.key_expr, gate=gate)
     try:
+        inbox.warm_up(sessions["operator"], "edge/r1/1/maintenance")   # not gated (test harness)
         with caplog.at_level(logging.WARNING, logger="edge_monitor.zenoh_security"):
             for key, payload in (("edge/*/1/maintenance", "wildcard"), ("edge/r1/1/maintenance", "first"),
                                  ("edge/r1/1/maintenance", "second")):
                 sessions["operator"].put(key, payload, attachment="operator=alice")
-            assert wait_until(lambda: len(inbox.items) == 3, WAIT_S)
+            assert wait_until(lambda: {"wildcard", "first", "second"} <= set(inbox.payloads()), WAIT_S)
         assert inbox.declared == [1]
         assert gate.stats() == {"maintenance_accepted": 1, "maintenance_refused_disabled": 0,
                                 "maintenance_refused_bad_key": 1, "maintenance_refused_rate_limited": 1}
