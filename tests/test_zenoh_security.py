@@ -275,6 +275,60 @@ def test_gate_on_the_agent_refuses_what_the_acl_lets_through(pki, router, sessio
         inbox.close()
 
 
+def test_usrpwd_identities_are_the_alternative_to_client_certificates(pki, tmp_path):
+    """TLS without client certificates + Zenoh user/password authentication: ACL subjects by username.
+    A wrong password or no credentials cannot connect; only the operator's put reaches the agent."""
+    users = tmp_path / "users.txt"
+    users.write_text("agent-r1:pw-agent-r1\noperator:pw-operator\nviewer:pw-viewer\n")
+    endpoint = f"tls/127.0.0.1:{free_loopback_port()}"
+    maintenance = {"permission": "allow", "messages": ["put", "declare_subscriber"], "key_exprs": ["edge/r1/*/maintenance"]}
+    config = zenoh.Config()
+    apply_settings(config, {
+        "mode": "router", "scouting/multicast/enabled": False, "listen/endpoints": [endpoint],
+        **router_tls_settings(TlsFiles(None, pki.router.cert, pki.router.key), mtls=False),
+        "transport/auth/usrpwd/dictionary_file": str(users),
+        "access_control": {"enabled": True, "default_permission": "deny",
+                           "rules": [{"id": "operator puts", "flows": ["ingress"], **maintenance},
+                                     {"id": "agent listens", "flows": ["ingress", "egress"], **maintenance},
+                                     {"id": "probe", "permission": "allow", "messages": ["query"],
+                                      "key_exprs": ["edge/**"]}],
+                           "subjects": [{"id": "operator", "usernames": ["operator"]},
+                                        {"id": "agent", "usernames": ["agent-r1"]},
+                                        {"id": "anyone"}],
+                           "policies": [{"rules": ["operator puts"], "subjects": ["operator"]},
+                                        {"rules": ["agent listens"], "subjects": ["agent"]},
+                                        {"rules": ["probe"], "subjects": ["anyone"]}]}})
+    router = zenoh.open(config)
+
+    def client(user: str | None, password: str | None) -> zenoh.Config:
+        config = zenoh.Config()
+        apply_settings(config, {"mode": "client", "scouting/multicast/enabled": False, "scouting/timeout": 2000,
+                                "connect/endpoints": [endpoint], **client_tls_settings(TlsFiles(pki.fleet.cert))})
+        if user is not None:
+            apply_settings(config, {"transport/auth/usrpwd/user": user, "transport/auth/usrpwd/password": password})
+        return config
+
+    opened: list[zenoh.Session] = []
+    try:
+        for user in ("agent-r1", "operator", "viewer"):
+            opened.append(zenoh.open(client(user, f"pw-{user}")))
+        agent, operator, viewer = opened
+        for user, password in (("operator", "wrong"), (None, None)):
+            with pytest.raises(zenoh.ZError, match="Unable to connect"):
+                zenoh.open(client(user, password)).close()
+        inbox = Inbox(agent, "edge/r1/*/maintenance")
+        inbox.warm_up(operator, "edge/r1/2/maintenance")
+        viewer.put("edge/r1/1/maintenance", "from viewer")
+        through_router(viewer)
+        operator.put("edge/r1/2/maintenance", "marker")
+        assert wait_until(lambda: "marker" in inbox.payloads(), WAIT_S)
+        assert "from viewer" not in inbox.payloads()
+    finally:
+        for session in opened:
+            session.close()
+        router.close()
+
+
 # -- router tool ---------------------------------------------------------------------------------------
 
 
