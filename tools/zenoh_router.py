@@ -15,6 +15,8 @@ endpoint without certificate files, is refused with a message (exit code 2).
 ``--host``/``--port`` replace the address of the config's listen endpoint but keep its protocol.
 Multicast scouting is always off. Prints ``zenoh router listening on PROTO/HOST:PORT`` once ready,
 then one line on the security in force, and exits cleanly (exit code 0) on SIGINT or SIGTERM.
+``RUST_LOG=zenoh::net::routing::interceptor::access_control=info`` logs clients that match no ACL
+subject (``trace``: every access-control decision).
 """
 
 from __future__ import annotations
@@ -152,6 +154,7 @@ def warn_inconsistent_acl(config: zenoh.Config) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    zenoh.try_init_log_from_env()   # RUST_LOG=zenoh::net::routing::interceptor::access_control=trace shows ACL decisions
     try:
         config, endpoints = build_config(args)
     except (ZenohSetupError, ZenohSecurityError) as exc:
