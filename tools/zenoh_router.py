@@ -73,17 +73,8 @@ def build_config(args: argparse.Namespace) -> tuple[zenoh.Config, list[str]]:
     explicit = json.loads(config.get_json("listen/endpoints")) != _ZENOH_DEFAULT_LISTEN
     configured = config_endpoints(config, "listen") if explicit else []   # never zenoh's tcp/[::] default
     tls = tls_settings_of(config)
-    endpoints = configured
-    if not configured or args.host is not None or args.port is not None:
-        secure = tls.get("listen_certificate") or any(e.split("/", 1)[0] in SECURE_PROTOCOLS for e in configured)
-        proto = next((e.split("/", 1)[0] for e in configured if e.split("/", 1)[0] in SECURE_PROTOCOLS),
-                     "tls" if secure else (configured[0].split("/", 1)[0] if configured else "tcp"))
-        host, port = _address(configured[0] if configured else None)
-        host = args.host if args.host is not None else host
-        port = args.port if args.port is not None else port
-        if port == 0:
-            port = free_loopback_port()
-        endpoints = [f"{proto}/{host}:{port}"]
+    endpoints = choose_endpoints(configured, bool(tls.get("listen_certificate")), args.host, args.port)
+    if endpoints != configured:
         apply_settings(config, {"listen/endpoints": endpoints})
     check_no_downgrade(endpoints, tls, "listen")
     if any(e.split("/", 1)[0] in SECURE_PROTOCOLS for e in endpoints):
@@ -91,6 +82,22 @@ def build_config(args: argparse.Namespace) -> tuple[zenoh.Config, list[str]]:
                             tls.get("listen_private_key")).check(need_identity=True,
                                                                  need_ca=bool(tls.get("enable_mtls")))
     return config, endpoints
+
+
+def choose_endpoints(configured: list[str], tls_configured: bool, host: str | None,
+                     port: int | None) -> list[str]:
+    """The config's endpoints as they are, unless ``--host``/``--port`` are given or none is configured:
+    then one ``PROTO/HOST:PORT`` whose protocol is the config's secure one, else ``tls`` when TLS files
+    are configured, else the config's (``tcp`` by default). Port 0: a free loopback port."""
+    if configured and host is None and port is None:
+        return configured
+    protocols = [e.split("/", 1)[0] for e in configured]
+    secure = [p for p in protocols if p in SECURE_PROTOCOLS]
+    proto = secure[0] if secure else "tls" if tls_configured else protocols[0] if protocols else "tcp"
+    default_host, default_port = _address(configured[0] if configured else None)
+    host = default_host if host is None else host
+    port = default_port if port is None else port
+    return [f"{proto}/{host}:{free_loopback_port() if port == 0 else port}"]
 
 
 def load_config(path: str | None) -> zenoh.Config:
