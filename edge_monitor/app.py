@@ -25,8 +25,8 @@ class Outputs:
     """Where the agent's records go besides its return values.
 
     ``zenoh``: a :class:`~edge_monitor.sinks.zenoh_session.ZenohOptions`, or None for no Zenoh;
-    ``rerun``: ``off`` | ``save:PATH`` | ``spawn`` | ``connect:URL``; ``maintenance``: accept
-    maintenance declarations put on Zenoh.
+    ``rerun``: ``off`` | ``save:PATH`` | ``spawn`` | ``connect:URL``; ``maintenance``: listen for
+    maintenance declarations put on Zenoh (accepted only as ``config.maintenance`` allows).
     """
 
     jsonl: str | None = None
@@ -45,6 +45,16 @@ class App:
     sinks: list[Sink] = field(default_factory=list)
     session: Any = None
     publisher: Any = None
+    maintenance_gate: Any = None
+
+    def extra_counters(self) -> dict[str, Any]:
+        """Counters of the outputs for the health record (maintenance gate, Zenoh delivery)."""
+        out: dict[str, Any] = {}
+        if self.maintenance_gate is not None:
+            out.update(self.maintenance_gate.stats())
+        if self.publisher is not None:
+            out.update(self.publisher.stats())
+        return out
 
     def symptoms_published(self) -> int:
         """Symptoms handed to Zenoh so far (0 without Zenoh)."""
@@ -69,8 +79,10 @@ def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) ->
                                      state_provider=app.agent.joint_state)
     log.info("zenoh: %s", outputs.zenoh.describe())
     if outputs.maintenance:
-        from edge_monitor.sinks.maintenance import listen_for_maintenance
-        stack.callback(listen_for_maintenance(app.session, config.robot, app.agent.declare_maintenance).undeclare)
+        from edge_monitor.sinks.maintenance import gate_maintenance
+        app.maintenance_gate, subscriber = gate_maintenance(app.session, config.robot, config.maintenance,
+                                                            app.agent.declare_maintenance)
+        stack.callback(subscriber.undeclare)
     return ZenohSink(app.publisher)
 
 

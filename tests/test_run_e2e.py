@@ -61,7 +61,8 @@ def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: P
     with PtyPair() as pair:
         agent = subprocess.Popen(
             [sys.executable, "-m", "edge_monitor.cli", "run", "--link", f"slcan:{pair.b}", "--config", str(cfg),
-             "--zenoh-listen", endpoint, "--jsonl", str(jsonl), "--state-dir", str(state)],
+             "--zenoh-listen", endpoint, "--jsonl", str(jsonl), "--state-dir", str(state),
+             "--allow-remote-maintenance"],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         session = open_session(ZenohOptions(mode="peer", connect=[endpoint]))
         try:
@@ -82,13 +83,16 @@ def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: P
             state_reply = json.loads(replies[0].ok.payload.to_string())
             assert state_reply["joint"] == 1 and state_reply["known"] and "detectors" in state_reply
             assert wait_until(lambda: sub.records("health"), 10)
-            # a declared maintenance over Zenoh makes the joint relearn (seen through the queryable)
+            # a wildcard put is refused by the agent's gate (counted), an exact one makes the joint relearn
+            session.put("edge/*/1/maintenance", "reset every robot")
             session.put("edge/cell7/1/maintenance", "gearbox replaced")
 
             def maintenances() -> int:
                 replies = list(session.get("edge/cell7/1/state", timeout=5.0))
                 return json.loads(replies[0].ok.payload.to_string()).get("maintenances", 0) if replies else 0
             assert wait_until(lambda: maintenances() == 1, 30)
+            assert wait_until(lambda: any(h.get("maintenance_refused_bad_key") == 1 and h.get("maintenance_accepted") == 1
+                                          for h in sub.records("health")), 30)
             agent.send_signal(signal.SIGTERM)
             out, _ = agent.communicate(timeout=60)
         finally:

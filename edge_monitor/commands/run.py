@@ -8,6 +8,7 @@ Rerun), persists learned models in ``--state-dir`` and shuts down cleanly on SIG
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import signal
 import sys
@@ -40,8 +41,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-cycles", type=int, help="stop after this many cycles")
     p.add_argument("--idle-stop", type=float, help="stop after this many seconds without frames")
     p.add_argument("--maintenance", type=int, action="append", default=[], metavar="JOINT",
-                   help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models "
-                        "(while running: put anything on Zenoh key edge/<robot>/<joint>/maintenance)")
+                   help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models")
+    p.add_argument("--allow-remote-maintenance", action="store_true",
+                   help="accept maintenance declarations put on Zenoh key edge/<robot>/<joint>/maintenance "
+                        "(off by default; rate-limited; restrict who may put with a Zenoh ACL, docs/SECURITY.md)")
     p.set_defaults(func=run)
 
 
@@ -58,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from protocol.links import LinkError, is_log_file, open_bus
     logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
     cfg = load_agent_config(args)
+    if args.allow_remote_maintenance:
+        cfg = dataclasses.replace(cfg, maintenance=dataclasses.replace(cfg.maintenance, remote=True))
     if args.link and is_log_file(args.link):
         print(f"edge-monitor run: {args.link} is a log file; use `edge-monitor replay {args.link}`", file=sys.stderr)
         return 2
@@ -84,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         stack.callback(bus.shutdown)
         runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
-                            status_interval_s=cfg.status_interval_s)
+                            status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters)
         install_signal_handlers(runner.stop_event)
         runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
     if runner.link_failure:

@@ -7,7 +7,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import LiveSource
@@ -24,6 +24,7 @@ class LiveRunner:
     agent: Agent
     source: LiveSource
     status_interval_s: float = 10.0
+    extra_counters: Callable[[], dict[str, Any]] | None = None     # e.g. the outputs' counters, for health
     stop_event: threading.Event = field(default_factory=threading.Event)
     processing_errors: int = 0
     discarded_at_stop: int = 0
@@ -32,10 +33,13 @@ class LiveRunner:
     def link_counters(self) -> dict[str, Any]:
         """The live loop's own counters (receive queue, bus, processing), added to the agent's health."""
         listener = self.source.listener
-        return {"time": time.time(), "queue_depth": self.source.queue_depth(),
-                "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
-                "processing_errors": self.processing_errors, "malformed_lines": self.source.malformed_lines(),
-                "link_failure": self.link_failure, "discarded_at_stop": self.discarded_at_stop}
+        counters = {"time": time.time(), "queue_depth": self.source.queue_depth(),
+                    "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
+                    "processing_errors": self.processing_errors, "malformed_lines": self.source.malformed_lines(),
+                    "link_failure": self.link_failure, "discarded_at_stop": self.discarded_at_stop}
+        if self.extra_counters is not None:
+            counters.update(self.extra_counters())
+        return counters
 
     def health(self) -> Health:
         return self.agent.health(self.link_counters())

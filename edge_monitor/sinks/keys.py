@@ -49,13 +49,14 @@ class KeyParts:
 
 def parse_key(key: str) -> KeyParts | None:
     """``edge/<robot>/<joint|agent>/<kind>`` → its parts; None for any other key (wrong prefix or
-    depth, a joint that is not a small non-negative integer, a robot name that is not one segment)."""
+    depth, a joint that is not a small non-negative integer written canonically, a robot name that is
+    not one plain segment — wildcards never parse)."""
     parts = str(key).split("/")
     if len(parts) != 4 or parts[0] != PREFIX or not _ROBOT.match(parts[1]) or not parts[3]:
         return None
     if parts[2] == AGENT:
         return KeyParts(parts[1], None, parts[3])
-    if not parts[2].isdigit() or len(parts[2]) > 3:
+    if not parts[2].isdigit() or len(parts[2]) > 3 or str(int(parts[2])) != parts[2]:   # canonical: no "01"
         return None
     return KeyParts(parts[1], int(parts[2]), parts[3])
 
