@@ -24,8 +24,8 @@ from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import FrictionParams
 from protocol.frames import MAX_JOINTS
 
-__all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "PlateauConfig", "WearConfig", "config_from_mapping",
-           "load_config", "with_overrides"]
+__all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "PlateauConfig", "WearConfig",
+           "config_from_mapping", "load_config", "with_overrides"]
 
 def _coerce(where: str, value: Any, default: Any) -> Any:
     """Convert a TOML value to the type of the dataclass default, with a message naming ``where``."""

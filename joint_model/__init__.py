@@ -22,7 +22,7 @@ from joint_model.friction import (
 )
 
 __all__ = [
-    "CRITICAL_WEAR", "DEFAULT_PARAMS", "DEFAULT_SPEED_LEVELS", "FRICTION_NOISE_STD", "WEAR_MAX", "FrictionParams", "friction",
-    "friction_magnitude", "jacobian_temperature_wear", "load_sensitivity", "nominal_friction",
+    "CRITICAL_WEAR", "DEFAULT_PARAMS", "DEFAULT_SPEED_LEVELS", "FRICTION_NOISE_STD", "WEAR_MAX", "FrictionParams",
+    "friction", "friction_magnitude", "jacobian_temperature_wear", "load_sensitivity", "nominal_friction",
     "speed_only_friction", "stribeck_speed", "wear_friction",
 ]

@@ -20,9 +20,16 @@ import sys
 from typing import Any, Sequence
 
 from protocol.links import LinkError
-
-from sim_controller.config import (SimConfig, SimConfigError, load_speeds_file, merge_wear, parse_float,
-                                   parse_range, parse_speeds, wear_profiles_from_ramps)
+from sim_controller.config import (
+    SimConfig,
+    SimConfigError,
+    load_speeds_file,
+    merge_wear,
+    parse_float,
+    parse_range,
+    parse_speeds,
+    wear_profiles_from_ramps,
+)
 from sim_controller.faults import FaultSpec
 from sim_controller.output import record, run
 from sim_controller.scenario import load_scenario
@@ -63,12 +70,15 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     sp.add_argument("--speeds", type=_typed(parse_speeds, "speeds"), metavar="V1,V2,...",
                     help="friction speed levels in rad/s (motor side; default: the 12 of ALGORITHMS.md §2)")
     sp.add_argument("--speeds-from", metavar="DESIGN.json", help="speeds from the JSON of edge-monitor design")
-    g.add_argument("--plateau-time", type=_number("plateau_time"), help="constant-speed time per direction in s (default 1.1)")
+    g.add_argument("--plateau-time", type=_number("plateau_time"),
+                   help="constant-speed time per direction in s (default 1.1)")
     g.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO",
                    help="linear wear ramp (repeatable; JOINT 0-based or 'all'; wear 0 … 100)")
-    g.add_argument("--temperature-range", type=_typed(lambda t: parse_range(t, "temperature_range"), "temperature_range"),
+    g.add_argument("--temperature-range", type=_typed(lambda t: parse_range(t, "temperature_range"),
+                   "temperature_range"),
                    metavar="LOW:HIGH", help="per-cycle uniform lubricant temperature in °C (default: thermal model)")
-    g.add_argument("--ambient", type=_number("ambient"), help="ambient temperature of the thermal model, °C (default 30)")
+    g.add_argument("--ambient", type=_number("ambient"),
+                   help="ambient temperature of the thermal model, °C (default 30)")
     g.add_argument("--start-temperature", type=_number("start_temperature"), help="initial lubricant temperature, °C")
     g.add_argument("--time-acceleration", type=_number("time_acceleration"),
                    help="thermal time runs this many times faster than controller time (default 1)")
@@ -80,15 +90,18 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     g.add_argument("--friction-model-error", type=_number("friction_model_error"),
                    help="σm of the per-cycle, per-level friction model error (default 5.7e-3; 0 allowed)")
     g.add_argument("--torque-noise", type=_number("torque_noise"), help="per-sample torque noise std (default 2e-3)")
-    g.add_argument("--speed-noise", type=_number("speed_noise"), help="per-sample speed noise std in rad/s (default 0.02)")
+    g.add_argument("--speed-noise", type=_number("speed_noise"),
+                   help="per-sample speed noise std in rad/s (default 0.02)")
     g.add_argument("--vary", type=_number("vary"), metavar="FRACTION",
-                   help="± relative individual variation of friction parameters (default 0 for 1 joint, 0.08 otherwise)")
+                   help="± relative individual variation of friction parameters "
+                        "(default 0 for 1 joint, 0.08 otherwise)")
     g.add_argument("--faults", type=_typed(FaultSpec.parse, "faults"), metavar="SPEC",
                    help="e.g. drop=0.001,corrupt=0.001,duplicate=0.0005,reorder=0.0005,delay=0.001,"
                         "silence=1e-5,restart=0.01,stuck=1e-5")
     g.add_argument("--start-time", type=_number("start_time"), metavar="S",
                    help="record: timestamp of tick 0 in s (default 0; e.g. a Unix time)")
-    g.add_argument("--truth", metavar="PATH.jsonl", help="write ground truth (one record per joint per cycle, then a fault summary)")
+    g.add_argument("--truth", metavar="PATH.jsonl",
+                   help="write ground truth (one record per joint per cycle, then a fault summary)")
     g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
     g.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
 

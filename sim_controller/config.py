@@ -15,7 +15,6 @@ from typing import Any, Sequence
 
 from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, FrictionParams
 from protocol.frames import MAX_JOINTS
-
 from sim_controller.faults import FaultSpec
 from sim_controller.wear_scenarios import WearEvent, WearProfile, parse_wear_ramp
 
@@ -116,11 +115,14 @@ def validate(c: SimConfig) -> None:
     _require(isinstance(c.seed, int) and c.seed >= 0, "seed", f"must be an integer ≥ 0, got {c.seed!r}")
     _require(1 <= len(c.speeds) <= 64, "speeds", f"need 1 … 64 speed levels, got {len(c.speeds)}")
     for v in c.speeds:
-        _require(_finite(v) and 0.0 < v <= MAX_SPEED, "speeds", f"each speed must be in (0, {MAX_SPEED}] rad/s, got {v!r}")
+        _require(_finite(v) and 0.0 < v <= MAX_SPEED, "speeds",
+                 f"each speed must be in (0, {MAX_SPEED}] rad/s, got {v!r}")
     _require(_finite(c.plateau_time) and 0.05 <= c.plateau_time <= 60.0, "plateau_time",
              f"must be 0.05 … 60 s, got {c.plateau_time!r}")
-    _require(_finite(c.acceleration) and c.acceleration > 0, "acceleration", f"must be > 0 rad/s², got {c.acceleration!r}")
-    _require(_finite(c.pause_time) and 0.0 <= c.pause_time <= 60.0, "pause_time", f"must be 0 … 60 s, got {c.pause_time!r}")
+    _require(_finite(c.acceleration) and c.acceleration > 0, "acceleration",
+             f"must be > 0 rad/s², got {c.acceleration!r}")
+    _require(_finite(c.pause_time) and 0.0 <= c.pause_time <= 60.0, "pause_time",
+             f"must be 0 … 60 s, got {c.pause_time!r}")
     lo, hi = c.p2p_delay
     _require(_finite(lo) and _finite(hi) and 0.0 <= lo <= hi <= 10.0, "p2p_delay",
              f"need 0 ≤ LOW ≤ HIGH ≤ 10 s, got {lo!r}:{hi!r}")
@@ -131,8 +133,10 @@ def validate(c: SimConfig) -> None:
     if c.variation is not None:
         _require(_finite(c.variation) and 0.0 <= c.variation <= 0.5, "vary",
                  f"relative variation must be 0 … 0.5, got {c.variation!r}")
-    _require(_finite(c.torque_noise) and 0.0 <= c.torque_noise <= 0.1, "torque_noise", f"must be 0 … 0.1, got {c.torque_noise!r}")
-    _require(_finite(c.speed_noise) and 0.0 <= c.speed_noise <= 5.0, "speed_noise", f"must be 0 … 5 rad/s, got {c.speed_noise!r}")
+    _require(_finite(c.torque_noise) and 0.0 <= c.torque_noise <= 0.1, "torque_noise",
+             f"must be 0 … 0.1, got {c.torque_noise!r}")
+    _require(_finite(c.speed_noise) and 0.0 <= c.speed_noise <= 5.0, "speed_noise",
+             f"must be 0 … 5 rad/s, got {c.speed_noise!r}")
     lo, hi = c.load_range
     _require(_finite(lo) and _finite(hi) and 0.0 <= lo <= hi <= 1.0, "load_range",
              f"need 0 ≤ LOW ≤ HIGH ≤ 1 (|τl|, fraction of max torque), got {lo!r}:{hi!r}")
@@ -151,8 +155,10 @@ def validate(c: SimConfig) -> None:
     _require(_finite(c.heating) and c.heating >= 0, "heating", f"must be ≥ 0 °C per unit power, got {c.heating!r}")
     _require(len(c.wear) <= c.joints, "wear", f"{len(c.wear)} wear profiles for {c.joints} joints")
     _require(_finite(c.start_time) and c.start_time >= 0, "start_time", f"must be ≥ 0 s, got {c.start_time!r}")
-    _require(_finite(c.block_time) and 0.01 <= c.block_time <= 60, "block_time", f"must be 0.01 … 60 s, got {c.block_time!r}")
-    _require(len(c.joint_overrides) <= c.joints, "joint_overrides", f"{len(c.joint_overrides)} overrides for {c.joints} joints")
+    _require(_finite(c.block_time) and 0.01 <= c.block_time <= 60, "block_time",
+             f"must be 0.01 … 60 s, got {c.block_time!r}")
+    _require(len(c.joint_overrides) <= c.joints, "joint_overrides",
+             f"{len(c.joint_overrides)} overrides for {c.joints} joints")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -214,7 +220,8 @@ def wear_profiles_from_ramps(specs: Sequence[str], joints: int) -> tuple[WearPro
                 lst.append(event)
         else:
             if not 0 <= target < joints:
-                raise SimConfigError(f"wear_ramp: unknown joint {target} in {spec!r}; joints are 0 … {joints - 1} or 'all'")
+                raise SimConfigError(f"wear_ramp: unknown joint {target} in {spec!r}; "
+                                     f"joints are 0 … {joints - 1} or 'all'")
             events[target].append(event)
     return tuple(WearProfile(events=tuple(e)) for e in events)
 

@@ -28,7 +28,6 @@ from numpy.typing import NDArray
 
 from joint_model.friction import FrictionParams, friction_magnitude, nominal_friction, wear_friction
 from protocol import frames as pf
-
 from sim_controller.config import SimConfig
 from sim_controller.faults import FaultInjector, FrameBlock
 from sim_controller.joint_dynamics import SpeedLoop, SpeedLoopParams, simulate_block
@@ -214,7 +213,8 @@ class Controller:
             stop = int(round(MAINTENANCE_STOP_S * c.rate))
             zeros = np.zeros(stop)
             ref = CycleReference(np.concatenate([zeros, ref.speed]), np.concatenate([zeros, ref.acceleration]),
-                                 np.concatenate([zeros, ref.angle]), np.concatenate([np.zeros(stop, np.int64), ref.segment]),
+                                 np.concatenate([zeros, ref.angle]),
+                                 np.concatenate([np.zeros(stop, np.int64), ref.segment]),
                                  np.concatenate([np.full(stop, -1, np.int64), ref.level]))
             mode = np.concatenate([np.full(stop, int(pf.Mode.STOPPED)), mode])
         return ref, mode

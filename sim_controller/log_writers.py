@@ -25,7 +25,6 @@ import numpy as np
 from can.io import blf
 
 from protocol.links import LinkError, is_log_file
-
 from sim_controller.faults import FrameBlock
 
 #: zlib level of BLF containers: 1 (fastest) — level 6 (python-can's default) made compression

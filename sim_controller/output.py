@@ -22,7 +22,6 @@ from typing import IO, Any, Callable
 import can
 
 from protocol.links import open_bus
-
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
 from sim_controller.log_writers import block_messages, open_block_writer

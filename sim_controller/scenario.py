@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 from joint_model.friction import FrictionParams
-
 from sim_controller.config import JointOverride, SimConfig, SimConfigError
 from sim_controller.faults import FaultSpec
 from sim_controller.wear_scenarios import WearEvent, WearProfile, WearScenarioError, event_from_mapping

@@ -8,10 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from edge_monitor.pipeline.agent import Agent
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, PlateauConfig
-from joint_model.friction import friction_magnitude
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.state_store import StateStore
+from joint_model.friction import friction_magnitude
+
 from synthetic_frames import make_frames
 
 SPEEDS = (8.7, 41.7, 133.5)
@@ -110,6 +111,30 @@ def test_restart_resumes_without_duplicates_or_gaps(frames, tmp_path):
     outs3 = feed(third, frames) + third.finish()
     assert sorted({o.to_dict()["cycle"] for o in outs3}) == [4, 5, 6, 7]
     assert not any(o.to_dict().get("partial") for o in outs3)
+
+
+@pytest.mark.parametrize("on_change", ["relearn", "keep"])
+def test_a_config_change_after_a_restart_takes_effect_or_is_kept_and_is_reported(tmp_path, caplog, on_change):
+    frames = make_frames(8, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=3)
+    split = len(frames[0]) * 6 // 8 + 123
+    first = Agent(small_config(), state_store=StateStore(tmp_path))
+    feed(first, frames, stop=split)
+    first.close()
+    assert first.joints[0].detectors.detectors["wear"].state == "monitoring"
+    changed = small_config(on_config_change=on_change)
+    changed = dataclasses.replace(changed, decision=dataclasses.replace(changed.decision, pf=1e-6))
+    with caplog.at_level("WARNING"):
+        second = Agent(changed, state_store=StateStore(tmp_path))
+        outs = feed(second, frames, start=split)
+    detector = second.joints[0].detectors.detectors["wear"]
+    if on_change == "relearn":   # the new Pf takes effect: the detector learns again, and says why
+        assert detector.pf == 1e-6 and outs[0].decisions["wear"].state == "learning"
+        assert any("pf 1e-11 → 1e-06" in r.getMessage() and "relearning" in r.getMessage() for r in caplog.records)
+    else:                        # the learned detector is kept, with the Pf it was learned with; reported
+        assert detector.pf == 1e-11 and outs[-1].decisions["wear"].state == "monitoring"
+        assert any("keeping the models learned with the previous decision" in r.getMessage() for r in caplog.records)
+        second.declare_maintenance(0)       # a maintenance declaration adopts the current config
+        assert second.joints[0].detectors.detectors["wear"].pf == 1e-6
 
 
 def test_config_errors_name_the_field():

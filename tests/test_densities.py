@@ -11,8 +11,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from edge_monitor.stats.densities import (DensityError, GaussianMixture, fit_density, fit_gaussian, fit_gce,
-                                    fit_kde, min_points)
+from edge_monitor.stats.densities import (
+    DensityError,
+    GaussianMixture,
+    fit_density,
+    fit_gaussian,
+    fit_gce,
+    fit_kde,
+    min_points,
+)
 
 
 def bimodal(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -13,8 +13,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.commands.fit_weights import CycleModel, fit, simulate_cycles
-from edge_monitor.features.disturbance_weights import (DEFAULT_ALPHA, DEFAULT_BETA, WeightFitError, WeightFunction,
-                                              fit_index_weights, fit_weight_function)
+from edge_monitor.features.disturbance_weights import (
+    DEFAULT_ALPHA,
+    DEFAULT_BETA,
+    WeightFitError,
+    WeightFunction,
+    fit_index_weights,
+    fit_weight_function,
+)
 
 
 def test_weight_function_shape() -> None:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from edge_monitor.features.friction_extraction import FrictionExtractor
-from joint_model.friction import friction_magnitude
 from edge_monitor.features.segmentation import PlateauConfig, PlateauDetector
+from joint_model.friction import friction_magnitude
+
 from synthetic_frames import cycle_profile, cycle_torque
 
 SPEEDS = PlateauConfig().speeds

@@ -13,8 +13,15 @@ from scipy import stats
 
 from edge_monitor.stats.bias_em import SAEMBias
 from edge_monitor.stats.densities import fit_gaussian, fit_gce, fit_kde
-from edge_monitor.stats.glr import (GLRError, WindowedGLR, bootstrap_threshold, glr_known_change,
-                              glr_unknown_change, miss_probability, threshold_from_pf)
+from edge_monitor.stats.glr import (
+    GLRError,
+    WindowedGLR,
+    bootstrap_threshold,
+    glr_known_change,
+    glr_unknown_change,
+    miss_probability,
+    threshold_from_pf,
+)
 
 
 def test_thresholds_from_pf_match_the_spec_values() -> None:

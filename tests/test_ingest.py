@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from edge_monitor.pipeline.ingest import Ingest
+
 from synthetic_frames import make_frames
 
 SPEEDS = (8.7, 41.7)

@@ -10,8 +10,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import gaussian_kde
 
-from edge_monitor.stats.kde_stream import (GridError, KDEDataError, StreamingKDE, choose_grid,
-                                     normal_reference_bandwidth, symmetric_kl)
+from edge_monitor.stats.kde_stream import (
+    GridError,
+    KDEDataError,
+    StreamingKDE,
+    choose_grid,
+    normal_reference_bandwidth,
+    symmetric_kl,
+)
 
 
 def _mixture(rng: np.random.Generator, n: int, n_modes: int) -> np.ndarray:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from edge_monitor.commands.fit_weights import simulate_cycles
-from edge_monitor.features.disturbance_weights import WeightFunction
 from edge_monitor.errors import ConfigError, StateMismatch
+from edge_monitor.features.disturbance_weights import WeightFunction
 from edge_monitor.features.kl_channel import PROVISIONAL_GRID
 from edge_monitor.features.kl_monitor import KLConfig, KLMonitor, KLResult
 from protocol.frames import SEGMENT_PRODUCTION

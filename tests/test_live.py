@@ -7,8 +7,8 @@ import time
 
 import can
 
-from edge_monitor.pipeline.agent import Agent
 from edge_monitor.config import AgentConfig
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from protocol import frames as fr

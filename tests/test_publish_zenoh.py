@@ -7,21 +7,22 @@ import json
 import logging
 import math
 import signal
+import socket
 import subprocess
 import sys
-import socket
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
 
-from edge_monitor.sinks.loopback import free_loopback_port as free_port
 from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
 from edge_monitor.records import to_json
 from edge_monitor.sinks.keys import KeyParts, parse_key
+from edge_monitor.sinks.loopback import free_loopback_port as free_port
 from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError, open_session
+
 from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[1]

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.sinks.rerun_view import CRITICAL_WEAR, FRICTION_SCALE, RerunSetupError, RerunSink, cycle_colors
+
 from recordings import rows_by_entity
 
 pytestmark = pytest.mark.timeout(60)

@@ -18,6 +18,7 @@ from edge_monitor.sinks.loopback import free_loopback_port as free_port
 from edge_monitor.sinks.zenoh_publisher import SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
 from protocol.links import PtyPair, open_bus
+
 from synthetic_frames import make_frames
 from waiting import wait_until
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_sim_support import collect, decode
 
 from protocol import frames as pf
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
 from sim_controller.faults import FaultInjector, FaultSpec, FaultSpecError, FrameBlock
-from test_sim_support import collect, decode
 
 N = 20_000
 BLOCK = 1_000

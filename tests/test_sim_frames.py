@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_sim_support import collect, decode
 
 from protocol import frames as pf
 from sim_controller.config import SimConfig
@@ -17,7 +18,6 @@ from sim_controller.controller import Controller
 from sim_controller.faults import FaultSpec, FrameBlock
 from sim_controller.log_writers import block_messages, open_block_writer
 from sim_controller.output import record, sidecar_path
-from test_sim_support import collect, decode
 
 SMALL = dict(joints=2, cycles=2, speeds=(10.0, 100.0), plateau_time=0.3, pause_time=0.1)
 

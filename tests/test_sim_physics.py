@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 from scipy.optimize import curve_fit
+from test_sim_support import collect, decode, joint_signals, plateau_means
 
 from protocol import frames as pf
 from sim_controller.config import SimConfig
@@ -16,7 +17,6 @@ from sim_controller.controller import Controller
 from sim_controller.test_cycle import build_cycle
 from sim_controller.thermal import ThermalModel
 from sim_controller.wear_scenarios import WearEvent, WearProfile
-from test_sim_support import collect, decode, joint_signals, plateau_means
 
 TABLE = dict(fc0=3.11e-2, fcl=2.34e-2, fs0=-2.50e-2, fsl=1.26e-1, fsxi=1.60e-3, fv0=1.30e-4, fvxi=1.32e-3,
              vs0=-24.81, vsl=9.22, vsxi=0.98, xi_vo=20.71, alpha=1.36, fsw=9.02e-4, fvw=-5.15e-7, vsw=2.19)

@@ -16,6 +16,7 @@ from edge_monitor import cli
 from edge_monitor.sinks.loopback import free_loopback_port as free_port
 from edge_monitor.sinks.zenoh_publisher import SymptomPublisher
 from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
+
 from recordings import rows_by_entity
 
 pytestmark = pytest.mark.timeout(90)

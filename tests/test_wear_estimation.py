@@ -16,9 +16,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
+from edge_monitor.features.wear_estimation import WearEstimate, WearEstimator, crlb_wear, marginal_fisher_wear
 from edge_monitor.offline.experiment_design import design_speeds
 from joint_model.friction import friction_magnitude
-from edge_monitor.features.wear_estimation import WearEstimate, WearEstimator, crlb_wear, marginal_fisher_wear
 
 SIGMA = 5.7e-3
 LOAD_MEAN, LOAD_STD = 0.5, 0.1

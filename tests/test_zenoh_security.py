@@ -28,13 +28,21 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from certs import CertificateAuthority, CertFiles
 from edge_monitor.sinks.loopback import free_loopback_port
-from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber
 from edge_monitor.sinks.maintenance import MaintenanceGate, describe_source
+from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber
 from edge_monitor.sinks.zenoh_security import (
-    TlsFiles, ZenohSecurityError, apply_settings, check_no_downgrade, client_tls_settings, config_endpoints,
-    router_tls_settings, tls_settings_of)
+    TlsFiles,
+    ZenohSecurityError,
+    apply_settings,
+    check_no_downgrade,
+    client_tls_settings,
+    config_endpoints,
+    router_tls_settings,
+    tls_settings_of,
+)
+
+from certs import CertFiles, CertificateAuthority
 from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[1]

@@ -82,7 +82,7 @@ def monitor_rows(rng: np.random.Generator) -> list[str]:
 
 
 def run(out: str | None) -> str:
-    from KDEpy import FFTKDE   # benchmark-only peer
+    from KDEpy import FFTKDE  # benchmark-only peer
 
     rng = np.random.default_rng(0)
     nominal_data = cycle_samples(100_000, rng)

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
+from edge_monitor.features.wear_estimation import WearEstimator, data_covariance
 from edge_monitor.offline.experiment_design import design_speeds
 from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction_magnitude
-from edge_monitor.features.wear_estimation import WearEstimator, data_covariance
 
 DEFAULT_SPEEDS = list(DEFAULT_SPEED_LEVELS)
 LOAD_MEAN, LOAD_STD = 0.5, 0.1

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_monitor.features.wear_estimation import WearEstimator, crlb_wear, marginal_fisher_wear
 from edge_monitor.offline.experiment_design import design_speeds
 from joint_model.friction import FRICTION_NOISE_STD, friction_magnitude
-from edge_monitor.features.wear_estimation import WearEstimator, crlb_wear, marginal_fisher_wear
 
 WEARS = (0.0, 20.0, 35.0, 50.0)
 LOAD_MEAN, LOAD_STD = 0.5, 0.1

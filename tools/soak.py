@@ -20,8 +20,8 @@ import tempfile
 import threading
 from pathlib import Path
 
-from edge_monitor.pipeline.agent import Agent
 from edge_monitor.config import AgentConfig
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from protocol.links import open_bus

@@ -35,8 +35,15 @@ import zenoh  # noqa: E402
 
 from edge_monitor.sinks.loopback import free_loopback_port  # noqa: E402
 from edge_monitor.sinks.zenoh_security import (  # noqa: E402
-    SECURE_PROTOCOLS, TlsFiles, ZenohSecurityError, apply_settings, check_no_downgrade, config_endpoints,
-    router_tls_settings, tls_settings_of)
+    SECURE_PROTOCOLS,
+    TlsFiles,
+    ZenohSecurityError,
+    apply_settings,
+    check_no_downgrade,
+    config_endpoints,
+    router_tls_settings,
+    tls_settings_of,
+)
 from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, ZenohSetupError  # noqa: E402
 
 DEFAULT_HOST = "127.0.0.1"

@@ -165,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
         "frames": {k: frames[k] for k in ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated",
                                           "unknown_id", "malformed")},
         "frames_sent": _frames_sent(truth), "cycles": frames["cycles"], "simulator_exit_code": sim_rc,
-        "wall_s": round(time.monotonic() - started, 1), "pf": cfg.decision.pf, "pf_joint": cfg.decision.pf_joint, "link": link_desc,
+        "wall_s": round(time.monotonic() - started, 1), "pf": cfg.decision.pf, "pf_joint": cfg.decision.pf_joint,
+        "link": link_desc,
         "jsonl": cfg.jsonl, "truth": str(truth),
     }
     print(summary_table(last.last, frames, cfg.decision.pf))

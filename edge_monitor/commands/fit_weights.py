@@ -29,7 +29,6 @@ from edge_monitor.features.disturbance_weights import WeightFitError, fit_index_
 from joint_model import CRITICAL_WEAR, DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction
 
 
-
 class CycleDataError(ValueError):
     """A labelled-run file that cannot be used (missing columns, ragged cycles)."""
 

@@ -17,8 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_monitor.stats.densities import DENSITY_KINDS, fit_density
-from edge_monitor.stats.glr import (GLRResult, bootstrap_threshold, check_pf, glr_known_change,
-                              glr_unknown_change)
+from edge_monitor.stats.glr import GLRResult, bootstrap_threshold, check_pf, glr_known_change, glr_unknown_change
 
 
 class CsvInputError(ValueError):

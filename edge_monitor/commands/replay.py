@@ -7,11 +7,16 @@ import logging
 import struct
 import sys
 import time
-
 from contextlib import ExitStack
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import add_config_arguments, load_agent_config, open_state_store, print_json, summary_table
+from edge_monitor.commands.common import (
+    add_config_arguments,
+    load_agent_config,
+    open_state_store,
+    print_json,
+    summary_table,
+)
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import log_blocks
 from edge_monitor.sinks.base import LastSymptomSink

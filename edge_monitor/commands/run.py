@@ -14,11 +14,15 @@ import signal
 import sys
 import threading
 from contextlib import ExitStack
-from typing import Any
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import (add_config_arguments, add_zenoh_arguments, load_agent_config,
-                                          open_state_store, zenoh_options)
+from edge_monitor.commands.common import (
+    add_config_arguments,
+    add_zenoh_arguments,
+    load_agent_config,
+    open_state_store,
+    zenoh_options,
+)
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.sinks.zenoh_session import ZenohSetupError

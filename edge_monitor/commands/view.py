@@ -104,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"edge-monitor view: {counts.symptoms} symptoms from {len(robots)} robot(s) "
           f"({', '.join(robots) or '-'}), {len(counts.joints)} joint(s), {counts.alarms} alarm records, "
           f"{counts.health} health records; missed {subscriber.misses}, undecodable {subscriber.decode_errors}, "
-          f"dropped {counts.dropped}, malformed {counts.malformed}, drawing errors {sink.errors}; sink {sink.spec}", flush=True)
+          f"dropped {counts.dropped}, malformed {counts.malformed}, drawing errors {sink.errors}; sink {sink.spec}",
+          flush=True)
     return 0
 
 
@@ -118,9 +119,9 @@ def _draw_pending(inbox: queue.Queue, sink: RerunSink, counts: _Counts) -> None:
             break
         if received.kind in (SYMPTOM, ALARM) and received.joint is None:
             counts.malformed += 1           # e.g. edge/<robot>/agent/symptom: not a joint key
-        elif received.kind == SYMPTOM:
+        elif received.kind == SYMPTOM and received.joint is not None:
             symptoms.append({"robot": received.robot, "joint": received.joint, **received.record})
-            counts.joints.add((received.robot, int(received.joint)))
+            counts.joints.add((received.robot, received.joint))
         elif received.kind == ALARM:
             sink.log_alarm({"robot": received.robot, "joint": received.joint, **received.record})
             counts.alarms += 1

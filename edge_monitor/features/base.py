@@ -51,8 +51,13 @@ class FeatureOutput:
 class Feature(Protocol):
     """A per-cycle feature of one joint (see the module docstring)."""
 
-    name: str
-    quantities: tuple[str, ...]
+    @property
+    def name(self) -> str:
+        """The record section it fills."""
+
+    @property
+    def quantities(self) -> tuple[str, ...]:
+        """The per-cycle quantities it produces."""
 
     def update_samples(self, torque: NDArray[np.float64], speed: NDArray[np.float64],
                        segment: NDArray[np.int64] | None) -> None:

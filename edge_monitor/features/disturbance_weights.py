@@ -138,4 +138,5 @@ def fit_weight_function(speeds: ArrayLike, index_weights: ArrayLike,
                             xtol=1e-15, ftol=1e-15, gtol=1e-15)
         if best is None or fit.cost < best.cost:
             best = fit
+    assert best is not None    # the start grid is never empty
     return float(np.exp(best.x[0])), float(np.exp(best.x[1]))

@@ -87,7 +87,7 @@ class KLChannel:
 
     @property
     def threshold(self) -> float | None:
-        return None if self.mu0 is None else self.mu0 + 3.0 * self.sigma0
+        return None if self.mu0 is None or self.sigma0 is None else self.mu0 + 3.0 * self.sigma0
 
     def new_window(self) -> None:
         self.kde.reset()

@@ -93,7 +93,8 @@ class KLConfig:
         require(2 <= self.n_nominal_cycles <= 1000, "kl.n_nominal_cycles",
                 f"need 2 … 1000 cycles (2 for σ0), got {self.n_nominal_cycles}")
         require(64 <= self.n_grid <= MAX_GRID, "kl.n_grid", f"need 64 … {MAX_GRID} grid points, got {self.n_grid}")
-        require(self.window in ("cycle", "production"), "kl.window", f"must be 'cycle' or 'production', got {self.window!r}")
+        require(self.window in ("cycle", "production"), "kl.window",
+                f"must be 'cycle' or 'production', got {self.window!r}")
         for name in ("alpha", "beta"):
             value = getattr(self, name)
             require(math.isfinite(value) and 0 <= value <= 10, f"kl.{name}", f"must be 0 … 10 s/rad, got {value}")
@@ -310,7 +311,8 @@ class KLMonitor:
             result.density = {"grid": raw.grid, "cycle": densities["raw"], "nominal": raw.nominal}
             result.threshold_3sigma = self._thresholds()
             return result
-        values = {name: symmetric_kl(ch.nominal, densities[name], ch.dx) for name, ch in self.channels.items()}
+        values = {name: symmetric_kl(_learned(ch.nominal), densities[name], ch.dx)
+                  for name, ch in self.channels.items()}
         result.raw = values["raw"]
         result.weighted = values.get("weighted")
         result.threshold_3sigma = self._thresholds()
@@ -328,7 +330,7 @@ class KLMonitor:
         if not self.modes:
             return None
         raw = self.channels["raw"]
-        candidates = {"nominal": raw.nominal, **self.modes}
+        candidates = {"nominal": _learned(raw.nominal), **self.modes}
         distances = {name: symmetric_kl(d, density, raw.dx) for name, d in candidates.items()}
         return min(distances, key=distances.__getitem__)
 
@@ -358,6 +360,12 @@ class KLMonitor:
                         for name in mon.channel_names}
         mon.modes = {name: np.asarray(d, dtype=float) for name, d in state["modes"].items()}
         return mon
+
+
+def _learned(nominal: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The nominal density of a channel that has finished learning."""
+    assert nominal is not None, "nominal density used before learning finished"
+    return nominal
 
 
 def _nan_if_none(x: float | None) -> float:

@@ -22,8 +22,11 @@ from joint_model import FrictionParams
 class FeatureSettings(Protocol):
     """What feature builders read from the agent configuration."""
 
-    wear: WearConfig
-    kl: KLConfig
+    @property
+    def wear(self) -> WearConfig: ...
+
+    @property
+    def kl(self) -> KLConfig: ...
 
     def friction_for(self, joint: int) -> FrictionParams: ...
 

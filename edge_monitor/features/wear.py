@@ -41,7 +41,8 @@ class WearConfig:
     critical: float = CRITICAL_WEAR
 
     def __post_init__(self) -> None:
-        require(self.method in ESTIMATION_METHODS, "wear.method", f"must be one of {ESTIMATION_METHODS}, got {self.method!r}")
+        require(self.method in ESTIMATION_METHODS, "wear.method",
+                f"must be one of {ESTIMATION_METHODS}, got {self.method!r}")
         require(math.isfinite(self.noise_std) and 0 < self.noise_std <= 1, "wear.noise_std",
                 f"must be in (0, 1], got {self.noise_std}")
         require(-40 <= self.temperature_min < self.temperature_max <= 150, "wear.temperature_min",

@@ -196,7 +196,7 @@ def identify(data: CommissioningData, base: FrictionParams = DEFAULT_PARAMS) -> 
     names = LINEAR_NAMES + NONLINEAR_NAMES
     psi = prediction_gradient(data, params)
     gamma = float(np.mean(resid ** 2))
-    covariance = gamma * np.linalg.pinv(psi.T @ psi)
+    covariance = np.asarray(gamma * np.linalg.pinv(psi.T @ psi), dtype=np.float64)
     return CommissioningResult(params=params, names=names, covariance=covariance, noise_variance=gamma,
                                n_points=data.n, rms_residual=math.sqrt(gamma))
 

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
+from edge_monitor.features.wear_estimation import crlb_wear, marginal_fisher_wear
 from joint_model.friction import (
     DEFAULT_PARAMS,
     FRICTION_NOISE_STD,
@@ -29,7 +30,6 @@ from joint_model.friction import (
     jacobian_temperature_wear,
     load_sensitivity,
 )
-from edge_monitor.features.wear_estimation import crlb_wear, marginal_fisher_wear
 
 
 class DesignError(ValueError):
@@ -107,13 +107,15 @@ def design_speeds(n_points: int, temperature: float = 40.0, wear: float = 35.0, 
     """Speeds [rad/s] minimising the Cramér–Rao bound of ϖ at the design point (deterministic)."""
     point = DesignPoint(float(temperature), float(wear), float(load_mean), float(load_std), float(noise_std))
     _validate(n_points, point, speed_min, speed_max, min_separation)
-    common = dict(design_point=point, speed_min=float(speed_min), speed_max=float(speed_max),
-                  min_separation=float(min_separation))
     if n_points == 1:
         speed, bound = _design_single(point, speed_min, speed_max, params)
-        return DesignResult(speeds=[speed], wear_crlb=bound, method="marginal-fisher-grid", **common)
-    speeds, bound, n_starts = _design_multi(n_points, point, speed_min, speed_max, min_separation, params, seed)
-    return DesignResult(speeds=speeds, wear_crlb=bound, method="grid+slsqp", n_starts=n_starts, **common)
+        speeds, method, n_starts = [speed], "marginal-fisher-grid", 0
+    else:
+        speeds, bound, n_starts = _design_multi(n_points, point, speed_min, speed_max, min_separation, params, seed)
+        method = "grid+slsqp"
+    return DesignResult(speeds=speeds, wear_crlb=bound, design_point=point, speed_min=float(speed_min),
+                        speed_max=float(speed_max), min_separation=float(min_separation), method=method,
+                        n_starts=n_starts)
 
 
 def _validate(n_points: int, point: DesignPoint, speed_min: float, speed_max: float,

@@ -162,7 +162,7 @@ class Agent:
             outputs = self._close_cycle(self._open_cycle)
             self._open_cycle = None
         else:   # no status frames: each joint closes its own inferred cycle if it holds data
-            for joint, monitor in sorted(self.joints.items()):
+            for _, monitor in sorted(self.joints.items()):
                 if monitor.has_cycle_data():
                     outputs += self._emit(monitor.end_cycle(monitor.cycles))
         return outputs
@@ -179,7 +179,7 @@ class Agent:
                 raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
                                  "a maintenance declaration is only needed for a joint with learned models")
             cycle = self._last_emitted.get(joint, -1)
-            cleared = self._monitor(joint).declare_maintenance(cycle)
+            cleared = self._monitor(joint).declare_maintenance(cycle, self.config)
             log.warning("joint %d: maintenance declared after cycle %d; nominal models are relearned", joint, cycle)
             for alarm in cleared:
                 for sink in self.sinks:
@@ -254,4 +254,4 @@ class Agent:
     def close(self) -> None:
         self.save_state()
         for sink in self.sinks:
-            self._deliver(lambda _: sink.close(), None)
+            self._deliver(lambda s: s.close(), sink)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Mapping
 
 from edge_monitor.errors import require
@@ -60,15 +60,18 @@ class AgentConfig:
         require(math.isfinite(self.rate_hz) and 1 <= self.rate_hz <= 100_000, "rate_hz",
                 f"must be 1 … 100000 Hz, got {self.rate_hz}")
         if self.joints is not None:
-            require(len(self.joints) > 0, "joints", "an empty list monitors nothing; omit the key to monitor every joint")
+            require(len(self.joints) > 0, "joints",
+                    "an empty list monitors nothing; omit the key to monitor every joint")
             require(all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < MAX_JOINTS for j in self.joints),
                     "joints", f"joint indices must be integers 0 … {MAX_JOINTS - 1}, got {list(self.joints)}")
         require(all(0 <= j < MAX_JOINTS for j in self.joint_friction), "joint",
                 f"joint indices must be 0 … {MAX_JOINTS - 1}")
         require(self.on_config_change in ON_CONFIG_CHANGE, "on_config_change",
                 f"must be one of {ON_CONFIG_CHANGE}, got {self.on_config_change!r}")
-        require(1 <= self.queue_size <= MAX_QUEUE, "queue_size", f"must be 1 … {MAX_QUEUE} frames, got {self.queue_size}")
-        require(1 <= self.block_size <= MAX_BLOCK, "block_size", f"must be 1 … {MAX_BLOCK} frames, got {self.block_size}")
+        require(1 <= self.queue_size <= MAX_QUEUE, "queue_size",
+                f"must be 1 … {MAX_QUEUE} frames, got {self.queue_size}")
+        require(1 <= self.block_size <= MAX_BLOCK, "block_size",
+                f"must be 1 … {MAX_BLOCK} frames, got {self.block_size}")
         require(math.isfinite(self.status_interval_s) and 0.1 <= self.status_interval_s <= 86_400,
                 "status_interval_s", f"must be 0.1 … 86400 s, got {self.status_interval_s}")
 
@@ -76,8 +79,35 @@ class AgentConfig:
         """The friction parameters of ``joint``: its own table if configured, else the common one."""
         return self.joint_friction.get(joint, self.friction)
 
-    def fingerprint(self) -> dict[str, Any]:
+    def fingerprint(self, joint: int | None = None) -> dict[str, Any]:
         """The settings learned state depends on, by section (compared when a state is restored)."""
+        friction = self.friction if joint is None else self.friction_for(joint)
         return {"segmentation": self.segmentation.fingerprint(), "wear": self.wear.fingerprint(),
                 "kl": self.kl.fingerprint(), "decision": self.decision.fingerprint(),
-                "friction": asdict(self.friction)}
+                "friction": asdict(friction)}
+
+    def with_learned(self, joint: int, saved: dict[str, Any]) -> tuple["AgentConfig", list[str]]:
+        """``on_config_change = "keep"``: this config with the sections ``saved`` (a :meth:`fingerprint`
+        of the config ``joint``'s models were learned with) where they differ; and the names of those
+        sections. Sections that cannot be rebuilt from ``saved`` stay as they are."""
+        current = self.fingerprint(joint)
+        builders: dict[str, Any] = {
+            "segmentation": lambda d: PlateauConfig(**{**d, "speeds": tuple(d["speeds"])}),
+            "wear": lambda d: WearConfig(**d, enabled=self.wear.enabled, critical=self.wear.critical),
+            "kl": lambda d: KLConfig(**d, enabled=self.kl.enabled),
+            "decision": lambda d: DecisionConfig(**{**d, "quantities": tuple(d["quantities"])}),
+        }
+        changes: dict[str, Any] = {}
+        for name, build in builders.items():
+            if name in saved and saved[name] != current[name]:
+                try:
+                    changes[name] = build(saved[name])
+                except (TypeError, ValueError, KeyError):
+                    continue
+        if "friction" in saved and saved["friction"] != current["friction"]:
+            try:
+                changes["joint_friction"] = {**self.joint_friction, joint: FrictionParams(**saved["friction"])}
+            except (TypeError, ValueError):
+                pass
+        kept = sorted("friction" if k == "joint_friction" else k for k in changes)
+        return (replace(self, **changes) if changes else self), kept

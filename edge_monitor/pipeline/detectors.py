@@ -16,8 +16,14 @@ from typing import Any
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import QUANTITIES, QuantitySpec, feature_of
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.sequential_detector import (DEFAULT_NOMINAL, DEFAULT_PF, DEFAULT_PF_VECTOR, DEFAULT_WINDOW,
-                                                    DetectorConfig, SequentialDetector)
+from edge_monitor.stats.sequential_detector import (
+    DEFAULT_NOMINAL,
+    DEFAULT_PF,
+    DEFAULT_PF_VECTOR,
+    DEFAULT_WINDOW,
+    DetectorConfig,
+    SequentialDetector,
+)
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +136,20 @@ class DetectorBank:
     def state_dict(self) -> dict[str, Any]:
         return {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
 
+    def _check_inputs(self, quantity: str, saved: Any) -> None:
+        """:class:`StateMismatch` naming what changed if ``quantity``'s detector learned on other values."""
+        current = self._fingerprint(quantity)
+        if saved == current:
+            return
+        saved = saved if isinstance(saved, dict) else {}
+        changes: dict[str, tuple[object, object]] = {}
+        if saved.get("log") != current["log"]:
+            changes["decision.log_kl"] = (saved.get("log"), current["log"])
+        for feature, settings in current["sources"].items():
+            if saved.get("sources", {}).get(feature) != settings:
+                changes[f"{feature} settings"] = ("learned", "changed")
+        raise StateMismatch(f"detector {quantity}", changes or {"inputs": ("learned", "changed")})
+
     def load_state(self, state: dict[str, Any], joint: int) -> list[str]:
         """Restore detectors from ``state``; a detector whose settings or inputs changed since it was
         learned starts learning again. Returns one message per relearned detector."""
@@ -139,8 +159,7 @@ class DetectorBank:
             if saved is None:
                 continue
             try:
-                if saved.get("inputs") != self._fingerprint(quantity):
-                    raise StateMismatch(f"detector {quantity}", {"inputs": (saved.get("inputs"), self._fingerprint(quantity))})
+                self._check_inputs(quantity, saved.get("inputs"))
                 self.detectors[quantity] = SequentialDetector.from_state(self.config.detector_config(quantity), saved)
             except StateMismatch as exc:
                 messages.append(f"joint {joint}: {exc}; relearning the {quantity} detector")

@@ -10,6 +10,7 @@ segment of the controller status frame in force when it arrived (stream order).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -143,8 +144,7 @@ class Ingest:
         first_seen: dict[int, bool] = {}
         in_force = -1 if self._cycle is None else self._cycle      # before this block's status frames
         for i, r in enumerate(status_rows):           # a few status frames per block: Python is fine
-            self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen)
-            cycles[i] = self._cycle
+            cycles[i] = self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen)
         at, known = _forward_index(n, status_rows)
         segments = dec.segment[status_rows].astype(np.int64)
         row_cycle = np.where(known, cycles[at] if cycles.size else -1, in_force)
@@ -163,21 +163,26 @@ class Ingest:
         at, known = _forward_index(len(dec), rows)
         return np.where(known, ticks[at] if ticks.size else -1, carry).astype(np.int64)
 
-    def _update_cycle(self, raw: int, segment: int, first_seen: dict[int, bool]) -> None:
-        """Unwrap the 16-bit cycle counter. Steps of 1 … MAX_CYCLE_STEP are progress (lost status
-        frames of whole cycles included); anything else is a controller restart: numbering goes on
-        from the last cycle + 1, so published cycle numbers stay unique and increasing."""
+    def _update_cycle(self, raw: int, segment: int, first_seen: dict[int, bool]) -> int:
+        """Unwrap the 16-bit cycle counter; return the unwrapped cycle in force. Steps of 1 …
+        MAX_CYCLE_STEP are progress (lost status frames of whole cycles included); anything else is a
+        controller restart: numbering goes on from the last cycle + 1, so published cycle numbers stay
+        unique and increasing."""
         if self._cycle_raw is None or self._cycle is None:     # first status frame, no restored state
-            self._cycle = raw
+            cycle = raw
             first_seen[raw] = segment <= 1                      # its start seen: segment 0 or 1
         elif raw != self._cycle_raw:
             step = (raw - self._cycle_raw) % CYCLE_MODULUS
-            self._cycle += step if 0 < step <= MAX_CYCLE_STEP else 1
-            first_seen[self._cycle] = True
-        elif not self._anchored:                                # restored state, same cycle: mid-cycle
-            first_seen[self._cycle] = False
+            cycle = self._cycle + (step if 0 < step <= MAX_CYCLE_STEP else 1)
+            first_seen[cycle] = True
+        else:
+            cycle = self._cycle
+            if not self._anchored:                              # restored state, same cycle: mid-cycle
+                first_seen[cycle] = False
+        self._cycle = cycle
         self._anchored = True
         self._cycle_raw = raw
+        return cycle
 
     def _update_status_tick(self, raw: int) -> int:
         """Unwrap the 24-bit controller tick of the status frame (a backward step is a restart)."""

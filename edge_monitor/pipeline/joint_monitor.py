@@ -103,8 +103,9 @@ class JointMonitor:
             values.update(out.values)
             if out.reason:
                 reasons[spec.name] = out.reason
+        alarms: list[Alarm] = []
         if cycle.partial:
-            decisions, alarms = self.detectors.idle(), []
+            decisions = self.detectors.idle()
         else:
             decisions, alarms = self.detectors.update(values, robot, self.joint, cycle.cycle)
         return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
@@ -113,11 +114,21 @@ class JointMonitor:
                        skipped=cycle.friction.skipped, critical_wear=self.config.wear.critical,
                        reasons=reasons, partial=cycle.partial, alarms=alarms, extras=extras)
 
-    def declare_maintenance(self, cycle: int) -> list[Alarm]:
-        """Gearbox replaced or serviced: relearn the nominal models; one "cleared" alarm per raised one."""
+    def declare_maintenance(self, cycle: int, config: AgentConfig | None = None) -> list[Alarm]:
+        """Gearbox replaced or serviced: relearn the nominal models; one "cleared" alarm per raised one.
+        With ``config`` (the agent's current one) the relearned models use it, e.g. after models learned
+        with a previous config were kept."""
         cleared = self.detectors.reset(self.config.robot, self.joint, cycle)
-        for feature in self.features.values():
-            feature.reset()
+        if config is not None and config != self.config:
+            counters = self.assembler.state_dict()
+            self.config = config
+            self.assembler = CycleAssembler(self.joint, config.segmentation, config.rate_hz)
+            self.assembler.load_state(counters)
+            self.features = {spec.name: spec.build(self.joint, config) for spec in FEATURES if spec.enabled(config)}
+            self.detectors = DetectorBank(config.decision, self._sources())
+        else:
+            for feature in self.features.values():
+                feature.reset()
         self.maintenances += 1
         return cleared
 
@@ -126,15 +137,23 @@ class JointMonitor:
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        return {"joint": self.joint, "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
+        return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
+                "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict()}
 
     @classmethod
     def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any]) -> "JointMonitor":
         """A monitor with the learned models of ``state``. A component learned with another config is
-        relearned and the change is logged as a warning (``on_config_change = "keep"`` is handled by
-        the caller, which passes the saved config instead)."""
+        relearned and the change is logged as a warning; with ``on_config_change = "keep"`` the
+        sections it was learned with are kept instead (also logged)."""
+        saved = state.get("config")
+        if config.on_config_change == "keep" and isinstance(saved, dict):
+            config, kept = config.with_learned(joint, saved)
+            if kept:
+                log.warning("joint %d: keeping the models learned with the previous %s settings "
+                            "(on_config_change = \"keep\"); the new settings apply after a maintenance "
+                            "declaration or with on_config_change = \"relearn\"", joint, ", ".join(kept))
         monitor = cls(joint, config)
         monitor.maintenances = int(state.get("maintenances", 0))
         assembly = state.get("assembly")

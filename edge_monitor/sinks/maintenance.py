@@ -177,7 +177,7 @@ class MaintenanceGate:
         def on_sample(sample: Any) -> None:
             try:
                 decision = self.decide_sample(sample)
-                if decision.accepted:
+                if decision.accepted and decision.joint is not None:
                     declare(decision.joint)
             except Exception as exc:
                 self.log.error("maintenance declaration on %s not applied: %s", getattr(sample, "key_expr", "?"), exc)
@@ -222,7 +222,8 @@ class MaintenanceGate:
         details = (f"key={key!r} source={source} "
                    f"attachment='{_printable(_to_text(attachment), self.payload_chars)}' "
                    f"payload='{_printable(_to_text(payload), self.payload_chars)}'")
-        more = f" ({suppressed} similar refusal(s) not logged in the last {self.log_interval_s:g} s)" if suppressed else ""
+        more = (f" ({suppressed} similar refusal(s) not logged in the last {self.log_interval_s:g} s)"
+                if suppressed else "")
         if reason == "accepted":
             self.log.warning("maintenance declaration ACCEPTED for joint %d: %s", joint, details)
         elif reason == "disabled":

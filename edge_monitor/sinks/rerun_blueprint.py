@@ -16,7 +16,8 @@ def fleet_blueprint(layout: Mapping[str, set[int]], health_robots: set[str]) -> 
 
     all_cycles = rrb.VisibleTimeRange("cycle", start=rrb.TimeRangeBoundary.infinite(),
                                       end=rrb.TimeRangeBoundary.cursor_relative())
-    overview, tabs = [], []
+    overview: list[Any] = []
+    tabs: list[Any] = []
     for robot in sorted(layout):
         for joint in sorted(layout[robot]):
             base = joint_path(robot, joint)

@@ -30,12 +30,12 @@ from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from edge_monitor.records import Alarm, Health, Symptom
+from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.rerun_blueprint import fleet_blueprint, joint_path
 from joint_model import CRITICAL_WEAR, WEAR_MAX
-
-from edge_monitor.sinks.loopback import free_loopback_port
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ class RerunSetupError(ValueError):
     """A Rerun sink could not be opened (bad spec, unwritable path)."""
 
 
-def cycle_colors(cycles: np.ndarray, span: int) -> np.ndarray:
+def cycle_colors(cycles: ArrayLike, span: int) -> np.ndarray:
     """RGB uint8 colours (viridis) for cycle numbers: cycle 0 dark blue → cycle ``span`` and later yellow."""
     x = np.clip(np.asarray(cycles, float) / max(span, 1), 0.0, 1.0) * (len(_VIRIDIS) - 1)
     anchors = np.arange(len(_VIRIDIS))

@@ -25,8 +25,19 @@ import zenoh
 import zenoh.ext as zext
 
 from edge_monitor.records import Alarm, Health, Symptom, to_json
-from edge_monitor.sinks.keys import (ALARM, FRICTION, HEALTH, KINDS, STATE, SYMPTOM, agent_key, check_robot_name,
-                                     joint_key, parse_key, robot_of)
+from edge_monitor.sinks.keys import (
+    ALARM,
+    FRICTION,
+    HEALTH,
+    KINDS,
+    STATE,
+    SYMPTOM,
+    agent_key,
+    check_robot_name,
+    joint_key,
+    parse_key,
+    robot_of,
+)
 
 log = logging.getLogger(__name__)
 

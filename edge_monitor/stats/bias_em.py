@@ -83,7 +83,7 @@ def step_matrix(density: GaussianMixture, step: str) -> NDArray[np.float64]:
     check_step(step)
     if step == "em":
         return np.eye(density.dim)
-    return np.linalg.inv(density.cov @ density.fisher_location())
+    return np.asarray(np.linalg.inv(density.cov @ density.fisher_location()), dtype=np.float64)
 
 
 class SAEMBias:

@@ -166,7 +166,8 @@ class SequentialDetector:
             return Decision("learning", reason=self._learning_reason())
         try:
             density = fit_density(np.asarray(self._nominal), self.density_kind)
-            self._glr = WindowedGLR(density, self.window, self.pf, self.gamma0, self.rho, self.mode)
+            self._glr = WindowedGLR(density, self.window, self.pf, self.gamma0, self.rho,
+                                    "exact" if self.mode == "exact" else "recursive")
         except (DensityError, GLRError) as exc:
             self._learning_note = f"nominal data unusable, still learning: {exc}"
             log.info("detector stays in learning: %s", exc)
