@@ -54,6 +54,11 @@ class SlcanLineSplitter:
         self._partial = bytearray()
         self._discarding = False   # inside an overlong line: drop up to the next terminator
 
+    def reset(self) -> None:
+        """Forget a partial line (after the input was flushed); counters are kept."""
+        self._partial.clear()
+        self._discarding = False
+
     def feed(self, chunk: bytes | bytearray) -> list[str]:
         """Complete lines ending in this chunk, oldest first."""
         lines: list[str] = []
@@ -120,6 +125,12 @@ class FastSlcanBus(slcanBus):
     @property
     def discarded_bytes(self) -> int:
         return self._splitter.discarded_bytes
+
+    def flush(self) -> None:
+        """Drop buffered lines and input, as python-can's ``flush`` does for its own buffer."""
+        self._lines.clear()
+        self._splitter.reset()
+        super().flush()
 
     def _read(self, timeout: Optional[float]) -> Optional[str]:
         if self._lines:

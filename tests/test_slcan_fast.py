@@ -169,3 +169,14 @@ def test_python_can_parser_never_raises_into_the_reader(line):
     for _ in range(2):
         message, _ = bus._recv_internal(0)
         assert message is None or isinstance(message, can.Message)
+
+
+def test_flush_forgets_partial_and_queued_lines():
+    with PtyPair() as pair, open_bus(f"slcan:{pair.b}") as rx:
+        _write_raw(pair.a, b"t1008" + b"11" * 8 + b"\rt1008" + b"22")   # one line and half a line
+        frames = _receive(rx, 0, lambda: rx._splitter._partial)
+        assert [bytes(m.data) for m in frames] == [b"\x11" * 8]
+        rx.flush()
+        _write_raw(pair.a, b"33" * 7 + b"\rt1008" + b"44" * 8 + b"\r")  # rest of the half line, one line
+        frames = _receive(rx, 1)        # the orphaned tail "3333…\r" is no command: python-can skips it
+        assert [bytes(m.data) for m in frames] == [b"\x44" * 8]
