@@ -1,8 +1,9 @@
 """Shared wire format: frame catalogue, scaling, E2E protection, DBC, links (docs/PROTOCOL.md).
 
-Modules: ``crc`` (CRC-8H2F), ``frames`` (catalogue, encoders, decoders, block codecs),
-``e2e`` (receiver check state machine), ``dbc`` (packaged DBC via cantools), ``links``
-(python-can buses from link strings, log files, pty pair, vcan detection).
+Modules: ``crc`` (CRC-8H2F: crccheck scalar, numpy block), ``frames`` (catalogue, encoders,
+decoders, block codecs), ``e2e`` (receiver check state machine), ``dbc`` (DBC rendered from the
+catalogue, loaded via cantools), ``links`` (python-can buses from link strings, log files, pty
+pair, vcan detection), ``slcan_fast`` (chunked slcan reader), ``bench_micro`` (micro-benchmarks).
 """
 
 from protocol.crc import crc8h2f, crc8h2f_block
@@ -17,6 +18,7 @@ from protocol.frames import (
     JointStatus,
     Mode,
     MotorState,
+    SignalRole,
     decode,
     decode_block,
     decode_message,
@@ -27,6 +29,6 @@ from protocol.frames import (
 
 __all__ = [
     "CATALOGUE", "ControllerStatus", "DecodeError", "DecodeErrorKind", "DecodedBlock", "E2EReceiver",
-    "E2EState", "E2EStatus", "FrameKind", "JointStatus", "Mode", "MotorState", "crc8h2f", "crc8h2f_block",
-    "decode", "decode_block", "decode_message", "frame_crc", "messages_to_arrays", "to_message",
+    "E2EState", "E2EStatus", "FrameKind", "JointStatus", "Mode", "MotorState", "SignalRole", "crc8h2f",
+    "crc8h2f_block", "decode", "decode_block", "decode_message", "frame_crc", "messages_to_arrays", "to_message",
 ]

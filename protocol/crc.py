@@ -2,11 +2,17 @@
 
 Check value: ``crc8h2f(b"123456789") == 0xDF``.  Chaining follows the AUTOSAR convention: the
 result of one call XOR 0xFF is the ``init`` of the next call over the following bytes.
+
+The scalar path is ``crccheck``'s ``Crc8Autosar`` (the same algorithm, maintained elsewhere).
+The block path (:func:`crc8h2f_block`, one CRC per row of a uint8 array) stays table-driven in
+numpy: measured 13 ns per 7-byte row on blocks of ≥ 10,000 rows against 3.7 µs per call for
+``Crc8Autosar`` (``python -m protocol.bench_micro``); its 256-entry table is derived from ``Crc8Autosar``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from crccheck.crc import Crc8Autosar
 
 POLYNOMIAL = 0x2F
 INITIAL_VALUE = 0xFF
@@ -14,41 +20,18 @@ FINAL_XOR = 0xFF
 CHECK_VALUE = 0xDF  # CRC of ASCII "123456789"
 
 
-def crc8h2f_bitwise(data: bytes, init: int = INITIAL_VALUE) -> int:
-    """Reference implementation, one bit at a time (slow; used to verify the table)."""
-    register = init & 0xFF
-    for byte in data:
-        register ^= byte
-        for _ in range(8):
-            if register & 0x80:
-                register = ((register << 1) ^ POLYNOMIAL) & 0xFF
-            else:
-                register = (register << 1) & 0xFF
-    return register ^ FINAL_XOR
+def crc8h2f(data: bytes | bytearray | memoryview, init: int = INITIAL_VALUE) -> int:
+    """CRC-8H2F of ``data`` starting from register ``init`` (crccheck ``Crc8Autosar``)."""
+    return Crc8Autosar.calc(data, init & 0xFF)
 
 
 def _build_table() -> np.ndarray:
-    table = np.zeros(256, dtype=np.uint8)
-    for index in range(256):
-        register = index
-        for _ in range(8):
-            register = ((register << 1) ^ POLYNOMIAL) & 0xFF if register & 0x80 else (register << 1) & 0xFF
-        table[index] = register
-    return table
+    # Register after feeding byte i into register 0: the final XOR of calc() undone.
+    return np.array([Crc8Autosar.calc(bytes((index,)), 0) ^ FINAL_XOR for index in range(256)], dtype=np.uint8)
 
 
 CRC8H2F_TABLE: np.ndarray = _build_table()
 """256-entry table: ``TABLE[r ^ byte]`` is the register after feeding ``byte`` into register ``r``."""
-_TABLE_LIST: list[int] = [int(v) for v in CRC8H2F_TABLE]
-
-
-def crc8h2f(data: bytes | bytearray | memoryview, init: int = INITIAL_VALUE) -> int:
-    """CRC-8H2F of ``data`` starting from register ``init`` (scalar, table-driven)."""
-    register = init & 0xFF
-    table = _TABLE_LIST
-    for byte in data:
-        register = table[register ^ byte]
-    return register ^ FINAL_XOR
 
 
 def crc8h2f_block(rows: np.ndarray, init: int | np.ndarray = INITIAL_VALUE) -> np.ndarray:

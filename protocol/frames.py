@@ -36,10 +36,10 @@ STATUS_COUNTER_MODULUS = 16  # 4-bit alive counters of the status frames
 CYCLE_MODULUS = 1 << 16
 STATUS_TICK_MODULUS = 1 << 24
 
-TORQUE_SCALE = 5e-5  # fraction of max. joint torque per LSB
+TORQUE_SCALE = 5e-5  # fraction of the joint's reference (maximum) torque per LSB
 SPEED_SCALE = 0.005  # rad/s (motor side) per LSB
 POSITION_SCALE = 2.0 * math.pi / 16384  # rad per LSB
-LOAD_STD_SCALE = 0.002  # fraction per LSB
+LOAD_STD_SCALE = 0.002  # fraction of the reference torque per LSB
 TEMPERATURE_SCALE = 0.01  # degC per LSB
 
 SEGMENT_NONE = 0
@@ -80,9 +80,24 @@ class FrameValueError(ValueError):
     """A value handed to an encoder cannot be put on the wire (message names the field)."""
 
 
+class SignalRole(IntEnum):
+    """What a field is for (the DBC's ``SignalRole`` attribute)."""
+
+    DATA = 0
+    E2E_CRC = 1  # CRC-8H2F over data ID + bytes 1..7
+    E2E_ALIVE_COUNTER = 2  # increments by one per frame of the identifier (wrapping)
+    RESERVED = 3  # always 0
+
+
 @dataclass(frozen=True, slots=True)
 class Signal:
-    """One field of a frame: bit position, width, scaling (physical = raw * scale + offset)."""
+    """One field of a frame: bit position, width, scaling (value = raw * scale + offset), unit, role.
+
+    ``per_reference_torque`` fields carry a torque as a fraction of the joint's reference torque
+    (its maximum): ``scale`` is in fractions per LSB, which is what the decoders return, and the
+    physical value on the bus is that fraction times the reference torque, in ``unit`` (Nm); the
+    DBC's factor is ``scale`` × its message's ``ReferenceTorqueNm`` attribute.
+    """
 
     name: str
     start: int
@@ -91,6 +106,8 @@ class Signal:
     scale: float = 1.0
     offset: float = 0.0
     unit: str = ""
+    role: SignalRole = SignalRole.DATA
+    per_reference_torque: bool = False
 
     @property
     def raw_min(self) -> int:
@@ -101,29 +118,30 @@ class Signal:
         return (1 << (self.length - 1)) - 1 if self.signed else (1 << self.length) - 1
 
 
+_CRC = Signal("crc", 0, 8, role=SignalRole.E2E_CRC)
 MOTOR_STATE_SIGNALS: tuple[Signal, ...] = (
-    Signal("crc", 0, 8),
-    Signal("tick", 8, 8, unit="tick"),
-    Signal("torque", 16, 16, True, TORQUE_SCALE, unit="1"),
+    _CRC,
+    Signal("tick", 8, 8, role=SignalRole.E2E_ALIVE_COUNTER),
+    Signal("torque", 16, 16, True, TORQUE_SCALE, unit="Nm", per_reference_torque=True),
     Signal("speed", 32, 18, True, SPEED_SCALE, unit="rad/s"),
     Signal("position", 50, 14, False, POSITION_SCALE, unit="rad"),
 )
 CONTROLLER_STATUS_SIGNALS: tuple[Signal, ...] = (
-    Signal("crc", 0, 8),
-    Signal("counter", 8, 4),
+    _CRC,
+    Signal("counter", 8, 4, role=SignalRole.E2E_ALIVE_COUNTER),
     Signal("mode", 12, 4),
     Signal("cycle", 16, 16),
     Signal("segment", 32, 8),
-    Signal("tick", 40, 24, unit="tick"),
+    Signal("tick", 40, 24),
 )
 JOINT_STATUS_SIGNALS: tuple[Signal, ...] = (
-    Signal("crc", 0, 8),
-    Signal("counter", 8, 4),
-    Signal("reserved", 12, 4),
-    Signal("load_estimate", 16, 16, True, TORQUE_SCALE, unit="1"),
-    Signal("load_std", 32, 8, False, LOAD_STD_SCALE, unit="1"),
+    _CRC,
+    Signal("counter", 8, 4, role=SignalRole.E2E_ALIVE_COUNTER),
+    Signal("reserved", 12, 4, role=SignalRole.RESERVED),
+    Signal("load_estimate", 16, 16, True, TORQUE_SCALE, unit="Nm", per_reference_torque=True),
+    Signal("load_std", 32, 8, False, LOAD_STD_SCALE, unit="Nm", per_reference_torque=True),
     Signal("motor_temperature", 40, 16, True, TEMPERATURE_SCALE, unit="degC"),
-    Signal("reserved2", 56, 8),
+    Signal("reserved2", 56, 8, role=SignalRole.RESERVED),
 )
 SIGNALS_BY_KIND: dict[FrameKind, tuple[Signal, ...]] = {
     FrameKind.MOTOR_STATE: MOTOR_STATE_SIGNALS,

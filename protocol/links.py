@@ -169,24 +169,40 @@ class PtyPair:
     vice versa.  Each end behaves like one side of a null-modem cable, so two processes can talk
     slcan (``slcan:`` + ``.a`` / ``.b``) without SocketCAN.
 
-    Like a serial port, opening an end (pyserial flushes its input) discards bytes that arrived
-    before: open the receiving end before the peer starts sending.
+    Like a serial line, an end delivers only bytes sent while it is open: bytes written to one end
+    while the other end is not open anywhere are discarded (``discarded_bytes``), and so are bytes
+    still unread in an end when its last user closes it.  So open the receiving end before the peer
+    starts sending.  The bridge notices that an end was opened or closed within ``poll_interval``
+    seconds (or at once, when bytes arrive for it), so bytes written less than that before the
+    receiver opened may still arrive.
+    Bytes written while the other end is open but not read are buffered up to ``max_buffer``
+    bytes per direction, then dropped and counted in ``dropped_bytes``.
     Use as a context manager; ``close()`` stops the bridge thread and closes all descriptors.
-    Bytes written while the other end is not read are buffered up to ``max_buffer`` bytes per
-    direction, then dropped and counted in ``dropped_bytes``.
     """
 
-    def __init__(self, max_buffer: int = 1 << 20) -> None:
+    def __init__(self, max_buffer: int = 1 << 20, poll_interval: float = 0.02) -> None:
         self.max_buffer = max_buffer
+        self.poll_interval = poll_interval
         self.dropped_bytes = 0
-        self._master_a, self._slave_a = os.openpty()
-        self._master_b, self._slave_b = os.openpty()
-        for fd in (self._slave_a, self._slave_b):
-            tty.setraw(fd)  # no echo, no line discipline: bytes pass unchanged
+        self.discarded_bytes = 0
+        self._master_a, slave_a = os.openpty()
+        self._master_b, slave_b = os.openpty()
+        for fd in (slave_a, slave_b):
+            tty.setraw(fd)  # no echo, no line discipline: bytes pass unchanged (kept after close)
+        self.a: str = os.ttyname(slave_a)
+        self.b: str = os.ttyname(slave_b)
+        # Only users hold the slaves open, so a master reports POLLHUP while its end is closed.
+        os.close(slave_a)
+        os.close(slave_b)
         for fd in (self._master_a, self._master_b):
             os.set_blocking(fd, False)
-        self.a: str = os.ttyname(self._slave_a)
-        self.b: str = os.ttyname(self._slave_b)
+        self._path = {self._master_a: self.a, self._master_b: self.b}
+        self._peer = {self._master_a: self._master_b, self._master_b: self._master_a}
+        self._pending = {self._master_a: bytearray(), self._master_b: bytearray()}  # waiting to be written
+        self._open = {self._master_a: False, self._master_b: False}
+        self._hangups = select.poll()
+        for fd in self._peer:
+            self._hangups.register(fd, 0)  # POLLHUP is always reported
         self._wake_read, self._wake_write = os.pipe()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._bridge, name=f"PtyPair {self.a}<->{self.b}", daemon=True)
@@ -198,39 +214,93 @@ class PtyPair:
     def __exit__(self, *exc_info: object) -> None:
         self.close()
 
-    def _bridge(self) -> None:
-        pending = {self._master_a: bytearray(), self._master_b: bytearray()}  # bytes waiting to be written
-        peer = {self._master_a: self._master_b, self._master_b: self._master_a}
-        while not self._stop.is_set():
-            writers = [fd for fd, buf in pending.items() if buf]
+    def _closed_ends(self) -> set[int]:
+        return {fd for fd, events in self._hangups.poll(0) if events & (select.POLLHUP | select.POLLERR)}
+
+    def _update_ends(self) -> None:
+        """Track which ends are open; an end that was just closed is cleaned up."""
+        closed = self._closed_ends()
+        for fd in self._peer:
+            now_open = fd not in closed
+            if self._open[fd] and not now_open:
+                self._end_closed(fd)
+            elif not now_open:
+                self._read_from(fd)               # a user opened, wrote and closed in between
+            self._open[fd] = now_open
+
+    def _end_closed(self, fd: int) -> None:
+        self._read_from(fd)                       # what the closing user wrote last still goes over
+        self.discarded_bytes += len(self._pending[fd])
+        self._pending[fd].clear()
+        try:                                      # bytes the user did not read: drop them now
+            slave = os.open(self._path[fd], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        except OSError:
+            return
+        try:
+            while chunk := os.read(slave, 65536):
+                self.discarded_bytes += len(chunk)
+        except OSError:
+            pass
+        finally:
+            os.close(slave)
+
+    def _read_from(self, fd: int) -> None:
+        """Move what ``fd``'s user wrote towards the peer (or discard it if the peer is closed)."""
+        while True:
             try:
-                readable, writable, _ = select.select(
-                    [self._master_a, self._master_b, self._wake_read], writers, [], 1.0)
+                chunk = os.read(fd, 65536)
+            except OSError:  # EAGAIN: nothing more; EIO: the end is closed and drained
+                return
+            if not chunk:
+                return
+            peer = self._peer[fd]
+            if peer in self._closed_ends():
+                self.discarded_bytes += len(chunk)
+                continue
+            target = self._pending[peer]
+            room = max(self.max_buffer - len(target), 0)
+            if len(chunk) > room:
+                self.dropped_bytes += len(chunk) - room
+                chunk = chunk[:room]
+            target += chunk
+            self._write_to(peer)
+
+    def _write_to(self, fd: int) -> None:
+        pending = self._pending[fd]
+        try:
+            del pending[:os.write(fd, pending)]
+        except BlockingIOError:
+            pass
+        except OSError:
+            self.discarded_bytes += len(pending)
+            pending.clear()
+
+    def _bridge(self) -> None:
+        poller = select.poll()
+        poller.register(self._wake_read, select.POLLIN)
+        registered: dict[int, int] = {}
+        while not self._stop.is_set():
+            self._update_ends()
+            for fd, is_open in self._open.items():
+                events = (select.POLLIN | (select.POLLOUT if self._pending[fd] else 0)) if is_open else 0
+                if registered.get(fd) != events:
+                    if events:
+                        poller.register(fd, events)  # (re-)registering replaces the event mask
+                    elif fd in registered:
+                        poller.unregister(fd)
+                    registered[fd] = events
+            timeout = 1.0 if all(self._open.values()) else self.poll_interval
+            try:
+                ready = poller.poll(timeout * 1000.0)
             except (OSError, ValueError):
                 return
-            for fd in writable:
-                try:
-                    written = os.write(fd, pending[fd])
-                    del pending[fd][:written]
-                except BlockingIOError:
-                    pass
-                except OSError:
-                    pending[fd].clear()
-            for fd in readable:
+            for fd, events in ready:
                 if fd == self._wake_read:
                     return
-                try:
-                    chunk = os.read(fd, 65536)
-                except (BlockingIOError, InterruptedError):
-                    continue
-                except OSError:  # EIO: no slave open right now; keep going
-                    continue
-                target = pending[peer[fd]]
-                room = self.max_buffer - len(target)
-                if len(chunk) > room:
-                    self.dropped_bytes += len(chunk) - max(room, 0)
-                    chunk = chunk[:max(room, 0)]
-                target += chunk
+                if events & select.POLLOUT:
+                    self._write_to(fd)
+                if events & select.POLLIN:
+                    self._read_from(fd)
 
     def close(self) -> None:
         """Stop the bridge and close every descriptor (idempotent)."""
@@ -242,7 +312,7 @@ class PtyPair:
         except OSError:
             pass
         self._thread.join(timeout=5.0)
-        for fd in (self._master_a, self._slave_a, self._master_b, self._slave_b, self._wake_read, self._wake_write):
+        for fd in (self._master_a, self._master_b, self._wake_read, self._wake_write):
             try:
                 os.close(fd)
             except OSError:

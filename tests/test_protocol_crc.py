@@ -1,16 +1,17 @@
-"""CRC-8H2F: check value, table against the bitwise definition, block against scalar."""
+"""CRC-8H2F: check value, AUTOSAR vectors, and both paths (scalar, numpy block) against crccheck."""
 
 import numpy as np
+from crccheck.crc import Crc8Autosar
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocol.crc import CHECK_VALUE, CRC8H2F_TABLE, crc8h2f, crc8h2f_bitwise, crc8h2f_block
+from protocol.crc import CHECK_VALUE, CRC8H2F_TABLE, FINAL_XOR, crc8h2f, crc8h2f_block
 
 
 def test_check_value_of_autosar_crc8h2f():
     assert CHECK_VALUE == 0xDF
     assert crc8h2f(b"123456789") == 0xDF
-    assert crc8h2f_bitwise(b"123456789") == 0xDF
+    assert crc8h2f_block(np.frombuffer(b"123456789", np.uint8)[None, :]).tolist() == [0xDF]
 
 
 def test_autosar_reference_vectors():
@@ -26,32 +27,47 @@ def test_autosar_reference_vectors():
     }
     for data, expected in vectors.items():
         assert crc8h2f(data) == expected, data.hex()
+        assert crc8h2f_block(np.frombuffer(data, np.uint8)[None, :]).tolist() == [expected], data.hex()
 
 
-def test_table_matches_bitwise_register_update():
-    for index in range(256):
-        # register after one byte from register 0 == table entry (strip init/xorout of the wrapper)
-        assert crc8h2f_bitwise(bytes([index]), init=0x00) ^ 0xFF == CRC8H2F_TABLE[index]
+def _bitwise_register(index: int) -> int:
+    """Register after feeding one byte into register 0, from the polynomial 0x2F (definition)."""
+    register = index
+    for _ in range(8):
+        register = ((register << 1) ^ 0x2F) & 0xFF if register & 0x80 else (register << 1) & 0xFF
+    return register
 
 
-@settings(deadline=None)  # no wall-clock limits: the machine is shared
+def test_block_table_follows_the_polynomial():
+    assert [int(v) for v in CRC8H2F_TABLE] == [_bitwise_register(i) for i in range(256)]
+
+
+@settings(max_examples=500, deadline=None)  # no wall-clock limits: the machine is shared
 @given(st.binary(max_size=64), st.integers(0, 255))
-def test_table_driven_equals_bitwise(data, init):
-    assert crc8h2f(data, init) == crc8h2f_bitwise(data, init)
+def test_scalar_path_equals_crccheck(data, init):
+    assert crc8h2f(data, init) == Crc8Autosar.calc(data, init)
+    assert crc8h2f(data) == Crc8Autosar.calc(data)
 
 
 def test_chaining_convention():
     data = b"123456789"
-    assert crc8h2f(data[4:], init=crc8h2f(data[:4]) ^ 0xFF) == crc8h2f(data)
+    assert crc8h2f(data[4:], init=crc8h2f(data[:4]) ^ FINAL_XOR) == crc8h2f(data)
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(st.integers(0, 40), st.integers(0, 12), st.integers(0, 2**32 - 1))
-def test_block_equals_scalar(rows, width, seed):
+def test_block_path_equals_crccheck(rows, width, seed):
     rng = np.random.default_rng(seed)
     block = rng.integers(0, 256, size=(rows, width), dtype=np.uint8)
     inits = rng.integers(0, 256, size=rows, dtype=np.uint8)
     result = crc8h2f_block(block, init=inits)
     assert result.dtype == np.uint8 and result.shape == (rows,)
-    assert result.tolist() == [crc8h2f(bytes(r), int(i)) for r, i in zip(block, inits)]
-    assert crc8h2f_block(block).tolist() == [crc8h2f(bytes(r)) for r in block]
+    assert result.tolist() == [Crc8Autosar.calc(bytes(r), int(i)) for r, i in zip(block, inits)]
+    assert crc8h2f_block(block).tolist() == [Crc8Autosar.calc(bytes(r)) for r in block]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.binary(min_size=7, max_size=7), min_size=1, max_size=30), st.integers(0, 255))
+def test_block_path_equals_crccheck_on_drawn_rows(rows, init):
+    block = np.frombuffer(b"".join(rows), dtype=np.uint8).reshape(len(rows), 7)
+    assert crc8h2f_block(block, init).tolist() == [Crc8Autosar.calc(r, init) for r in rows]

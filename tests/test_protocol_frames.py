@@ -2,6 +2,7 @@
 
 import itertools
 import math
+import os
 
 import can
 import numpy as np
@@ -316,3 +317,46 @@ def test_status_block_encoders_reject_bad_columns():
         F.encode_joint_status_block([0], [0], [0.0], [np.nan], [20.0])
     with pytest.raises(F.FrameValueError, match="joint"):
         F.encode_joint_status_block([8], [0], [0.0], [0.0], [20.0])
+
+
+# --------------------------------------------------------------------------- fuzzing the decoders
+
+FUZZ_EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "300"))  # FUZZ_EXAMPLES=20000 locally
+
+
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None)
+@given(st.lists(st.tuples(st.one_of(st.sampled_from(sorted(F.CATALOGUE)), st.integers(-2**63, 2**63 - 1)),
+                          st.binary(min_size=8, max_size=8), st.integers(-2**31, 2**31 - 1)), max_size=30))
+def test_block_decoder_on_random_ids_bytes_and_dlc(rows):
+    """Any id, any 8 bytes, any DLC (also negative or > 8): rows fail with the right kind, never raise."""
+    ids = np.array([r[0] for r in rows], dtype=np.int64)
+    data = np.frombuffer(b"".join(r[1] for r in rows), dtype=np.uint8).reshape(len(rows), 8)
+    dlc = np.array([r[2] for r in rows], dtype=np.int64)
+    block = F.decode_block(ids, data, dlc)
+    assert len(block) == len(rows)
+    for i, (arbitration_id, payload, length) in enumerate(rows):
+        if arbitration_id not in F.CATALOGUE:
+            assert block.error[i] == F.DecodeErrorKind.UNKNOWN_ID
+        elif length != 8:
+            assert block.error[i] == F.DecodeErrorKind.WRONG_DLC
+        else:
+            scalar = F.decode(arbitration_id, payload)
+            assert block.error[i] == (scalar.kind if isinstance(scalar, F.DecodeError) else F.DecodeErrorKind.NONE)
+        assert block.valid[i] == (block.error[i] == F.DecodeErrorKind.NONE)
+        assert (block.counter[i] >= 0) == bool(block.valid[i])
+
+
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None)
+@given(st.integers(0, 0x7FF), st.binary(max_size=64), st.integers(0, 64), st.booleans(), st.booleans(),
+       st.booleans(), st.booleans())
+def test_message_decoders_on_random_messages(arbitration_id, payload, dlc, extended, remote, error, fd):
+    """python-can messages with any data length, DLC and flags: both decoders agree, nothing raises."""
+    message = can.Message(arbitration_id=arbitration_id, data=payload, dlc=dlc, is_extended_id=extended,
+                          is_remote_frame=remote, is_error_frame=error, is_fd=fd, check=False)
+    scalar = F.decode_message(message)
+    ids, data, lengths, _ = F.messages_to_arrays([message])
+    block = F.decode_block(ids, data, lengths)
+    if isinstance(scalar, F.DecodeError):
+        assert block.error[0] == scalar.kind
+    else:
+        assert block.error[0] == F.DecodeErrorKind.NONE and len(payload) == 8

@@ -262,3 +262,84 @@ def _read_exactly(fd: int, size: int, timeout_s: float = 10.0) -> bytes:
         if ready:
             buffer += os.read(fd, size - len(buffer))
     return buffer
+
+
+def _wait_for(condition, timeout_s: float = 30.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return condition()
+
+
+def _read_available(fd: int, settle_s: float = 0.3) -> bytes:
+    """Everything readable from ``fd`` until nothing new came for ``settle_s`` seconds."""
+    import os
+    import select
+
+    buffer = b""
+    while select.select([fd], [], [], settle_s)[0]:
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            break
+        buffer += chunk
+    return buffer
+
+
+def test_pty_pair_does_not_deliver_bytes_sent_before_the_receiver_opened():
+    import os
+
+    stale = b"stale\r" * 10_000  # more than the kernel's pty buffers hold
+    with PtyPair() as pty:
+        fd_a = os.open(pty.a, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd_a, stale)
+            assert _wait_for(lambda: pty.discarded_bytes >= len(stale)), pty.discarded_bytes
+            fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)  # no flush on open: the bridge must not deliver
+            try:
+                os.write(fd_a, b"fresh\r")
+                assert _read_exactly(fd_b, 6) == b"fresh\r"
+                assert _read_available(fd_b) == b""
+            finally:
+                os.close(fd_b)
+        finally:
+            os.close(fd_a)
+        assert pty.discarded_bytes == len(stale) and pty.dropped_bytes == 0
+
+
+def test_pty_pair_drops_unread_bytes_when_the_receiver_closes():
+    import os
+
+    with PtyPair() as pty:
+        fd_a = os.open(pty.a, os.O_RDWR | os.O_NOCTTY)
+        try:
+            fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)
+            os.write(fd_a, b"read\r")
+            assert _read_exactly(fd_b, 5) == b"read\r"
+            os.write(fd_a, b"unread\r")
+            assert _wait_for(lambda: not pty._pending[pty._master_b]), "bridge did not forward"
+            os.close(fd_b)                        # closes with 7 bytes unread
+            assert _wait_for(lambda: pty.discarded_bytes == 7), pty.discarded_bytes
+            fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)
+            try:
+                os.write(fd_a, b"again\r")
+                assert _read_exactly(fd_b, 6) == b"again\r"
+                assert _read_available(fd_b) == b""
+            finally:
+                os.close(fd_b)
+        finally:
+            os.close(fd_a)
+
+
+def test_pty_pair_forwards_what_a_short_lived_writer_sent():
+    import os
+
+    with PtyPair() as pty:
+        fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)
+        try:
+            fd_a = os.open(pty.a, os.O_WRONLY | os.O_NOCTTY)
+            os.write(fd_a, b"bye\r")
+            os.close(fd_a)                        # before the bridge noticed the end was open
+            assert _read_exactly(fd_b, 4) == b"bye\r"
+        finally:
+            os.close(fd_b)
+        assert pty.discarded_bytes == 0
