@@ -231,8 +231,9 @@ def dbc_text() -> str:
 def load_database(text: str | None = None) -> cantools.database.can.Database:
     """The frame catalogue as a cantools database (strict: overlapping/oversized signals raise);
     ``text``: a DBC from :func:`render_dbc`, default the packaged file."""
-    return cantools.database.load_string(dbc_text() if text is None else text, database_format="dbc",
-                                         strict=True)
+    db = cantools.database.load_string(dbc_text() if text is None else text, database_format="dbc", strict=True)
+    assert isinstance(db, cantools.database.can.Database)    # database_format="dbc" gives a CAN database
+    return db
 
 
 def reference_torque_nm(message: cantools.database.can.Message) -> float | None:

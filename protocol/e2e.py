@@ -264,12 +264,14 @@ class E2EReceiver:
         last_time = timestamps[order[last_rows]].tolist()
         bounds = np.append(starts, n).tolist()
         for g, st in enumerate(states):
-            if clean[g]:
+            if st is None:                  # an identifier that is not in the catalogue
+                known[g] = False
+            if clean[g] and st is not None:
                 self._accept(st, last_counter[g], last_time[g], runs=int(sizes[g]))
                 continue
             begin, end = bounds[g], bounds[g + 1]
             rows = order[begin:end]
-            if not known[g]:
+            if not known[g] or st is None:
                 sorted_status[begin:end] = _ERROR
                 sorted_lost[begin:end] = 0
                 self.stats["unknown_id"] += end - begin

@@ -21,7 +21,7 @@ import socket
 import threading
 import tty
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import can
 
@@ -45,7 +45,7 @@ def is_log_file(link: str | os.PathLike | None) -> bool:
     return name.endswith(LOG_SUFFIXES)
 
 
-def open_log_reader(path: str | os.PathLike) -> can.LogReader:
+def open_log_reader(path: str | os.PathLike) -> Iterable[can.Message]:
     """python-can LogReader for an existing log file (format from the suffix)."""
     if not is_log_file(path):
         raise LinkError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
