@@ -46,14 +46,14 @@ mount -t 9p -o trans=virtio,version=9p2000.L,msize=262144 results /results \
 echo "boot_s=$(uptime_s)" > /results/status
 . /results/job.env
 
-# Inside the chroot: fresh /proc, /sys, /dev and a writable /tmp; the results share appears at
-# /tmp/results so the chrooted commands can write their files there.
+# Inside the chroot: the guest's own /proc, /sys and /dev. The results share is bound over its own
+# (read-only) view at the host's path RESULTS_DIR, so paths are the same inside and outside the guest
+# and no other host directory is hidden; HOME, TMPDIR and the agent's state live there too.
 mount -t proc proc /host/proc
 mount -t sysfs sysfs /host/sys
 mount -t devtmpfs devtmpfs /host/dev
-mount -t tmpfs tmpfs /host/tmp
-mkdir -p /host/tmp/results /host/tmp/state
-mount -o bind /results /host/tmp/results
+mount -o bind /results "/host$RESULTS_DIR" || fail "bind the results share at $RESULTS_DIR"
+mkdir -p /results/tmp /results/state
 
 # --- 3. the CAN bus ------------------------------------------------------------------------------
 ip link add dev vcan0 type vcan || fail "ip link add dev vcan0 type vcan"
@@ -64,16 +64,16 @@ echo "$RMEM_BYTES" > /proc/sys/net/core/rmem_max
 echo "$RMEM_BYTES" > /proc/sys/net/core/rmem_default
 echo 100000 > /proc/sys/net/core/netdev_max_backlog
 
-# A host command runs with a clean environment (HOST_ENV), chrooted into the host's / and in /tmp:
-#   timeout SECONDS env -i $HOST_ENV chroot /host /bin/sh -c 'cd /tmp && exec "$@"' in_tmp COMMAND ARGS...
-HOST_ENV="PATH=$VENV_BIN:/usr/local/bin:/usr/bin:/bin HOME=/tmp TMPDIR=/tmp LANG=C.UTF-8
-          PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 OPENBLAS_NUM_THREADS=1"
+# A host command runs with a clean environment (HOST_ENV), chrooted into the host's /, in $TMPDIR:
+#   timeout SECONDS env -i $HOST_ENV chroot /host /bin/sh -c 'cd "$TMPDIR" && exec "$@"' in_tmp COMMAND ARGS...
+HOST_ENV="PATH=$VENV_BIN:/usr/local/bin:/usr/bin:/bin HOME=$RESULTS_DIR/tmp TMPDIR=$RESULTS_DIR/tmp
+          LANG=C.UTF-8 PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 OPENBLAS_NUM_THREADS=1"
 
 # --- 4. agent, then simulator --------------------------------------------------------------------
 echo "VCAN-QEMU: starting the agent"
-timeout "$STEP_TIMEOUT_S" env -i $HOST_ENV chroot /host /bin/sh -c 'cd /tmp && exec "$@"' in_tmp \
-    "$VENV_BIN/edge-monitor" run --link socketcan:vcan0 --no-zenoh --config /tmp/results/agent.toml \
-    --jsonl /tmp/results/symptoms.jsonl --state-dir /tmp/state --idle-stop "$IDLE_STOP_S" \
+timeout "$STEP_TIMEOUT_S" env -i $HOST_ENV chroot /host /bin/sh -c 'cd "$TMPDIR" && exec "$@"' in_tmp \
+    "$VENV_BIN/edge-monitor" run --link socketcan:vcan0 --no-zenoh --config "$RESULTS_DIR/agent.toml" \
+    --jsonl "$RESULTS_DIR/symptoms.jsonl" --state-dir "$RESULTS_DIR/state" --idle-stop "$IDLE_STOP_S" \
     > /results/agent.log 2>&1 &
 agent_pid=$!
 
@@ -90,8 +90,8 @@ done
 echo "agent_ready_s=$(uptime_s)" >> /results/status
 
 echo "VCAN-QEMU: starting the simulator"
-timeout "$STEP_TIMEOUT_S" env -i $HOST_ENV chroot /host /bin/sh -c 'cd /tmp && exec "$@"' in_tmp \
-    "$VENV_BIN/sim-controller" run --link socketcan:vcan0 $SIM_ARGS --truth /tmp/results/truth.jsonl \
+timeout "$STEP_TIMEOUT_S" env -i $HOST_ENV chroot /host /bin/sh -c 'cd "$TMPDIR" && exec "$@"' in_tmp \
+    "$VENV_BIN/sim-controller" run --link socketcan:vcan0 $SIM_ARGS --truth "$RESULTS_DIR/truth.jsonl" \
     > /results/sim.log 2>&1
 echo "sim_rc=$?" >> /results/status
 echo "sim_done_s=$(uptime_s)" >> /results/status

@@ -346,8 +346,11 @@ def qemu_command(qemu: str, kernel: Kernel, initrd: Path, results: Path, console
 
 def write_job(results: Path, workload: Workload, venv_bin: Path) -> None:
     """The guest's job.env (shell variables) and the agent's config, in the results share."""
+    for path in (results.resolve(), venv_bin):
+        if any(c.isspace() for c in str(path)):
+            raise GuestFailure(f"{path}: the guest script takes paths without white space")
     sim_args = [*workload.sim_args(), "--speedup", f"{workload.speedup:g}"]
-    env = {"VENV_BIN": str(venv_bin), "SIM_ARGS": " ".join(sim_args),
+    env = {"VENV_BIN": str(venv_bin), "RESULTS_DIR": str(results.resolve()), "SIM_ARGS": " ".join(sim_args),
            "IDLE_STOP_S": f"{workload.idle_stop_s:g}", "STEP_TIMEOUT_S": str(workload.step_timeout_s),
            "RMEM_BYTES": str(workload.rmem_bytes)}
     (results / "job.env").write_text("".join(f"{k}={shlex.quote(v)}\n" for k, v in env.items()))
