@@ -129,3 +129,11 @@ def test_modules_load_after_their_dependencies(tmp_path: Path):
     assert order == ["can.ko", "can-raw.ko", "can-dev.ko", "vcan.ko"]
     with pytest.raises(vq.Unavailable, match="module 9p not found"):
         vq.load_order(kernel, ("9p",))
+
+
+def test_without_qemu_and_root_the_reason_says_what_to_install(monkeypatch):
+    monkeypatch.setattr(vq, "find_tools", lambda: (None, "/bin/busybox"))
+    monkeypatch.setattr(vq.os, "geteuid", lambda: 1000)
+    monkeypatch.setattr(vq.shutil, "which", lambda name: f"/usr/bin/{name}")
+    with pytest.raises(vq.Unavailable, match="qemu-system-x86 missing; install as root: apt-get install -y qemu-system-x86"):
+        vq.ensure_tools({})

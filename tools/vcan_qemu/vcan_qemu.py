@@ -233,23 +233,32 @@ def fetch_kernel(cache: Path, apt_state: dict) -> Kernel:
     cached = cached_kernel(cache)
     if cached is not None:
         return cached
-    package = resolve_kernel_package(apt_state)
-    target = cache / package
     cache.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=cache) as tmp:
-        sandbox = ["-o", "APT::Sandbox::User=root"] if os.geteuid() == 0 else []
-        proc = subprocess.run(["apt-get", *sandbox, "download", package], cwd=tmp, capture_output=True,
-                              text=True, timeout=900, check=False)
-        debs = list(Path(tmp).glob("*.deb"))
-        if proc.returncode != 0 or not debs:
-            tail = (proc.stderr.strip().splitlines() or ["?"])[-1]
-            raise Unavailable(f"apt-get download {package} failed ({tail})")
+        package, deb = download_kernel(Path(tmp), apt_state)
+        target = cache / package
         shutil.rmtree(target, ignore_errors=True)
-        extract_kernel(debs[0], target)
+        extract_kernel(deb, target)
     kernel = load_kernel(target)
     if kernel is None:
         raise Unavailable(f"{package}: no vmlinuz in the package")
     return kernel
+
+
+def download_kernel(directory: Path, apt_state: dict) -> tuple[str, Path]:
+    """(package name, .deb) fetched with apt-get download; stale package lists are updated once (root)."""
+    sandbox = ["-o", "APT::Sandbox::User=root"] if os.geteuid() == 0 else []
+    while True:
+        package = resolve_kernel_package(apt_state)
+        proc = subprocess.run(["apt-get", *sandbox, "download", package], cwd=directory, capture_output=True,
+                              text=True, timeout=900, check=False)
+        debs = list(directory.glob("*.deb"))
+        if proc.returncode == 0 and debs:
+            return package, debs[0]
+        if apt_state.get("updated") or os.geteuid() != 0:
+            tail = (proc.stderr.strip().splitlines() or ["?"])[-1]
+            raise Unavailable(f"apt-get download {package} failed ({tail})")
+        _apt_update_once(apt_state)
 
 
 def extract_kernel(deb: Path, target: Path) -> None:
