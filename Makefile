@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test test-vcan bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,6 +17,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# SocketCAN for real: sim → vcan0 → agent inside a qemu guest (docs/RELIABILITY.md); ~2 min.
+# Fetches qemu/busybox (apt, as root) and a Debian kernel (cached in .cache/) when missing.
+test-vcan: $(STAMP)
+	VCAN_QEMU=1 $(PY) -m pytest -q tests/test_vcan_qemu.py
 
 bench: $(STAMP)
 	$(PY) -m pip install --quiet -e '.[test,bench]'
