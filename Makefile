@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-vcan bench clean
+.PHONY: demo test lint test-vcan bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,6 +17,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# Static checks (configured in pyproject.toml): ruff (style, imports, bugbear) and mypy.
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 
 # SocketCAN for real: sim → vcan0 → agent inside a qemu guest (docs/RELIABILITY.md); ~2 min.
 # Fetches qemu/busybox (apt, as root) and a Debian kernel (cached in .cache/) when missing.
