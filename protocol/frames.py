@@ -13,194 +13,48 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
-from operator import attrgetter
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import can
 import numpy as np
 
-from protocol.crc import FINAL_XOR, crc8h2f, crc8h2f_block
-
-MAX_JOINTS = 8
-FRAME_LENGTH = 8
-MOTOR_STATE_BASE_ID = 0x100
-CONTROLLER_STATUS_ID = 0x080
-JOINT_STATUS_BASE_ID = 0x0A0
-MOTOR_STATE_DATA_ID_BASE = 0x1100
-CONTROLLER_STATUS_DATA_ID = 0x1080
-JOINT_STATUS_DATA_ID_BASE = 0x10A0
-
-MOTOR_COUNTER_MODULUS = 256  # MotorState.tick = controller tick mod 256
-STATUS_COUNTER_MODULUS = 16  # 4-bit alive counters of the status frames
-CYCLE_MODULUS = 1 << 16
-STATUS_TICK_MODULUS = 1 << 24
-
-TORQUE_SCALE = 5e-5  # fraction of the joint's reference (maximum) torque per LSB
-SPEED_SCALE = 0.005  # rad/s (motor side) per LSB
-POSITION_SCALE = 2.0 * math.pi / 16384  # rad per LSB
-LOAD_STD_SCALE = 0.002  # fraction of the reference torque per LSB
-TEMPERATURE_SCALE = 0.01  # degC per LSB
-
-SEGMENT_NONE = 0
-SEGMENT_PRODUCTION = 200
-MAX_SPEED_LEVELS = 64
-
-
-class Mode(IntEnum):
-    """Controller mode (ControllerStatus.mode)."""
-
-    INIT = 0
-    TEST_CYCLE = 1
-    PRODUCTION = 2
-    STOPPED = 3
-    FAULT = 4
-
-
-class FrameKind(IntEnum):
-    """Row kind in a ``DecodedBlock``; ``ERROR`` marks rows that failed decoding."""
-
-    ERROR = 0
-    MOTOR_STATE = 1
-    CONTROLLER_STATUS = 2
-    JOINT_STATUS = 3
-
-
-class DecodeErrorKind(IntEnum):
-    """Why a frame was rejected (``NONE`` = decoded fine)."""
-
-    NONE = 0
-    UNKNOWN_ID = 1  # not in the catalogue (also extended / remote / error frames)
-    WRONG_DLC = 2  # data length is not 8
-    CRC = 3  # CRC-8H2F over data ID + payload does not match byte 0
-    BAD_VALUE = 4  # CRC fine but a field holds a value outside its definition (e.g. mode 9)
-
-
-class FrameValueError(ValueError):
-    """A value handed to an encoder cannot be put on the wire (message names the field)."""
-
-
-class SignalRole(IntEnum):
-    """What a field is for (the DBC's ``SignalRole`` attribute)."""
-
-    DATA = 0
-    E2E_CRC = 1  # CRC-8H2F over data ID + bytes 1..7
-    E2E_ALIVE_COUNTER = 2  # increments by one per frame of the identifier (wrapping)
-    RESERVED = 3  # always 0
-
-
-@dataclass(frozen=True, slots=True)
-class Signal:
-    """One field of a frame: bit position, width, scaling (value = raw * scale + offset), unit, role.
-
-    ``per_reference_torque`` fields carry a torque as a fraction of the joint's reference torque
-    (its maximum): ``scale`` is in fractions per LSB, which is what the decoders return, and the
-    physical value on the bus is that fraction times the reference torque, in ``unit`` (Nm); the
-    DBC's factor is ``scale`` × its message's ``ReferenceTorqueNm`` attribute.
-    """
-
-    name: str
-    start: int
-    length: int
-    signed: bool = False
-    scale: float = 1.0
-    offset: float = 0.0
-    unit: str = ""
-    role: SignalRole = SignalRole.DATA
-    per_reference_torque: bool = False
-
-    @property
-    def raw_min(self) -> int:
-        return -(1 << (self.length - 1)) if self.signed else 0
-
-    @property
-    def raw_max(self) -> int:
-        return (1 << (self.length - 1)) - 1 if self.signed else (1 << self.length) - 1
-
-
-_CRC = Signal("crc", 0, 8, role=SignalRole.E2E_CRC)
-MOTOR_STATE_SIGNALS: tuple[Signal, ...] = (
-    _CRC,
-    Signal("tick", 8, 8, role=SignalRole.E2E_ALIVE_COUNTER),
-    Signal("torque", 16, 16, True, TORQUE_SCALE, unit="Nm", per_reference_torque=True),
-    Signal("speed", 32, 18, True, SPEED_SCALE, unit="rad/s"),
-    Signal("position", 50, 14, False, POSITION_SCALE, unit="rad"),
+from protocol.catalogue import (  # the catalogue's public names are part of this module's interface  # noqa: F401
+    _ID_REGISTER,
+    _MAX_MODE,
+    CATALOGUE,
+    CONTROLLER_STATUS_DATA_ID,
+    CONTROLLER_STATUS_ID,
+    CONTROLLER_STATUS_SIGNALS,
+    CYCLE_MODULUS,
+    FRAME_LENGTH,
+    JOINT_STATUS_BASE_ID,
+    JOINT_STATUS_DATA_ID_BASE,
+    JOINT_STATUS_SIGNALS,
+    LOAD_STD_SCALE,
+    MAX_JOINTS,
+    MAX_SPEED_LEVELS,
+    MOTOR_COUNTER_MODULUS,
+    MOTOR_STATE_BASE_ID,
+    MOTOR_STATE_DATA_ID_BASE,
+    MOTOR_STATE_SIGNALS,
+    POSITION_SCALE,
+    SEGMENT_NONE,
+    SEGMENT_PRODUCTION,
+    SIGNALS_BY_KIND,
+    SPEED_SCALE,
+    STATUS_COUNTER_MODULUS,
+    STATUS_TICK_MODULUS,
+    TEMPERATURE_SCALE,
+    TORQUE_SCALE,
+    DecodeErrorKind,
+    FrameKind,
+    FrameType,
+    FrameValueError,
+    Mode,
+    Signal,
+    SignalRole,
 )
-CONTROLLER_STATUS_SIGNALS: tuple[Signal, ...] = (
-    _CRC,
-    Signal("counter", 8, 4, role=SignalRole.E2E_ALIVE_COUNTER),
-    Signal("mode", 12, 4),
-    Signal("cycle", 16, 16),
-    Signal("segment", 32, 8),
-    Signal("tick", 40, 24),
-)
-JOINT_STATUS_SIGNALS: tuple[Signal, ...] = (
-    _CRC,
-    Signal("counter", 8, 4, role=SignalRole.E2E_ALIVE_COUNTER),
-    Signal("reserved", 12, 4, role=SignalRole.RESERVED),
-    Signal("load_estimate", 16, 16, True, TORQUE_SCALE, unit="Nm", per_reference_torque=True),
-    Signal("load_std", 32, 8, False, LOAD_STD_SCALE, unit="Nm", per_reference_torque=True),
-    Signal("motor_temperature", 40, 16, True, TEMPERATURE_SCALE, unit="degC"),
-    Signal("reserved2", 56, 8, role=SignalRole.RESERVED),
-)
-SIGNALS_BY_KIND: dict[FrameKind, tuple[Signal, ...]] = {
-    FrameKind.MOTOR_STATE: MOTOR_STATE_SIGNALS,
-    FrameKind.CONTROLLER_STATUS: CONTROLLER_STATUS_SIGNALS,
-    FrameKind.JOINT_STATUS: JOINT_STATUS_SIGNALS,
-}
-
-
-@dataclass(frozen=True, slots=True)
-class FrameType:
-    """Catalogue entry: one CAN identifier."""
-
-    arbitration_id: int
-    data_id: int
-    kind: FrameKind
-    joint: int  # -1 for ControllerStatus
-    name: str
-    counter_modulus: int
-
-
-def _build_catalogue() -> dict[int, FrameType]:
-    catalogue = {
-        CONTROLLER_STATUS_ID: FrameType(
-            CONTROLLER_STATUS_ID, CONTROLLER_STATUS_DATA_ID, FrameKind.CONTROLLER_STATUS, -1,
-            "ControllerStatus", STATUS_COUNTER_MODULUS)
-    }
-    for joint in range(MAX_JOINTS):
-        catalogue[MOTOR_STATE_BASE_ID + joint] = FrameType(
-            MOTOR_STATE_BASE_ID + joint, MOTOR_STATE_DATA_ID_BASE + joint, FrameKind.MOTOR_STATE,
-            joint, f"MotorState_{joint}", MOTOR_COUNTER_MODULUS)
-        catalogue[JOINT_STATUS_BASE_ID + joint] = FrameType(
-            JOINT_STATUS_BASE_ID + joint, JOINT_STATUS_DATA_ID_BASE + joint, FrameKind.JOINT_STATUS,
-            joint, f"JointStatus_{joint}", STATUS_COUNTER_MODULUS)
-    return dict(sorted(catalogue.items()))
-
-
-CATALOGUE: dict[int, FrameType] = _build_catalogue()
-"""arbitration ID -> FrameType for every frame of docs/PROTOCOL.md."""
-
-
-def _id_register(data_id: int) -> int:
-    """CRC register after feeding the data ID (low byte, high byte), before the final XOR."""
-    return crc8h2f(bytes((data_id & 0xFF, data_id >> 8))) ^ FINAL_XOR
-
-
-_KIND_ERROR, _KIND_MOTOR, _KIND_CONTROLLER, _KIND_JOINT = (int(k) for k in FrameKind)
-_ERR_NONE, _ERR_UNKNOWN_ID, _ERR_WRONG_DLC, _ERR_CRC, _ERR_BAD_VALUE = (int(k) for k in DecodeErrorKind)
-_MAX_MODE = int(max(Mode))
-# Lookup tables over the 11-bit ID space, used by the block decoder.
-_ID_SPACE = 1 << 11
-_KIND_BY_ID = np.zeros(_ID_SPACE, dtype=np.int8)
-_JOINT_BY_ID = np.full(_ID_SPACE, -1, dtype=np.int8)
-_ID_REGISTER_BY_ID = np.zeros(_ID_SPACE, dtype=np.uint8)
-for _frame in CATALOGUE.values():
-    _KIND_BY_ID[_frame.arbitration_id] = _frame.kind
-    _JOINT_BY_ID[_frame.arbitration_id] = _frame.joint
-    _ID_REGISTER_BY_ID[_frame.arbitration_id] = _id_register(_frame.data_id)
-_ID_REGISTER: dict[int, int] = {f.arbitration_id: _id_register(f.data_id) for f in CATALOGUE.values()}
-
+from protocol.crc import crc8h2f
 
 # ----------------------------------------------------------------------------------------------
 # Frame records
@@ -311,10 +165,6 @@ def frame_crc(arbitration_id: int, data: bytes | bytearray) -> int:
     return crc8h2f(bytes(data[1:FRAME_LENGTH]), init=_ID_REGISTER[arbitration_id])
 
 
-def frame_crc_block(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
-    """Vectorised :func:`frame_crc`: the byte-0 CRC of each row of ``data`` (uint8[n, 8]) for its
-    catalogue ID in ``ids`` (every ID must be in the catalogue)."""
-    return crc8h2f_block(np.asarray(data)[:, 1:], init=_ID_REGISTER_BY_ID[np.asarray(ids, dtype=np.int64)])
 
 
 def _protect(arbitration_id: int, word: int) -> bytes:
@@ -394,93 +244,6 @@ def to_message(arbitration_id: int, data: bytes | Sequence[int], timestamp: floa
 
 
 # ----------------------------------------------------------------------------------------------
-# Block encoding (vectorised)
-
-
-def _quantise_block(name: str, values: np.ndarray, scale: float, raw_min: int, raw_max: int) -> np.ndarray:
-    values = np.asarray(values, dtype=np.float64)
-    if np.isnan(values).any():
-        raise FrameValueError(f"{name}: contains NaN at index {int(np.flatnonzero(np.isnan(values))[0])}; "
-                              "pass finite numbers")
-    with np.errstate(over="ignore"):  # |value| near float max: inf is clipped like any overflow
-        steps = values / scale
-    return np.rint(np.clip(steps, raw_min, raw_max)).astype(np.int64)
-
-
-def encode_motor_state_block(
-    joint: int | np.ndarray, ticks: np.ndarray, torque: np.ndarray, speed: np.ndarray, position: np.ndarray
-) -> np.ndarray:
-    """Protected MotorState payloads for n samples -> uint8[n, 8] (row i = frame of sample i).
-
-    ``joint`` is one joint index or an int array broadcastable to n; ticks are controller ticks
-    (sent mod 256); torque (fraction), speed (rad/s), position (rad) are float arrays.
-    """
-    ticks = np.asarray(ticks)
-    n = ticks.shape[0] if ticks.ndim else 1
-    joints = np.broadcast_to(np.asarray(joint), (n,))
-    if joints.size and (not np.issubdtype(joints.dtype, np.integer) or joints.min() < 0 or joints.max() >= MAX_JOINTS):
-        raise FrameValueError(f"joint: must be integers 0 .. {MAX_JOINTS - 1}")
-    if not np.issubdtype(ticks.dtype, np.integer):
-        raise FrameValueError("ticks: must be an integer array of controller ticks")
-    position = np.asarray(position, dtype=np.float64)
-    if not np.isfinite(position).all():
-        raise FrameValueError("position: contains a non-finite angle; pass finite angles in rad")
-    torque_raw = _quantise_block("torque", torque, TORQUE_SCALE, -(1 << 15), (1 << 15) - 1)
-    speed_raw = _quantise_block("speed", speed, SPEED_SCALE, -(1 << 17), (1 << 17) - 1)
-    position_raw = np.rint(np.fmod(position, 2.0 * math.pi) / POSITION_SCALE).astype(np.int64) % 16384
-    word = (
-        ((ticks.astype(np.int64) & 0xFF) << 8)
-        | ((torque_raw & 0xFFFF) << 16)
-        | ((speed_raw & 0x3FFFF) << 32)
-    ).astype("<u8") | (position_raw.astype("<u8") << np.uint64(50))
-    rows = np.ascontiguousarray(word.reshape(n)).view(np.uint8).reshape(n, 8)
-    rows[:, 0] = frame_crc_block(MOTOR_STATE_BASE_ID + joints.astype(np.int64), rows)
-    return rows
-
-
-def _integer_block(name: str, values, n: int, limit: int | None = None) -> np.ndarray:
-    array = np.broadcast_to(np.asarray(values), (n,))
-    if array.size and (not np.issubdtype(array.dtype, np.integer) or array.min() < 0
-                       or (limit is not None and array.max() >= limit)):
-        bound = f"0 .. {limit - 1}" if limit is not None else ">= 0"
-        raise FrameValueError(f"{name}: must be integers {bound}")
-    return array.astype(np.int64)
-
-
-def _protect_block(words: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    rows = np.ascontiguousarray(words.astype("<u8")).view(np.uint8).reshape(-1, 8)
-    rows[:, 0] = frame_crc_block(ids, rows)
-    return rows
-
-
-def encode_controller_status_block(counter, mode, cycle, segment, tick) -> np.ndarray:
-    """Protected ControllerStatus payloads for n frames -> uint8[n, 8] (same rules as the scalar
-    encoder: counter mod 16, cycle mod 2**16, tick mod 2**24; mode a Mode value, segment 0..255)."""
-    n = int(np.broadcast(np.asarray(counter), np.asarray(mode), np.asarray(cycle), np.asarray(segment),
-                         np.asarray(tick)).size)
-    mode = _integer_block("mode", mode, n, _MAX_MODE + 1)
-    words = ((_integer_block("counter", counter, n) & 0xF) << 8) | (mode << 12) \
-        | ((_integer_block("cycle", cycle, n) % CYCLE_MODULUS) << 16) \
-        | (_integer_block("segment", segment, n, 256) << 32) \
-        | ((_integer_block("tick", tick, n) % STATUS_TICK_MODULUS) << 40)
-    return _protect_block(words, np.full(n, CONTROLLER_STATUS_ID))
-
-
-def encode_joint_status_block(joint, counter, load_estimate, load_std, motor_temperature) -> np.ndarray:
-    """Protected JointStatus payloads for n frames -> uint8[n, 8] (saturating like the scalar encoder)."""
-    n = int(np.broadcast(np.asarray(joint), np.asarray(counter), np.asarray(load_estimate),
-                         np.asarray(load_std), np.asarray(motor_temperature)).size)
-    joints = _integer_block("joint", joint, n, MAX_JOINTS)
-    words = ((_integer_block("counter", counter, n) & 0xF) << 8) \
-        | ((np.broadcast_to(_quantise_block("load_estimate", load_estimate, TORQUE_SCALE, -(1 << 15), (1 << 15) - 1),
-                            (n,)) & 0xFFFF) << 16) \
-        | (np.broadcast_to(_quantise_block("load_std", load_std, LOAD_STD_SCALE, 0, 255), (n,)) << 32) \
-        | ((np.broadcast_to(_quantise_block("motor_temperature", motor_temperature, TEMPERATURE_SCALE,
-                                            -(1 << 15), (1 << 15) - 1), (n,)) & 0xFFFF) << 40)
-    return _protect_block(words, JOINT_STATUS_BASE_ID + joints)
-
-
-# ----------------------------------------------------------------------------------------------
 # Scalar decoding (never raises)
 
 
@@ -544,154 +307,67 @@ def decode_message(message: can.Message) -> Frame | DecodeError:
     except Exception as error:  # noqa: BLE001 - a decoder must never raise into the receive loop
         return DecodeError(DecodeErrorKind.UNKNOWN_ID, -1, f"not a CAN message: {error}")
 
+from protocol.frame_blocks import (  # noqa: E402  (the vectorised codecs are part of this module's interface)
+    DecodedBlock,
+    decode_block,
+    encode_controller_status_block,
+    encode_joint_status_block,
+    encode_motor_state_block,
+    frame_crc_block,
+    messages_to_arrays,
+)
 
-# ----------------------------------------------------------------------------------------------
-# Block decoding (vectorised)
-
-
-@dataclass(slots=True)
-class DecodedBlock:
-    """Column-wise decode of n frames. Fields not defined for a row's kind hold NaN / -1.
-
-    ``counter`` is the alive counter (MotorState: tick mod 256; status frames: 0..15) and -1 for
-    rows that failed decoding; ``valid`` = (error == NONE).
-    """
-
-    arbitration_id: np.ndarray  # int64
-    kind: np.ndarray  # int8 FrameKind
-    error: np.ndarray  # int8 DecodeErrorKind
-    crc_ok: np.ndarray  # bool (False also when the ID or DLC is wrong)
-    joint: np.ndarray  # int8, -1 for ControllerStatus / errors
-    counter: np.ndarray  # int16
-    torque: np.ndarray  # float64, fraction
-    speed: np.ndarray  # float64, rad/s
-    position: np.ndarray  # float64, rad
-    mode: np.ndarray  # int8
-    cycle: np.ndarray  # int32
-    segment: np.ndarray  # int16
-    status_tick: np.ndarray  # int32, ControllerStatus.tick
-    load_estimate: np.ndarray  # float64, fraction
-    load_std: np.ndarray  # float64, fraction
-    motor_temperature: np.ndarray  # float64, degC
-
-    def __len__(self) -> int:
-        return int(self.kind.shape[0])
-
-    @property
-    def valid(self) -> np.ndarray:
-        return self.error == DecodeErrorKind.NONE
-
-    def error_counts(self) -> dict[str, int]:
-        """Number of rows per DecodeErrorKind name (NONE excluded)."""
-        counts = np.bincount(self.error.astype(np.int64), minlength=len(DecodeErrorKind))
-        return {kind.name: int(counts[kind]) for kind in DecodeErrorKind if kind != DecodeErrorKind.NONE}
-
-
-def _field(words: np.ndarray, start: int, length: int, signed: bool = False) -> np.ndarray:
-    raw = ((words >> np.uint64(start)) & np.uint64((1 << length) - 1)).astype(np.int64)
-    if signed:
-        half = 1 << (length - 1)
-        raw = (raw ^ half) - half
-    return raw
-
-
-def decode_block(ids: np.ndarray, data: np.ndarray, dlc: np.ndarray) -> DecodedBlock:
-    """Decode n frames at once: ids int[n], data uint8[n, 8] (zero-padded), dlc int[n]."""
-    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-    n = ids.shape[0]
-    data = np.ascontiguousarray(data, dtype=np.uint8).reshape(n, FRAME_LENGTH)
-    dlc = np.asarray(dlc).reshape(n)
-    in_space = (ids >= 0) & (ids < _ID_SPACE)
-    lookup = np.where(in_space, ids, 0)
-    kind = np.where(in_space, _KIND_BY_ID[lookup], _KIND_ERROR).astype(np.int8)
-    crc = crc8h2f_block(data[:, 1:], init=_ID_REGISTER_BY_ID[lookup])
-    known = kind != _KIND_ERROR
-    length_ok = dlc == FRAME_LENGTH
-    crc_ok = known & length_ok & (crc == data[:, 0])
-    words = data.view("<u8").reshape(n)
-
-    error = np.full(n, _ERR_NONE, dtype=np.int8)
-    error[~crc_ok] = _ERR_CRC
-    error[~length_ok] = _ERR_WRONG_DLC
-    error[~known] = _ERR_UNKNOWN_ID
-
-    joint = np.full(n, -1, dtype=np.int8)
-    counter = np.full(n, -1, dtype=np.int16)
-    nan = np.full(n, np.nan)
-    torque, speed, position = nan.copy(), nan.copy(), nan.copy()
-    load_estimate, load_std, motor_temperature = nan.copy(), nan.copy(), nan
-    mode = np.full(n, -1, dtype=np.int8)
-    cycle = np.full(n, -1, dtype=np.int32)
-    segment = np.full(n, -1, dtype=np.int16)
-    status_tick = np.full(n, -1, dtype=np.int32)
-
-    motor = np.flatnonzero(crc_ok & (kind == _KIND_MOTOR))
-    if motor.size:
-        w = words[motor]
-        joint[motor] = _JOINT_BY_ID[ids[motor]]
-        counter[motor] = _field(w, 8, 8)
-        torque[motor] = _field(w, 16, 16, True) * TORQUE_SCALE
-        speed[motor] = _field(w, 32, 18, True) * SPEED_SCALE
-        position[motor] = _field(w, 50, 14) * POSITION_SCALE
-    status = np.flatnonzero(crc_ok & (kind == _KIND_CONTROLLER))
-    if status.size:
-        w = words[status]
-        status_mode = _field(w, 12, 4)
-        bad = status[status_mode > _MAX_MODE]
-        error[bad] = _ERR_BAD_VALUE
-        good = status_mode <= _MAX_MODE
-        status, w = status[good], w[good]
-        counter[status] = _field(w, 8, 4)
-        mode[status] = status_mode[good]
-        cycle[status] = _field(w, 16, 16)
-        segment[status] = _field(w, 32, 8)
-        status_tick[status] = _field(w, 40, 24)
-    joint_status = np.flatnonzero(crc_ok & (kind == _KIND_JOINT))
-    if joint_status.size:
-        w = words[joint_status]
-        joint[joint_status] = _JOINT_BY_ID[ids[joint_status]]
-        counter[joint_status] = _field(w, 8, 4)
-        load_estimate[joint_status] = _field(w, 16, 16, True) * TORQUE_SCALE
-        load_std[joint_status] = _field(w, 32, 8) * LOAD_STD_SCALE
-        motor_temperature[joint_status] = _field(w, 40, 16, True) * TEMPERATURE_SCALE
-    kind[error != _ERR_NONE] = _KIND_ERROR
-    return DecodedBlock(ids, kind, error, crc_ok, joint, counter, torque, speed, position, mode, cycle,
-                        segment, status_tick, load_estimate, load_std, motor_temperature)
-
-
-# ----------------------------------------------------------------------------------------------
-# python-can messages <-> arrays
-
-CAN_EFF_FLAG = 0x8000_0000  # marks extended / remote / error frames in the id column (never in catalogue)
-_get_id = attrgetter("arbitration_id")
-_get_data = attrgetter("data")
-_get_timestamp = attrgetter("timestamp")
-_get_flags = attrgetter("is_extended_id", "is_remote_frame", "is_error_frame")
-_is_extended = attrgetter("is_extended_id")
-_is_remote = attrgetter("is_remote_frame")
-_is_error = attrgetter("is_error_frame")
-
-
-def messages_to_arrays(
-    messages: Sequence[can.Message] | Iterable[can.Message],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(ids int64[n], data uint8[n, 8] zero-padded, dlc int64[n], timestamps float64[n]).
-
-    The dlc column is the actual data length.  Extended, remote and error frames get
-    ``CAN_EFF_FLAG`` or'ed into their id so that ``decode_block`` reports them as UNKNOWN_ID.
-    """
-    messages = messages if isinstance(messages, (list, tuple)) else list(messages)
-    n = len(messages)
-    payloads = list(map(_get_data, messages))
-    dlc = np.fromiter(map(len, payloads), dtype=np.int64, count=n)
-    if n and dlc.min() == FRAME_LENGTH and dlc.max() == FRAME_LENGTH:
-        raw = b"".join(payloads)
-    else:
-        raw = b"".join(bytes(p[:FRAME_LENGTH]).ljust(FRAME_LENGTH, b"\0") for p in payloads)
-    data = np.frombuffer(raw, dtype=np.uint8).reshape(n, FRAME_LENGTH).copy()
-    ids = np.fromiter(map(_get_id, messages), dtype=np.int64, count=n)
-    timestamps = np.fromiter(map(_get_timestamp, messages), dtype=np.float64, count=n)
-    if any(map(_is_extended, messages)) or any(map(_is_remote, messages)) or any(map(_is_error, messages)):
-        flagged = [i for i, flags in enumerate(map(_get_flags, messages)) if any(flags)]
-        ids[flagged] |= CAN_EFF_FLAG
-    return ids, data, dlc, timestamps
+__all__ = [
+    "CATALOGUE",
+    "CONTROLLER_STATUS_DATA_ID",
+    "CONTROLLER_STATUS_ID",
+    "CONTROLLER_STATUS_SIGNALS",
+    "CYCLE_MODULUS",
+    "ControllerStatus",
+    "DecodeError",
+    "DecodeErrorKind",
+    "DecodedBlock",
+    "FRAME_LENGTH",
+    "Frame",
+    "FrameKind",
+    "FrameType",
+    "FrameValueError",
+    "JOINT_STATUS_BASE_ID",
+    "JOINT_STATUS_DATA_ID_BASE",
+    "JOINT_STATUS_SIGNALS",
+    "JointStatus",
+    "LOAD_STD_SCALE",
+    "MAX_JOINTS",
+    "MAX_SPEED_LEVELS",
+    "MOTOR_COUNTER_MODULUS",
+    "MOTOR_STATE_BASE_ID",
+    "MOTOR_STATE_DATA_ID_BASE",
+    "MOTOR_STATE_SIGNALS",
+    "Mode",
+    "MotorState",
+    "POSITION_SCALE",
+    "SEGMENT_NONE",
+    "SEGMENT_PRODUCTION",
+    "SIGNALS_BY_KIND",
+    "SPEED_SCALE",
+    "STATUS_COUNTER_MODULUS",
+    "STATUS_TICK_MODULUS",
+    "Signal",
+    "SignalRole",
+    "TEMPERATURE_SCALE",
+    "TORQUE_SCALE",
+    "decode",
+    "decode_block",
+    "decode_message",
+    "encode",
+    "encode_controller_status",
+    "encode_controller_status_block",
+    "encode_joint_status",
+    "encode_joint_status_block",
+    "encode_motor_state",
+    "encode_motor_state_block",
+    "frame_crc",
+    "frame_crc_block",
+    "messages_to_arrays",
+    "to_message",
+]
