@@ -11,12 +11,12 @@ grid: ξ at ≥ 100 stratified midpoints of the site range [ξmin, ξmax] (step 
 of 0.5 on [0, ϖmax] — one matrix product, since τf = τ0(ξ) + τw(ϖ). From that grid:
 
 * ``method="marginal"`` (the agent's): ϖ̂ = the maximum of the ξ-marginalised likelihood
-  ``m(ϖ) = ∫ exp(−C/2) dξ`` (ξ ~ U(ξmin, ξmax)), refined by a parabola through the best grid point
-  and its neighbours; ξ̂ = posterior mean of ξ at ϖ̂ (``None`` for N = 1). Used for every N.
+  ``m(ϖ) = ∫ exp(−C/2) dξ`` (ξ ~ U(ξmin, ξmax)), refined between the neighbours of the best grid
+  point by a bounded 1-D search; ξ̂ = posterior mean of ξ at ϖ̂ (``None`` for N = 1). Every N.
 * ``method="joint"`` (§3 for N ≥ 2): ``min rᵀΣ⁻¹r`` over ξmin ≤ ξ ≤ ξmax, 0 ≤ ϖ ≤ ϖmax by
   ``scipy.optimize.least_squares`` (trust-region reflective, bounds, analytic Jacobian) from the
-  local minima of the grid's profile ``min_ξ C``. Biased low by ≈ 0.3–0.8 std at the design speeds
-  (fold of τ0 in ξ there, docs/WEAR_ESTIMATION.md). N = 1 is always marginal.
+  local minima of the grid's profile ``min_ξ C``. Biased low by ≈ 0.6–0.8 std at the design point
+  (marginal: 0.35; fold of τ0 in ξ there, docs/WEAR_ESTIMATION.md). N = 1 is always marginal.
 * ``std``: the posterior standard deviation of ϖ (flat priors on the box). Not a Cramér–Rao bound:
   the local bound ``[F⁻¹]₂₂`` is not attained away from the design temperature (it is 300–1000 at
   30/50 °C for the 3-point design, where the box on ξ keeps the actual spread near 5), and it
@@ -40,7 +40,7 @@ from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize_scalar
 from scipy.special import logsumexp
 
 from edge_monitor.friction_model import (
@@ -207,7 +207,7 @@ class _GridSummary:
     std: float                  # posterior std of ϖ
     upper_95: float             # upper end of the profile-likelihood interval
     identifiable: bool          # ϖ = 0 outside the profile-likelihood interval
-    temperature: float          # posterior mean of ξ at the grid column nearest ``mode``
+    temperature: float          # posterior mean of ξ at ``mode``
     profile: NDArray[np.float64]   # min_ξ C(ξ, ϖ) per grid wear
     best_xi: NDArray[np.int64]     # arg min_ξ per grid wear
 
@@ -270,10 +270,10 @@ class WearEstimator:
             cov = data_covariance(v, sigma_l, self.noise_std, self.params, stderr)
             # N is small (≤ a few tens): the explicit L⁻¹ is cheap and exact enough
             whiten = np.linalg.inv(np.linalg.cholesky(cov))
-            cost = self._cost_grid(v, tau, mu_l, whiten)
+            cost, white_nominal = self._cost_grid(v, tau, mu_l, whiten)
             if not np.all(np.isfinite(cost)):
                 return _invalid(int(v.size), "no finite fit")
-            grid = self._summarise(cost)
+            grid = self._summarise(cost, v, whiten, white_nominal)
             if v.size == 1 or self.method == "marginal":
                 estimate = grid.mode
                 temperature = grid.temperature if v.size >= 2 else None
@@ -315,16 +315,16 @@ class WearEstimator:
         return v, tau, abs(mu_l), sigma_l, stderr
 
     # -------------------------------------------------------- likelihood grid
-    def _cost_grid(self, v, tau, mu_l, whiten) -> NDArray[np.float64]:
+    def _cost_grid(self, v, tau, mu_l, whiten) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``C[i, j] = ‖L⁻¹(τ − τ0(ξi) − τw(ϖj))‖²`` (Nξ × Nϖ) by one matrix product:
-        ``‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b`` with a = L⁻¹(τ − τ0(ξi)), b = L⁻¹τw(ϖj)."""
+        ``‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b`` with a = L⁻¹(τ − τ0(ξi)), b = L⁻¹τw(ϖj). Returns (C, a)."""
         p = self.params
         a = (tau[None, :] - friction_magnitude(v[None, :], mu_l, self._xi_samples[:, None], 0.0, p)) @ whiten.T
         b = wear_friction(v[None, :], self._grid_wear[:, None], p) @ whiten.T
         cost = np.einsum("ik,ik->i", a, a)[:, None] + np.einsum("jk,jk->j", b, b)[None, :] - 2.0 * (a @ b.T)
-        return np.maximum(cost, 0.0)
+        return np.maximum(cost, 0.0), a
 
-    def _summarise(self, cost: NDArray[np.float64]) -> _GridSummary:
+    def _summarise(self, cost: NDArray[np.float64], v, whiten, white_nominal) -> _GridSummary:
         w = self._grid_wear
         best_xi = np.argmin(cost, axis=0)
         profile = cost[best_xi, np.arange(w.size)]                                  # min_ξ C
@@ -334,14 +334,31 @@ class WearEstimator:
         posterior /= posterior.sum()
         mean = float(posterior @ w)
         std = math.sqrt(max(float(posterior @ (w - mean) ** 2), 0.0))
-        k = int(np.argmax(log_marginal))
-        mode = _parabola_vertex(w, log_marginal, k)
+        mode, xi_weights = self._refine_mode(v, whiten, white_nominal, log_marginal)
         deviance = profile - profile.min()
         upper = _first_crossing(w, deviance, int(np.argmin(profile)), _PROFILE_THRESHOLD)
-        column = np.exp(-0.5 * (cost[:, k] - profile[k]))
-        temperature = float(column @ self._xi_samples / column.sum())
+        temperature = float(xi_weights @ self._xi_samples / xi_weights.sum())
         return _GridSummary(mode=mode, std=std, upper_95=upper, identifiable=bool(deviance[0] > _PROFILE_THRESHOLD),
                             temperature=temperature, profile=profile, best_xi=best_xi)
+
+    def _refine_mode(self, v, whiten, white_nominal, log_marginal) -> tuple[float, NDArray[np.float64]]:
+        """Maximum of the exact marginal log-likelihood between the grid neighbours of the best grid
+        wear (bounded Brent search), and the ξ posterior weights there."""
+        p = self.params
+
+        def weights_and_log_m(wear: float) -> tuple[NDArray[np.float64], float]:
+            d = white_nominal - whiten @ wear_friction(v, wear, p)
+            c = np.einsum("ik,ik->i", d, d)
+            weights = np.exp(-0.5 * (c - c.min()))
+            return weights, -0.5 * float(c.min()) + math.log(float(weights.sum()))
+
+        w = self._grid_wear
+        k = int(np.argmax(log_marginal))
+        lo, hi = w[max(k - 1, 0)], w[min(k + 1, w.size - 1)]
+        fit = minimize_scalar(lambda x: -weights_and_log_m(float(x))[1], bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-6})
+        mode = float(fit.x) if -fit.fun >= log_marginal[k] else float(w[k])
+        return mode, weights_and_log_m(mode)[0]
 
     # ------------------------------------------------------------------ joint
     def _fit_joint(self, v, tau, mu_l, whiten, grid: _GridSummary) -> tuple[float, float]:
@@ -379,18 +396,6 @@ class WearEstimator:
         # Other minima only if competitive: within a χ²(2) 99.9 % margin (13.8) of the best grid cost.
         minima = minima[profile[minima] <= profile[minima[0]] + _COMPETITIVE_COST]
         return [np.array([self._xi_samples[grid.best_xi[j]], self._grid_wear[j]]) for j in minima]
-
-
-def _parabola_vertex(x: NDArray[np.float64], y: NDArray[np.float64], k: int) -> float:
-    """Maximum of the parabola through (x, y) at k − 1, k, k + 1 (equally spaced), inside that
-    bracket; ``x[k]`` at the ends of the grid or when the three points are not concave."""
-    if k == 0 or k == x.size - 1:
-        return float(x[k])
-    curvature = y[k - 1] - 2.0 * y[k] + y[k + 1]
-    if not curvature < 0.0:
-        return float(x[k])
-    offset = 0.5 * (y[k - 1] - y[k + 1]) / curvature
-    return float(x[k] + np.clip(offset, -1.0, 1.0) * (x[1] - x[0]))
 
 
 def _first_crossing(x: NDArray[np.float64], y: NDArray[np.float64], start: int, level: float) -> float:
