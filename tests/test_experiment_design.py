@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge_monitor.features.wear_estimation import crlb_wear, marginal_fisher_wear
+from edge_monitor.features.wear_information import crlb_wear, marginal_fisher_wear
 from edge_monitor.offline.experiment_design import DesignError, DesignPoint, batch_crlb_wear, design_speeds
 
 POINT = DesignPoint()

@@ -1,8 +1,10 @@
-"""Wear estimation (ALGORITHMS.md §3): CRLB, ML estimate for N ≥ 2 and N = 1, bad data, Monte Carlo quality.
+"""Wear estimation (ALGORITHMS.md §3): CRLB, the likelihood grid, bad data, Monte Carlo quality.
 
-Monte Carlo data follow the statistical model of §3: per cycle ξ ~ U(30, 50), τl ~ N(0.5, 0.1²),
-τ = τf(v; τl, ξ, ϖ) + N(0, σ²), σ = 5.7e-3. The full study (≥ 200 cycles, all ϖ and N) is
-tools/mc_wear_study.py; here fewer cycles, with tolerances derived for that count.
+Monte Carlo data are made as sim_controller makes them (docs/WEAR_ESTIMATION.md §4): |τl| ~ U(0.3, 0.7),
+the controller's estimate μl = τl + N(0, 0.1²), a per-cycle, per-level model error N(0, σ²) with
+σ = 5.7e-3, and the extraction error N(0, 7e-5²) (passed as stderr); the lubricant temperature is
+fixed per test. The full study is tools/mc_wear_study.py; here fewer cycles, with tolerances derived
+from the Monte Carlo standard errors of that count (0.1 % two-sided unless stated).
 """
 
 from __future__ import annotations
@@ -16,16 +18,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from edge_monitor.features.wear_estimation import WearEstimate, WearEstimator, crlb_wear, marginal_fisher_wear
+from edge_monitor.features.wear_estimation import WearEstimate, WearEstimator
+from edge_monitor.features.wear_information import crlb_wear, data_covariance
 from edge_monitor.offline.experiment_design import design_speeds
 from joint_model.friction import friction_magnitude
 
 SIGMA = 5.7e-3
+EXTRACTION_STDERR = 7e-5
 LOAD_MEAN, LOAD_STD = 0.5, 0.1
 DEFAULT_SPEEDS = [2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1]
 BAD_SPEEDS = [82.0, 133.0]
-RUNS = 100
 Z_999 = 3.29  # two-sided 0.1 % normal quantile
+RECORD_KEYS = {"estimate", "std", "temperature", "upper_95", "identifiable"}
 
 
 @pytest.fixture(scope="module")
@@ -43,27 +47,36 @@ def designs() -> dict[int, list[float]]:
     return {n: design_speeds(n).speeds for n in (1, 2, 3, 4)}
 
 
-def simulate_cycles(speeds, wear: float, runs: int, seed: int):
-    """Friction data of ``runs`` cycles from the §3 model; returns (data R × N, true temperatures)."""
+def simulate_cycles(speeds, temperature: float, wear: float, runs: int, seed: int):
+    """Friction data (runs × N) and load estimates of ``runs`` cycles, as sim_controller makes them."""
     rng = np.random.default_rng(seed)
     v = np.asarray(speeds, dtype=float)
-    xi = rng.uniform(30.0, 50.0, runs)
-    load = rng.normal(LOAD_MEAN, LOAD_STD, runs)
-    tau = friction_magnitude(v[None, :], load[:, None], xi[:, None], wear) + rng.normal(0, SIGMA, (runs, v.size))
-    return tau, xi
+    load = rng.uniform(0.3, 0.7, runs)
+    load_estimate = load + rng.normal(0.0, LOAD_STD, runs)
+    tau = (friction_magnitude(v[None, :], load[:, None], temperature, wear)
+           + rng.normal(0.0, SIGMA, (runs, v.size)) + rng.normal(0.0, EXTRACTION_STDERR, (runs, v.size)))
+    return tau, load_estimate
 
 
-def run_estimates(estimator, speeds, tau) -> np.ndarray:
-    return np.array([estimator.estimate(speeds, row, LOAD_MEAN, LOAD_STD).estimate for row in tau])
+def run_estimates(estimator, speeds, tau, load_estimate) -> list[WearEstimate]:
+    stderr = [EXTRACTION_STDERR] * len(speeds)
+    return [estimator.estimate(speeds, row, mu, LOAD_STD, friction_stderr=stderr)
+            for row, mu in zip(tau, load_estimate)]
 
 
-def marginal_bound(speeds, wear) -> float:
-    """Cramér–Rao bound of ϖ for the Monte Carlo's data model, in which ξ ~ U(30, 50) is a random
-    nuisance: 1/F of the temperature-marginalised likelihood (2000 draws: MC error ≈ √(2/2000) ≈ 3 %).
-    The local bound [F⁻¹]₂₂ at the true ξ does not apply here: the estimator knows ξ ∈ [30, 50]
-    (box constraint), and for design speeds clustered where ∂τf/∂ξ ≈ 0 at 40 °C it beats the local
-    bound at other temperatures by far (see docs/WEAR_ESTIMATION.md)."""
-    return 1.0 / marginal_fisher_wear(speeds, wear, LOAD_MEAN, LOAD_STD, n_draws=2000)
+def field(results: list[WearEstimate], name: str) -> np.ndarray:
+    return np.array([getattr(r, name) for r in results], dtype=float)
+
+
+def chi2_band(runs: int) -> tuple[float, float]:
+    """0.05 % and 99.95 % quantiles of s²/σ² for ``runs`` normal samples."""
+    q_low, q_high = stats.chi2.ppf([0.0005, 0.9995], runs - 1) / (runs - 1)
+    return float(q_low), float(q_high)
+
+
+def coverage_floor(level: float, runs: int) -> float:
+    """Smallest observed coverage consistent with a true coverage ≥ ``level`` (one-sided 0.1 %)."""
+    return level - 3.09 * math.sqrt(level * (1 - level) / runs)
 
 
 # ----------------------------------------------------------------------------- Cramér–Rao bound
@@ -89,7 +102,49 @@ def test_crlb_is_infinite_for_one_speed_and_grows_with_extra_noise():
     assert noisier > plain
 
 
-# ---------------------------------------------------------------------------- estimator, exact data
+# ------------------------------------------------------------------------ the likelihood grid
+def brute_force_posterior(speeds, tau, mu, sigma_l, temperature_range, wear_max=100.0):
+    """Independent reference: the (ξ, ϖ) likelihood evaluated point by point with an explicit Σ⁻¹
+    on a 4× finer grid; returns (marginal ML, posterior std, profile-likelihood upper bound at 1.96²,
+    whether ϖ = 0 is outside that interval)."""
+    v = np.asarray(speeds, dtype=float)
+    cov_inv = np.linalg.inv(data_covariance(v, sigma_l, SIGMA))
+    n_xi = 4 * max(100, math.ceil((temperature_range[1] - temperature_range[0]) / 0.25))
+    xi = temperature_range[0] + (np.arange(n_xi) + 0.5) / n_xi * (temperature_range[1] - temperature_range[0])
+    wear = np.linspace(0.0, wear_max, 801)
+    resid = tau[None, None, :] - friction_magnitude(v[None, None, :], mu, xi[:, None, None], wear[None, :, None])
+    cost = np.einsum("ijk,kl,ijl->ij", resid, cov_inv, resid)
+    lik = np.exp(-0.5 * (cost - cost.min()))
+    marginal = lik.sum(axis=0) * np.r_[0.5, np.ones(wear.size - 2), 0.5]
+    post = marginal / marginal.sum()
+    mean = post @ wear
+    profile = cost.min(axis=0) - cost.min()
+    start = int(np.argmin(profile))
+    above = np.flatnonzero(profile[start:] > 1.96 ** 2)
+    upper = wear[-1] if above.size == 0 else wear[start + above[0]]
+    return wear[np.argmax(marginal)], math.sqrt(post @ (wear - mean) ** 2), upper, profile[0] > 1.96 ** 2
+
+
+@pytest.mark.parametrize("speeds, temperature, wear, temperature_range", [
+    ([33.68, 38.68, 43.68], 40.0, 35.0, (30.0, 50.0)),
+    ([35.84, 40.84], 44.0, 12.0, (30.0, 50.0)),
+    ([40.84], 36.0, 30.0, (30.0, 50.0)),
+    (DEFAULT_SPEEDS, 55.0, 10.0, (30.0, 80.0)),
+])
+def test_grid_summary_matches_a_brute_force_likelihood(speeds, temperature, wear, temperature_range):
+    """Estimate, std, upper bound and flag against a direct evaluation on a 4× finer grid: agree
+    within the coarser grid's resolution (wear step 0.5, temperature step ≤ 0.25 °C)."""
+    rng = np.random.default_rng(3)
+    tau = friction_magnitude(speeds, 0.47, temperature, wear) + rng.normal(0.0, SIGMA, len(speeds))
+    result = WearEstimator(method="marginal", temperature_range=temperature_range).estimate(
+        speeds, tau, 0.5, LOAD_STD)
+    mode, std, upper, identifiable = brute_force_posterior(speeds, tau, 0.5, LOAD_STD, temperature_range)
+    assert result.estimate == pytest.approx(mode, abs=0.3)
+    assert result.std == pytest.approx(std, rel=0.02)
+    assert result.upper_95 == pytest.approx(upper, abs=0.3)
+    assert result.identifiable == identifiable
+
+
 @settings(max_examples=25, deadline=None)
 @given(temperature=st.floats(30.5, 49.5), wear=st.floats(15.0, 70.0), n_speeds=st.sampled_from([3, 12]))
 def test_noise_free_data_give_the_true_wear_and_temperature(estimator, temperature, wear, n_speeds):
@@ -101,11 +156,11 @@ def test_noise_free_data_give_the_true_wear_and_temperature(estimator, temperatu
     assert result.ok and result.n_points == len(speeds)
     assert result.estimate == pytest.approx(wear, abs=1e-3)
     assert result.temperature == pytest.approx(temperature, abs=1e-3)
-    bound = crlb_wear(speeds, temperature, wear, LOAD_MEAN, LOAD_STD)
-    assert result.std == pytest.approx(math.sqrt(bound), rel=1e-3)
+    assert 0.0 < result.std < math.inf
+    assert result.upper_95 >= result.estimate
 
 
-def test_single_speed_estimate_has_no_temperature_and_a_marginal_std(estimator, designs):
+def test_single_speed_estimate_has_no_temperature(estimator, designs):
     speed = designs[1]
     tau = friction_magnitude(speed, LOAD_MEAN, 40.0, 35.0)
     result = estimator.estimate(speed, tau, LOAD_MEAN, LOAD_STD)
@@ -113,8 +168,7 @@ def test_single_speed_estimate_has_no_temperature_and_a_marginal_std(estimator, 
     # The datum sits at the centre of the temperature range: the marginal ML is close to the truth
     # (within a fraction of its own standard deviation).
     assert abs(result.estimate - 35.0) < 0.5 * result.std
-    expected = 1 / math.sqrt(marginal_fisher_wear(speed[0], result.estimate, LOAD_MEAN, LOAD_STD))
-    assert result.std == pytest.approx(expected, rel=1e-9)
+    assert result.estimate < result.upper_95 < 35.0 + 4 * result.std
 
 
 def test_friction_stderr_widens_the_reported_std(estimator):
@@ -123,6 +177,7 @@ def test_friction_stderr_widens_the_reported_std(estimator):
     plain = estimator.estimate(speeds, tau, LOAD_MEAN, LOAD_STD)
     noisy = estimator.estimate(speeds, tau, LOAD_MEAN, LOAD_STD, friction_stderr=[4e-3] * 3)
     assert noisy.std > plain.std
+    assert noisy.upper_95 > plain.upper_95
 
 
 def test_estimate_is_deterministic_and_record_is_json(estimator):
@@ -132,7 +187,22 @@ def test_estimate_is_deterministic_and_record_is_json(estimator):
     first = estimator.estimate(speeds, tau, LOAD_MEAN, LOAD_STD)
     assert first == estimator.estimate(speeds, tau, LOAD_MEAN, LOAD_STD)
     record = json.loads(json.dumps(first.to_record(), allow_nan=False))
-    assert set(record) == {"estimate", "std", "temperature"}
+    assert set(record) == RECORD_KEYS
+    assert isinstance(record["identifiable"], bool) and record["upper_95"] >= record["estimate"]
+
+
+def test_healthy_joint_gets_an_upper_bound_not_a_huge_std(marginal_estimator, designs):
+    """The issue's "wear 3.2 ± >100": noise-free data of an unworn joint at the design speeds give a
+    small estimate, a std of a few units (not the exploding local CRLB), identifiable = False and an
+    upper bound below the critical level 35."""
+    speeds = designs[3]
+    result = marginal_estimator.estimate(speeds, friction_magnitude(speeds, LOAD_MEAN, 40.0, 0.0),
+                                         LOAD_MEAN, LOAD_STD)
+    assert crlb_wear(speeds, 40.0, 1e-6, LOAD_MEAN, LOAD_STD) > 1e4
+    assert result.ok and not result.identifiable
+    assert result.std < 10.0
+    assert result.estimate < result.upper_95 < 35.0
+    assert result.to_record()["identifiable"] is False
 
 
 # --------------------------------------------------------------------------------- bad data
@@ -147,8 +217,9 @@ def test_estimate_is_deterministic_and_record_is_json(estimator):
 def test_bad_data_give_a_reason_not_an_exception(estimator, speeds, friction, reason):
     result = estimator.estimate(speeds, friction, LOAD_MEAN, LOAD_STD)
     assert not result.ok and result.reason.startswith(reason)
-    assert math.isnan(result.estimate)
-    json.dumps(result.to_record(), allow_nan=False)
+    assert math.isnan(result.estimate) and math.isnan(result.upper_95) and not result.identifiable
+    record = json.loads(json.dumps(result.to_record(), allow_nan=False))
+    assert record["upper_95"] is None and record["identifiable"] is False
 
 
 finite_or_not = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1.0, 1.0))
@@ -158,14 +229,17 @@ finite_or_not = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.flo
 @given(speeds=st.lists(st.one_of(st.floats(-300, 300), finite_or_not), max_size=6),
        friction=st.lists(finite_or_not, max_size=6),
        load=st.tuples(finite_or_not, finite_or_not),
-       with_stderr=st.booleans())
-def test_estimator_never_raises_and_respects_the_constraints(estimator, speeds, friction, load, with_stderr):
+       with_stderr=st.booleans(),
+       method=st.sampled_from(["joint", "marginal"]))
+def test_estimator_never_raises_and_respects_the_constraints(speeds, friction, load, with_stderr, method):
+    estimator = WearEstimator(method=method)
     stderr = [1e-3] * len(friction) if with_stderr else None
     result = estimator.estimate(speeds, friction, load[0], load[1], friction_stderr=stderr)
     assert isinstance(result, WearEstimate)
     json.dumps(result.to_record(), allow_nan=False)
     if result.ok:
-        assert 0.0 <= result.estimate <= estimator.wear_max
+        assert 0.0 <= result.estimate <= result.upper_95 <= estimator.wear_max
+        assert 0.0 <= result.std < math.inf
         if result.temperature is not None:
             assert 30.0 <= result.temperature <= 50.0
     else:
@@ -180,59 +254,139 @@ def test_invalid_configuration_is_refused():
 
 
 # ------------------------------------------------------------------------------- Monte Carlo
-@pytest.mark.parametrize("n_speeds, wear", [(1, 20.0), (1, 35.0), (2, 35.0), (3, 20.0), (3, 50.0), (4, 35.0)])
-def test_marginal_estimate_is_unbiased_and_near_the_bound(marginal_estimator, designs, n_speeds, wear):
-    """Bias and variance over RUNS cycles at design speeds (N = 1 is the same for both methods).
+DESIGN_RUNS = 600
 
-    Target (issue): unbiased, variance within a factor 2 of the bound B (:func:`marginal_bound`).
-    Derived tolerances for RUNS cycles: bias |mean − ϖ| ≤ 3.29·√(2B/RUNS) (the SE of the mean if the
-    variance is as large as the target allows; 0.1 % two-sided); variance ratio s²/B inside
-    [½·q₀.₀₀₀₅, 2·q₀.₉₉₉₅] with q the quantiles of χ²(RUNS−1)/(RUNS−1), i.e. the factor-2 band widened
-    by the sampling error of s².
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n_speeds", [2, 3, 4])
+def test_design_point_variance_bias_and_std_meet_the_targets(marginal_estimator, designs, n_speeds):
+    """At ξ = 40 °C, ϖ = 35 and the designed speeds (the issue's complaint), over DESIGN_RUNS cycles:
+
+    * variance ≤ 1.25 × design CRLB: s²/CRLB ≤ 1.25·q₀.₉₉₉₅ (q: quantiles of χ²(R−1)/(R−1));
+    * |bias| ≤ 2: |mean − 35| ≤ 2 + 3.29·s/√R;
+    * published std within 20 % of the spread: RMS(std)/s inside [0.8/√q₀.₉₉₉₅, 1.2/√q₀.₀₀₀₅];
+    * upper_95 covers ϖ in ≥ 95 % of the cycles (one-sided 0.1 % binomial margin).
     """
     speeds = designs[n_speeds]
-    tau, _ = simulate_cycles(speeds, wear, RUNS, seed=100 + 10 * n_speeds + int(wear))
-    estimates = run_estimates(marginal_estimator, speeds, tau)
-    bound = marginal_bound(speeds, wear)
-    assert abs(estimates.mean() - wear) <= Z_999 * math.sqrt(2 * bound / RUNS)
-    q_low, q_high = stats.chi2.ppf([0.0005, 0.9995], RUNS - 1) / (RUNS - 1)
-    ratio = estimates.var(ddof=1) / bound
-    assert 0.5 * q_low <= ratio <= 2.0 * q_high
+    tau, mu = simulate_cycles(speeds, 40.0, 35.0, DESIGN_RUNS, seed=100 + n_speeds)
+    results = run_estimates(marginal_estimator, speeds, tau, mu)
+    est, std, upper = field(results, "estimate"), field(results, "std"), field(results, "upper_95")
+    spread = est.std(ddof=1)
+    q_low, q_high = chi2_band(DESIGN_RUNS)
+    crlb = crlb_wear(speeds, 40.0, 35.0, LOAD_MEAN, LOAD_STD)
+    assert spread ** 2 / crlb <= 1.25 * q_high
+    assert abs(est.mean() - 35.0) <= 2.0 + Z_999 * spread / math.sqrt(DESIGN_RUNS)
+    ratio = math.sqrt(np.mean(std ** 2)) / spread
+    assert 0.8 / math.sqrt(q_high) <= ratio <= 1.2 / math.sqrt(q_low)
+    assert np.mean(35.0 <= upper) >= coverage_floor(0.95, DESIGN_RUNS)
 
 
+SWEEP_RUNS = 300
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("temperature", [30.0, 50.0])
+def test_bounds_on_temperature_keep_the_variance_low_off_the_design_temperature(
+        marginal_estimator, designs, temperature):
+    """At the ends of the site range the local CRLB of the 3-point design is 300–1000, but the box
+    ξ ∈ [30, 50] keeps the spread at the design-point level: s² ≤ 1.5 × the design CRLB (19.7) and
+    |bias| ≤ 4 (≤ 0.9 std; measured +2.2 / +3.1 in the full study), std honest within 20 %."""
+    speeds = designs[3]
+    assert crlb_wear(speeds, temperature, 35.0, LOAD_MEAN, LOAD_STD) > 250.0
+    tau, mu = simulate_cycles(speeds, temperature, 35.0, SWEEP_RUNS, seed=200 + int(temperature))
+    results = run_estimates(marginal_estimator, speeds, tau, mu)
+    est, std = field(results, "estimate"), field(results, "std")
+    spread = est.std(ddof=1)
+    q_low, q_high = chi2_band(SWEEP_RUNS)
+    assert spread ** 2 / crlb_wear(speeds, 40.0, 35.0, LOAD_MEAN, LOAD_STD) <= 1.5 * q_high
+    assert abs(est.mean() - 35.0) <= 4.0 + Z_999 * spread / math.sqrt(SWEEP_RUNS)
+    ratio = math.sqrt(np.mean(std ** 2)) / spread
+    assert 0.8 / math.sqrt(q_high) <= ratio <= 1.2 / math.sqrt(q_low)
+
+
+BOUND_RUNS = 400
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("speeds_name, temperature_range, temperature", [
+    ("design3", (30.0, 50.0), 35.0), ("design3", (30.0, 50.0), 40.0), ("design3", (30.0, 50.0), 50.0),
+    ("default12", (30.0, 80.0), 40.0), ("default12", (30.0, 80.0), 60.0),
+])
+def test_upper_bound_covers_low_wear_and_stays_below_the_critical_level(
+        designs, speeds_name, temperature_range, temperature):
+    """Both sides of the one-sided bound near ϖ = 0, where ϖ is not identifiable:
+
+    * coverage P(ϖ ≤ upper_95) ≥ 0.95 at ϖ = 0 (trivially 1: any bound ≥ 0 covers 0) and at ϖ = 5
+      (measured 1.00: at the design speeds ϖ = 5 is indistinguishable from 0, so a valid bound must
+      lie above it) — checked with a one-sided 0.1 % binomial margin;
+    * not vacuous: at ϖ = 0 the median bound stays below the critical level 35 and the estimate is
+      flagged not identifiable in ≥ 90 % of the cycles (measured 96–100 %; at ϖ = 35, 3 speeds,
+      40 °C it is identifiable in 98 %).
+    """
+    speeds = designs[3] if speeds_name == "design3" else DEFAULT_SPEEDS
+    est = WearEstimator(method="marginal", temperature_range=temperature_range)
+    for wear in (0.0, 5.0):
+        tau, mu = simulate_cycles(speeds, temperature, wear, BOUND_RUNS, seed=300 + int(temperature + wear))
+        results = run_estimates(est, speeds, tau, mu)
+        upper = field(results, "upper_95")
+        assert np.mean(wear <= upper) >= coverage_floor(0.95, BOUND_RUNS)
+        if wear == 0.0:
+            assert np.median(upper) < 35.0
+            assert np.mean(field(results, "identifiable")) <= 0.10
+
+
+@pytest.mark.slow
+def test_upper_bound_coverage_at_identifiable_wear(marginal_estimator, designs):
+    """Where ϖ is identifiable the bound is a real 95 % bound: at ϖ = 20 and 35, 3 design speeds,
+    ξ = 40 °C (the fold, where the estimates are biased low and the nominal one-sided 1.645² level
+    covered only ≈ 0.93) the coverage is ≥ 0.95 within the binomial margin, and ≤ 0.995 (not vacuous:
+    measured 0.97–0.98)."""
+    speeds = designs[3]
+    for wear in (20.0, 35.0):
+        tau, mu = simulate_cycles(speeds, 40.0, wear, BOUND_RUNS, seed=400 + int(wear))
+        coverage = np.mean(wear <= field(run_estimates(marginal_estimator, speeds, tau, mu), "upper_95"))
+        assert coverage_floor(0.95, BOUND_RUNS) <= coverage <= 0.995
+
+
+RUNS = 100
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("wear", [20.0, 35.0])
 def test_joint_estimate_is_biased_low_at_the_design_speeds(estimator, marginal_estimator, designs, wear):
     """Documents the finding of tools/mc_wear_study.py: at the design speeds (clustered where
-    ∂τf/∂ξ ≈ 0 at 40 °C, a fold of τ0 in ξ) the joint ML of §3 is biased low, the marginal one is
-    not. Paired on the same cycles: the mean difference joint − marginal is negative beyond its own
-    3.29 standard errors (one-sided would need 3.09), and its variance stays within the target factor 2."""
+    ∂τf/∂ξ ≈ 0 at 40 °C, a fold of τ0 in ξ) the joint ML of §3 is biased low, the marginal one
+    less. Paired on the same cycles: the mean difference joint − marginal is negative beyond its own
+    3.29 standard errors."""
     speeds = designs[2]
-    tau, _ = simulate_cycles(speeds, wear, RUNS, seed=300 + int(wear))
-    joint = run_estimates(estimator, speeds, tau)
-    marginal = run_estimates(marginal_estimator, speeds, tau)
+    tau, mu = simulate_cycles(speeds, 40.0, wear, RUNS, seed=500 + int(wear))
+    joint = field(run_estimates(estimator, speeds, tau, mu), "estimate")
+    marginal = field(run_estimates(marginal_estimator, speeds, tau, mu), "estimate")
     diff = joint - marginal
     assert diff.mean() < -Z_999 * diff.std(ddof=1) / math.sqrt(RUNS)
-    q_high = stats.chi2.ppf(0.9995, RUNS - 1) / (RUNS - 1)
-    assert joint.var(ddof=1) / marginal_bound(speeds, wear) <= 2.0 * q_high
 
 
-def test_design_speeds_beat_badly_chosen_speeds(estimator, designs):
+@pytest.mark.slow
+def test_design_speeds_beat_badly_chosen_speeds(marginal_estimator, designs):
     """Variance at 82/133 rad/s exceeds the design's by an F-test at 0.1 % (same cycles' conditions)."""
-    tau_design, _ = simulate_cycles(designs[2], 35.0, RUNS, seed=7)
-    tau_bad, _ = simulate_cycles(BAD_SPEEDS, 35.0, RUNS, seed=7)
-    var_design = run_estimates(estimator, designs[2], tau_design).var(ddof=1)
-    var_bad = run_estimates(estimator, BAD_SPEEDS, tau_bad).var(ddof=1)
+    tau_design, mu = simulate_cycles(designs[2], 40.0, 35.0, RUNS, seed=7)
+    tau_bad, mu_bad = simulate_cycles(BAD_SPEEDS, 40.0, 35.0, RUNS, seed=7)
+    var_design = field(run_estimates(marginal_estimator, designs[2], tau_design, mu), "estimate").var(ddof=1)
+    var_bad = field(run_estimates(marginal_estimator, BAD_SPEEDS, tau_bad, mu_bad), "estimate").var(ddof=1)
     assert var_bad / var_design > stats.f.ppf(0.999, RUNS - 1, RUNS - 1)
 
 
-def test_no_wear_stays_low_and_wear_shows(estimator, designs):
-    """Both sides: at ϖ = 0 the (truncated) estimates stay below the critical level 35 in all but a
-    few cycles, at ϖ = 50 above it in all but a few. A wrong side needs an error of 15 wear units,
-    ≥ 3.4 bound standard deviations (√19.7 ≈ 4.4 at N = 3), one-sided p ≈ 4e-4 per cycle; even at a
-    generous p = 1.35 % (2.2σ) more than 5 of 100 wrong-side cycles has binomial probability 0.25 %."""
+@pytest.mark.slow
+def test_no_wear_stays_low_and_wear_shows(marginal_estimator, designs):
+    """Both sides: at ϖ = 0 the estimates stay below the critical level 35 in all but a few cycles,
+    at ϖ = 50 above it in all but a few, and identifiable in all but a few. A wrong side needs an
+    error of ≥ 15 wear units, ≥ 2.7 standard deviations (≈ 5.5 at ϖ = 0, 4.5 at ϖ = 50, N = 3),
+    one-sided p ≤ 0.35 % per cycle; more than 5 of 100 wrong-side cycles then has binomial
+    probability < 1e-4."""
     speeds = designs[3]
-    healthy = run_estimates(estimator, speeds, simulate_cycles(speeds, 0.0, RUNS, seed=11)[0])
-    worn = run_estimates(estimator, speeds, simulate_cycles(speeds, 50.0, RUNS, seed=12)[0])
-    assert np.all(healthy >= 0.0)
-    assert np.sum(healthy >= 35.0) <= 5
-    assert np.sum(worn < 35.0) <= 5
+    healthy = run_estimates(marginal_estimator, speeds, *simulate_cycles(speeds, 40.0, 0.0, RUNS, seed=11))
+    worn = run_estimates(marginal_estimator, speeds, *simulate_cycles(speeds, 40.0, 50.0, RUNS, seed=12))
+    assert np.all(field(healthy, "estimate") >= 0.0)
+    assert np.sum(field(healthy, "estimate") >= 35.0) <= 5
+    assert np.sum(field(worn, "estimate") < 35.0) <= 5
+    assert np.sum(~field(worn, "identifiable").astype(bool)) <= 5

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from edge_monitor.features.wear_estimation import WearEstimator, data_covariance
+from edge_monitor.features.wear_estimation import WearEstimator
+from edge_monitor.features.wear_information import data_covariance
 from edge_monitor.offline.experiment_design import design_speeds
 from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction_magnitude
 

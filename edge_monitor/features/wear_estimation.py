@@ -6,20 +6,29 @@ cycle, which share temperature ξ [°C], load and wear ϖ. The controller's load
 
     τ ~ N(τf(v; μl, ξ, ϖ), Σ),   Σ = σ²·I + diag(stderr²) + σl²·s·sᵀ,   s(v) = ∂τf/∂|τl|.
 
-* N ≥ 2: ``min rᵀΣ⁻¹r`` over ξmin ≤ ξ ≤ ξmax, 0 ≤ ϖ ≤ ϖmax, from the best point of a vectorised
-  coarse grid, refined by ``scipy.optimize.least_squares`` (trust-region reflective, bounds) on the
-  whitened residual ``L⁻¹r`` (Σ = L·Lᵀ). Σ does not depend on θ, so this is the exact ML estimate.
-* N = 1: ξ ~ U(ξmin, ξmax) is marginalised with Nξ stratified (midpoint) samples, deterministic;
-  the mixture likelihood is maximised over ϖ on a grid, refined by a bounded 1-D search.
-* Uncertainty: the Cramér–Rao bound ``[F⁻¹]₂₂``, ``F = JᵀΣ⁻¹J`` at the estimate (N ≥ 2); for N = 1
-  the Fisher information of the marginalised likelihood (:func:`marginal_fisher_wear`).
-* Option ``method="marginal"``: N ≥ 2 treated like N = 1 (ξ marginalised). On data with ξ drawn per
-  cycle from U(ξmin, ξmax) it is close to unbiased where the joint ML is biased low by ≈ 0.3–0.6
-  standard deviations at the design speeds (tools/mc_wear_study.py, docs/WEAR_ESTIMATION.md).
+Every call evaluates the whitened cost ``C(ξ, ϖ) = ‖L⁻¹(τ − τf(v; μl, ξ, ϖ))‖²`` (Σ = L·Lᵀ) once on a
+grid: ξ at ≥ 100 stratified midpoints of the site range [ξmin, ξmax] (step ≤ 0.25 °C), ϖ in steps
+of 0.5 on [0, ϖmax] — one matrix product, since τf = τ0(ξ) + τw(ϖ). From that grid:
 
-Remark on the boundary ϖ = 0: ``∂τf/∂ϖ`` at ϖ = 0 is only ``fvϖ·v`` (the wear Stribeck term
-vanishes faster than any power of ϖ), so the bound there is very large and, since the estimate
-is truncated at 0, not a variance the estimate attains. It is published as computed.
+* ``method="marginal"`` (the agent's): ϖ̂ = the maximum of the ξ-marginalised likelihood
+  ``m(ϖ) = ∫ exp(−C/2) dξ`` (ξ ~ U(ξmin, ξmax)), refined between the neighbours of the best grid
+  point by a bounded 1-D search; ξ̂ = posterior mean of ξ at ϖ̂ (``None`` for N = 1). Every N.
+* ``method="joint"`` (§3 for N ≥ 2): ``min rᵀΣ⁻¹r`` over ξmin ≤ ξ ≤ ξmax, 0 ≤ ϖ ≤ ϖmax by
+  ``scipy.optimize.least_squares`` (trust-region reflective, bounds, analytic Jacobian) from the
+  local minima of the grid's profile ``min_ξ C``. Biased low by ≈ 0.6–0.8 std at the design point
+  (marginal: 0.35; fold of τ0 in ξ there, docs/WEAR_ESTIMATION.md). N = 1 is always marginal.
+* ``std``: the posterior standard deviation of ϖ (flat priors on the box). Not a Cramér–Rao bound:
+  the local bound ``[F⁻¹]₂₂`` is not attained away from the design temperature (it is 300–1000 at
+  30/50 °C for the 3-point design, where the box on ξ keeps the actual spread near 5), and it
+  explodes at ϖ → 0. The Monte Carlo study checks that this std is within 20 % of the spread.
+* ``upper_95``: one-sided 95 % upper confidence bound from the profile likelihood: the largest ϖ
+  above the profile's minimum with ``min_ξ C(ξ, ϖ) − min C ≤ 1.96²`` (the upper end of the two-sided
+  95 % profile-likelihood interval; the nominal one-sided level 1.645² under-covers where the
+  estimate is biased low, see ``_PROFILE_THRESHOLD``).
+* ``identifiable``: ϖ = 0 lies outside that interval (``min_ξ C(ξ, 0) − min C > 1.96²``). When
+  ``False``, publish "ϖ ≤ upper_95", not ϖ̂ ± std: ``∂τf/∂ϖ`` at ϖ → 0 is only ``fvϖ·v`` (the wear
+  Stribeck term vanishes faster than any power of ϖ), so low wear cannot be told from none at
+  speeds ≫ ϖ·vsϖ.
 """
 
 from __future__ import annotations
@@ -32,24 +41,32 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize_scalar
-from scipy.special import logsumexp
 
+from edge_monitor.features.wear_information import (
+    _temperature_samples,
+    data_covariance,
+)
 from joint_model.friction import (
     DEFAULT_PARAMS,
     FRICTION_NOISE_STD,
     FrictionParams,
     friction_magnitude,
     jacobian_temperature_wear,
-    load_sensitivity,
     wear_friction,
 )
 
 log = logging.getLogger(__name__)
 
-#: Temperature grid step of the coarse start grid [°C] and wear grid step [-].
-_GRID_TEMPERATURE_STEP = 1.0
-_GRID_WEAR_STEP = 1.0
-#: Local solver starts at most (local minima of the grid's wear profile).
+#: Likelihood grid: largest temperature step [°C] (the narrowest ξ likelihood met, 12 default speeds,
+#: has a std ≥ 0.77 °C, i.e. ≥ 3 steps) and wear step [-] (the std of ϖ̂ is ≥ 3 at every design).
+_MAX_TEMPERATURE_STEP = 0.25
+_WEAR_STEP = 0.5
+#: Profile-likelihood threshold of the upper bound and of the identifiability test: χ²₁(0.95) = 1.96²
+#: (the upper end of the two-sided 95 % interval). Calibrated by Monte Carlo: the nominal one-sided
+#: 95 % threshold 1.645² covers only 0.93 at the design temperature, where the fold of τ0 in ξ
+#: biases the estimates low; 1.96² covers ≥ 0.95 at every design configuration (tools/mc_wear_study.py).
+_PROFILE_THRESHOLD = 1.959963984540054 ** 2
+#: Local solver starts at most (local minima of the grid's wear profile), ``method="joint"``.
 _MAX_STARTS = 3
 _COMPETITIVE_COST = 13.8
 _SOLVER_METHOD = "trf"
@@ -57,17 +74,17 @@ _SOLVER_METHOD = "trf"
 #: the joint's maximum torque, |τl| ≤ 0.75). Data beyond them are refused with a reason.
 _MAX_PLAUSIBLE_SPEED = 1e4
 _MAX_PLAUSIBLE_TORQUE = 10.0
-#: Monte Carlo draws and seed of the marginal Fisher information (N = 1), ALGORITHMS.md §3.
-_MARGINAL_FISHER_DRAWS = 200
-_MARGINAL_FISHER_SEED = 20260402
 
 
 @dataclass(frozen=True)
 class WearEstimate:
-    """One cycle's wear estimate. ``estimate``/``std`` in wear units, ``temperature`` in °C.
+    """One cycle's wear estimate. ``estimate``/``std``/``upper_95`` in wear units, ``temperature`` in °C.
 
-    ``reason`` is ``None`` for a valid estimate, otherwise why there is none (then ``estimate``
-    and ``std`` are NaN). ``std`` is the Cramér–Rao standard deviation at the estimate.
+    ``reason`` is ``None`` for a valid estimate, otherwise why there is none (then ``estimate``,
+    ``std`` and ``upper_95`` are NaN). ``std`` is the posterior standard deviation of ϖ (an honest
+    spread, checked by Monte Carlo), ``upper_95`` the one-sided 95 % upper confidence bound of ϖ,
+    ``identifiable`` whether the data exclude ϖ = 0 (profile likelihood); when it is ``False`` the
+    estimate sits where low wear cannot be told from none: report "ϖ ≤ upper_95".
     """
 
     estimate: float
@@ -75,15 +92,22 @@ class WearEstimate:
     temperature: float | None
     n_points: int
     reason: str | None = None
+    upper_95: float = math.nan
+    identifiable: bool = False
 
     @property
     def ok(self) -> bool:
         return self.reason is None
 
-    def to_record(self) -> dict[str, float | None]:
-        """The ``"wear"`` field of a symptom record (SYSTEM.md); NaN/inf become ``None``."""
+    def to_record(self) -> dict[str, float | bool | None]:
+        """The ``"wear"`` field of a symptom record (SYSTEM.md); NaN/inf become ``None``.
+
+        Keys: ``estimate``, ``std``, ``temperature`` (as before) plus ``upper_95`` (one-sided 95 %
+        upper bound of ϖ, ``None`` without an estimate) and ``identifiable`` (bool).
+        """
         return {"estimate": _json_number(self.estimate), "std": _json_number(self.std),
-                "temperature": None if self.temperature is None else _json_number(self.temperature)}
+                "temperature": None if self.temperature is None else _json_number(self.temperature),
+                "upper_95": _json_number(self.upper_95), "identifiable": bool(self.identifiable)}
 
 
 def _json_number(x: float) -> float | None:
@@ -94,93 +118,34 @@ def _invalid(n_points: int, reason: str) -> WearEstimate:
     return WearEstimate(estimate=math.nan, std=math.nan, temperature=None, n_points=n_points, reason=reason)
 
 
-def data_covariance(speeds: ArrayLike, load_std: float, noise_std: float,
-                    params: FrictionParams = DEFAULT_PARAMS,
-                    friction_stderr: ArrayLike | None = None) -> NDArray[np.float64]:
-    """``Σ(v) = σ²·I + diag(stderr²) + σl²·s·sᵀ`` (N × N) of the friction data at ``speeds``."""
-    v = np.atleast_1d(np.asarray(speeds, dtype=float))
-    s = load_sensitivity(v, params)
-    diag = np.full(v.size, noise_std ** 2)
-    if friction_stderr is not None:
-        diag = diag + np.atleast_1d(np.asarray(friction_stderr, dtype=float)) ** 2
-    return np.diag(diag) + load_std ** 2 * np.outer(s, s)
-
-
-def fisher_information(speeds: ArrayLike, temperature: float, wear: float, load_std: float,
-                       noise_std: float = FRICTION_NOISE_STD, params: FrictionParams = DEFAULT_PARAMS,
-                       friction_stderr: ArrayLike | None = None) -> NDArray[np.float64]:
-    """``F = JᵀΣ⁻¹J`` (2 × 2, order [ξ, ϖ]) of the friction data for θ = [ξ, ϖ]."""
-    v = np.atleast_1d(np.asarray(speeds, dtype=float))
-    jac = jacobian_temperature_wear(v, temperature, wear, params)
-    cov = data_covariance(v, load_std, noise_std, params, friction_stderr)
-    return jac.T @ np.linalg.solve(cov, jac)
-
-
-def crlb_wear(speeds: ArrayLike, temperature: float, wear: float, load_mean: float, load_std: float,
-              params: FrictionParams = DEFAULT_PARAMS, noise_std: float = FRICTION_NOISE_STD,
-              friction_stderr: ArrayLike | None = None) -> float:
-    """Cramér–Rao bound ``[F⁻¹]₂₂`` of ϖ (a variance, wear units²) for data at ``speeds``.
-
-    ``load_mean`` does not enter (the Jacobian is load-free; kept for a uniform signature).
-    Returns ``inf`` when F is singular (N = 1, or coincident speeds: ξ and ϖ not separable).
-    """
-    del load_mean
-    fisher = fisher_information(speeds, temperature, wear, load_std, noise_std, params, friction_stderr)
-    return _crlb_std(fisher) ** 2
-
-
-def marginal_fisher_wear(speeds: float | ArrayLike, wear: float, load_mean: float, load_std: float,
-                         noise_std: float = FRICTION_NOISE_STD, params: FrictionParams = DEFAULT_PARAMS,
-                         temperature_range: tuple[float, float] = (30.0, 50.0),
-                         n_temperature_samples: int = 100, n_draws: int = _MARGINAL_FISHER_DRAWS,
-                         seed: int = _MARGINAL_FISHER_SEED, friction_stderr: ArrayLike | None = None) -> float:
-    """Fisher information of ϖ with ξ ~ U(range) marginalised (Monte Carlo), for N ≥ 1 data.
-
-    The likelihood is ``p(τ|ϖ) = (1/Nξ)·Σi N(τ; μi(ϖ), Σ)`` with ``μi = τf(v; μl, ξi, ϖ)`` and Σ as
-    in :func:`data_covariance`. Since ``∂μi/∂ϖ = g = ∂τw/∂ϖ`` for all i (wear is separable), the
-    score is ``gᵀΣ⁻¹(τ − Σi wi·μi)`` (wi the posterior weights of the ξi), and ``F = E[score²]`` is
-    estimated over ``n_draws`` draws ``ξ ~ U``, ``τ ~ N(τf(ξ), Σ)`` with a fixed seed (deterministic).
-    For N = 1 this is the design criterion of §3; for N ≥ 2 it is the bound that applies when ξ
-    is a random nuisance with that distribution (used by the Monte Carlo study).
-    """
-    v = np.atleast_1d(np.asarray(speeds, dtype=float)).reshape(-1)
-    cov = data_covariance(v, load_std, noise_std, params, friction_stderr)
-    chol = np.linalg.cholesky(cov)
-    xi_grid = _temperature_samples(temperature_range, n_temperature_samples)
-    means = friction_magnitude(v[None, :], load_mean, xi_grid[:, None], wear, params)      # (Nξ, N)
-    rng = np.random.default_rng(seed)
-    xi_draw = rng.uniform(temperature_range[0], temperature_range[1], n_draws)
-    noise = rng.standard_normal((n_draws, v.size)) @ chol.T
-    tau = friction_magnitude(v[None, :], load_mean, xi_draw[:, None], wear, params) + noise  # (Nf, N)
-    white_tau = np.linalg.solve(chol, tau.T).T
-    white_means = np.linalg.solve(chol, means.T).T
-    d2 = np.sum((white_tau[:, None, :] - white_means[None, :, :]) ** 2, axis=2)             # (Nf, Nξ)
-    log_w = -0.5 * d2
-    weights = np.exp(log_w - logsumexp(log_w, axis=1, keepdims=True))
-    gradient = jacobian_temperature_wear(v, float(np.mean(temperature_range)), wear, params)[:, 1]
-    cov_inv_g = np.linalg.solve(cov, gradient)
-    score = (tau - weights @ means) @ cov_inv_g
-    return float(np.mean(score ** 2))
-
-
-def _temperature_samples(temperature_range: tuple[float, float], n: int) -> NDArray[np.float64]:
-    """Stratified midpoint samples of U(low, high): deterministic quadrature of the marginal."""
-    low, high = temperature_range
-    return low + (np.arange(n) + 0.5) / n * (high - low)
-
-
 #: ``"joint"``: ALGORITHMS.md §3 for N ≥ 2 (ML of [ξ, ϖ]); ``"marginal"``: ξ ~ U(range) marginalised for
 #: every N (as §3 does for N = 1). See docs/WEAR_ESTIMATION.md for why the second is less biased.
 ESTIMATION_METHODS = ("joint", "marginal")
 
 
-class WearEstimator:
-    """Per-cycle ML estimator of wear ϖ (and temperature ξ for N ≥ 2) from friction data.
+@dataclass(frozen=True)
+class _GridSummary:
+    """What the (ξ, ϖ) likelihood grid of one cycle says about ϖ (see the module docstring)."""
 
-    ``method="joint"`` (default, §3): N ≥ 2 by constrained weighted NLS in [ξ, ϖ], std = local CRLB
-    √[F⁻¹]₂₂ at the estimate. ``method="marginal"``: N ≥ 2 like N = 1, ξ ~ U(range) marginalised,
-    ξ̂ = posterior mean at ϖ̂, std from the marginal-likelihood Fisher information. N = 1 is always
-    marginal. Stateless between cycles; :meth:`estimate` is deterministic and never raises on bad data.
+    mode: float                 # maximum of the ξ-marginalised likelihood
+    std: float                  # posterior std of ϖ
+    upper_95: float             # upper end of the profile-likelihood interval
+    identifiable: bool          # ϖ = 0 outside the profile-likelihood interval
+    temperature: float          # posterior mean of ξ at ``mode``
+    profile: NDArray[np.float64]   # min_ξ C(ξ, ϖ) per grid wear
+    best_xi: NDArray[np.int64]     # arg min_ξ per grid wear
+
+
+class WearEstimator:
+    """Per-cycle estimator of wear ϖ (and temperature ξ for N ≥ 2) from friction data.
+
+    ``method="joint"`` (default, §3): N ≥ 2 by constrained weighted NLS in [ξ, ϖ].
+    ``method="marginal"`` (the agent's): ϖ̂ maximises the ξ-marginalised likelihood, ξ̂ is the
+    posterior mean of ξ at ϖ̂. N = 1 is always marginal. Both publish the posterior std, the
+    profile-likelihood upper bound and the identifiability flag of the same likelihood grid.
+    ``n_temperature_samples`` is the minimum number of ξ grid points (more if the range needs a
+    step ≤ 0.25 °C). Stateless between cycles; :meth:`estimate` is deterministic and never raises
+    on bad data.
     """
 
     def __init__(self, params: FrictionParams = DEFAULT_PARAMS, noise_std: float = FRICTION_NOISE_STD,
@@ -203,11 +168,13 @@ class WearEstimator:
         self.wear_max = float(wear_max)
         self.n_temperature_samples = int(n_temperature_samples)
         self.method = method
-        n_xi = max(2, int(round((high - low) / _GRID_TEMPERATURE_STEP)) + 1)
-        n_w = max(2, int(round(self.wear_max / _GRID_WEAR_STEP)) + 1)
-        self._grid_xi = np.linspace(low, high, n_xi)
+        n_xi = max(self.n_temperature_samples, math.ceil((high - low) / _MAX_TEMPERATURE_STEP - 1e-9))
+        n_w = max(2, int(math.ceil(self.wear_max / _WEAR_STEP - 1e-9))) + 1
+        self._xi_samples = _temperature_samples(self.temperature_range, n_xi)
         self._grid_wear = np.linspace(0.0, self.wear_max, n_w)
-        self._xi_samples = _temperature_samples(self.temperature_range, self.n_temperature_samples)
+        # Trapezoid weights of the flat prior of ϖ on [0, ϖmax] (the ξ midpoints carry equal weights).
+        self._wear_weights = np.full(n_w, self._grid_wear[1] - self._grid_wear[0])
+        self._wear_weights[[0, -1]] *= 0.5
 
     # ------------------------------------------------------------------ public
     def estimate(self, speeds: Sequence[float] | ArrayLike, friction: Sequence[float] | ArrayLike,
@@ -224,12 +191,23 @@ class WearEstimator:
             return _invalid(exc.n_points, str(exc))
         v, tau, mu_l, sigma_l, stderr = checked
         try:
+            cov = data_covariance(v, sigma_l, self.noise_std, self.params, stderr)
+            # N is small (≤ a few tens): the explicit L⁻¹ is cheap and exact enough
+            whiten = np.linalg.inv(np.linalg.cholesky(cov))
+            cost, white_nominal = self._cost_grid(v, tau, mu_l, whiten)
+            if not np.all(np.isfinite(cost)):
+                return _invalid(int(v.size), "no finite fit")
+            grid = self._summarise(cost, v, whiten, white_nominal)
             if v.size == 1 or self.method == "marginal":
-                return self._estimate_marginal(v, tau, mu_l, sigma_l, stderr)
-            return self._estimate_joint(v, tau, mu_l, sigma_l, stderr)
+                estimate = grid.mode
+                temperature = grid.temperature if v.size >= 2 else None
+            else:
+                estimate, temperature = self._fit_joint(v, tau, mu_l, whiten, grid)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError) as exc:  # never raise
             log.warning("wear estimation failed: %s", exc)
             return _invalid(int(v.size), f"numerical failure: {exc}")
+        return WearEstimate(estimate=estimate, std=grid.std, temperature=temperature, n_points=int(v.size),
+                            upper_95=max(grid.upper_95, estimate), identifiable=grid.identifiable)
 
     # ------------------------------------------------------------ validation
     def _check(self, speeds, friction, load_mean, load_std, friction_stderr):
@@ -260,11 +238,55 @@ class WearEstimator:
             raise _BadData(n, "implausible load estimate")
         return v, tau, abs(mu_l), sigma_l, stderr
 
-    # ------------------------------------------------------------------ N ≥ 2
-    def _estimate_joint(self, v, tau, mu_l, sigma_l, stderr) -> WearEstimate:
-        cov = data_covariance(v, sigma_l, self.noise_std, self.params, stderr)
-        chol = np.linalg.cholesky(cov)
-        whiten = np.linalg.inv(chol)  # N is small (≤ a few tens): explicit L⁻¹ is cheap and exact enough
+    # -------------------------------------------------------- likelihood grid
+    def _cost_grid(self, v, tau, mu_l, whiten) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``C[i, j] = ‖L⁻¹(τ − τ0(ξi) − τw(ϖj))‖²`` (Nξ × Nϖ) by one matrix product:
+        ``‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b`` with a = L⁻¹(τ − τ0(ξi)), b = L⁻¹τw(ϖj). Returns (C, a)."""
+        p = self.params
+        a = (tau[None, :] - friction_magnitude(v[None, :], mu_l, self._xi_samples[:, None], 0.0, p)) @ whiten.T
+        b = wear_friction(v[None, :], self._grid_wear[:, None], p) @ whiten.T
+        cost = np.einsum("ik,ik->i", a, a)[:, None] + np.einsum("jk,jk->j", b, b)[None, :] - 2.0 * (a @ b.T)
+        return np.maximum(cost, 0.0), a
+
+    def _summarise(self, cost: NDArray[np.float64], v, whiten, white_nominal) -> _GridSummary:
+        w = self._grid_wear
+        best_xi = np.argmin(cost, axis=0)
+        profile = cost[best_xi, np.arange(w.size)]                                  # min_ξ C
+        # log m(ϖ) = −profile/2 + log Σξ exp(−(C − profile)/2): stable, the profile comes for free
+        log_marginal = -0.5 * profile + np.log(np.sum(np.exp(-0.5 * (cost - profile[None, :])), axis=0))
+        posterior = np.exp(log_marginal - log_marginal.max()) * self._wear_weights
+        posterior /= posterior.sum()
+        mean = float(posterior @ w)
+        std = math.sqrt(max(float(posterior @ (w - mean) ** 2), 0.0))
+        mode, xi_weights = self._refine_mode(v, whiten, white_nominal, log_marginal)
+        deviance = profile - profile.min()
+        upper = _first_crossing(w, deviance, int(np.argmin(profile)), _PROFILE_THRESHOLD)
+        temperature = float(xi_weights @ self._xi_samples / xi_weights.sum())
+        return _GridSummary(mode=mode, std=std, upper_95=upper, identifiable=bool(deviance[0] > _PROFILE_THRESHOLD),
+                            temperature=temperature, profile=profile, best_xi=best_xi)
+
+    def _refine_mode(self, v, whiten, white_nominal, log_marginal) -> tuple[float, NDArray[np.float64]]:
+        """Maximum of the exact marginal log-likelihood between the grid neighbours of the best grid
+        wear (bounded Brent search), and the ξ posterior weights there."""
+        p = self.params
+
+        def weights_and_log_m(wear: float) -> tuple[NDArray[np.float64], float]:
+            d = white_nominal - whiten @ wear_friction(v, wear, p)
+            c = np.einsum("ik,ik->i", d, d)
+            weights = np.exp(-0.5 * (c - c.min()))
+            return weights, -0.5 * float(c.min()) + math.log(float(weights.sum()))
+
+        w = self._grid_wear
+        k = int(np.argmax(log_marginal))
+        lo, hi = w[max(k - 1, 0)], w[min(k + 1, w.size - 1)]
+        fit = minimize_scalar(lambda x: -weights_and_log_m(float(x))[1], bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-6})
+        mode = float(fit.x) if -fit.fun >= log_marginal[k] else float(w[k])
+        return mode, weights_and_log_m(mode)[0]
+
+    # ------------------------------------------------------------------ joint
+    def _fit_joint(self, v, tau, mu_l, whiten, grid: _GridSummary) -> tuple[float, float]:
+        """Constrained NLS in [ξ, ϖ] (§3) from the grid's starts; returns (ϖ̂, ξ̂)."""
         p = self.params
 
         def residual(theta: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -276,7 +298,7 @@ class WearEstimator:
         low = np.array([self.temperature_range[0], 0.0])
         high = np.array([self.temperature_range[1], self.wear_max])
         best_theta, best_cost = None, math.inf
-        for start in self._grid_starts(v, tau, mu_l, whiten):
+        for start in self._grid_starts(grid):
             x0 = np.clip(start, low, high)
             fit = least_squares(residual, x0, jac=jacobian, bounds=(low, high), method=_SOLVER_METHOD,
                                 xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=50)
@@ -284,76 +306,35 @@ class WearEstimator:
                 if cost < best_cost:  # never worse than a grid start
                     best_theta, best_cost = theta, cost
         if best_theta is None or not np.isfinite(best_cost):
-            return _invalid(int(v.size), "no finite fit")
-        xi_hat, w_hat = float(best_theta[0]), float(best_theta[1])
-        white_jac = whiten @ jacobian_temperature_wear(v, xi_hat, w_hat, p)
-        std = _crlb_std(white_jac.T @ white_jac)
-        return WearEstimate(estimate=w_hat, std=std, temperature=xi_hat, n_points=int(v.size))
+            raise ValueError("no finite fit")
+        return float(best_theta[1]), float(best_theta[0])
 
-    def _grid_starts(self, v, tau, mu_l, whiten) -> list[NDArray[np.float64]]:
-        """Starts (ξ, ϖ) from the coarse grid (vectorised): the best ξ at each local minimum of the
-        wear profile ``min_ξ cost(ξ, ϖ)``, best first, at most ``_MAX_STARTS``. Several starts are
-        needed because the model is flat in ϖ near 0 (a local solver started there stays there)."""
-        p = self.params
-        nominal = friction_magnitude(v[None, :], mu_l, self._grid_xi[:, None], 0.0, p)  # (Nξ, N)
-        wear = wear_friction(v[None, :], self._grid_wear[:, None], p)                     # (Nϖ, N)
-        resid = tau[None, None, :] - nominal[:, None, :] - wear[None, :, :]                # (Nξ, Nϖ, N)
-        white = resid @ whiten.T
-        cost = np.einsum("ijk,ijk->ij", white, white)
-        best_xi = np.argmin(cost, axis=0)
-        profile = cost[best_xi, np.arange(cost.shape[1])]
+    def _grid_starts(self, grid: _GridSummary) -> list[NDArray[np.float64]]:
+        """Starts (ξ, ϖ): the best ξ at each local minimum of the grid's wear profile
+        ``min_ξ C(ξ, ϖ)``, best first, at most ``_MAX_STARTS``. Several starts are needed because
+        the model is flat in ϖ near 0 (a local solver started there stays there)."""
+        profile = grid.profile
         padded = np.concatenate([[np.inf], profile, [np.inf]])
         minima = np.flatnonzero((profile <= padded[:-2]) & (profile <= padded[2:]))
-        minima = minima[np.argsort(profile[minima])][:_MAX_STARTS]
+        minima = minima[np.argsort(profile[minima], kind="stable")][:_MAX_STARTS]
         # Other minima only if competitive: within a χ²(2) 99.9 % margin (13.8) of the best grid cost.
         minima = minima[profile[minima] <= profile[minima[0]] + _COMPETITIVE_COST]
-        return [np.array([self._grid_xi[best_xi[j]], self._grid_wear[j]]) for j in minima]
+        return [np.array([self._xi_samples[grid.best_xi[j]], self._grid_wear[j]]) for j in minima]
 
-    # ------------------------------------------------------------------- N = 1
-    def _estimate_marginal(self, v, tau, mu_l, sigma_l, stderr) -> WearEstimate:
-        """ML over ϖ of the ξ-marginalised likelihood (N = 1, or N ≥ 2 with ``method="marginal"``)."""
-        p = self.params
-        cov = data_covariance(v, sigma_l, self.noise_std, p, stderr)
-        whiten = np.linalg.inv(np.linalg.cholesky(cov))
-        white_tau = whiten @ tau
-        white_nominal = friction_magnitude(v[None, :], mu_l, self._xi_samples[:, None], 0.0, p) @ whiten.T
 
-        def log_weights(wear_values: ArrayLike) -> NDArray[np.float64]:
-            """log N(τ; μ(ξi, ϖ), Σ) up to a constant, shape (len(wear_values), Nξ)."""
-            w = np.atleast_1d(np.asarray(wear_values, dtype=float))
-            white_wear = wear_friction(v[None, :], w[:, None], p) @ whiten.T                 # (Nϖ, N)
-            resid = white_tau[None, None, :] - white_nominal[None, :, :] - white_wear[:, None, :]
-            return -0.5 * np.einsum("ijk,ijk->ij", resid, resid)
-
-        def neg_log_lik(wear_values: ArrayLike) -> NDArray[np.float64]:
-            return -logsumexp(log_weights(wear_values), axis=1)
-
-        grid_cost = neg_log_lik(self._grid_wear)
-        k = int(np.argmin(grid_cost))
-        lo = self._grid_wear[max(k - 1, 0)]
-        hi = self._grid_wear[min(k + 1, self._grid_wear.size - 1)]
-        fit = minimize_scalar(lambda w: float(neg_log_lik(w)[0]), bounds=(lo, hi), method="bounded",
-                              options={"xatol": 1e-6})
-        w_hat = float(fit.x) if fit.fun <= grid_cost[k] else float(self._grid_wear[k])
-        info = marginal_fisher_wear(v, w_hat, mu_l, sigma_l, self.noise_std, p, self.temperature_range,
-                                    self.n_temperature_samples, friction_stderr=stderr)
-        std = math.inf if info <= 0 else 1.0 / math.sqrt(info)
-        temperature = None
-        if v.size >= 2:  # posterior mean of ξ at ϖ̂
-            lw = log_weights(w_hat)[0]
-            temperature = float(np.exp(lw - logsumexp(lw)) @ self._xi_samples)
-        return WearEstimate(estimate=w_hat, std=std, temperature=temperature, n_points=int(v.size))
+def _first_crossing(x: NDArray[np.float64], y: NDArray[np.float64], start: int, level: float) -> float:
+    """Smallest x ≥ x[start] where y (≤ level at ``start``) rises above ``level``, linearly
+    interpolated; ``x[-1]`` if it never does."""
+    above = np.flatnonzero(y[start:] > level)
+    if above.size == 0:
+        return float(x[-1])
+    j = start + int(above[0])
+    if j == 0:
+        return float(x[0])
+    return float(np.interp(level, [y[j - 1], y[j]], [x[j - 1], x[j]]))
 
 
 class _BadData(Exception):
     def __init__(self, n_points: int, reason: str) -> None:
         super().__init__(reason)
         self.n_points = n_points
-
-
-def _crlb_std(fisher: NDArray[np.float64]) -> float:
-    """``√[F⁻¹]₂₂`` of a 2 × 2 Fisher matrix; inf if singular."""
-    det = fisher[0, 0] * fisher[1, 1] - fisher[0, 1] ** 2
-    if not np.isfinite(det) or det <= 1e-12 * fisher[0, 0] * fisher[1, 1] or det <= 0.0:
-        return math.inf
-    return math.sqrt(fisher[0, 0] / det)

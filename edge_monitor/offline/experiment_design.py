@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
-from edge_monitor.features.wear_estimation import crlb_wear, marginal_fisher_wear
+from edge_monitor.features.wear_information import crlb_wear, marginal_fisher_wear
 from joint_model.friction import (
     DEFAULT_PARAMS,
     FRICTION_NOISE_STD,

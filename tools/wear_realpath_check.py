@@ -1,0 +1,121 @@
+#!/usr/bin/env python3
+"""Wear estimate through the real path: design → simulated controller → CAN log → agent replay.
+
+For N = 2, 3, 4 designed speeds: ``edge-monitor design --points N --json``, ``sim-controller record
+--joints 1 --cycles C --speeds-from design.json --temperature-range 40:40 --wear-ramp all:0:1:35:35``,
+``edge-monitor replay`` with an agent config whose ``[segmentation] speeds`` are the designed speeds,
+then bias, variance (against the design CRLB) and the mean reported std of ``wear.estimate`` over
+cycles ≥ 2. With ``--also-default-config`` the replay is repeated with the agent's default config
+(the 12 default speed levels), which is what the issue ran: the designed plateaus then do not match
+the configured levels, only one datum per cycle survives, and the estimate is an N = 1 estimate.
+
+Usage: .venv/bin/python tools/wear_realpath_check.py [--cycles 150] [--points 2 3 4]
+       [--also-default-config] [--work-dir DIR] [--out docs/wear_estimation/realpath.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+BIN = Path(sys.executable).parent
+TRUE_WEAR = 35.0
+
+
+def run(cmd: list[str], stdout: Path | None = None) -> None:
+    """Run one command of the pipeline; its output goes to ``stdout`` (a file) or is discarded."""
+    with open(stdout, "w", encoding="utf-8") if stdout else open("/dev/null", "w") as out:
+        subprocess.run(cmd, check=True, stdout=out, stderr=subprocess.DEVNULL)
+
+
+def summarise(symptoms: Path, design: dict, label: str) -> dict:
+    """Statistics of ``wear`` over cycles ≥ 2 of a replay's symptom records."""
+    records = [json.loads(line) for line in symptoms.read_text(encoding="utf-8").splitlines() if line.strip()]
+    used = [r for r in records if r["cycle"] >= 2 and r["wear"]["estimate"] is not None]
+    est = np.array([r["wear"]["estimate"] for r in used])
+    std = np.array([r["wear"]["std"] for r in used])
+    upper = np.array([r["wear"].get("upper_95") if r["wear"].get("upper_95") is not None else math.nan
+                      for r in used])
+    n_data = sorted({len(r["friction"]["speeds"]) for r in used})
+    spread = float(est.std(ddof=1))
+    crlb = design["wear_crlb"]
+    return {"label": label, "n_points_design": len(design["speeds"]), "data_per_cycle": n_data,
+            "cycles_used": int(est.size), "mean": float(est.mean()), "bias": float(est.mean() - TRUE_WEAR),
+            "bias_se": spread / math.sqrt(est.size), "variance": spread ** 2, "design_crlb": crlb,
+            "variance_ratio": spread ** 2 / crlb, "mean_reported_std": float(std.mean()),
+            "mean_reported_variance": float(np.mean(std ** 2)), "observed_sd": spread,
+            "std_ratio": float(std.mean()) / spread,
+            "coverage_upper_95": float(np.mean(TRUE_WEAR <= upper)) if np.all(np.isfinite(upper)) else None,
+            "identifiable": float(np.mean([bool(r["wear"].get("identifiable")) for r in used]))}
+
+
+def check(points: int, cycles: int, work: Path, also_default: bool) -> list[dict]:
+    design_json = work / f"design{points}.json"
+    run([str(BIN / "edge-monitor"), "design", "--points", str(points), "--json"], stdout=design_json)
+    design = json.loads(design_json.read_text(encoding="utf-8"))
+    log_file, truth = work / f"x{points}.blf", work / f"t{points}.jsonl"
+    run([str(BIN / "sim-controller"), "record", "--joints", "1", "--cycles", str(cycles), "--speeds-from",
+         str(design_json), "--temperature-range", "40:40", "--wear-ramp", "all:0:1:35:35",
+         "--out", str(log_file), "--truth", str(truth)])
+    config = work / f"agent{points}.toml"
+    config.write_text("[segmentation]\nspeeds = [" + ", ".join(repr(v) for v in design["speeds"]) + "]\n",
+                      encoding="utf-8")
+    rows = []
+    variants = [("designed speeds in [segmentation]", ["--config", str(config)])]
+    if also_default:
+        variants.append(("default config (12 levels)", []))
+    for k, (label, extra) in enumerate(variants):
+        symptoms = work / f"s{points}_{k}.jsonl"
+        symptoms.unlink(missing_ok=True)
+        run([str(BIN / "edge-monitor"), "replay", str(log_file), *extra, "--jsonl", str(symptoms)])
+        rows.append(summarise(symptoms, design, label))
+    return rows
+
+
+def markdown(rows: list[dict], cycles: int) -> str:
+    lines = [f"Real path, {cycles} cycles at ξ = 40 °C, ϖ = 35 (statistics over cycles ≥ 2):", "",
+             "| design N | agent config | data per cycle | cycles | bias ± SE | variance | design CRLB | "
+             "var/CRLB | mean reported std / observed sd | coverage of upper_95 | identifiable |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        cov = "—" if r["coverage_upper_95"] is None else f"{r['coverage_upper_95']:.3f}"
+        lines.append(f"| {r['n_points_design']} | {r['label']} | {r['data_per_cycle']} | {r['cycles_used']} | "
+                     f"{r['bias']:+.2f} ± {r['bias_se']:.2f} | {r['variance']:.1f} | {r['design_crlb']:.2f} | "
+                     f"{r['variance_ratio']:.2f} | {r['mean_reported_std']:.2f} / {r['observed_sd']:.2f} = "
+                     f"{r['std_ratio']:.2f} | {cov} | {100 * r['identifiable']:.0f} % |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--cycles", type=int, default=150)
+    parser.add_argument("--points", type=int, nargs="+", default=[2, 3, 4])
+    parser.add_argument("--also-default-config", action="store_true")
+    parser.add_argument("--work-dir", type=Path, help="keep the logs here (default: a temporary directory)")
+    parser.add_argument("--out", type=Path, help="write the markdown table (and a .json next to it) here")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.work_dir or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for points in args.points:
+            rows += check(points, args.cycles, work, args.also_default_config)
+            print(f"N = {points} done", file=sys.stderr, flush=True)
+    text = markdown(rows, args.cycles)
+    print(text)
+    if args.out:
+        args.out.write_text(text, encoding="utf-8")
+        args.out.with_suffix(".json").write_text(json.dumps({"cycles": args.cycles, "rows": rows}, indent=1),
+                                                 encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
