@@ -1,4 +1,4 @@
-"""Steady-state friction model of a robot joint (ALGORITHMS.md §1).
+"""Steady-state friction model of a robot joint (docs/ALGORITHMS.md §1).
 
 Units: motor speed ``v`` in rad/s (motor side), torques dimensionless (fraction of the
 joint's maximum torque), load torque ``load`` dimensionless, lubricant temperature ``temperature``
@@ -34,7 +34,7 @@ _MIN_STRIBECK_SPEED = 1e-9
 
 @dataclass(frozen=True)
 class FrictionParams:
-    """Parameters of ``τf(v, τl, ξ, ϖ) = τ0(v, τl, ξ) + τw(v, ϖ)`` (names as in ALGORITHMS.md §1)."""
+    """Parameters of ``τf(v, τl, ξ, ϖ) = τ0(v, τl, ξ) + τw(v, ϖ)`` (names as in docs/ALGORITHMS.md §1)."""
 
     fc0: float = 3.11e-2
     fcl: float = 2.34e-2

@@ -1,6 +1,6 @@
 """Links: open a python-can bus from a link string, log files, a bridged pty pair, vcan detection.
 
-Link strings (docs/PROTOCOL.md, SYSTEM.md "Links"):
+Link strings (docs/PROTOCOL.md, "Links"):
 
 * ``socketcan:IFACE``            Linux SocketCAN (real or vcan)
 * ``slcan:DEVICE_OR_URL``        Lawicel serial-line CAN over a serial device, a pty or any pyserial

@@ -68,7 +68,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=_number("seed", int), help="random seed (default 0); same seed, same output")
     sp = g.add_mutually_exclusive_group()
     sp.add_argument("--speeds", type=_typed(parse_speeds, "speeds"), metavar="V1,V2,...",
-                    help="friction speed levels in rad/s (motor side; default: the 12 of ALGORITHMS.md §2)")
+                    help="friction speed levels in rad/s (motor side; default: the 12 of docs/ALGORITHMS.md §2)")
     sp.add_argument("--speeds-from", metavar="DESIGN.json", help="speeds from the JSON of edge-monitor design")
     g.add_argument("--plateau-time", type=_number("plateau_time"),
                    help="constant-speed time per direction in s (default 1.1)")

@@ -7,7 +7,7 @@ tracking error ``ε = ω_ref − ω`` and τ̂g the controller's gravity model (
     J·ẍ + Kp·ẋ + Ki·x = d,      d = τf(ω) + (τg − τ̂g)
 
 so the PI output is ``p = Kp·ε + Ki·x`` and the torque signal ``u = J·a_ref + τ̂g + p``; at a
-constant speed ε → 0 and ``u = τg + τf`` exactly (ALGORITHMS.md §2).
+constant speed ε → 0 and ``u = τg + τf`` exactly (docs/ALGORITHMS.md §2).
 
 Integration (the choice the issue asks to document): the linear part is discretised exactly
 (zero-order hold on d over a controller tick, ``scipy.signal.cont2discrete``) and run over a whole

@@ -1,4 +1,4 @@
-"""Speed-reference generator for one repetitive test cycle (ALGORITHMS.md §2).
+"""Speed-reference generator for one repetitive test cycle (docs/ALGORITHMS.md §2).
 
 For each speed level k (segment k + 1): accelerate to +v, hold a plateau, reverse to −v, hold a
 plateau of the same length, decelerate to 0 — the −v move passes back through the same angle

@@ -1,4 +1,4 @@
-"""First-order lubricant thermal model (ALGORITHMS.md §1, "Thermal behaviour").
+"""First-order lubricant thermal model (docs/ALGORITHMS.md §1, "Thermal behaviour").
 
 ``τth·dξ/dt = ξamb + K·P − ξ`` with time constant τth (default 3.04 h), ambient ξamb [°C], heating
 gain K [°C per unit friction power, power = |τf·v| in (torque fraction)·rad/s] and the joint's mean

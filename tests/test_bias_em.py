@@ -1,4 +1,4 @@
-"""Batch EM and SA-EM estimates of a bias change Δ (ALGORITHMS.md §6)."""
+"""Batch EM and SA-EM estimates of a bias change Δ (docs/ALGORITHMS.md §6)."""
 
 from __future__ import annotations
 

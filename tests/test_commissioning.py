@@ -1,4 +1,4 @@
-"""Commissioning (ALGORITHMS.md §1 identification): variable projection, covariance, CSV → TOML CLI."""
+"""Commissioning (docs/ALGORITHMS.md §1 identification): variable projection, covariance, CSV → TOML CLI."""
 
 from __future__ import annotations
 

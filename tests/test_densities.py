@@ -1,4 +1,4 @@
-"""Nominal density models (ALGORITHMS.md §5): values, GCE sparsity/fit, F(0), bad input."""
+"""Nominal density models (docs/ALGORITHMS.md §5): values, GCE sparsity/fit, F(0), bad input."""
 
 from __future__ import annotations
 

@@ -93,7 +93,7 @@ def test_fitted_weights_on_simulated_runs_emphasise_low_to_intermediate_speeds()
     alpha, beta = fit_weight_function(speed, fit_index_weights(healthy, faulty))
     w = WeightFunction(alpha, beta)
     peak_speed = np.linspace(1, 300, 3000)[np.argmax(w(np.linspace(1, 300, 3000)))]
-    # wear shows first at 0 … 150 rad/s (ALGORITHMS.md §1); the weight must peak there and be
+    # wear shows first at 0 … 150 rad/s (docs/ALGORITHMS.md §1); the weight must peak there and be
     # small at the top speed, where temperature moves the viscous slope and wear hardly acts
     assert 10.0 < peak_speed < 150.0
     assert w(287.1) < 0.25 * w(peak_speed)

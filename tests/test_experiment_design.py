@@ -1,4 +1,4 @@
-"""Experiment design (ALGORITHMS.md §3): speeds minimising the Cramér–Rao bound of wear, and the CLI."""
+"""Experiment design (docs/ALGORITHMS.md §3): speeds minimising the Cramér–Rao bound of wear, and the CLI."""
 
 from __future__ import annotations
 

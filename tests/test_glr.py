@@ -1,4 +1,4 @@
-"""GLR tests for a bias change (ALGORITHMS.md §6): thresholds, miss probability, batch and windowed."""
+"""GLR tests for a bias change (docs/ALGORITHMS.md §6): thresholds, miss probability, batch and windowed."""
 
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ TABLE = dict(fc0=3.11e-2, fcl=2.34e-2, fs0=-2.50e-2, fsl=1.26e-1, fsxi=1.60e-3, 
 
 
 def hand_friction(v: float, load: float, xi: float, wear: float) -> float:
-    """ALGORITHMS.md §1 written out term by term with the §1 table (independent of friction_model)."""
+    """docs/ALGORITHMS.md §1 written out term by term with the §1 table (independent of friction_model)."""
     p = TABLE
     coulomb = p["fc0"] + p["fcl"] * abs(load)
     load_stribeck = p["fsl"] * abs(load) * math.exp(-((v / p["vsl"]) ** p["alpha"]))

@@ -1,4 +1,4 @@
-"""Wear estimation (ALGORITHMS.md §3): CRLB, the likelihood grid, bad data, Monte Carlo quality.
+"""Wear estimation (docs/ALGORITHMS.md §3): CRLB, the likelihood grid, bad data, Monte Carlo quality.
 
 Monte Carlo data are made as sim_controller makes them (docs/WEAR_ESTIMATION.md §4): |τl| ~ U(0.3, 0.7),
 the controller's estimate μl = τl + N(0, 0.1²), a per-cycle, per-level model error N(0, σ²) with

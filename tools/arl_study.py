@@ -1,4 +1,4 @@
-"""Monte Carlo study of the decision layer (ALGORITHMS.md §5–6), figures for docs/DETECTION.md.
+"""Monte Carlo study of the decision layer (docs/ALGORITHMS.md §5–6), figures for docs/DETECTION.md.
 
 Parts (all with fixed seeds; select with --part, default all):
 

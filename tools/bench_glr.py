@@ -1,4 +1,4 @@
-"""Benchmark of the window-limited GLR (ALGORITHMS.md §6): per-observation update time and state size.
+"""Benchmark of the window-limited GLR (docs/ALGORITHMS.md §6): per-observation update time and state size.
 
 For W = 100 and K ∈ {1, 5, 30} mixture components (d = 1), times ``WindowedGLR.update`` in the
 "recursive" (O(W·K)) and "exact" (O(W²·K), ring buffer) modes against a naive baseline run in the

@@ -1,4 +1,4 @@
-"""Pd of kl.raw vs kl.weighted under temperature spread (issue 5 quality target, ALGORITHMS.md §4/§8).
+"""Pd of kl.raw vs kl.weighted under temperature spread (issue 5 quality target, docs/ALGORITHMS.md §4/§8).
 
 For each temperature spread s, the lubricant temperature of every cycle is drawn from U(30, 30 + s) °C
 (s = 25 is the issue's U(30, 55)). Per replicate, a fresh KLMonitor learns its nominal model from K

@@ -4,7 +4,7 @@ Input: a CSV with a header naming ``speed`` [rad/s], ``temperature`` [°C], ``lo
 and ``friction`` (dimensionless) — data of a nominal (unworn) joint at known temperature and load,
 with spread in both. Output: a ``[friction]`` TOML section (the agent's config; keys are the
 FrictionParams field names) and a JSON report with standard errors and the covariance.
-α and the wear parameters (fsw, fvw, vsw) are kept from ``--base`` (default: the ALGORITHMS.md §1 table).
+α and the wear parameters (fsw, fvw, vsw) are kept from ``--base`` (default: the docs/ALGORITHMS.md §1 table).
 """
 
 from __future__ import annotations

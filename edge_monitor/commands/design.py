@@ -1,4 +1,4 @@
-"""``edge-monitor design``: friction speeds minimising the Cramér–Rao bound of wear (ALGORITHMS.md §3).
+"""``edge-monitor design``: friction speeds minimising the Cramér–Rao bound of wear (docs/ALGORITHMS.md §3).
 
 The JSON (``--json`` on stdout, ``--out FILE`` to a file) is ``{"speeds", "wear_crlb", "wear_std",
 "design_point", ...}``; ``sim-controller --speeds-from FILE`` reads its ``speeds``.

@@ -1,4 +1,4 @@
-"""``edge-monitor fit-weights``: fit disturbance-rejecting weights from labelled runs (ALGORITHMS.md §4).
+"""``edge-monitor fit-weights``: fit disturbance-rejecting weights from labelled runs (docs/ALGORITHMS.md §4).
 
 Input: two CSV files of aligned cycles, healthy and faulty (critical wear), both recorded under the
 disturbance spread (e.g. temperature). Each file has a header ``cycle,sample,speed,torque``
@@ -41,7 +41,7 @@ class CycleModel:
 
     ``τ = gravity + sign(v)·[τf(|v|, load, ξ, ϖ) + e_level] + n``, with the gravity torque the same in
     both directions and every cycle, ``e_level ~ N(0, model_error_std²)`` drawn per cycle and speed
-    level (model error of a friction datum, ALGORITHMS.md §1) and sample noise ``n ~ N(0,
+    level (model error of a friction datum, docs/ALGORITHMS.md §1) and sample noise ``n ~ N(0,
     noise_std²)``. Inertial torque in the ramps is ignored (quasi-static).
     """
 

@@ -1,4 +1,4 @@
-"""Disturbance-rejecting sample weights for the distribution-domain detector (ALGORITHMS.md §4).
+"""Disturbance-rejecting sample weights for the distribution-domain detector (docs/ALGORITHMS.md §4).
 
 Each sample ``y`` is replaced by ``w·y`` to emphasise the parts of the data that react to wear
 rather than to temperature. From labelled batches the per-index weights are
@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-#: Published fit for the default joint (ALGORITHMS.md §4) [s/rad].
+#: Published fit for the default joint (docs/ALGORITHMS.md §4) [s/rad].
 DEFAULT_ALPHA = 1.45e-2
 DEFAULT_BETA = 4.55e-2
 

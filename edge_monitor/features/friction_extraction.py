@@ -1,4 +1,4 @@
-"""On-the-fly friction extraction: ``τf(v) = (τ⁺ − τ⁻)/2`` per speed level and cycle (ALGORITHMS.md §2).
+"""On-the-fly friction extraction: ``τf(v) = (τ⁺ − τ⁻)/2`` per speed level and cycle (docs/ALGORITHMS.md §2).
 
 At constant speed the inertial torque vanishes and gravity is the same in both directions, so half
 the difference of the mean torques of the forward and backward plateaus is the friction at that

@@ -1,4 +1,4 @@
-"""Constant-speed plateau detection from the motor speed signal (ALGORITHMS.md §2).
+"""Constant-speed plateau detection from the motor speed signal (docs/ALGORITHMS.md §2).
 
 The detector needs no status frame: each sample is classified against the configured speed levels
 (magnitude, both directions) with hysteresis, runs of one label form plateaus, the acceleration

@@ -1,4 +1,4 @@
-"""Maximum-likelihood wear estimation from one cycle's friction data (ALGORITHMS.md §3).
+"""Maximum-likelihood wear estimation from one cycle's friction data (docs/ALGORITHMS.md §3).
 
 Data: friction data ``τ ∈ R^N`` (dimensionless) at speeds ``|v|`` [rad/s] collected within one
 cycle, which share temperature ξ [°C], load and wear ϖ. The controller's load estimate
@@ -100,7 +100,7 @@ class WearEstimate:
         return self.reason is None
 
     def to_record(self) -> dict[str, float | bool | None]:
-        """The ``"wear"`` field of a symptom record (SYSTEM.md); NaN/inf become ``None``.
+        """The ``"wear"`` field of a symptom record (docs/OUTPUTS.md); NaN/inf become ``None``.
 
         Keys: ``estimate``, ``std``, ``temperature`` (as before) plus ``upper_95`` (one-sided 95 %
         upper bound of ϖ, ``None`` without an estimate) and ``identifiable`` (bool).
@@ -118,7 +118,7 @@ def _invalid(n_points: int, reason: str) -> WearEstimate:
     return WearEstimate(estimate=math.nan, std=math.nan, temperature=None, n_points=n_points, reason=reason)
 
 
-#: ``"joint"``: ALGORITHMS.md §3 for N ≥ 2 (ML of [ξ, ϖ]); ``"marginal"``: ξ ~ U(range) marginalised for
+#: ``"joint"``: docs/ALGORITHMS.md §3 for N ≥ 2 (ML of [ξ, ϖ]); ``"marginal"``: ξ ~ U(range) marginalised for
 #: every N (as §3 does for N = 1). See docs/WEAR_ESTIMATION.md for why the second is less biased.
 ESTIMATION_METHODS = ("joint", "marginal")
 

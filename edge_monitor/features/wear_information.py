@@ -22,7 +22,7 @@ from joint_model import (
     load_sensitivity,
 )
 
-#: Monte Carlo draws and seed of the marginal Fisher information (N = 1), ALGORITHMS.md §3.
+#: Monte Carlo draws and seed of the marginal Fisher information (N = 1), docs/ALGORITHMS.md §3.
 _MARGINAL_FISHER_DRAWS = 200
 _MARGINAL_FISHER_SEED = 20260402
 

@@ -1,4 +1,4 @@
-"""Commissioning: identify the nominal friction model from nominal data (ALGORITHMS.md §1, identification).
+"""Commissioning: identify the nominal friction model from nominal data (docs/ALGORITHMS.md §1, identification).
 
 Data: friction data (dimensionless) at speeds ``|v|`` [rad/s] with known lubricant temperature [°C]
 and known load torque ``τl`` (dimensionless), all at wear ϖ = 0 (a new or nominal joint).
@@ -90,7 +90,7 @@ class CommissioningResult:
 
     def to_toml(self) -> str:
         """``[friction]`` config section (keys = FrictionParams field names) the agent reads."""
-        lines = ["# Identified by `edge-monitor commission` (variable projection, ALGORITHMS.md §1).",
+        lines = ["# Identified by `edge-monitor commission` (variable projection, docs/ALGORITHMS.md §1).",
                  "# alpha and the wear parameters fsw, fvw, vsw are fixed (not identifiable from nominal data).",
                  "[friction]"]
         lines += [f"{name} = {value!r}" for name, value in self.params.to_dict().items()]

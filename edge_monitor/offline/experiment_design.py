@@ -1,4 +1,4 @@
-"""Experiment design: friction speeds that minimise the Cramér–Rao bound of wear (ALGORITHMS.md §3).
+"""Experiment design: friction speeds that minimise the Cramér–Rao bound of wear (docs/ALGORITHMS.md §3).
 
 N ≥ 2: minimise ``[F(v)⁻¹]₂₂`` at a design point (ξ', ϖ', μl, σl, σ) over speeds
 ``vmin ≤ vi ≤ vmax`` with a minimum separation ``v(i+1) − v(i) ≥ δ`` (speeds kept sorted, so the
@@ -69,7 +69,7 @@ class DesignResult:
         return math.sqrt(self.wear_crlb) if math.isfinite(self.wear_crlb) else math.inf
 
     def to_json(self) -> dict:
-        """JSON of ``edge-monitor design --json`` (SYSTEM.md); ``--speeds-from`` reads ``speeds``."""
+        """JSON of ``edge-monitor design --json`` (docs/OUTPUTS.md); ``--speeds-from`` reads ``speeds``."""
         def num(x: float) -> float | None:
             return float(x) if math.isfinite(x) else None
         return {"speeds": [round(float(v), 6) for v in self.speeds], "wear_crlb": num(self.wear_crlb),

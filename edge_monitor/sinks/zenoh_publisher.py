@@ -1,4 +1,4 @@
-"""Zenoh publication of the agent's outputs (key space of SYSTEM.md) and a matching subscriber.
+"""Zenoh publication of the agent's outputs (key space of docs/OUTPUTS.md) and a matching subscriber.
 
 Keys (JSON payloads, encoding ``application/json``):
 

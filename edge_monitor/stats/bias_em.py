@@ -1,4 +1,4 @@
-"""Estimating a bias change Δ of a nominal mixture, H1: p1(y) = p0(y − Δ) (ALGORITHMS.md §6).
+"""Estimating a bias change Δ of a nominal mixture, H1: p1(y) = p0(y − Δ) (docs/ALGORITHMS.md §6).
 
 :func:`em_bias` is the batch EM; :class:`SAEMBias` the sequential stochastic-approximation EM
 recursion ``Δ̂ ← γñ·Σk ζk(Δ̂)(y − μk) + (1 − γñ)·Δ̂`` with ``γñ = γ0·ñ^(−ρ)``. Δ is in the units of y.
@@ -90,7 +90,7 @@ class SAEMBias:
     """Sequential SA-EM estimate of Δ from one observation at a time, starting at Δ̂ = 0.
 
     ``Δ̂ ← Δ̂ + γñ·A·(Σk ζk(Δ̂)(y − μk) − Δ̂)`` with A = (S·F(0))⁻¹ (``step="fisher"``, default) or
-    A = I (``step="em"``, the literal ALGORITHMS.md §6 recursion).
+    A = I (``step="em"``, the literal docs/ALGORITHMS.md §6 recursion).
     """
 
     def __init__(self, density: GaussianMixture, gamma0: float = 0.6, rho: float = 1.0,

@@ -1,4 +1,4 @@
-"""Nominal density models for the decision layer (ALGORITHMS.md §5).
+"""Nominal density models for the decision layer (docs/ALGORITHMS.md §5).
 
 Every model is a finite Gaussian mixture with one shared kernel covariance,
 ``p0(y) = Σk πk·N(y; μk, S)``, in the units of the monitored quantity (y is d-dimensional).
@@ -250,7 +250,7 @@ def _gce_weights(sq_dist: NDArray[np.float64], d: int, h: float) -> NDArray[np.f
 
 
 def fit_gce(y0: ArrayLike, prune_eps: float = GCE_PRUNE_EPS) -> GaussianMixture:
-    """Botev–Kroese GCE sparse mixture (ALGORITHMS.md §5).
+    """Botev–Kroese GCE sparse mixture (docs/ALGORITHMS.md §5).
 
     Works in standardised coordinates (each column divided by σ̂i), so S(h) = diag(h²σ̂i²). The
     bandwidth h* is the root of Σλ(h) = 1, bracketed by doubling/halving from Silverman's h and

@@ -1,11 +1,11 @@
-"""Generalised likelihood ratio tests for a bias change (ALGORITHMS.md §6).
+"""Generalised likelihood ratio tests for a bias change (docs/ALGORITHMS.md §6).
 
 H0: y ~ p0, H1: y ~ p0(y − Δ) with Δ unknown. The statistic is
 ``s(t:n) = Σ_{j=t..n} log[p0(yj − Δ̂) / p0(yj)]`` (dimensionless, natural log). The threshold on s
 comes from the false-alarm probability Pf of one test, ``h = ½·χ²_d quantile(1 − Pf)``, and the
 estimated miss probability is ``Pm = P(χ'²_d(λ) ≤ 2h)`` with ``λ = ñ·Δ̂ᵀF(0)Δ̂``: F(0) is the
 per-observation Fisher information for location, so the segment of ñ observations carries ñ·F(0)
-(the ALGORITHMS.md λ = ΔᵀF(0)Δ with F(0) of the whole segment).
+(the docs/ALGORITHMS.md λ = ΔᵀF(0)Δ with F(0) of the whole segment).
 
 * :func:`glr_known_change` — batch test of a segment that starts at the change (EM estimate).
 * :func:`glr_unknown_change` — batch test, maximum over candidate change times (EM per candidate).
@@ -183,7 +183,7 @@ class GLRDecision:
 
 
 class WindowedGLR:
-    """Window-limited sequential GLR with SA-EM estimates (ALGORITHMS.md §6).
+    """Window-limited sequential GLR with SA-EM estimates (docs/ALGORITHMS.md §6).
 
     Each observation opens a candidate change time and updates the SA-EM estimate Δ̂(t:n) of every
     candidate among the last ``window`` observations (vectorised over candidates and components).

@@ -1,4 +1,4 @@
-"""Streaming kernel density estimate on a fixed grid and the symmetric KL distance (ALGORITHMS.md §4).
+"""Streaming kernel density estimate on a fixed grid and the symmetric KL distance (docs/ALGORITHMS.md §4).
 
 Samples arrive in blocks; each block is linearly binned onto a fixed grid (``np.bincount``, no
 Python loop per sample) and running moments are kept (Chan/Welford combination of blocks) for the
