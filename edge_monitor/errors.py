@@ -31,6 +31,15 @@ def require(ok: bool, field: str, message: str) -> None:
         raise ConfigError(f"{field}: {message}")
 
 
+def check_learned_with(component: str, state: dict[str, object], current: dict[str, object]) -> None:
+    """Raise :class:`StateMismatch` unless ``state["config"]`` (the fingerprint a component saved with
+    its learned numbers) equals ``current`` (the fingerprint of the config it is restored with)."""
+    saved = state.get("config", {})
+    changes = config_changes(saved if isinstance(saved, dict) else {}, current)
+    if changes:
+        raise StateMismatch(component, changes)
+
+
 def config_changes(saved: dict[str, object], current: dict[str, object]) -> dict[str, tuple[object, object]]:
     """Fields whose values differ between a saved and the current config fingerprint."""
     keys = set(saved) | set(current)

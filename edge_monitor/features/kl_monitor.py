@@ -53,7 +53,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge_monitor.errors import StateMismatch, config_changes, require
+from edge_monitor.errors import check_learned_with, require
 from edge_monitor.features.base import CycleInput, FeatureOutput
 from edge_monitor.features.disturbance_weights import DEFAULT_ALPHA, DEFAULT_BETA, WeightFunction
 from edge_monitor.features.kl_channel import KLChannel
@@ -348,9 +348,7 @@ class KLMonitor:
     @classmethod
     def from_state(cls, config: KLConfig, state: dict[str, Any]) -> "KLMonitor":
         """Restore a monitor learned with ``config``; :class:`StateMismatch` if it was learned with another."""
-        changes = config_changes(state.get("config", {}), config.fingerprint())
-        if changes:
-            raise StateMismatch("kl", changes)
+        check_learned_with("kl", state, config.fingerprint())
         mon = cls(config)
         mon.n_learned = int(state["n_learned"])
         mon.n_window = int(state["n_window"])

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.errors import StateMismatch, config_changes, require
+from edge_monitor.errors import check_learned_with, require
 from edge_monitor.features.base import CycleInput, FeatureOutput
 from edge_monitor.features.wear_estimation import ESTIMATION_METHODS, WearEstimator
 from joint_model import CRITICAL_WEAR, FRICTION_NOISE_STD, FrictionParams
@@ -105,7 +105,5 @@ class WearFeature:
     @classmethod
     def from_state(cls, config: WearConfig, params: FrictionParams, state: dict[str, Any]) -> "WearFeature":
         feature = cls(config, params)
-        changes = config_changes(state.get("config", {}), feature.fingerprint())
-        if changes:
-            raise StateMismatch("wear", changes)
+        check_learned_with("wear", state, feature.fingerprint())
         return feature

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from edge_monitor.errors import ConfigError, StateMismatch, config_changes, require
+from edge_monitor.errors import ConfigError, check_learned_with, require
 from edge_monitor.records import Decision
 from edge_monitor.stats.bias_em import BiasEMError, check_gain
 from edge_monitor.stats.densities import DENSITY_KINDS, DensityError, GaussianMixture, fit_density, min_points
@@ -215,9 +215,7 @@ class SequentialDetector:
     @classmethod
     def from_state(cls, config: DetectorConfig, state: dict[str, Any]) -> "SequentialDetector":
         """Restore a detector learned with ``config``; :class:`StateMismatch` if it was learned with another."""
-        changes = config_changes(state.get("config", {}), config.fingerprint())
-        if changes:
-            raise StateMismatch("detector", changes)
+        check_learned_with("detector", state, config.fingerprint())
         det = cls(config)
         det._nominal = [list(map(float, v)) for v in state["nominal"]]
         det._glr = None if state["glr"] is None else WindowedGLR.from_state(state["glr"])
