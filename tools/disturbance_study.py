@@ -61,7 +61,7 @@ class Scenario:
     log_of: str | None = None
     correct_params: bool = False
     keep_log: bool = False
-    external: bool = False     # recorded elsewhere (the brief's /tmp/i10 run); only read
+    external: bool = False     # lives in --default-dir (seed 0); recorded there only if missing
 
 
 def _fixed(t: float) -> tuple[str, ...]:
@@ -145,9 +145,6 @@ def run_scenario(name: str, out: Path, default_dir: Path) -> None:
     if (d / "stats.json").exists() and (d / "sym.jsonl").exists():
         print(f"{name}: done already ({d})")
         return
-    if s.external:
-        raise SystemExit(f"{name}: expected the finished run in {d} (record it with: "
-                         f"{' '.join(sim_command(name, d))})")
     d.mkdir(parents=True, exist_ok=True)
     (d / "sym.jsonl").unlink(missing_ok=True)
     config = None
