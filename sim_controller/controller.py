@@ -84,6 +84,23 @@ class CycleConditions:
     p2p_delay: float
 
 
+@dataclass(frozen=True)
+class SimulatedCycle:
+    """One simulated cycle before encoding: conditions, reference, the joints' signals (``sim``:
+    torque, speed, position, load estimate; joints × samples), controller ticks, and the per-frame
+    noise of the motor temperatures the status frames will carry (joints × status frames)."""
+
+    cycle: int
+    cond: CycleConditions
+    ref: CycleReference
+    mode: NDArray[np.int64]
+    sim: dict[str, NDArray[np.float64]]
+    ticks: NDArray[np.int64]
+    abs_tick: int
+    status_count: int
+    status_noise: NDArray[np.float64]
+
+
 def make_joint_setups(config: SimConfig, rng: np.random.Generator) -> list[JointSetup]:
     """Joint 0 … n−1 with seeded individual variation of the friction parameters."""
     spread = config.effective_variation()
@@ -131,8 +148,10 @@ class Controller:
     def simulated_seconds(self) -> float:
         return self.ticks_done / self.config.rate
 
-    def frames(self) -> Iterator[FrameBlock]:
-        """All frames of the run, in blocks of about ``config.block_time`` seconds."""
+    def simulated_cycles(self) -> Iterator["SimulatedCycle"]:
+        """The physics of every cycle of the run, in order, without frames (the cycle-level mode of
+        :mod:`sim_controller.cycle_mode` and the frame encoder share it). Ground truth is recorded and
+        the thermal state advanced before each cycle is yielded."""
         c = self.config
         abs_tick = 0          # ticks since the start (timestamps)
         tick_base = 0         # abs tick of the last (re)start: controller tick = abs_tick − tick_base
@@ -148,12 +167,18 @@ class Controller:
             ref, mode = self._reference(cond)
             sim = self._simulate(ref, cond)
             ticks = np.arange(abs_tick, abs_tick + ref.n) - tick_base
-            block = self._encode(ref, mode, cond, sim, ticks, abs_tick, cycle, status_count)
-            status_count += int(np.count_nonzero(ticks % STATUS_EVERY == 0))
+            n_status = int(np.count_nonzero(ticks % STATUS_EVERY == 0))
+            status_noise = self._noise_rng.normal(0.0, MOTOR_TEMPERATURE_FRAME_STD, size=(c.joints, n_status))
             self._record_truth(cycle, cond, abs_tick, ref.n, restarted)
             self._advance_thermal(ref.n / c.rate, sim["power"])
+            yield SimulatedCycle(cycle, cond, ref, mode, sim, ticks, abs_tick, status_count, status_noise)
+            status_count += n_status
             abs_tick += ref.n
-            yield from self._emit(block, ticks)
+
+    def frames(self) -> Iterator[FrameBlock]:
+        """All frames of the run, in blocks of about ``config.block_time`` seconds."""
+        for sc in self.simulated_cycles():
+            yield from self._emit(self._encode(sc), sc.ticks)
             self.cycles_done += 1
         tail = self.injector.flush()
         if len(tail):
@@ -254,9 +279,8 @@ class Controller:
         return {"torque": torque, "speed": speed, "position": np.mod(motor_angle, 2.0 * math.pi),
                 "load_estimate": load_estimate, "power": power}
 
-    def _encode(self, ref: CycleReference, mode: NDArray[np.int64], cond: CycleConditions,
-                sim: dict[str, NDArray[np.float64]], ticks: NDArray[np.int64], abs_tick: int, cycle: int,
-                status_count: int) -> FrameBlock:
+    def _encode(self, sc: "SimulatedCycle") -> FrameBlock:
+        ref, mode, cond, sim, ticks, cycle = sc.ref, sc.mode, sc.cond, sc.sim, sc.ticks, sc.cycle
         c, n_j, n = self.config, self.config.joints, ref.n
         status = ticks % STATUS_EVERY == 0
         n_status = int(status.sum())
@@ -265,7 +289,7 @@ class Controller:
         ids = np.empty(total, dtype=np.int64)
         data = np.empty((total, 8), dtype=np.uint8)
         ts = np.empty(total)
-        t_tick = c.start_time + (abs_tick + np.arange(n)) / c.rate
+        t_tick = c.start_time + (sc.abs_tick + np.arange(n)) / c.rate
         for j in range(n_j):
             pos = before + j
             ids[pos] = pf.MOTOR_STATE_BASE_ID + j
@@ -275,15 +299,14 @@ class Controller:
         base = before[st] + n_j
         ids[base] = pf.CONTROLLER_STATUS_ID
         ts[base] = t_tick[st] + n_j * self._frame_spacing
-        temp_noise = self._noise_rng.normal(0.0, MOTOR_TEMPERATURE_FRAME_STD, size=(n_j, st.size))
-        counters = status_count + np.arange(st.size)
+        counters = sc.status_count + np.arange(st.size)
         data[base] = pf.encode_controller_status_block(counters, mode[st], cycle, ref.segment[st], ticks[st])
         for j in range(n_j):
             pos = base + 1 + j
             ids[pos] = pf.JOINT_STATUS_BASE_ID + j
             ts[pos] = t_tick[st] + (n_j + 1 + j) * self._frame_spacing
             data[pos] = pf.encode_joint_status_block(j, counters, sim["load_estimate"][j, st], c.load_std,
-                                                  cond.motor_temperature[j] + temp_noise[j])
+                                                  cond.motor_temperature[j] + sc.status_noise[j])
         return FrameBlock(ids, data, ts)
 
     def _emit(self, block: FrameBlock, ticks: NDArray[np.int64]) -> Iterator[FrameBlock]:

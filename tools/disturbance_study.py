@@ -518,7 +518,7 @@ def plot(runs: dict[str, dict[int, JointSeries]], sigma_noise: dict[str, float],
         r = runs[name]
         for row, q in enumerate(QUANTITIES):
             ax = axes[row, col]
-            for j, s in r.items():
+            for _joint, s in r.items():
                 x = s.quantity(q)
                 ax.plot(s.cycle, x, lw=0.6, alpha=0.7)
                 mu, sd = learn_stats(x)

@@ -62,6 +62,12 @@ class Agent:
             block = self.ingest.update(ids, data, dlc, timestamps)
             return self._route(block)
 
+    def update_ingested(self, block: IngestBlock) -> list[Symptom]:
+        """Process samples that are already decoded, checked and labelled (the simulator's cycle-level
+        mode, :mod:`edge_monitor.offline.fast_path`): everything after ingest runs as for frames."""
+        with self.lock:
+            return self._route(block)
+
     @property
     def frames_total(self) -> int:
         """Frames taken in so far (all of them, including rejected ones)."""
@@ -91,9 +97,8 @@ class Agent:
                                           samples.segment if run.cycle is not None else None)
                 for symptom in inferred:     # no status frame: cycle inferred by the joint itself
                     outputs += self._emit(symptom)
-            for status in run.joint_status:
-                self._monitor(status.joint).add_status(status.load_estimate, status.load_std,
-                                                       status.motor_temperature)
+            for joint, status in run.joint_status.items():
+                self._monitor(joint).add_status(status.load_estimate, status.load_std, status.motor_temperature)
         return outputs
 
     def _monitor(self, joint: int) -> JointMonitor:

@@ -28,12 +28,16 @@ class _Mean:
     total: float = 0.0
     spread: float = math.nan
 
-    def add(self, value: float, spread: float = math.nan) -> None:
-        if math.isfinite(value):
-            self.n += 1
-            self.total += value
-        if math.isfinite(spread):
-            self.spread = spread
+    def add(self, values: NDArray[np.float64], spreads: NDArray[np.float64] | None = None) -> None:
+        """Frames in stream order: their finite values enter the mean, the last finite spread is kept."""
+        finite = values[np.isfinite(values)]
+        if finite.size:
+            self.n += int(finite.size)
+            self.total += float(finite.sum())
+        if spreads is not None:
+            good = spreads[np.isfinite(spreads)]
+            if good.size:
+                self.spread = float(good[-1])
 
     def mean(self) -> float | None:
         return self.total / self.n if self.n else None
@@ -73,10 +77,11 @@ class CycleAssembler:
             self.last_tick = int(tick[-1])
         return closed
 
-    def add_status(self, load_estimate: float, load_std: float, motor_temperature: float) -> None:
-        """One JointStatus frame: the controller's load estimate μl, σl and the motor temperature [°C]."""
-        self._load.add(load_estimate, load_std)
-        self._temperature.add(motor_temperature)
+    def add_status(self, load_estimate: NDArray[np.float64], load_std: NDArray[np.float64],
+                   motor_temperature: NDArray[np.float64]) -> None:
+        """JointStatus frames: the controller's load estimate μl, σl and the motor temperature [°C]."""
+        self._load.add(np.asarray(load_estimate, dtype=float), np.asarray(load_std, dtype=float))
+        self._temperature.add(np.asarray(motor_temperature, dtype=float))
 
     def has_data(self) -> bool:
         """Whether the open cycle holds any friction data."""

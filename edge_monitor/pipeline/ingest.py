@@ -40,14 +40,13 @@ class JointSamples:
 
 
 @dataclass(frozen=True)
-class JointStatusSample:
-    """One JointStatus frame: the controller's load estimate μl and its σl (fraction of max. torque)
-    and the motor temperature [°C]."""
+class JointStatusBlock:
+    """JointStatus frames of one joint in stream order: the controller's load estimate μl and its σl
+    (fraction of max. torque) and the motor temperature [°C], one entry per frame."""
 
-    joint: int
-    load_estimate: float
-    load_std: float
-    motor_temperature: float
+    load_estimate: NDArray[np.float64]
+    load_std: NDArray[np.float64]
+    motor_temperature: NDArray[np.float64]
 
 
 @dataclass
@@ -56,7 +55,7 @@ class CycleRun:
 
     cycle: int | None
     samples: dict[int, JointSamples]
-    joint_status: list[JointStatusSample]
+    joint_status: dict[int, JointStatusBlock]
     starts_at_boundary: bool | None = None              # first run of a cycle: was its start seen?
 
 
@@ -251,8 +250,9 @@ class Ingest:
                     samples[int(joint)] = JointSamples(tick=ticks[r], speed=dec.speed[r], torque=dec.torque[r],
                                                        segment=row_segment[r])
             js = np.flatnonzero(jstatus[sl]) + s
-            status = [JointStatusSample(int(dec.joint[r]), float(dec.load_estimate[r]), float(dec.load_std[r]),
-                                        float(dec.motor_temperature[r])) for r in js]
+            status = {int(joint): JointStatusBlock(dec.load_estimate[rows], dec.load_std[rows],
+                                                   dec.motor_temperature[rows])
+                      for joint in np.unique(dec.joint[js]) for rows in (js[dec.joint[js] == joint],)}
             runs.append(CycleRun(cycle=None if cyc < 0 else cyc, samples=samples, joint_status=status,
                                  starts_at_boundary=first_seen.get(cyc)))
         return runs

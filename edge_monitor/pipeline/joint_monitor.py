@@ -61,8 +61,10 @@ class JointMonitor:
             feature.update_samples(torque, speed, segment)
         return symptoms
 
-    def add_status(self, load_estimate: float, load_std: float, motor_temperature: float) -> None:
-        """One JointStatus frame of this joint (load estimate and σl dimensionless, temperature °C)."""
+    def add_status(self, load_estimate: NDArray[np.float64], load_std: NDArray[np.float64],
+                   motor_temperature: NDArray[np.float64]) -> None:
+        """JointStatus frames of this joint in stream order (load estimate and σl dimensionless,
+        motor temperature °C; one entry per frame)."""
         self.assembler.add_status(load_estimate, load_std, motor_temperature)
 
     def has_cycle_data(self) -> bool:
