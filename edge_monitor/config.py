@@ -45,6 +45,10 @@ def _coerce(where: str, value: Any, default: Any) -> Any:
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
         return value
+    if default is None and isinstance(value, (int, float)) and not isinstance(value, bool):   # optional number
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
     if isinstance(default, tuple) or default is None:
         if not isinstance(value, list):
             raise ConfigError(f"{where}: expected a list, got {value!r}")

@@ -122,19 +122,19 @@ def test_a_config_change_after_a_restart_takes_effect_or_is_kept_and_is_reported
     first.close()
     assert first.joints[0].detectors.detectors["wear"].state == "monitoring"
     changed = small_config(on_config_change=on_change)
-    changed = dataclasses.replace(changed, decision=dataclasses.replace(changed.decision, pf=1e-6))
+    changed = dataclasses.replace(changed, decision=dataclasses.replace(changed.decision, arl0_cycles=500.0))
     with caplog.at_level("WARNING"):
         second = Agent(changed, state_store=StateStore(tmp_path))
         outs = feed(second, frames, start=split)
     detector = second.joints[0].detectors.detectors["wear"]
-    if on_change == "relearn":   # the new Pf takes effect: the detector learns again, and says why
-        assert detector.pf == 1e-6 and outs[0].decisions["wear"].state == "learning"
-        assert any("pf 1e-11 → 1e-06" in r.getMessage() and "relearning" in r.getMessage() for r in caplog.records)
-    else:                        # the learned detector is kept, with the Pf it was learned with; reported
-        assert detector.pf == 1e-11 and outs[-1].decisions["wear"].state == "monitoring"
+    if on_change == "relearn":   # the new ARL0 takes effect: the detector learns again, and says why
+        assert detector.config.arl0 == 500.0 and outs[0].decisions["wear"].state == "learning"
+        assert any("arl0 10000.0 → 500.0" in r.getMessage() and "relearning" in r.getMessage() for r in caplog.records)
+    else:                        # the learned detector is kept, with the ARL0 it was learned with; reported
+        assert detector.config.arl0 == 10_000 and outs[-1].decisions["wear"].state == "monitoring"
         assert any("keeping the models learned with the previous decision" in r.getMessage() for r in caplog.records)
         second.declare_maintenance(0)       # a maintenance declaration adopts the current config
-        assert second.joints[0].detectors.detectors["wear"].pf == 1e-6
+        assert second.joints[0].detectors.detectors["wear"].config.arl0 == 500.0
 
 
 def test_config_errors_name_the_field():

@@ -16,9 +16,10 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("sim_controller", "edge_monitor.errors", "edge_monitor.records"),
     ("edge_monitor.stats",),
     ("edge_monitor.features",),
-    ("edge_monitor.sinks", "edge_monitor.offline"),
+    ("edge_monitor.sinks",),
     ("edge_monitor.pipeline",),
     ("edge_monitor.config", "edge_monitor.app"),
+    ("edge_monitor.offline",),
     ("edge_monitor.commands", "edge_monitor.cli", "edge_monitor"),
 )
 #: Lines a module may have (docs/ARCHITECTURE.md: "no module over ~400 lines").
@@ -66,6 +67,14 @@ def test_every_import_points_down_the_layers():
             if _layer(target) > _layer(module):
                 upward.append(f"{module} (layer {_layer(module)}) imports {target} (layer {_layer(target)})")
     assert not upward, "\n".join(sorted(upward))
+
+
+def test_the_running_agent_never_imports_the_simulator():
+    """Only the offline studies (and tools) may drive the agent with the simulator."""
+    for module, path in _modules().items():
+        if module.startswith(("edge_monitor.pipeline", "edge_monitor.features", "edge_monitor.stats",
+                              "edge_monitor.sinks")):
+            assert not any(t.startswith("sim_controller") for t in _imports(path, module)), module
 
 
 @pytest.mark.parametrize("package, allowed", [

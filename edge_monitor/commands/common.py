@@ -78,9 +78,24 @@ def fmt(x: Any, spec: str = ".3g") -> str:
     return "–" if x is None else format(x, spec)
 
 
-def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: float) -> str:
-    """Per joint: cycles, final wear estimate ± std, alarms (cycle, quantity), Pf and estimated Pm."""
-    lines = [f"{'joint':>5} {'cycles':>6} {'wear ± std':>16} {'temp °C':>8} {'alarms':<44} {'Pf':>7} {'Pm':>7}"]
+def wear_text(wear: dict[str, Any]) -> str:
+    """"ϖ̂ ± σ" where wear is identifiable, else the one-sided bound "≤ upper_95" (near ϖ = 0 the data
+    cannot tell low wear from none, and a ± would be meaningless)."""
+    estimate, std, upper = wear.get("estimate"), wear.get("std"), wear.get("upper_95")
+    if estimate is None:
+        return "–"
+    if wear.get("identifiable") is False and upper is not None:
+        return f"≤ {upper:.0f} (95 %)"
+    return f"{estimate:.1f} ± {fmt(std, '.1f')}"
+
+
+def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: Any) -> str:
+    """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
+    estimated lubricant temperature, alarms (quantity@cycle), the false-alarm setting and the smallest
+    estimated miss probability over the joint's detectors."""
+    setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
+               else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector")
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'alarms':<44} {'Pm':>7}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
@@ -90,12 +105,8 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], pf: flo
         pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
               if d.get("miss_probability") is not None]
         alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
-        std = wear.get("std")
-        std_text = ">100" if std is not None and std > 100 else fmt(std, ".1f")   # not identifiable near ϖ = 0
-        lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} "
-                     f"{fmt(wear.get('estimate'), '.1f'):>7} ± {std_text:<6} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:44]:<44} {pf:>7.2g} "
+        lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:44]:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
-    lines.append("Pf: false-alarm probability per test of the scalar detectors (the joint-vector detector uses "
-                 "decision.pf_joint); Pm: smallest estimated miss probability over the joint's detectors")
+    lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)

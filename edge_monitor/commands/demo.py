@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             app = build_app(cfg, Outputs(jsonl=cfg.jsonl, zenoh=ZenohOptions(mode="peer", listen=[endpoint]),
                                          rerun=spec, rerun_fallback=str(out / "demo.rrd"), maintenance=True),
-                            stack, open_state_store(cfg))
+                            stack, open_state_store(cfg), live=True)
         except ValueError as exc:      # ZenohSetupError, RerunSetupError: say what to fix
             print(f"edge-monitor demo: {exc}", file=sys.stderr)
             return 2
@@ -165,11 +165,11 @@ def run(args: argparse.Namespace) -> int:
         "frames": {k: frames[k] for k in ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated",
                                           "unknown_id", "malformed")},
         "frames_sent": _frames_sent(truth), "cycles": frames["cycles"], "simulator_exit_code": sim_rc,
-        "wall_s": round(time.monotonic() - started, 1), "pf": cfg.decision.pf, "pf_joint": cfg.decision.pf_joint,
+        "wall_s": round(time.monotonic() - started, 1), "arl0_cycles": cfg.decision.arl0,
         "link": link_desc,
         "jsonl": cfg.jsonl, "truth": str(truth),
     }
-    print(summary_table(last.last, frames, cfg.decision.pf))
+    print(summary_table(last.last, frames, cfg.decision))
     print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
           f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['wall_s']} s")
     if summary["rrd"]:

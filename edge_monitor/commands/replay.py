@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(stats)
     else:
-        print(summary_table(last.last, stats, cfg.decision.pf))
+        print(summary_table(last.last, stats, cfg.decision))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
               f"{stats['frames_per_second']:.0f} frames/s")

@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             outputs = Outputs(jsonl=cfg.jsonl, zenoh=None if args.no_zenoh else zenoh_options(args),
                               rerun=args.rerun or cfg.rerun, rerun_fallback="edge-monitor.rrd", maintenance=True)
-            app = build_app(cfg, outputs, stack, store)
+            app = build_app(cfg, outputs, stack, store, live=True)
         except (ZenohSetupError, ValueError) as exc:
             print(f"edge-monitor run: {exc}", file=sys.stderr)
             return 2

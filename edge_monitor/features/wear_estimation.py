@@ -94,6 +94,7 @@ class WearEstimate:
     reason: str | None = None
     upper_95: float = math.nan
     identifiable: bool = False
+    posterior_mean: float = math.nan     # E[ϖ | data] under a flat prior on [0, ϖmax]: continuous near ϖ = 0
 
     @property
     def ok(self) -> bool:
@@ -128,6 +129,7 @@ class _GridSummary:
     """What the (ξ, ϖ) likelihood grid of one cycle says about ϖ (see the module docstring)."""
 
     mode: float                 # maximum of the ξ-marginalised likelihood
+    mean: float                 # posterior mean of ϖ
     std: float                  # posterior std of ϖ
     upper_95: float             # upper end of the profile-likelihood interval
     identifiable: bool          # ϖ = 0 outside the profile-likelihood interval
@@ -179,11 +181,14 @@ class WearEstimator:
     # ------------------------------------------------------------------ public
     def estimate(self, speeds: Sequence[float] | ArrayLike, friction: Sequence[float] | ArrayLike,
                  load_mean: float, load_std: float,
-                 friction_stderr: Sequence[float] | ArrayLike | None = None) -> WearEstimate:
+                 friction_stderr: Sequence[float] | ArrayLike | None = None,
+                 temperature_prior: tuple[float, float] | None = None) -> WearEstimate:
         """Estimate ϖ from friction data ``friction`` at ``|speeds|`` [rad/s] of one cycle.
 
         ``load_mean``/``load_std``: the controller's load estimate and its std (dimensionless).
         ``friction_stderr``: optional per-datum standard errors, added to σ² on the diagonal.
+        ``temperature_prior``: (mean, std) [°C] of a Gaussian prior on ξ within the site range (e.g.
+        from the motor temperature); ``None``: ξ uniform over the range.
         """
         try:
             checked = self._check(speeds, friction, load_mean, load_std, friction_stderr)
@@ -197,7 +202,8 @@ class WearEstimator:
             cost, white_nominal = self._cost_grid(v, tau, mu_l, whiten)
             if not np.all(np.isfinite(cost)):
                 return _invalid(int(v.size), "no finite fit")
-            grid = self._summarise(cost, v, whiten, white_nominal)
+            prior = self._prior_cost(temperature_prior)
+            grid = self._summarise(cost + prior[:, None], v, whiten, white_nominal, prior)
             if v.size == 1 or self.method == "marginal":
                 estimate = grid.mode
                 temperature = grid.temperature if v.size >= 2 else None
@@ -207,7 +213,15 @@ class WearEstimator:
             log.warning("wear estimation failed: %s", exc)
             return _invalid(int(v.size), f"numerical failure: {exc}")
         return WearEstimate(estimate=estimate, std=grid.std, temperature=temperature, n_points=int(v.size),
-                            upper_95=max(grid.upper_95, estimate), identifiable=grid.identifiable)
+                            upper_95=max(grid.upper_95, estimate), identifiable=grid.identifiable,
+                            posterior_mean=grid.mean)
+
+    def _prior_cost(self, prior: tuple[float, float] | None) -> NDArray[np.float64]:
+        """−2·log prior(ξ) on the ξ grid (0 for the flat prior), in the units of the cost grid."""
+        if prior is None or not (math.isfinite(prior[0]) and math.isfinite(prior[1]) and prior[1] > 0):
+            return np.zeros(self._xi_samples.size)
+        z = (self._xi_samples - prior[0]) / prior[1]
+        return z * z
 
     # ------------------------------------------------------------ validation
     def _check(self, speeds, friction, load_mean, load_std, friction_stderr):
@@ -248,7 +262,8 @@ class WearEstimator:
         cost = np.einsum("ik,ik->i", a, a)[:, None] + np.einsum("jk,jk->j", b, b)[None, :] - 2.0 * (a @ b.T)
         return np.maximum(cost, 0.0), a
 
-    def _summarise(self, cost: NDArray[np.float64], v, whiten, white_nominal) -> _GridSummary:
+    def _summarise(self, cost: NDArray[np.float64], v, whiten, white_nominal,
+                   prior: NDArray[np.float64]) -> _GridSummary:
         w = self._grid_wear
         best_xi = np.argmin(cost, axis=0)
         profile = cost[best_xi, np.arange(w.size)]                                  # min_ξ C
@@ -258,21 +273,23 @@ class WearEstimator:
         posterior /= posterior.sum()
         mean = float(posterior @ w)
         std = math.sqrt(max(float(posterior @ (w - mean) ** 2), 0.0))
-        mode, xi_weights = self._refine_mode(v, whiten, white_nominal, log_marginal)
+        mode, xi_weights = self._refine_mode(v, whiten, white_nominal, log_marginal, prior)
         deviance = profile - profile.min()
         upper = _first_crossing(w, deviance, int(np.argmin(profile)), _PROFILE_THRESHOLD)
         temperature = float(xi_weights @ self._xi_samples / xi_weights.sum())
-        return _GridSummary(mode=mode, std=std, upper_95=upper, identifiable=bool(deviance[0] > _PROFILE_THRESHOLD),
-                            temperature=temperature, profile=profile, best_xi=best_xi)
+        return _GridSummary(mode=mode, mean=mean, std=std, upper_95=upper,
+                            identifiable=bool(deviance[0] > _PROFILE_THRESHOLD), temperature=temperature,
+                            profile=profile, best_xi=best_xi)
 
-    def _refine_mode(self, v, whiten, white_nominal, log_marginal) -> tuple[float, NDArray[np.float64]]:
+    def _refine_mode(self, v, whiten, white_nominal, log_marginal,
+                     prior: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """Maximum of the exact marginal log-likelihood between the grid neighbours of the best grid
         wear (bounded Brent search), and the ξ posterior weights there."""
         p = self.params
 
         def weights_and_log_m(wear: float) -> tuple[NDArray[np.float64], float]:
             d = white_nominal - whiten @ wear_friction(v, wear, p)
-            c = np.einsum("ik,ik->i", d, d)
+            c = np.einsum("ik,ik->i", d, d) + prior
             weights = np.exp(-0.5 * (c - c.min()))
             return weights, -0.5 * float(c.min()) + math.log(float(weights.sum()))
 

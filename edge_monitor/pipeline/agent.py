@@ -22,6 +22,7 @@ from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateStore
 from edge_monitor.records import Alarm, Health, Symptom
 from edge_monitor.sinks.base import Sink
+from edge_monitor.stats.sequential_detector import Calibrator
 
 log = logging.getLogger(__name__)
 
@@ -40,8 +41,10 @@ class RunStats:
 class Agent:
     """Holds one :class:`JointMonitor` per joint and routes ingested samples to them."""
 
-    def __init__(self, config: AgentConfig, sinks: Iterable[Sink] = (), state_store: StateStore | None = None):
+    def __init__(self, config: AgentConfig, sinks: Iterable[Sink] = (), state_store: StateStore | None = None,
+                 calibrator: Calibrator | None = None):
         self.config = config
+        self.calibrator = calibrator     # None: detectors calibrate inline (replay, studies)
         self.sinks = list(sinks)
         self.store = state_store
         self.ingest = Ingest(rate_hz=config.rate_hz, joints=config.joints)
@@ -105,8 +108,8 @@ class Agent:
         monitor = self.joints.get(joint)
         if monitor is None:
             saved = self._restored_joint_states.pop(joint, None)
-            monitor = JointMonitor(joint, self.config) if saved is None else \
-                JointMonitor.from_state(joint, self.config, saved)
+            monitor = JointMonitor(joint, self.config, self.calibrator) if saved is None else \
+                JointMonitor.from_state(joint, self.config, saved, self.calibrator)
             self.joints[joint] = monitor
             log.info("joint %d: monitoring started", joint)
         return monitor

@@ -16,11 +16,11 @@ from typing import Any
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import QUANTITIES, QuantitySpec, feature_of
 from edge_monitor.records import Alarm, Decision
+from edge_monitor.stats.calibration import DEFAULT_ARL0, CalibrationBudget
 from edge_monitor.stats.sequential_detector import (
     DEFAULT_NOMINAL,
-    DEFAULT_PF,
-    DEFAULT_PF_VECTOR,
     DEFAULT_WINDOW,
+    Calibrator,
     DetectorConfig,
     SequentialDetector,
 )
@@ -35,25 +35,45 @@ PARTIAL_REASON = "partial cycle: not used by the detectors"
 class DecisionConfig:
     """Sequential GLR decision layer settings (the ``[decision]`` table), validated once, here.
 
-    ``density``/``pf`` apply to scalar quantities, ``density_joint``/``pf_joint`` to vector ones (the
-    3-d joint vector): a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE stays
-    calibrated there (docs/DETECTION.md). ``pf`` is the per-test false-alarm probability of the
-    asymptotic threshold; the sequential false-alarm rate is far higher (docs/DETECTION.md).
+    False alarms are stated as the mean run length to a false alarm of each detector,
+    ``arl0_cycles`` [cycles], or as ``false_alarms_per_year`` with ``cycles_per_day``; every detector
+    calibrates its threshold for it at the end of learning (docs/DETECTION.md). ``pf``/``pf_joint``
+    (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
+    the scalar / vector quantities. ``density`` applies to scalar quantities, ``density_joint`` to the
+    vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
     """
 
     enabled: bool = True
     n_nominal: int = DEFAULT_NOMINAL
     density: str = "gce"
     density_joint: str = "kde"
-    pf: float = DEFAULT_PF
-    pf_joint: float = DEFAULT_PF_VECTOR
+    arl0_cycles: float = DEFAULT_ARL0
+    false_alarms_per_year: float | None = None
+    cycles_per_day: float | None = None
+    pf: float | None = None
+    pf_joint: float | None = None
     window: int = DEFAULT_WINDOW
     gamma0: float = 0.6
     rho: float = 1.0
     quantities: tuple[str, ...] = tuple(QUANTITIES)
     log_kl: bool = True
+    calibration_draws: int = CalibrationBudget().draws
+    calibration_steps: int = CalibrationBudget().max_steps
+
+    @property
+    def arl0(self) -> float:
+        """The mean run length to false alarm per detector [cycles] the thresholds are calibrated for."""
+        if self.false_alarms_per_year is not None and self.cycles_per_day is not None:
+            return 365.25 * self.cycles_per_day / self.false_alarms_per_year
+        return float(self.arl0_cycles)
 
     def __post_init__(self) -> None:
+        require((self.false_alarms_per_year is None) == (self.cycles_per_day is None),
+                "decision.false_alarms_per_year",
+                "give it together with decision.cycles_per_day (or use decision.arl0_cycles)")
+        for name in ("false_alarms_per_year", "cycles_per_day"):
+            value = getattr(self, name)
+            require(value is None or 0 < value <= 1e6, f"decision.{name}", f"must be > 0, got {value!r}")
         unknown = [q for q in self.quantities if q not in QUANTITIES]
         require(not unknown, "decision.quantities", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
         require(len(set(self.quantities)) == len(self.quantities), "decision.quantities",
@@ -65,6 +85,7 @@ class DecisionConfig:
                 field, _, message = str(exc).partition(": ")
                 if QUANTITIES[quantity].dim > 1:
                     field = {"pf": "pf_joint", "density": "density_joint"}.get(field, field)
+                field = {"arl0": "arl0_cycles"}.get(field, field)
                 raise ConfigError(f"decision.{field} (quantity '{quantity}'): {message}") from None
 
     def detector_config(self, quantity: str) -> DetectorConfig:
@@ -73,7 +94,8 @@ class DecisionConfig:
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
-                              gamma0=self.gamma0, rho=self.rho)
+                              gamma0=self.gamma0, rho=self.rho, arl0=self.arl0,
+                              calibration_draws=self.calibration_draws, calibration_steps=self.calibration_steps)
 
     def fingerprint(self) -> dict[str, Any]:
         return {**asdict(self), "quantities": list(self.quantities)}
@@ -88,11 +110,13 @@ class DetectorBank:
     """The detectors of one joint. ``sources`` maps each feature name to the fingerprint of what its
     values depend on: a detector learned on values of another feature configuration is relearned."""
 
-    def __init__(self, config: DecisionConfig, sources: dict[str, dict[str, Any]]) -> None:
+    def __init__(self, config: DecisionConfig, sources: dict[str, dict[str, Any]],
+                 calibrator: Calibrator | None = None) -> None:
         self.config = config
         self.sources = sources
-        self.detectors = {q: SequentialDetector(config.detector_config(q)) for q in config.quantities} \
-            if config.enabled else {}
+        self.calibrator = calibrator
+        self.detectors = {q: SequentialDetector(config.detector_config(q), calibrator)
+                          for q in config.quantities} if config.enabled else {}
 
     def _transform(self, values: dict[str, float]) -> dict[str, float]:
         logged = {q for q, spec in QUANTITIES.items() if spec.log_scale and spec.dim == 1}
@@ -160,7 +184,8 @@ class DetectorBank:
                 continue
             try:
                 self._check_inputs(quantity, saved.get("inputs"))
-                self.detectors[quantity] = SequentialDetector.from_state(self.config.detector_config(quantity), saved)
+                self.detectors[quantity] = SequentialDetector.from_state(self.config.detector_config(quantity), saved,
+                                                                         self.calibrator)
             except StateMismatch as exc:
                 messages.append(f"joint {joint}: {exc}; relearning the {quantity} detector")
         return messages

@@ -21,6 +21,7 @@ from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import DetectorBank
 from edge_monitor.records import Alarm, Symptom, finite_or_none
+from edge_monitor.stats.sequential_detector import Calibrator
 
 log = logging.getLogger(__name__)
 
@@ -28,13 +29,14 @@ log = logging.getLogger(__name__)
 class JointMonitor:
     """All features and detectors of one joint (see the module docstring)."""
 
-    def __init__(self, joint: int, config: AgentConfig) -> None:
+    def __init__(self, joint: int, config: AgentConfig, calibrator: Calibrator | None = None) -> None:
         self.joint = joint
         self.config = config
+        self.calibrator = calibrator
         self.assembler = CycleAssembler(joint, config.segmentation, config.rate_hz)
         self.features: dict[str, Feature] = {spec.name: spec.build(joint, config)
                                              for spec in FEATURES if spec.enabled(config)}
-        self.detectors = DetectorBank(config.decision, self._sources())
+        self.detectors = DetectorBank(config.decision, self._sources(), self.calibrator)
         self.maintenances = 0
 
     def _sources(self) -> dict[str, dict[str, Any]]:
@@ -127,7 +129,7 @@ class JointMonitor:
             self.assembler = CycleAssembler(self.joint, config.segmentation, config.rate_hz)
             self.assembler.load_state(counters)
             self.features = {spec.name: spec.build(self.joint, config) for spec in FEATURES if spec.enabled(config)}
-            self.detectors = DetectorBank(config.decision, self._sources())
+            self.detectors = DetectorBank(config.decision, self._sources(), self.calibrator)
         else:
             for feature in self.features.values():
                 feature.reset()
@@ -145,7 +147,8 @@ class JointMonitor:
                 "detectors": self.detectors.state_dict()}
 
     @classmethod
-    def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any]) -> "JointMonitor":
+    def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any],
+                   calibrator: Calibrator | None = None) -> "JointMonitor":
         """A monitor with the learned models of ``state``. A component learned with another config is
         relearned and the change is logged as a warning; with ``on_config_change = "keep"`` the
         sections it was learned with are kept instead (also logged)."""
@@ -156,7 +159,7 @@ class JointMonitor:
                 log.warning("joint %d: keeping the models learned with the previous %s settings "
                             "(on_config_change = \"keep\"); the new settings apply after a maintenance "
                             "declaration or with on_config_change = \"relearn\"", joint, ", ".join(kept))
-        monitor = cls(joint, config)
+        monitor = cls(joint, config, calibrator)
         monitor.maintenances = int(state.get("maintenances", 0))
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
@@ -165,7 +168,7 @@ class JointMonitor:
         for spec in FEATURES:
             if spec.name in monitor.features and isinstance(saved.get(spec.name), dict):
                 monitor._restore_feature(spec, saved[spec.name])
-        monitor.detectors = DetectorBank(config.decision, monitor._sources())
+        monitor.detectors = DetectorBank(config.decision, monitor._sources(), calibrator)
         for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
             log.warning("%s", message)
         return monitor

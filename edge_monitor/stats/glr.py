@@ -19,16 +19,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from edge_monitor.stats.bias_em import SAStep, check_gain, check_step, em_bias, step_matrix
+from edge_monitor.stats.bias_em import SAStep, check_gain, check_step, em_bias
 from edge_monitor.stats.densities import GaussianMixture, as_observations
-
-GLRMode = Literal["exact", "recursive"]
+from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch
 
 
 class GLRError(ValueError):
@@ -183,15 +182,16 @@ class GLRDecision:
 
 
 class WindowedGLR:
-    """Window-limited sequential GLR with SA-EM estimates (docs/ALGORITHMS.md §6).
+    """Window-limited sequential GLR with SA-EM estimates (docs/ALGORITHMS.md §6): one detector, the
+    case B = 1 of :class:`~edge_monitor.stats.glr_batch.BatchWindowedGLR` (the recursion the threshold
+    calibration simulates).
 
     Each observation opens a candidate change time and updates the SA-EM estimate Δ̂(t:n) of every
-    candidate among the last ``window`` observations (vectorised over candidates and components).
-    ``mode="recursive"`` accumulates log p0(yn − Δ̂(t:n)) − log p0(yn) with the estimate available
-    at step n: O(W·K·d) per observation. ``mode="exact"`` recomputes each candidate's numerator
-    over the ring buffer with its latest Δ̂: O(W²·K·d) per observation (each of W candidates
-    re-evaluates up to W observations). Memory O(W·d) plus the mixture's O(K·d), constant in run
-    length.
+    candidate among the last ``window`` observations. ``mode="recursive"`` accumulates
+    log p0(yn − Δ̂(t:n)) − log p0(yn) with the estimate available at step n: O(W·K·d) per observation.
+    ``mode="exact"`` recomputes each candidate's numerator over the ring buffer with its latest Δ̂:
+    O(W²·K·d). Memory O(W·d) plus the mixture's O(K·d), constant in run length. ``threshold``
+    overrides h(Pf) (e.g. a calibrated one).
     """
 
     def __init__(self, density: GaussianMixture, window: int = 100, pf: float = 0.01,
@@ -209,76 +209,44 @@ class WindowedGLR:
         self.gamma0, self.rho, self.mode, self.step = float(gamma0), float(rho), mode, step
         self.threshold = _threshold(density, self.pf, threshold)
         self._fisher = density.fisher_location()
-        self._gain_matrix = step_matrix(density, step)
-        d, w = density.dim, self.window
-        self.count = 0
-        self._obs = np.zeros((w, d))
-        self._base = np.zeros(w)
-        self._times = np.full(w, -1, dtype=np.int64)
-        self._delta = np.zeros((w, d))
-        self._recursive_sum = np.zeros(w)
+        self._glr = BatchWindowedGLR(MixtureBatch([density], step), self.window, gamma0, rho, mode)
+
+    @property
+    def count(self) -> int:
+        return self._glr.count
 
     def update(self, y: ArrayLike) -> GLRDecision:
         """Process one finite observation (d,) and return the decision at this step."""
         obs = as_observations(y, self.density.dim, name="observation")[0]
         if not np.all(np.isfinite(obs)):
             raise GLRError("observation must be finite; skip NaN/inf before calling update()")
-        now = self.count
-        slot = now % self.window
-        self.count += 1
-        self._obs[slot] = obs
-        self._base[slot] = self.density.logpdf(obs[None, :])[0]
-        self._times[slot] = now
-        self._delta[slot] = 0.0
-        self._recursive_sum[slot] = 0.0
-        active = np.flatnonzero(self._times >= 0)
-        lengths = now - self._times[active] + 1
-        self._update_estimates(obs, active, lengths)
-        stat = self._statistics(obs, slot, active)
-        best = int(np.argmax(stat))
-        s = max(float(stat[best]), 0.0)
-        delta = self._delta[active[best]]
-        n_seg = int(lengths[best])
+        glr = self._glr
+        s = float(glr.update(obs[None, :])[0])
+        best = int(glr.best[0])
+        delta = glr.delta[0, best]
+        n_seg = int(glr.segment_length()[0])
         pm = miss_probability(delta, self._fisher, self.threshold, n=n_seg)
-        return GLRDecision(s, self.threshold, bool(s >= self.threshold), int(self._times[active[best]]),
-                           delta.tolist(), pm, now, n_seg)
-
-    def _update_estimates(self, obs: NDArray[np.float64], active: NDArray[np.int64],
-                          lengths: NDArray[np.int64]) -> None:
-        delta = self._delta[active]
-        target = obs[None, :] - self.density.posterior_mean(obs[None, :] - delta)
-        gain = self.gamma0 * lengths.astype(float) ** (-self.rho)
-        self._delta[active] = delta + gain[:, None] * ((target - delta) @ self._gain_matrix.T)
-
-    def _statistics(self, obs: NDArray[np.float64], slot: int, active: NDArray[np.int64]) -> NDArray[np.float64]:
-        delta = self._delta[active]
-        if self.mode == "recursive":
-            gain = self.density.logpdf(obs[None, :] - delta) - self._base[slot]
-            self._recursive_sum[active] += gain
-            return self._recursive_sum[active]
-        times = self._times[active]
-        inside = times[None, :] >= times[:, None]              # (candidate, observation)
-        shifted = self._obs[active][None, :, :] - delta[:, None, :]
-        loglik = self.density.logpdf(shifted.reshape(-1, self.density.dim)).reshape(len(active), -1)
-        return np.sum(np.where(inside, loglik - self._base[active][None, :], 0.0), axis=1)
+        return GLRDecision(s, self.threshold, bool(s >= self.threshold), int(glr.times[best]),
+                           delta.tolist(), pm, glr.count - 1, n_seg)
 
     def state_dict(self) -> dict[str, Any]:
+        g = self._glr
         return {"density": self.density.state_dict(), "window": self.window, "pf": self.pf,
                 "gamma0": self.gamma0, "rho": self.rho, "mode": self.mode, "step": self.step,
-                "threshold": self.threshold, "count": self.count, "obs": self._obs.tolist(),
-                "base": self._base.tolist(), "times": self._times.tolist(),
-                "delta": self._delta.tolist(), "recursive_sum": self._recursive_sum.tolist()}
+                "threshold": self.threshold, "count": g.count, "obs": g.obs[0].tolist(),
+                "base": g.base[0].tolist(), "times": g.times.tolist(),
+                "delta": g.delta[0].tolist(), "recursive_sum": g.sums[0].tolist()}
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "WindowedGLR":
         glr = cls(GaussianMixture.from_state(state["density"]), state["window"], state["pf"],
                   state["gamma0"], state["rho"], state["mode"], state.get("step", "fisher"),
                   threshold=state["threshold"])
-        d = glr.density.dim
-        glr.count = int(state["count"])
-        glr._obs = np.asarray(state["obs"], dtype=float).reshape(glr.window, d)
-        glr._base = np.asarray(state["base"], dtype=float)
-        glr._times = np.asarray(state["times"], dtype=np.int64)
-        glr._delta = np.asarray(state["delta"], dtype=float).reshape(glr.window, d)
-        glr._recursive_sum = np.asarray(state["recursive_sum"], dtype=float)
+        d, w, g = glr.density.dim, glr.window, glr._glr
+        g.count = int(state["count"])
+        g.obs[0] = np.asarray(state["obs"], dtype=float).reshape(w, d)
+        g.base[0] = np.asarray(state["base"], dtype=float).reshape(w)
+        g.times[:] = np.asarray(state["times"], dtype=np.int64).reshape(w)
+        g.delta[0] = np.asarray(state["delta"], dtype=float).reshape(w, d)
+        g.sums[0] = np.asarray(state["recursive_sum"], dtype=float).reshape(w)
         return glr

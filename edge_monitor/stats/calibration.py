@@ -1,0 +1,258 @@
+"""Thresholds for a stated mean run length to false alarm (ARL0), calibrated by simulation.
+
+The user states how many cycles a detector should run, on average, before a false alarm (ARL0). At
+the end of its learning phase a detector calibrates its own threshold h for that, from its own
+learned nominal density p̂0, by simulating the exact sequential statistic it runs (window, maximum
+over candidate change times, SA-EM, recursive or exact numerator; :mod:`edge_monitor.stats.glr_batch`)
+including the error of learning the nominal from N0 values — a parametric bootstrap:
+
+1. draw B nominal sets of N0 values from p̂0 and fit each with the detector's density family;
+2. run B detectors (one per refitted density) on independent streams drawn from p̂0, ``steps``
+   cycles long, recording each detector's statistic;
+3. for every candidate h, each detector's first-passage time T_b(h) gives the censored exponential
+   estimate of the mean run length E[T](h) = Σ min(T_b, L) / #{T_b ≤ L};
+4. h is where E[T](h) = ARL0: interpolated where the simulation reaches ARL0 with little censoring,
+   else extrapolated along the straight line log E[T] = a + c·h fitted to the upper part of the
+   reliable range (``method="extrapolated"``).
+
+The run lengths of detectors learned from different nominal sets differ a lot (one learned with a
+too narrow density alarms early), so E[T] averages over learning as the operator's fleet does;
+docs/DETECTION.md shows the measured ARL0 of the agent's detectors against the targets. Cost: about
+B·steps·W·K mixture evaluations; deterministic for a given seed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
+from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch
+
+#: Default mean run length to false alarm per detector [cycles] (at 300 cycles a day: ~1 per month).
+DEFAULT_ARL0 = 10_000.0
+#: Largest ARL0 a user may ask for [cycles]: beyond, the extrapolation is not trustworthy.
+MAX_ARL0 = 1e7
+#: A threshold is read off where at most this fraction of the simulated detectors never alarmed.
+MAX_CENSORED = 0.10
+#: … and at least this many alarmed.
+MIN_EVENTS = 10
+#: Threshold grid step [nats].
+H_STEP = 0.05
+
+
+class CalibrationError(ValueError):
+    """The calibration could not produce a threshold (degenerate nominal data)."""
+
+
+@dataclass(frozen=True)
+class CalibrationBudget:
+    """How much simulation a calibration may use: ``draws`` bootstrap detectors, each run for
+    ``steps_per_arl0``·ARL0 cycles clipped to [``min_steps``, ``max_steps``]."""
+
+    draws: int = 48
+    min_steps: int = 600
+    max_steps: int = 2000
+    steps_per_arl0: float = 12.0
+
+    def steps(self, arl0: float) -> int:
+        return int(min(max(self.steps_per_arl0 * arl0, self.min_steps), self.max_steps))
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A calibrated threshold h [nats] for the mean run length ``arl0`` [cycles], how it was found,
+    and what it cost (``cpu_s``)."""
+
+    threshold: float
+    arl0: float
+    method: str                   # "simulated" | "extrapolated"
+    draws: int
+    steps: int
+    events: int                   # simulated detectors that alarmed within ``steps`` at the threshold
+    slope: float | None           # fitted d log E[T] / dh [1/nat] when extrapolated
+    cpu_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, state: dict[str, Any]) -> "Calibration":
+        return cls(threshold=float(state["threshold"]), arl0=float(state["arl0"]), method=str(state["method"]),
+                   draws=int(state["draws"]), steps=int(state["steps"]), events=int(state["events"]),
+                   slope=None if state.get("slope") is None else float(state["slope"]),
+                   cpu_s=float(state.get("cpu_s", 0.0)))
+
+
+def seed_from(values: ArrayLike) -> int:
+    """A reproducible seed from nominal values (the same learning gives the same threshold)."""
+    data = np.ascontiguousarray(np.asarray(values, dtype=np.float64))
+    return int(np.frombuffer(data.tobytes(), dtype=np.uint8).astype(np.uint64).sum() * 2654435761 % (2 ** 32))
+
+
+def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: float = 0.6, rho: float = 1.0,
+              mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
+              seed: int | None = None) -> Calibration:
+    """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
+    with the ``kind`` density (see the module docstring)."""
+    started = time.process_time()
+    values = as_observations(nominal, name="nominal data")
+    rng = np.random.default_rng(seed_from(values) if seed is None else seed)
+    truth = fit_density(values, kind)
+    mixtures = _bootstrap_densities(truth, len(values), kind, budget.draws, rng)
+    steps = budget.steps(arl0)
+    statistics = _simulate(truth, mixtures, window, gamma0, rho, mode, steps, rng)
+    threshold, method, events, slope = _threshold_for(statistics, arl0)
+    return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(mixtures), steps=steps,
+                       events=events, slope=slope, cpu_s=time.process_time() - started)
+
+
+def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int,
+                         rng: np.random.Generator) -> list[GaussianMixture]:
+    mixtures: list[GaussianMixture] = []
+    attempts = 0
+    while len(mixtures) < draws:
+        attempts += 1
+        if attempts > 4 * draws:
+            raise CalibrationError(f"only {len(mixtures)} of {draws} bootstrap densities could be fitted")
+        try:
+            mixtures.append(fit_density(truth.sample(n0, rng), kind))
+        except DensityError:
+            continue
+    return mixtures
+
+
+def _simulate(truth: GaussianMixture, mixtures: list[GaussianMixture], window: int, gamma0: float, rho: float,
+              mode: GLRMode, steps: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """Statistics (B, steps) of B detectors on streams drawn from ``truth``."""
+    glr = BatchWindowedGLR(MixtureBatch(mixtures), window, gamma0, rho, mode)
+    stream = truth.sample(len(mixtures) * steps, rng).reshape(len(mixtures), steps, truth.dim)
+    out = np.empty((len(mixtures), steps))
+    for t in range(steps):
+        out[:, t] = glr.update(stream[:, t])
+    return out
+
+
+def mean_run_lengths(statistics: NDArray[np.float64], thresholds: NDArray[np.float64]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+    """For each threshold: the censored exponential estimate of E[T], the number of detectors that
+    alarmed, and the censored fraction. ``statistics`` (B, L) of B detectors over L cycles."""
+    b, steps = statistics.shape
+    running = np.maximum.accumulate(statistics, axis=1)          # non-decreasing: first passage by bisection
+    below = np.stack([np.searchsorted(row, thresholds, side="left") for row in running])   # (B, H)
+    alarmed = below < steps
+    exposure = np.where(alarmed, below + 1, steps).sum(axis=0).astype(float)
+    events = alarmed.sum(axis=0)
+    with np.errstate(divide="ignore"):
+        mean = np.where(events > 0, exposure / np.maximum(events, 1), np.inf)
+    return mean, events, 1.0 - events / b
+
+
+def _threshold_for(statistics: NDArray[np.float64], arl0: float) -> tuple[float, str, int, float | None]:
+    top = float(np.max(statistics))
+    if not math.isfinite(top) or top <= 0:
+        raise CalibrationError("the simulated statistics are degenerate (no spread in the nominal data?)")
+    grid = np.arange(H_STEP, top + H_STEP, H_STEP)
+    mean, events, censored = mean_run_lengths(statistics, grid)
+    reliable = (censored <= MAX_CENSORED) & (events >= MIN_EVENTS)
+    if not reliable.any():
+        raise CalibrationError("too few simulated alarms to calibrate; give a larger calibration budget")
+    last = int(np.flatnonzero(reliable)[-1])
+    log_mean = np.log(mean[: last + 1])
+    if mean[last] >= arl0:                        # interpolate inside the simulated range
+        k = int(np.searchsorted(log_mean, math.log(arl0)))
+        k = max(k, 1)
+        h = float(np.interp(math.log(arl0), log_mean[k - 1:k + 1], grid[k - 1:k + 1]))
+        return h, "simulated", int(events[min(k, last)]), None
+    # extrapolate along the upper half of the reliable range (log E[T] is close to linear in h there)
+    lo = int(np.flatnonzero(mean >= math.sqrt(max(mean[0], 1.0) * mean[last]))[0])
+    lo = min(lo, max(last - 10, 0))
+    slope, intercept = np.polyfit(grid[lo:last + 1], log_mean[lo:last + 1], 1)
+    if not slope > 0:
+        raise CalibrationError("the simulated run lengths do not grow with the threshold; cannot extrapolate")
+    h = float((math.log(arl0) - intercept) / slope)
+    return max(h, float(grid[last])), "extrapolated", int(events[last]), float(slope)
+
+
+@dataclass(frozen=True)
+class CalibrationJob:
+    """Everything a calibration needs (picklable: it may run in another process)."""
+
+    nominal: tuple[tuple[float, ...], ...]
+    kind: str
+    window: int
+    arl0: float
+    gamma0: float
+    rho: float
+    mode: str
+    budget: CalibrationBudget
+
+    def run(self) -> Calibration:
+        return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
+                         "exact" if self.mode == "exact" else "recursive", self.budget)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget)}
+
+    @classmethod
+    def from_dict(cls, state: dict[str, Any]) -> "CalibrationJob":
+        return cls(nominal=tuple(tuple(float(x) for x in v) for v in state["nominal"]), kind=str(state["kind"]),
+                   window=int(state["window"]), arl0=float(state["arl0"]), gamma0=float(state["gamma0"]),
+                   rho=float(state["rho"]), mode=str(state["mode"]), budget=CalibrationBudget(**state["budget"]))
+
+
+class Pending:
+    """A calibration under way: :meth:`result` is None until it is done."""
+
+    def result(self) -> Calibration | None:
+        raise NotImplementedError
+
+
+class Done(Pending):
+    def __init__(self, calibration: Calibration) -> None:
+        self._calibration = calibration
+
+    def result(self) -> Calibration:
+        return self._calibration
+
+
+class InlineCalibrator:
+    """Calibrates at once, in the calling thread (replay and studies: deterministic and simple)."""
+
+    def submit(self, job: CalibrationJob) -> Pending:
+        return Done(job.run())
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class _FuturePending(Pending):
+    def __init__(self, future: Any) -> None:
+        self._future = future
+
+    def result(self) -> Calibration | None:
+        return self._future.result() if self._future.done() else None
+
+
+class ProcessCalibrator:
+    """Calibrates in one worker process, so a live agent keeps taking frames while detectors calibrate
+    (a calibration costs seconds of CPU; all detectors of a robot finish learning at about the same
+    cycle). Results arrive a few cycles later; the detector decides with them from then on."""
+
+    def __init__(self) -> None:
+        import concurrent.futures
+        import multiprocessing
+
+        self._pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+
+    def submit(self, job: CalibrationJob) -> Pending:
+        return _FuturePending(self._pool.submit(job.run))
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
