@@ -65,7 +65,7 @@ def test_extracted_friction_matches_ground_truth(tmp_path: Path):
     for s in symptoms:
         t = by_key[(s["joint"], s["cycle"])]
         f = s["friction"]
-        assert f["speeds"] == t["speeds"]
+        assert f["speeds"] == pytest.approx(t["speeds"], abs=0.005)     # measured plateau speeds
         # the simulated joint really had the model friction plus the per-level model error
         applied = np.array(t["friction"]) + np.array(t["model_error"])
         z_all += list((np.array(f["torque"]) - applied) / np.array(f["stderr"]))

@@ -9,11 +9,12 @@ from hypothesis import strategies as st
 
 from edge_monitor.features.friction_extraction import FrictionExtractor
 from edge_monitor.features.segmentation import PlateauConfig, PlateauDetector
+from joint_model import DEFAULT_SPEED_LEVELS
 from joint_model.friction import friction_magnitude
 
 from synthetic_frames import cycle_profile, cycle_torque
 
-SPEEDS = PlateauConfig().speeds
+SPEEDS = DEFAULT_SPEED_LEVELS
 
 
 def back_and_forth(speeds, *, hold_s=1.2, ramp_s=0.1, pause_s=0.1, inertia=2e-4, gravity=0.3,
@@ -24,13 +25,14 @@ def back_and_forth(speeds, *, hold_s=1.2, ramp_s=0.1, pause_s=0.1, inertia=2e-4,
     return speed, torque
 
 
-def run_extraction(speed, torque, block=256, config=None):
-    config = config or PlateauConfig()
+def run_extraction(speed, torque, block=256, config=None, segment=None):
+    config = config or PlateauConfig(speeds=SPEEDS)
     det = PlateauDetector(config)
     ext = FrictionExtractor(config.speeds)
     tick = np.arange(speed.size)
     for s in range(0, speed.size, block):
-        for p in det.update(tick[s:s + block], speed[s:s + block], torque[s:s + block]):
+        seg = None if segment is None else segment[s:s + block]
+        for p in det.update(tick[s:s + block], speed[s:s + block], torque[s:s + block], seg):
             ext.update(p)
     for p in det.flush():
         ext.update(p)
@@ -93,3 +95,28 @@ def test_config_rejects_bad_speeds():
         PlateauConfig(speeds=(1.0, -2.0))
     with pytest.raises(ValueError, match="segmentation.speeds"):
         PlateauConfig(speeds=(3.0, 3.0))
+
+
+def test_levels_from_the_segment_codes_need_no_configured_speeds():
+    """Speed level k is segment k + 1: the datum's speed is the measured plateau speed (the speeds
+    of an experiment design, say, reach the agent without any configuration)."""
+    speeds = (33.682, 38.682, 43.682)          # closer together than the default levels' bands
+    speed, segment = cycle_profile(speeds, production=True)
+    torque = cycle_torque(speed, np.random.default_rng(4), temperature=40.0)
+    det, curve = run_extraction(speed, torque, config=PlateauConfig(), segment=segment)
+    assert curve.speeds == pytest.approx(speeds, abs=1e-3)
+    truth = friction_magnitude(np.array(speeds), 0.5, 40.0)
+    assert np.all(np.abs(np.array(curve.torque) - truth) < 6 * np.array(curve.stderr) + 5e-5)
+    assert det.counters.plateaus == 6
+
+
+def test_without_segments_or_speeds_levels_are_discovered_from_steady_runs():
+    speed, _ = cycle_profile(SPEEDS[:4], production=False)
+    torque = cycle_torque(speed, np.random.default_rng(5))
+    two_cycles_speed, two_cycles_torque = np.tile(speed, 2), np.tile(torque, 2)
+    det, curve = run_extraction(two_cycles_speed, two_cycles_torque, config=PlateauConfig())
+    # a level's speed is the mean speed of its first steady run: within the level band (2 % + 0.3 rad/s)
+    band = 0.02 * np.array(SPEEDS[:4]) + 0.3
+    assert np.all(np.abs(np.sort(det.level_speeds) - SPEEDS[:4]) <= band)
+    assert det.counters.levels_discovered == 4
+    assert np.all(np.abs(np.array(curve.speeds) - SPEEDS[:4]) <= band)     # the second cycle's data

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edge_monitor.features.segmentation import PlateauStat
-from protocol.frames import TORQUE_SCALE
+from protocol.frames import MAX_SPEED_LEVELS, TORQUE_SCALE
 
 #: |torque| at or beyond this is treated as saturated: 32000 of the 32768 LSB of the wire range (±1.6384).
 TORQUE_SATURATION = TORQUE_SCALE * 32000
@@ -84,7 +84,7 @@ class FrictionExtractor:
         if abs(plateau.mean) >= TORQUE_SATURATION:
             self._skip("saturated torque")
             return
-        if not 0 <= plateau.level < len(self.speeds):
+        if not 0 <= plateau.level < (len(self.speeds) or MAX_SPEED_LEVELS):
             self._skip("speed not in configured set")
             return
         self._moments.setdefault((plateau.level, plateau.direction), DirectionMoments()).add(plateau)
@@ -118,7 +118,7 @@ class FrictionExtractor:
             if min(fwd.n, bwd.n) < self.min_samples:
                 self._skip("too few steady samples")
                 continue
-            speeds.append(float(self.speeds[level]))
+            speeds.append(float(self.speeds[level]) if self.speeds else _measured_speed(fwd, bwd))
             torque.append(0.5 * (fwd.mean - bwd.mean))
             stderr.append(0.5 * math.sqrt(fwd.var_of_mean + bwd.var_of_mean))
         order = np.argsort(speeds)
@@ -135,3 +135,9 @@ class FrictionExtractor:
     def from_state(cls, state: dict) -> "FrictionExtractor":
         return cls(speeds=tuple(state["speeds"]), min_samples=int(state["min_samples"]),
                    totals=Counter(state.get("totals", {})))
+
+
+def _measured_speed(fwd: DirectionMoments, bwd: DirectionMoments) -> float:
+    """The datum's speed when levels are not configured: the mean |speed| of both directions [rad/s],
+    to 1e-3 rad/s (the mean of hundreds of samples of 0.005 rad/s resolution)."""
+    return round(0.5 * (abs(fwd.speed_sum) / fwd.n + abs(bwd.speed_sum) / bwd.n), 3)

@@ -1,7 +1,11 @@
 """Constant-speed plateau detection from the motor speed signal (docs/ALGORITHMS.md §2).
 
-The detector needs no status frame: each sample is classified against the configured speed levels
-(magnitude, both directions) with hysteresis, runs of one label form plateaus, the acceleration
+Which speed level a sample belongs to comes, in order of preference, from the controller's segment
+code (speed level k is segment k + 1, docs/PROTOCOL.md: no configuration needed, the datum speed is
+the measured plateau speed), from the configured ``speeds`` (magnitude, both directions, with
+hysteresis), or, with neither, from levels discovered in the steady runs of the speed signal (a
+steady run at a speed no known level matches registers a new level). Runs of one label form
+plateaus, the acceleration
 transient at the start (``settle_s``) and a short guard before the end (``guard_s``, the
 deceleration torque starts while the speed is still inside the band) are discarded, and the steady
 part is reduced to running moments. Memory is O(1) per joint; blocks are processed in numpy.
@@ -19,8 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.errors import require
-from joint_model import DEFAULT_SPEED_LEVELS
-from protocol.frames import MAX_SPEED_LEVELS
+from protocol.frames import MAX_SPEED_LEVELS, SEGMENT_PRODUCTION
 
 #: Label of samples at an (apparently) constant speed that matches no configured level.
 UNMATCHED = 10_000
@@ -33,7 +36,7 @@ class PlateauConfig:
     Validated here, once; a bad value raises :class:`ConfigError` naming ``segmentation.<field>``.
     """
 
-    speeds: tuple[float, ...] = DEFAULT_SPEED_LEVELS
+    speeds: tuple[float, ...] = ()          # empty: levels from the segment codes (or discovered)
     tolerance_rel: float = 0.02      # enter a level when |v| is within rel·v + abs of it
     tolerance_abs: float = 0.3
     hysteresis: float = 2.0          # stay on a level while within hysteresis × the entry band
@@ -44,8 +47,8 @@ class PlateauConfig:
 
     def __post_init__(self) -> None:
         speeds = np.asarray(self.speeds, dtype=float)
-        require(1 <= speeds.size <= MAX_SPEED_LEVELS, "segmentation.speeds",
-                f"need 1 … {MAX_SPEED_LEVELS} speed levels, got {speeds.size}")
+        require(speeds.size <= MAX_SPEED_LEVELS, "segmentation.speeds",
+                f"need at most {MAX_SPEED_LEVELS} speed levels (or none: from the segment codes), got {speeds.size}")
         require(bool(np.all(np.isfinite(speeds)) and np.all(speeds > 0)), "segmentation.speeds",
                 f"need positive finite speeds in rad/s, got {list(self.speeds)}")
         require(bool(np.all(np.diff(np.sort(speeds)) > 0)), "segmentation.speeds",
@@ -130,6 +133,7 @@ class SegmentationCounters:
     cut_short: int = 0
     unmatched: int = 0
     nonfinite_samples: int = 0
+    levels_discovered: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -153,12 +157,15 @@ class PlateauDetector:
     _pending_t: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
     _pending_v: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
 
+    _levels: list[float] = field(default_factory=list)     # discovered level speeds (no config, no segments)
+    _last_speed: float = 0.0
+    _unmatched_sum: float = 0.0
+    _unmatched_n: int = 0
+
     def __post_init__(self) -> None:
-        speeds = np.asarray(self.config.speeds, dtype=float)
-        order = np.argsort(speeds)
-        self._sorted_speeds = speeds[order]
-        self._sorted_index = order
-        self._band = self.config.tolerance_rel * self._sorted_speeds + self.config.tolerance_abs
+        self.auto = len(self.config.speeds) == 0
+        self._segment_speed = np.full(MAX_SPEED_LEVELS + 1, np.nan)     # measured plateau speed per segment
+        self._set_levels(list(self.config.speeds) if not self.auto else self._levels)
         self._settle = self._ticks(self.config.settle_s)
         self._guard = self._ticks(self.config.guard_s)
         self._min_steady = max(self._ticks(self.config.min_steady_s), 2)
@@ -166,11 +173,42 @@ class PlateauDetector:
     def _ticks(self, seconds: float) -> int:
         return int(round(seconds * self.rate_hz))
 
+    def _set_levels(self, speeds: list[float]) -> None:
+        levels = np.asarray(speeds, dtype=float)
+        order = np.argsort(levels)
+        self._sorted_speeds = levels[order]
+        self._sorted_index = order
+        self._band = self.config.tolerance_rel * self._sorted_speeds + self.config.tolerance_abs
+
+    @property
+    def level_speeds(self) -> tuple[float, ...]:
+        """Speeds of the levels by index [rad/s]: configured or discovered (empty with segment codes)."""
+        return tuple(self.config.speeds) if not self.auto else tuple(self._levels)
+
+    def _steady(self, speed: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Small sample-to-sample change at a speed well above standstill (across blocks)."""
+        steady = np.abs(np.diff(speed, prepend=self._last_speed)) < self.config.tolerance_abs
+        return steady & (np.abs(speed) > self.config.unmatched_min_speed)
+
+    def classify_segments(self, speed: NDArray[np.float64], segment: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Label per sample from the controller's segment codes: ±segment on a steady part of speed
+        level segment − 1 (segments 1 … 64), else 0. Once a level's plateau speed has been measured,
+        only samples within its band count (slow ramps stay out)."""
+        level = np.where((segment >= 1) & (segment <= MAX_SPEED_LEVELS), segment, 0).astype(np.int64)
+        ok = (level > 0) & self._steady(speed)
+        known = self._segment_speed[level]
+        band = self.config.tolerance_rel * known + self.config.tolerance_abs
+        ok &= np.isnan(known) | (np.abs(np.abs(speed) - known) <= band * self.config.hysteresis)
+        return np.where(ok, np.sign(speed).astype(np.int64) * level, 0)
+
     # ------------------------------------------------------------------ classification
     def classify(self, speed: NDArray[np.float64], exclude: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
         """Label per sample: ±(level+1) on a level, UNMATCHED (steady, no level) or 0, with hysteresis."""
         a = np.abs(speed)
         levels = self._sorted_speeds
+        if levels.size == 0:
+            labels = np.where(self._steady(speed), UNMATCHED, 0)
+            return labels if exclude is None else np.where(exclude, 0, labels)
         right = np.minimum(np.searchsorted(levels, a), levels.size - 1)
         left = np.maximum(right - 1, 0)
         nearest = np.where(np.abs(a - levels[left]) <= np.abs(a - levels[right]), left, right)
@@ -186,19 +224,18 @@ class PlateauDetector:
         carried = np.where(idx >= 0, labels[np.maximum(idx, 0)], self._label)
         labels = np.where(~inner & outer & (carried == level_label), carried, labels)
         # Steady but unmatched: small sample-to-sample change at a speed well above standstill.
-        steady = np.abs(np.diff(speed, prepend=speed[:1])) < self.config.tolerance_abs
-        labels = np.where((labels == 0) & steady & (a > self.config.unmatched_min_speed), UNMATCHED, labels)
+        labels = np.where((labels == 0) & self._steady(speed), UNMATCHED, labels)
         if exclude is not None:
             labels = np.where(exclude, 0, labels)
         return labels
 
     # ------------------------------------------------------------------ streaming
     def update(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
-               exclude: NDArray[np.bool_] | None = None) -> list[PlateauStat]:
+               segment: NDArray[np.int64] | None = None) -> list[PlateauStat]:
         """Consume one block of samples of this joint (ordered by tick); return finished plateaus.
 
-        ``exclude`` marks samples that must not be part of a plateau (e.g. the production motion,
-        when the controller's status frame says so).
+        ``segment``: the controller's segment code per sample (None without status frames). It labels
+        the levels when no speeds are configured, and keeps the production motion out of plateaus.
         """
         if tick.size == 0:
             return []
@@ -206,8 +243,11 @@ class PlateauDetector:
         if not finite.all():
             self.counters.nonfinite_samples += int((~finite).sum())
             speed = np.where(finite, speed, 0.0)
-            exclude = ~finite if exclude is None else (exclude | ~finite)
-        labels = self.classify(speed, exclude)
+        if self.auto and segment is not None:
+            labels = np.where(finite, self.classify_segments(speed, segment), 0)
+        else:
+            exclude = ~finite if segment is None else (~finite | (segment == SEGMENT_PRODUCTION))
+            labels = self.classify(speed, exclude)
         out: list[PlateauStat] = []
         change = np.flatnonzero(np.diff(labels, prepend=self._label) != 0)
         starts = np.unique(np.concatenate([[0], change]))
@@ -219,6 +259,7 @@ class PlateauDetector:
                 self._start_run(label, int(tick[s]))
             self._extend_run(tick[s:e], speed[s:e], torque[s:e])
         self._last_tick = int(tick[-1])
+        self._last_speed = float(speed[-1])
         return out
 
     def flush(self) -> list[PlateauStat]:
@@ -234,6 +275,7 @@ class PlateauDetector:
         self._acc = _RunAccumulator()
         self._pending_t = np.empty(0)
         self._pending_v = np.empty(0)
+        self._unmatched_sum, self._unmatched_n = 0.0, 0
 
     def _extend_run(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64]) -> None:
         if self._label == 0:
@@ -243,6 +285,8 @@ class PlateauDetector:
         steady = pos >= self._settle
         self._run_len += tick.size
         if self._label == UNMATCHED:
+            self._unmatched_sum += float(np.abs(speed[steady]).sum())
+            self._unmatched_n += int(steady.sum())
             return
         t = np.concatenate([self._pending_t, torque[steady]])
         v = np.concatenate([self._pending_v, speed[steady]])
@@ -259,6 +303,7 @@ class PlateauDetector:
         if label == UNMATCHED:
             if self._run_len >= self._settle + self._min_steady:
                 self.counters.unmatched += 1
+                self._discover(self._unmatched_sum / max(self._unmatched_n, 1))
             return []
         if self._acc.n < self._min_steady:
             # Runs much shorter than the settle time are passing crossings, not cut plateaus.
@@ -267,17 +312,30 @@ class PlateauDetector:
             return []
         mean, m2, lag1 = self._acc.moments()
         self.counters.plateaus += 1
+        measured = abs(self._acc.speed_total / self._acc.n)
+        if self.auto and abs(label) <= MAX_SPEED_LEVELS:   # learn the level's speed (segment-code labels)
+            known = self._segment_speed[abs(label)]
+            self._segment_speed[abs(label)] = measured if np.isnan(known) else 0.8 * known + 0.2 * measured
         return [PlateauStat(level=abs(label) - 1, direction=1 if label > 0 else -1, n=self._acc.n, mean=mean,
                             m2=m2, lag1=lag1, tick_start=self._run_tick_start, tick_end=self._last_tick,
                             speed_mean=self._acc.speed_total / self._acc.n)]
 
+    def _discover(self, speed: float) -> None:
+        """Without configured speeds and segment codes: a long steady run at a new speed is a level."""
+        if self.auto and len(self._levels) < MAX_SPEED_LEVELS and speed > self.config.unmatched_min_speed:
+            self._levels.append(round(speed, 3))
+            self._set_levels(self._levels)
+            self.counters.levels_discovered += 1
+
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict:
-        """Only counters persist: a restart begins with no plateau in progress (nothing is learned)."""
-        return {"counters": self.counters.as_dict()}
+        """Counters and discovered levels: a restart begins with no plateau in progress."""
+        return {"counters": self.counters.as_dict(), "levels": list(self._levels)}
 
     @classmethod
     def from_state(cls, config: PlateauConfig, state: dict, rate_hz: float = 500.0) -> "PlateauDetector":
         counts = state.get("counters", {})
         known = {k: int(counts[k]) for k in SegmentationCounters().as_dict() if isinstance(counts.get(k), int)}
-        return cls(config=config, rate_hz=rate_hz, counters=SegmentationCounters(**known))
+        levels = [float(v) for v in state.get("levels", []) if isinstance(v, (int, float)) and 0 < v < 1e4]
+        return cls(config=config, rate_hz=rate_hz, counters=SegmentationCounters(**known),
+                   _levels=levels[:MAX_SPEED_LEVELS] if len(config.speeds) == 0 else [])

@@ -17,7 +17,6 @@ from numpy.typing import NDArray
 from edge_monitor.features.base import CycleInput
 from edge_monitor.features.friction_extraction import FrictionExtractor
 from edge_monitor.features.segmentation import PlateauConfig, PlateauDetector
-from protocol.frames import SEGMENT_PRODUCTION
 
 
 @dataclass
@@ -53,7 +52,7 @@ class CycleAssembler:
         self.joint = joint
         self.rate_hz = rate_hz
         self.plateaus = PlateauDetector(config, rate_hz)
-        self.extractor = FrictionExtractor(config.speeds)
+        self.extractor = FrictionExtractor(config.speeds)    # empty: datum speeds measured
         self._load = _Mean()
         self._temperature = _Mean()
         self._cut_short_seen = 0
@@ -67,9 +66,8 @@ class CycleAssembler:
         on the controller's status frames. Without it cycles are inferred: a plateau of a (level,
         direction) already measured in the open cycle starts a new one, and the closed cycles are
         returned (numbered by this joint's count of closed cycles)."""
-        exclude = None if segment is None else (segment == SEGMENT_PRODUCTION)
         closed: list[CycleInput] = []
-        for plateau in self.plateaus.update(tick, speed, torque, exclude):
+        for plateau in self.plateaus.update(tick, speed, torque, segment):
             if segment is None and self.extractor.has(plateau.level, plateau.direction):
                 closed.append(self.end_cycle(self.closed))
             self.extractor.update(plateau)
