@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from edge_monitor.errors import ConfigError
+from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
@@ -24,7 +25,7 @@ from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import FrictionParams
 from protocol.frames import MAX_JOINTS
 
-__all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "PlateauConfig", "WearConfig",
+__all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "ModelConfig", "PlateauConfig", "WearConfig",
            "config_from_mapping", "load_config", "with_overrides"]
 
 def _coerce(where: str, value: Any, default: Any) -> Any:
@@ -82,7 +83,8 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
     """Build a validated configuration from a parsed TOML document."""
     data = dict(data)
     kwargs: dict[str, Any] = {}
-    sections = {"segmentation": PlateauConfig, "wear": WearConfig, "kl": KLConfig, "decision": DecisionConfig,
+    sections = {"segmentation": PlateauConfig, "model": ModelConfig, "wear": WearConfig, "kl": KLConfig,
+                "decision": DecisionConfig,
                 "maintenance": MaintenanceConfig}
     for name, cls in sections.items():
         if name in data:
@@ -121,7 +123,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
 
 #: Plain keys at the top of the TOML file (the structured fields have tables of their own).
 _TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
-    "friction", "joint_friction", "segmentation", "wear", "kl", "decision", "maintenance", "zenoh"}
+    "friction", "joint_friction", "segmentation", "model", "wear", "kl", "decision", "maintenance", "zenoh"}
 
 
 def load_config(path: str | Path | None) -> AgentConfig:

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, PlateauConfig
+from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, ModelConfig, PlateauConfig
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.state_store import StateStore
 from joint_model.friction import friction_magnitude
@@ -19,9 +19,12 @@ SPEEDS = (8.7, 41.7, 133.5)
 
 
 def small_config(**kw) -> AgentConfig:
+    # short synthetic runs: no per-joint model learning (its own tests cover it), a small calibration
     return AgentConfig(segmentation=PlateauConfig(speeds=SPEEDS), kl=KLConfig(n_nominal_cycles=2),
-                       decision=DecisionConfig(n_nominal=3, density="gauss",
-                                                quantities=("wear", "kl_raw", "kl_weighted")), **kw)
+                       model=ModelConfig(enabled=False),
+                       decision=DecisionConfig(n_nominal=3, density="gauss", calibration_draws=16,
+                                               calibration_steps=400,
+                                               quantities=("wear", "kl_raw", "kl_weighted")), **kw)
 
 
 def feed(agent: Agent, frames, block=1000, start=0, stop=None):

@@ -12,15 +12,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from edge_monitor.offline.commissioning import (
-    CommissioningDataError,
-    identify,
-    load_csv,
-    make_data,
-    projected_residual,
-    regressors,
-)
+from edge_monitor.offline.commissioning import CommissioningDataError, load_csv
 from joint_model.friction import DEFAULT_PARAMS, FrictionParams, nominal_friction
+from joint_model.identification import identify, make_data, projected_residual, regressors
 
 NOISE = 4e-3
 SPEEDS = [2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1]

@@ -18,6 +18,8 @@ from sim_controller.config import SimConfig, wear_profiles_from_ramps
 from sim_controller.cycle_mode import cycle_signals
 
 AGENT_TOML = """
+[model]
+enabled = false
 [kl]
 n_nominal_cycles = 2
 [decision]
@@ -39,7 +41,7 @@ def test_cycle_mode_gives_the_frame_path_quantities(tmp_path: Path):
                     "--jsonl", str(jsonl)], check=True, capture_output=True, timeout=300)
     framed = [json.loads(line) for line in jsonl.read_text().splitlines()]
 
-    agent_config = config_from_mapping({"kl": {"n_nominal_cycles": 2},
+    agent_config = config_from_mapping({"model": {"enabled": False}, "kl": {"n_nominal_cycles": 2},
                                         "decision": {"n_nominal": 5, "density": "gauss", "density_joint": "gauss"}})
     sim = SimConfig(joints=2, cycles=9, seed=5, wear=wear_profiles_from_ramps(["1:0:9:0:40"], 2))
     fast = [s.to_dict() for s in run_cycles(Agent(agent_config), cycle_signals(sim))]

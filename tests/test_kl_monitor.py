@@ -99,8 +99,9 @@ def test_learning_sets_grid_from_the_first_cycle_and_reports_thresholds() -> Non
 
 
 def _monitor_after(k: int = 2, rng_seed: int = 2) -> tuple[KLMonitor, np.ndarray]:
+    """A monitor learned on ``k`` cycles, keeping standstill samples (the tests count samples)."""
     rng = np.random.default_rng(rng_seed)
-    mon = kl(n_nominal_cycles=k)
+    mon = kl(n_nominal_cycles=k, min_speed=0.0)
     torque, speed, _ = simulate_cycles(k, 0.0, CONSTANT_TEMPERATURE, rng)
     _feed(mon, torque, speed)
     return mon, speed
@@ -115,7 +116,7 @@ def _monitor_after(k: int = 2, rng_seed: int = 2) -> tuple[KLMonitor, np.ndarray
 ])
 def test_bad_cycles_get_a_reason_and_no_numeric_error(torque: np.ndarray, speed: np.ndarray, reason: str) -> None:
     for learned in (False, True):
-        mon = _monitor_after()[0] if learned else kl(n_nominal_cycles=2)
+        mon = _monitor_after()[0] if learned else kl(n_nominal_cycles=2, min_speed=0.0)
         with np.errstate(all="raise"):       # no division by zero, no log(0), no invalid op
             mon.update_samples(torque, speed)
             result = mon.end_cycle(7)
@@ -124,6 +125,28 @@ def test_bad_cycles_get_a_reason_and_no_numeric_error(torque: np.ndarray, speed:
         section = result.to_section()
         assert (section["raw"], section["weighted"]) == (None, None)
         assert mon.learned is learned        # a bad cycle does not count as a learning cycle
+
+
+def test_standstill_samples_are_left_out_and_counted() -> None:
+    """Below ``min_speed`` the friction is static, of a sign the speed cannot tell: those samples are
+    left out of both densities, counted in the section, and NaN speeds still count as non-finite."""
+    rng = np.random.default_rng(5)
+    mon = kl(n_nominal_cycles=2)
+    torque, speed, _ = simulate_cycles(3, 0.0, CONSTANT_TEMPERATURE, rng)
+    still = np.abs(speed) < 1.0
+    assert 0 < still.sum() < speed.size
+    results = _feed(mon, torque, speed)
+    assert all(r.standstill == still.sum() for r in results)
+    assert all(r.n_samples == speed.size - still.sum() for r in results)
+    assert results[-1].to_section()["standstill"] == still.sum()
+    v = speed.copy()
+    moving = np.flatnonzero(~still)[:10]
+    v[moving] = np.nan
+    mon.update_samples(torque[0], v)
+    result = mon.end_cycle(3)
+    assert result.standstill == still.sum() and result.outside["weighted"]["nonfinite"] == 10
+    mon.update_samples(np.full(2000, 0.3), np.zeros(2000))
+    assert mon.end_cycle(4).reason == "joint stood still: all 2000 samples slower than 1 rad/s"
 
 
 def test_nan_samples_are_counted_and_the_rest_is_used() -> None:
@@ -144,7 +167,7 @@ def test_nan_samples_are_counted_and_the_rest_is_used() -> None:
 @pytest.mark.parametrize("center", [False, True])
 def test_samples_outside_the_grid_are_reported_and_raise_kl(center: bool) -> None:
     rng = np.random.default_rng(4)
-    mon = kl(n_nominal_cycles=2, center=center)
+    mon = kl(n_nominal_cycles=2, center=center, min_speed=0.0)
     torque, speed, _ = simulate_cycles(4, 0.0, CONSTANT_TEMPERATURE, rng)
     _feed(mon, torque[:2], speed)
     normal = _feed(mon, torque[2:3], speed)[0]
@@ -173,8 +196,8 @@ def test_production_window_uses_only_segment_200_samples() -> None:
     segment = np.where(np.arange(n) < n // 2, SEGMENT_PRODUCTION, 3)
     junk = rng.uniform(-1.5, 1.5, (3, n))          # samples outside segment 200 must not matter
     mixed = np.where(segment == SEGMENT_PRODUCTION, torque, junk)
-    a = kl(n_nominal_cycles=2, window="production")
-    b = kl(n_nominal_cycles=2, window="cycle")
+    a = kl(n_nominal_cycles=2, window="production", min_speed=0.0)
+    b = kl(n_nominal_cycles=2, window="cycle", min_speed=0.0)
     for c in range(3):
         a.update_samples(mixed[c], speed, segment)
         b.update_samples(torque[c, : n // 2], speed[: n // 2])

@@ -9,7 +9,7 @@ plus one entry in :mod:`edge_monitor.features.registry`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Mapping, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,8 +63,9 @@ class Feature(Protocol):
                        segment: NDArray[np.int64] | None) -> None:
         """Take one block of the open cycle's samples (torque dimensionless, speed rad/s)."""
 
-    def update(self, cycle: CycleInput) -> FeatureOutput:
-        """Close the cycle: the section, the quantities, learning steps."""
+    def update(self, cycle: CycleInput, context: Mapping[str, float]) -> FeatureOutput:
+        """Close the cycle: the section, the quantities, learning steps. ``context``: the quantities
+        the features registered before this one produced for this cycle (e.g. ``temperature``)."""
 
     def discard_cycle(self) -> None:
         """Drop the open cycle's samples (duplicate or partial cycle)."""

@@ -48,7 +48,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -57,8 +57,10 @@ from edge_monitor.errors import check_learned_with, require
 from edge_monitor.features.base import CycleInput, FeatureOutput
 from edge_monitor.features.disturbance_weights import DEFAULT_ALPHA, DEFAULT_BETA, WeightFunction
 from edge_monitor.features.kl_channel import KLChannel
+from edge_monitor.features.temperature_compensation import TemperatureCompensation
 from edge_monitor.records import finite_or_none
 from edge_monitor.stats.kde_stream import symmetric_kl
+from joint_model import FrictionParams
 from protocol.frames import SEGMENT_PRODUCTION
 
 log = logging.getLogger(__name__)
@@ -85,6 +87,8 @@ class KLConfig:
     n_grid: int = 512
     window: str = "cycle"
     center: bool = True
+    temperature_compensation: bool = True   # move samples to the reference temperature (needs the wear feature)
+    min_speed: float = 1.0                  # samples slower than this [rad/s] (standstill) are left out
     alpha: float = DEFAULT_ALPHA
     beta: float = DEFAULT_BETA
     min_samples: int = 1000
@@ -99,6 +103,8 @@ class KLConfig:
             value = getattr(self, name)
             require(math.isfinite(value) and 0 <= value <= 10, f"kl.{name}", f"must be 0 … 10 s/rad, got {value}")
         require(2 <= self.min_samples <= 10_000_000, "kl.min_samples", f"need 2 … 1e7, got {self.min_samples}")
+        require(math.isfinite(self.min_speed) and 0 <= self.min_speed <= 100, "kl.min_speed",
+                f"must be 0 … 100 rad/s, got {self.min_speed}")
 
     def fingerprint(self) -> dict[str, Any]:
         """The settings the learned grid and nominal densities depend on."""
@@ -121,6 +127,8 @@ class KLResult:
     weighted: float | None = None
     reason: str | None = None
     n_samples: int = 0
+    #: samples left out because the joint stood (|v| < ``kl.min_speed``)
+    standstill: int = 0
     #: per channel: {"below", "above", "nonfinite"} sample counts of this cycle
     outside: dict[str, dict[str, int]] = field(default_factory=dict)
     #: {"raw": μ0 + 3σ0, "weighted": ...} once the nominal model is learned, else None
@@ -137,6 +145,8 @@ class KLResult:
             out["threshold_3sigma"] = {k: finite_or_none(v) for k, v in self.threshold_3sigma.items()}
         if self.outside:
             out["outside"] = self.outside
+        if self.standstill:
+            out["standstill"] = self.standstill
         if self.nearest_mode is not None:
             out["nearest_mode"] = self.nearest_mode
         out["n_samples"] = self.n_samples
@@ -156,14 +166,18 @@ class KLMonitor:
     name = "kl"
     quantities = ("kl_raw", "kl_weighted")
 
-    def __init__(self, config: KLConfig = KLConfig()) -> None:
+    def __init__(self, config: KLConfig = KLConfig(), params: FrictionParams | None = None) -> None:
         self.config = config
+        self.params = params
+        self.compensation = TemperatureCompensation(params) \
+            if config.temperature_compensation and params is not None else None
         self.n_nominal_cycles = config.n_nominal_cycles
         self.n_grid = config.n_grid
         self.weights: WeightFunction | None = config.weights
         self.window: Window = config.window  # type: ignore[assignment]
         self.min_samples = config.min_samples
         self.center = config.center
+        self.min_speed = config.min_speed
         self.reset()
 
     # -- configuration / lifecycle ------------------------------------------------------------
@@ -177,10 +191,13 @@ class KLMonitor:
         self.channels = {name: KLChannel(self.n_grid, self._centred_by_mean(name)) for name in self.channel_names}
         self.modes: dict[str, NDArray[np.float64]] = {}
         self.n_learned = 0
+        if self.compensation is not None:
+            self.compensation.reset()
         self._new_window()
 
     def _new_window(self) -> None:
         self.n_window = 0          # samples that entered the window this cycle (before NaN checks)
+        self.n_standstill = 0      # of these, left out as standstill (|v| < min_speed)
         self.torque_sum = 0.0      # Σ finite τ of the window so far (causal location, weighted channel)
         self.torque_count = 0
 
@@ -234,15 +251,24 @@ class KLMonitor:
             keep = seg == SEGMENT_PRODUCTION
             tau, v = tau[keep], v[keep]
         self.n_window += tau.size
+        if self.min_speed > 0:           # standstill: static friction, of a sign the speed cannot tell
+            still = np.abs(v) < self.min_speed          # NaN speeds stay in and are counted as non-finite
+            self.n_standstill += int(still.sum())
+            tau, v = tau[~still], v[~still]
+        if self.compensation is not None:
+            tau = self.compensation.apply(tau, v)
         self.channels["raw"].kde.update(tau)
         if self.weights is not None:
             located = self._causally_centred(tau) if self.center else tau
             self.channels["weighted"].kde.update(self.weights(v) * located)
 
-    def update(self, cycle: CycleInput) -> FeatureOutput:
+    def update(self, cycle: CycleInput, context: Mapping[str, float] | None = None) -> FeatureOutput:
         """The feature step (:class:`~edge_monitor.features.base.Feature`): close the cycle and give the
         ``"kl"`` section, the quantities ``kl_raw``/``kl_weighted`` and the raw density for viewers. A
-        partial cycle is discarded (its window lacks the cycle's start)."""
+        partial cycle is discarded (its window lacks the cycle's start). The ``temperature`` of the
+        context (the wear feature's ξ̂) updates the temperature compensation of the next cycles."""
+        if self.compensation is not None:
+            self.compensation.observe((context or {}).get("temperature"))
         if cycle.partial:
             self.discard_cycle()
             return FeatureOutput(section=dict(EMPTY_SECTION), values={q: math.nan for q in self.quantities})
@@ -274,6 +300,8 @@ class KLMonitor:
         """Why this cycle cannot give a KL value, or None if it can."""
         if self.n_window == 0:
             return "empty window: no samples" + (" in the production segment" if self.window == "production" else "")
+        if self.n_standstill == self.n_window:
+            return f"joint stood still: all {self.n_window} samples slower than {self.min_speed:g} rad/s"
         counts = [ch.kde.n_samples for ch in self.channels.values()]
         if min(counts) < self.min_samples:
             nonfinite = max(ch.kde.n_nonfinite for ch in self.channels.values())
@@ -285,7 +313,8 @@ class KLMonitor:
         return None
 
     def _evaluate(self, cycle: int) -> KLResult:
-        result = KLResult(cycle=cycle, n_samples=self.channels["raw"].kde.n_samples, outside=self._outside())
+        result = KLResult(cycle=cycle, n_samples=self.channels["raw"].kde.n_samples, outside=self._outside(),
+                          standstill=self.n_standstill)
         reason = self._unusable()
         if reason is not None:
             result.reason = reason
@@ -338,20 +367,32 @@ class KLMonitor:
     def state_dict(self) -> dict[str, Any]:
         """Learned grid and nominal densities, the open window, and the config they were learned with."""
         return {
-            "config": self.config.fingerprint(),
-            "n_learned": self.n_learned, "n_window": self.n_window,
+            "config": self.fingerprint(),
+            "compensation": None if self.compensation is None else self.compensation.state_dict(),
+            "n_learned": self.n_learned, "n_window": self.n_window, "n_standstill": self.n_standstill,
             "torque_sum": self.torque_sum, "torque_count": self.torque_count,
             "channels": {name: ch.state_dict() for name, ch in self.channels.items()},
             "modes": {name: d.tolist() for name, d in self.modes.items()},
         }
 
+    def fingerprint(self) -> dict[str, Any]:
+        """What the learned densities depend on: the config, and the friction model that compensates
+        temperature (when it does)."""
+        out = self.config.fingerprint()
+        if self.compensation is not None and self.params is not None:
+            out["friction"] = self.params.to_dict()
+        return out
+
     @classmethod
-    def from_state(cls, config: KLConfig, state: dict[str, Any]) -> "KLMonitor":
+    def from_state(cls, config: KLConfig, state: dict[str, Any], params: FrictionParams | None = None) -> "KLMonitor":
         """Restore a monitor learned with ``config``; :class:`StateMismatch` if it was learned with another."""
-        check_learned_with("kl", state, config.fingerprint())
-        mon = cls(config)
+        mon = cls(config, params)
+        check_learned_with("kl", state, mon.fingerprint())
+        if mon.compensation is not None and isinstance(state.get("compensation"), dict):
+            mon.compensation.load_state(state["compensation"])
         mon.n_learned = int(state["n_learned"])
         mon.n_window = int(state["n_window"])
+        mon.n_standstill = int(state.get("n_standstill", 0))
         mon.torque_sum = float(state.get("torque_sum", 0.0))
         mon.torque_count = int(state.get("torque_count", 0))
         mon.channels = {name: KLChannel.from_state(mon.n_grid, mon._centred_by_mean(name), state["channels"][name])

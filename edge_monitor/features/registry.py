@@ -30,6 +30,8 @@ class FeatureSettings(Protocol):
 
     def friction_for(self, joint: int) -> FrictionParams: ...
 
+    def temperature_relation(self, joint: int) -> tuple[float, float] | None: ...
+
 
 @dataclass(frozen=True)
 class FeatureSpec:
@@ -37,7 +39,8 @@ class FeatureSpec:
 
     ``enabled(settings)``: whether the feature runs; ``build(joint, settings)``: a fresh feature;
     ``restore(joint, settings, state)``: from a saved state (raises StateMismatch on a config change);
-    ``empty_section``: its record section when it does not run.
+    ``empty_section``: its record section when it does not run; ``waits_for_model``: it starts only
+    once the joint's own friction model is learned (its nominal learning would otherwise be wasted).
     """
 
     name: str
@@ -46,14 +49,16 @@ class FeatureSpec:
     enabled: Callable[[FeatureSettings], bool]
     build: Callable[[int, FeatureSettings], Feature]
     restore: Callable[[int, FeatureSettings, dict[str, Any]], Feature]
+    waits_for_model: bool = False
 
 
 @dataclass(frozen=True)
 class QuantitySpec:
     """A quantity a detector can watch: made of one or more feature quantities (``inputs``).
 
-    ``log_scale``: the feature's value is watched as its logarithm when ``decision.log_kl`` is on
-    (positive, right-skewed quantities such as KL distances).
+    ``log_scale``: the feature's value is watched as its logarithm when ``decision.log_scale`` is on
+    (positive, right-skewed quantities: KL distances, the wear posterior mean — their logarithms are
+    close to normal, and the nominal densities of 60 values have thin tails).
     """
 
     name: str
@@ -68,16 +73,18 @@ class QuantitySpec:
 FEATURES: tuple[FeatureSpec, ...] = (
     FeatureSpec("wear", WearFeature.quantities, WEAR_EMPTY,
                 enabled=lambda s: s.wear.enabled,
-                build=lambda joint, s: WearFeature(s.wear, s.friction_for(joint)),
-                restore=lambda joint, s, state: WearFeature.from_state(s.wear, s.friction_for(joint), state)),
+                build=lambda joint, s: WearFeature(s.wear, s.friction_for(joint), s.temperature_relation(joint)),
+                restore=lambda joint, s, state: WearFeature.from_state(s.wear, s.friction_for(joint), state,
+                                                                       s.temperature_relation(joint))),
     FeatureSpec("kl", KLMonitor.quantities, KL_EMPTY,
                 enabled=lambda s: s.kl.enabled,
-                build=lambda joint, s: KLMonitor(s.kl),
-                restore=lambda joint, s, state: KLMonitor.from_state(s.kl, state)),
+                build=lambda joint, s: KLMonitor(s.kl, s.friction_for(joint)),
+                restore=lambda joint, s, state: KLMonitor.from_state(s.kl, state, s.friction_for(joint)),
+                waits_for_model=True),
 )
 
 QUANTITIES: dict[str, QuantitySpec] = {q.name: q for q in (
-    QuantitySpec("wear", ("wear",)),
+    QuantitySpec("wear", ("wear",), log_scale=True),
     QuantitySpec("kl_raw", ("kl_raw",), log_scale=True),
     QuantitySpec("kl_weighted", ("kl_weighted",), log_scale=True),
     QuantitySpec("joint", ("wear", "kl_raw", "kl_weighted")),

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.errors import check_learned_with, require
 from edge_monitor.features.base import CycleInput, FeatureOutput
+from edge_monitor.features.temperature_prior import MotorTemperaturePrior
 from edge_monitor.features.wear_estimation import ESTIMATION_METHODS, WearEstimator
 from joint_model import CRITICAL_WEAR, FRICTION_NOISE_STD, FrictionParams
 
@@ -35,7 +36,9 @@ class WearConfig:
     method: str = "marginal"
     noise_std: float = FRICTION_NOISE_STD    # σ of a friction datum
     temperature_min: float = 30.0            # plausible lubricant temperature range of the site [°C]
-    temperature_max: float = 50.0
+    temperature_max: float = 80.0
+    motor_temperature_prior: bool = True     # prior on ξ from the controller's motor temperature
+    prior_cycles: int = 20                   # cycles that learn how the motor temperature relates to ξ
     default_load_mean: float = 0.5           # μl when the controller sends no load estimate
     default_load_std: float = 0.1            # σl when the controller sends none
     critical: float = CRITICAL_WEAR
@@ -54,6 +57,8 @@ class WearConfig:
                 f"must be 0 … 1, got {self.default_load_std}")
         require(math.isfinite(self.critical) and 0 < self.critical <= 100, "wear.critical",
                 f"must be in (0, 100], got {self.critical}")
+        require(isinstance(self.prior_cycles, int) and 3 <= self.prior_cycles <= 10_000, "wear.prior_cycles",
+                f"must be 3 … 10000 cycles, got {self.prior_cycles!r}")
 
     def fingerprint(self) -> dict[str, Any]:
         """The settings the estimates depend on (``enabled`` and ``critical`` do not change them)."""
@@ -63,47 +68,66 @@ class WearConfig:
 
 
 class WearFeature:
-    """Per-cycle wear estimate of one joint (stateless between cycles: nothing is learned)."""
+    """Per-cycle wear estimate of one joint. With ``motor_temperature_prior`` it first learns how the
+    controller's motor temperature relates to the lubricant temperature the friction data show
+    (:mod:`edge_monitor.features.temperature_prior`) and then uses it as a prior on ξ. Publishes the
+    quantities ``wear`` (what the detector watches: the posterior mean of ϖ, continuous near ϖ = 0
+    where the maximum-likelihood estimate piles up at 0) and ``temperature`` (ξ̂, °C)."""
 
     name = "wear"
-    quantities = ("wear",)
+    quantities = ("wear", "temperature")
 
-    def __init__(self, config: WearConfig, params: FrictionParams) -> None:
+    def __init__(self, config: WearConfig, params: FrictionParams,
+                 relation: tuple[float, float] | None = None) -> None:
         self.config = config
         self.params = params
         self.estimator = WearEstimator(params=params, noise_std=config.noise_std,
                                        temperature_range=(config.temperature_min, config.temperature_max),
                                        method=config.method)
+        self.prior = MotorTemperaturePrior(config.prior_cycles)
+        if relation is not None:     # learned with the joint's model (features/joint_model_learning.py)
+            self.prior.set_relation(*relation)
 
     def update_samples(self, torque: NDArray[np.float64], speed: NDArray[np.float64],
                        segment: NDArray[np.int64] | None) -> None:
         """The wear estimate needs only the friction curve."""
 
-    def update(self, cycle: CycleInput) -> FeatureOutput:
+    def update(self, cycle: CycleInput, context: Mapping[str, float]) -> FeatureOutput:
         c = self.config
         load_mean = c.default_load_mean if cycle.load_mean is None else cycle.load_mean
         load_std = c.default_load_std if cycle.load_std is None else cycle.load_std
         curve = cycle.friction
+        use_prior = c.motor_temperature_prior
+        if use_prior:
+            self.prior.observe_motor(cycle.motor_temperature)
         estimate = self.estimator.estimate(np.asarray(curve.speeds), np.asarray(curve.torque), load_mean, load_std,
-                                           friction_stderr=np.asarray(curve.stderr) if curve.stderr else None)
-        return FeatureOutput(section=estimate.to_record(), values={"wear": estimate.estimate},
-                             reason=estimate.reason)
+                                           friction_stderr=np.asarray(curve.stderr) if curve.stderr else None,
+                                           temperature_prior=self.prior.prior() if use_prior else None)
+        if use_prior and not self.prior.learned:
+            self.prior.learn(estimate.temperature)
+        values = {"wear": estimate.posterior_mean,
+                  "temperature": math.nan if estimate.temperature is None else estimate.temperature}
+        return FeatureOutput(section=estimate.to_record(), values=values, reason=estimate.reason)
 
     def discard_cycle(self) -> None:
         """Nothing is accumulated during the cycle."""
 
     def reset(self) -> None:
-        """Nothing is learned."""
+        """Declared maintenance: relearn the motor-temperature relation."""
+        self.prior.reset()
 
     def state_dict(self) -> dict[str, Any]:
-        return {"config": self.fingerprint()}
+        return {"config": self.fingerprint(), "prior": self.prior.state_dict()}
 
     def fingerprint(self) -> dict[str, Any]:
         """What the estimates depend on: the config and the friction parameters."""
         return {**self.config.fingerprint(), "friction": self.params.to_dict()}
 
     @classmethod
-    def from_state(cls, config: WearConfig, params: FrictionParams, state: dict[str, Any]) -> "WearFeature":
-        feature = cls(config, params)
+    def from_state(cls, config: WearConfig, params: FrictionParams, state: dict[str, Any],
+                   relation: tuple[float, float] | None = None) -> "WearFeature":
+        feature = cls(config, params, relation)
         check_learned_with("wear", state, feature.fingerprint())
+        if isinstance(state.get("prior"), dict):
+            feature.prior.load_state(state["prior"])
         return feature

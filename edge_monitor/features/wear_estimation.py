@@ -108,7 +108,8 @@ class WearEstimate:
         """
         return {"estimate": _json_number(self.estimate), "std": _json_number(self.std),
                 "temperature": None if self.temperature is None else _json_number(self.temperature),
-                "upper_95": _json_number(self.upper_95), "identifiable": bool(self.identifiable)}
+                "upper_95": _json_number(self.upper_95), "identifiable": bool(self.identifiable),
+                "posterior_mean": _json_number(self.posterior_mean)}
 
 
 def _json_number(x: float) -> float | None:

@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Mapping
 
 from edge_monitor.errors import require
+from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
@@ -41,6 +42,7 @@ class AgentConfig:
     friction: FrictionParams = DEFAULT_PARAMS
     joint_friction: Mapping[int, FrictionParams] = field(default_factory=dict)
     segmentation: PlateauConfig = field(default_factory=PlateauConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
     wear: WearConfig = field(default_factory=WearConfig)
     kl: KLConfig = field(default_factory=KLConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
@@ -82,7 +84,8 @@ class AgentConfig:
     def fingerprint(self, joint: int | None = None) -> dict[str, Any]:
         """The settings learned state depends on, by section (compared when a state is restored)."""
         friction = self.friction if joint is None else self.friction_for(joint)
-        return {"segmentation": self.segmentation.fingerprint(), "wear": self.wear.fingerprint(),
+        return {"segmentation": self.segmentation.fingerprint(), "model": self.model.fingerprint(),
+                "wear": self.wear.fingerprint(),
                 "kl": self.kl.fingerprint(), "decision": self.decision.fingerprint(),
                 "friction": asdict(friction)}
 

@@ -2,8 +2,9 @@
 
 :class:`DecisionConfig` (the ``[decision]`` table) says which registered quantities are watched and
 how; :class:`DetectorBank` turns the feature values of a cycle into one :class:`Decision` per quantity
-and the alarm transitions of that cycle. Positive, right-skewed quantities (KL distances) are watched
-as their logarithm when ``log_kl`` is on; a vector quantity is made of its inputs' (transformed) values.
+and the alarm transitions of that cycle. Positive, right-skewed quantities (KL distances, the wear
+posterior mean) are watched as their logarithm when ``log_scale`` is on; a vector quantity is made of
+its inputs' (transformed) values.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ class DecisionConfig:
     gamma0: float = 0.6
     rho: float = 1.0
     quantities: tuple[str, ...] = tuple(QUANTITIES)
-    log_kl: bool = True
+    log_scale: bool = True
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
 
@@ -120,7 +121,7 @@ class DetectorBank:
 
     def _transform(self, values: dict[str, float]) -> dict[str, float]:
         logged = {q for q, spec in QUANTITIES.items() if spec.log_scale and spec.dim == 1}
-        return {q: _log_or_nan(v) if self.config.log_kl and q in logged else v for q, v in values.items()}
+        return {q: _log_or_nan(v) if self.config.log_scale and q in logged else v for q, v in values.items()}
 
     def update(self, values: dict[str, float], robot: str, joint: int, cycle: int
                ) -> tuple[dict[str, Decision], list[Alarm]]:
@@ -154,7 +155,7 @@ class DetectorBank:
     def _fingerprint(self, quantity: str) -> dict[str, Any]:
         spec = QUANTITIES[quantity]
         features = sorted({feature_of(q) for q in spec.inputs})
-        return {"log": self.config.log_kl and spec.log_scale,
+        return {"log": self.config.log_scale and spec.log_scale,
                 "sources": {f: self.sources.get(f, {}) for f in features}}
 
     def state_dict(self) -> dict[str, Any]:
@@ -168,7 +169,7 @@ class DetectorBank:
         saved = saved if isinstance(saved, dict) else {}
         changes: dict[str, tuple[object, object]] = {}
         if saved.get("log") != current["log"]:
-            changes["decision.log_kl"] = (saved.get("log"), current["log"])
+            changes["decision.log_scale"] = (saved.get("log"), current["log"])
         for feature, settings in current["sources"].items():
             if saved.get("sources", {}).get(feature) != settings:
                 changes[f"{feature} settings"] = ("learned", "changed")

@@ -16,28 +16,57 @@ from numpy.typing import NDArray
 
 from edge_monitor.errors import StateMismatch
 from edge_monitor.features.base import CycleInput, Feature
+from edge_monitor.features.joint_model_learning import JointModelLearner
 from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import DetectorBank
 from edge_monitor.records import Alarm, Symptom, finite_or_none
 from edge_monitor.stats.sequential_detector import Calibrator
+from joint_model import FrictionParams
 
 log = logging.getLogger(__name__)
 
 
+class _JointSettings:
+    """What the feature builders read: the agent's config with this joint's learned model."""
+
+    def __init__(self, config: AgentConfig, model: JointModelLearner | None) -> None:
+        self.wear, self.kl = config.wear, config.kl
+        self._config, self._model = config, model
+
+    def friction_for(self, joint: int) -> FrictionParams:
+        return self._model.params if self._model is not None else self._config.friction_for(joint)
+
+    def temperature_relation(self, joint: int) -> tuple[float, float] | None:
+        return self._model.relation if self._model is not None and self._model.learned else None
+
+
 class JointMonitor:
-    """All features and detectors of one joint (see the module docstring)."""
+    """All features and detectors of one joint (see the module docstring). The joint first learns
+    its own friction model (:mod:`edge_monitor.features.joint_model_learning`); features that need it
+    and the detectors start after that."""
 
     def __init__(self, joint: int, config: AgentConfig, calibrator: Calibrator | None = None) -> None:
         self.joint = joint
         self.config = config
         self.calibrator = calibrator
         self.assembler = CycleAssembler(joint, config.segmentation, config.rate_hz)
-        self.features: dict[str, Feature] = {spec.name: spec.build(joint, config)
-                                             for spec in FEATURES if spec.enabled(config)}
-        self.detectors = DetectorBank(config.decision, self._sources(), self.calibrator)
+        self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean) \
+            if config.model.enabled else None
+        self._build()
         self.maintenances = 0
+
+    def _build(self) -> None:
+        """Features with the joint's current model, and fresh detectors."""
+        settings = _JointSettings(self.config, self.model)
+        self.features: dict[str, Feature] = {spec.name: spec.build(self.joint, settings)
+                                             for spec in FEATURES if spec.enabled(settings)}
+        self.detectors = DetectorBank(self.config.decision, self._sources(), self.calibrator)
+
+    @property
+    def model_ready(self) -> bool:
+        return self.model is None or self.model.learned
 
     def _sources(self) -> dict[str, dict[str, Any]]:
         return {name: feature.state_dict().get("config", {}) for name, feature in self.features.items()}
@@ -96,19 +125,27 @@ class JointMonitor:
         values: dict[str, float] = {}
         reasons: dict[str, str] = {}
         extras: dict[str, Any] = {}
+        learning_model = not self.model_ready
         for spec in FEATURES:
             feature = self.features.get(spec.name)
-            if feature is None:
+            if feature is None or (learning_model and spec.waits_for_model):
+                if feature is not None:
+                    feature.discard_cycle()
+                    reasons[spec.name] = self.model.progress if self.model is not None else ""
                 sections[spec.name] = dict(spec.empty_section)
                 values.update({q: float("nan") for q in spec.quantities})
                 continue
-            out = feature.update(cycle)
+            out = feature.update(cycle, values)
             sections[spec.name], extras = out.section, {**extras, **out.extras}
             values.update(out.values)
             if out.reason:
                 reasons[spec.name] = out.reason
         alarms: list[Alarm] = []
-        if cycle.partial:
+        if learning_model and self.model is not None:
+            decisions = self.detectors.idle(self.model.progress)
+            if self.model.update(cycle):                    # this cycle completed the model: rebuild
+                self._build()
+        elif cycle.partial:
             decisions = self.detectors.idle()
         else:
             decisions, alarms = self.detectors.update(values, robot, self.joint, cycle.cycle)
@@ -128,11 +165,9 @@ class JointMonitor:
             self.config = config
             self.assembler = CycleAssembler(self.joint, config.segmentation, config.rate_hz)
             self.assembler.load_state(counters)
-            self.features = {spec.name: spec.build(self.joint, config) for spec in FEATURES if spec.enabled(config)}
-            self.detectors = DetectorBank(config.decision, self._sources(), self.calibrator)
-        else:
-            for feature in self.features.values():
-                feature.reset()
+        self.model = JointModelLearner(self.config.model, self.config.friction_for(self.joint),
+                                       self.config.wear.default_load_mean) if self.config.model.enabled else None
+        self._build()
         self.maintenances += 1
         return cleared
 
@@ -143,6 +178,7 @@ class JointMonitor:
     def state_dict(self) -> dict[str, Any]:
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
+                "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict()}
 
@@ -164,6 +200,9 @@ class JointMonitor:
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
             monitor.assembler.load_state(assembly)
+        if monitor.model is not None and isinstance(state.get("model"), dict):
+            monitor.model.load_state(state["model"])
+            monitor._build()
         saved = state.get("features", {})
         for spec in FEATURES:
             if spec.name in monitor.features and isinstance(saved.get(spec.name), dict):
@@ -175,7 +214,7 @@ class JointMonitor:
 
     def _restore_feature(self, spec: FeatureSpec, state: dict[str, Any]) -> None:
         try:
-            self.features[spec.name] = spec.restore(self.joint, self.config, state)
+            self.features[spec.name] = spec.restore(self.joint, _JointSettings(self.config, self.model), state)
         except StateMismatch as exc:
             log.warning("joint %d: %s; relearning it", self.joint, exc)
         except (KeyError, TypeError, ValueError) as exc:

@@ -1,0 +1,200 @@
+"""Every joint its own model: the joint's nominal friction parameters, identified from its first cycles.
+
+Joints of one robot differ (the simulator's default: ±8 % on nine parameters) and the §1 table is one
+joint's. During its first ``learning_cycles`` cycles a joint collects its friction curves, the
+controller's load estimates and motor temperatures; then it identifies (docs/ALGORITHMS.md §1):
+
+* the lubricant temperature of each learning cycle, ξk, which is not measured: the best fit of the
+  nominal model to that cycle's friction curve (wear 0), alternating with
+* the parameters the data can tell, by least squares with the others fixed at the base table
+  (:func:`joint_model.identification.identify_linear`): always the speed-level terms fc0 (Coulomb), fs0
+  (Stribeck) and fv0 (viscous); the temperature coefficients fsξ, fvξ only when the ξk span at least
+  ``temperature_span`` °C (a cold start warms a joint by a few °C in 20 cycles: not enough); the load
+  coefficients fcl, fsl only when the spread of the load estimates exceeds twice their own noise
+  (otherwise the noise of the regressor biases them). A parameter whose standard error exceeds
+  ``max_relative_std`` of its value keeps the base value. Nonlinear parameters keep the base values.
+* how the motor temperature of JointStatus relates to ξk (offset and spread of ξ ≈ smoothed motor
+  temperature − offset; :mod:`edge_monitor.features.temperature_prior`).
+
+What it falls back on: the base parameters (``[friction]`` / ``[joint.N.friction]``) for whatever is
+not identified, and no temperature prior without motor temperatures. Maintenance relearns it all.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from edge_monitor.errors import require
+from edge_monitor.features.base import CycleInput
+from edge_monitor.features.temperature_prior import MIN_SPREAD
+from joint_model import FrictionParams, nominal_friction
+from joint_model.identification import CommissioningData, IdentificationDataError, identify_linear
+
+log = logging.getLogger(__name__)
+
+ALWAYS_FREE: tuple[str, ...] = ("fc0", "fs0", "fv0")
+TEMPERATURE_TERMS: tuple[str, ...] = ("fsxi", "fvxi")
+LOAD_TERMS: tuple[str, ...] = ("fcl", "fsl")
+#: Alternations of (per-cycle temperatures ↔ parameters).
+ALTERNATIONS = 3
+#: Temperature grid of the per-cycle fit [°C].
+_GRID = np.arange(20.0, 90.0001, 0.1)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Per-joint model learning (the ``[model]`` table), validated once, here."""
+
+    enabled: bool = True
+    learning_cycles: int = 20
+    temperature_span: float = 15.0       # °C of ξk spread needed to identify fsξ and fvξ
+    max_relative_std: float = 0.5        # a parameter less certain than this keeps its base value
+    motor_smoothing: float = 0.2         # weight of the newest cycle in the smoothed motor temperature
+
+    def __post_init__(self) -> None:
+        require(isinstance(self.learning_cycles, int) and 5 <= self.learning_cycles <= 10_000,
+                "model.learning_cycles", f"must be 5 … 10000 cycles, got {self.learning_cycles!r}")
+        require(math.isfinite(self.temperature_span) and self.temperature_span > 0, "model.temperature_span",
+                f"must be > 0 °C, got {self.temperature_span}")
+        require(math.isfinite(self.max_relative_std) and self.max_relative_std > 0, "model.max_relative_std",
+                f"must be > 0, got {self.max_relative_std}")
+        require(math.isfinite(self.motor_smoothing) and 0 < self.motor_smoothing <= 1, "model.motor_smoothing",
+                f"must be in (0, 1], got {self.motor_smoothing}")
+
+    def fingerprint(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class _Cycle:
+    speeds: list[float]
+    friction: list[float]
+    load: float
+    motor: float | None          # smoothed motor temperature [°C]
+
+
+class JointModelLearner:
+    """Collects the first cycles of a joint and identifies its model (see the module docstring)."""
+
+    def __init__(self, config: ModelConfig, base: FrictionParams, default_load: float = 0.5) -> None:
+        self.config = config
+        self.base = base
+        self.default_load = default_load
+        self.reset()
+
+    def reset(self) -> None:
+        self.params: FrictionParams = self.base
+        self.learned = False
+        self.relation: tuple[float, float] | None = None    # (offset, spread) of ξ vs motor temperature [°C]
+        self.report: dict[str, Any] = {}
+        self._cycles: list[_Cycle] = []
+        self._motor: float | None = None
+
+    @property
+    def progress(self) -> str:
+        return f"learning the joint's friction model {len(self._cycles)}/{self.config.learning_cycles}"
+
+    def update(self, cycle: CycleInput) -> bool:
+        """Collect one learning cycle; True when this cycle completed the learning."""
+        if self.learned:
+            return False
+        if cycle.motor_temperature is not None and math.isfinite(cycle.motor_temperature):
+            self._motor = cycle.motor_temperature if self._motor is None else \
+                self._motor + self.config.motor_smoothing * (cycle.motor_temperature - self._motor)
+        curve = cycle.friction
+        if len(curve.speeds) < 2 or cycle.partial:
+            return False
+        load = self.default_load if cycle.load_mean is None else abs(cycle.load_mean)
+        self._cycles.append(_Cycle(list(curve.speeds), list(curve.torque), load, self._motor))
+        if len(self._cycles) < self.config.learning_cycles:
+            return False
+        self._identify()
+        return True
+
+    # ------------------------------------------------------------------ identification
+    def _temperatures(self, params: FrictionParams) -> np.ndarray:
+        """Per cycle, the lubricant temperature whose nominal curve fits the cycle best [°C]."""
+        out = np.empty(len(self._cycles))
+        for k, c in enumerate(self._cycles):
+            v, tau = np.asarray(c.speeds), np.asarray(c.friction)
+            model = nominal_friction(v[None, :], c.load, _GRID[:, None], params)
+            out[k] = _GRID[int(np.argmin(np.sum((tau[None, :] - model) ** 2, axis=1)))]
+        return out
+
+    def _data(self, temperatures: np.ndarray) -> CommissioningData:
+        rows = [(v, t, c.load, f) for c, t in zip(self._cycles, temperatures) for v, f in zip(c.speeds, c.friction)]
+        speed, temperature, load, friction = (np.array(col, dtype=float) for col in zip(*rows))
+        return CommissioningData(speed=speed, temperature=temperature, load=load, friction=friction)
+
+    def _free(self, temperatures: np.ndarray) -> tuple[str, ...]:
+        free = ALWAYS_FREE
+        if float(np.ptp(temperatures)) >= self.config.temperature_span:
+            free += TEMPERATURE_TERMS
+        loads = np.array([c.load for c in self._cycles])
+        if loads.var() > 4 * 0.1 ** 2:         # the controller's σl is ~0.1: the regressor noise
+            free += LOAD_TERMS
+        return free
+
+    def _identify(self) -> None:
+        params, free = self.base, ALWAYS_FREE
+        temperatures = self._temperatures(params)
+        try:
+            for _ in range(ALTERNATIONS):
+                free = self._free(temperatures)
+                result = identify_linear(self._data(temperatures), self.base, free)
+                certain = tuple(n for n, sd in result.std_errors.items()
+                                if sd <= self.config.max_relative_std * max(abs(getattr(result.params, n)), 1e-12))
+                if certain != free and certain:
+                    result = identify_linear(self._data(temperatures), self.base, certain)
+                free = certain
+                params = result.params if certain else self.base
+                temperatures = self._temperatures(params)
+        except (IdentificationDataError, np.linalg.LinAlgError, ValueError) as exc:
+            log.warning("joint model identification failed (%s); keeping the base parameters", exc)
+            params, free = self.base, ()
+        self.params = params
+        self.relation = self._motor_relation(temperatures)
+        self.learned = True
+        self.report = {"identified": list(free), "cycles": len(self._cycles),
+                       "temperature_span": float(np.ptp(temperatures)),
+                       "parameters": {n: getattr(params, n) for n in free},
+                       "motor_offset": None if self.relation is None else self.relation[0]}
+        self._cycles = []
+        log.info("joint model learned: %s identified over %.1f °C, motor offset %s", list(free),
+                 self.report["temperature_span"], self.report["motor_offset"])
+
+    def _motor_relation(self, temperatures: np.ndarray) -> tuple[float, float] | None:
+        pairs = [(c.motor, t) for c, t in zip(self._cycles, temperatures) if c.motor is not None]
+        if len(pairs) < max(5, len(self._cycles) // 2):
+            return None
+        residual = np.array([m - t for m, t in pairs])
+        offset = float(np.median(residual))
+        return offset, max(MIN_SPREAD, 1.4826 * float(np.median(np.abs(residual - offset))))
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict[str, Any]:
+        return {"config": self.config.fingerprint(), "base": self.base.to_dict(), "learned": self.learned,
+                "params": self.params.to_dict(), "relation": None if self.relation is None else list(self.relation),
+                "report": self.report, "motor": self._motor,
+                "cycles": [asdict(c) for c in self._cycles]}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        """Restore what was learned (with the same base parameters; otherwise relearn)."""
+        if state.get("base") != self.base.to_dict() or state.get("config") != self.config.fingerprint():
+            log.warning("joint model: base parameters or [model] settings changed since it was learned; relearning")
+            return
+        self.learned = bool(state.get("learned"))
+        if self.learned:
+            self.params = replace(self.base, **{k: float(v) for k, v in state["params"].items()
+                                                if k in self.base.to_dict()})
+            relation = state.get("relation")
+            self.relation = None if relation is None else (float(relation[0]), float(relation[1]))
+            self.report = dict(state.get("report", {}))
+        motor = state.get("motor")
+        self._motor = float(motor) if isinstance(motor, (int, float)) else None
+        self._cycles = [_Cycle(**c) for c in state.get("cycles", [])]

@@ -1,0 +1,89 @@
+"""A prior on the lubricant temperature from the motor temperature the controller reports.
+
+The lubricant temperature ξ is not measured, and friction data alone cannot always tell a warm joint
+from a worn one (docs/WEAR_ESTIMATION.md). The motor temperature of the JointStatus frame follows
+the lubricant with an offset and per-cycle noise of a few °C (docs/studies/DISTURBANCE_STUDY.md:
+correlation 0.82–0.87 per cycle, 0.97–0.985 averaged over 10 cycles). This component smooths the
+motor temperature over cycles (exponential, ``smoothing`` per cycle) and learns, over the first
+``learning_cycles`` cycles with both values, how it relates to the temperature the wear estimator
+finds from the friction data alone: ξ ≈ T_motor,smoothed − offset with a robust spread. After that it
+gives the wear estimator a Gaussian prior (T_motor,smoothed − offset, spread). Units: °C.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+#: Smallest prior spread [°C]: the motor winding is not the lubricant.
+MIN_SPREAD = 1.0
+
+
+class MotorTemperaturePrior:
+    """Learns ξ ≈ smoothed motor temperature − offset; ``prior()`` is (mean, std) or None while learning."""
+
+    def __init__(self, learning_cycles: int = 20, smoothing: float = 0.2) -> None:
+        self.learning_cycles = int(learning_cycles)
+        self.smoothing = float(smoothing)
+        self.smoothed: float | None = None
+        self.offset: float | None = None
+        self.spread: float | None = None
+        self._pairs: list[tuple[float, float]] = []
+
+    def observe_motor(self, motor_temperature: float | None) -> None:
+        """The cycle's mean motor temperature [°C] (None or non-finite: no JointStatus this cycle)."""
+        if motor_temperature is None or not math.isfinite(motor_temperature):
+            return
+        if self.smoothed is None:
+            self.smoothed = float(motor_temperature)
+        else:
+            self.smoothed += self.smoothing * (float(motor_temperature) - self.smoothed)
+
+    def set_relation(self, offset: float, spread: float) -> None:
+        """Adopt a relation learned elsewhere (the joint's model learning)."""
+        self.offset, self.spread, self._pairs = float(offset), max(MIN_SPREAD, float(spread)), []
+
+    def prior(self) -> tuple[float, float] | None:
+        """(mean, std) of ξ [°C] once learned and a motor temperature is known, else None."""
+        if self.offset is None or self.spread is None or self.smoothed is None:
+            return None
+        return self.smoothed - self.offset, self.spread
+
+    def learn(self, friction_temperature: float | None) -> None:
+        """While learning: pair the wear estimator's own temperature (friction data only) with the
+        smoothed motor temperature; the last pair fixes offset and spread."""
+        if self.offset is not None or self.smoothed is None or friction_temperature is None \
+                or not math.isfinite(friction_temperature):
+            return
+        self._pairs.append((self.smoothed, float(friction_temperature)))
+        if len(self._pairs) >= self.learning_cycles:
+            residual = np.array([m - f for m, f in self._pairs])
+            self.offset = float(np.median(residual))
+            self.spread = max(MIN_SPREAD, 1.4826 * float(np.median(np.abs(residual - self.offset))))
+            self._pairs = []
+
+    @property
+    def learned(self) -> bool:
+        return self.offset is not None
+
+    def reset(self) -> None:
+        """Declared maintenance: learn the relation again (a new gearbox, new lubricant)."""
+        self.offset = self.spread = None
+        self._pairs = []
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"smoothed": self.smoothed, "offset": self.offset, "spread": self.spread,
+                "pairs": [list(p) for p in self._pairs]}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        def number(key: str) -> float | None:
+            value = state.get(key)
+            return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+        self.smoothed, self.offset, self.spread = number("smoothed"), number("offset"), number("spread")
+        if (self.offset is None) != (self.spread is None):
+            self.offset = self.spread = None
+        pairs = state.get("pairs", [])
+        self._pairs = [(float(a), float(b)) for a, b in pairs if math.isfinite(a) and math.isfinite(b)] \
+            if isinstance(pairs, list) else []
