@@ -63,6 +63,16 @@ def _partial_rows(path: Path) -> Counter:
             return Counter()
 
 
+def _wait_for_rows(view: subprocess.Popen, rrd: Path, entity: str, rows: int, timeout: float = 30.0) -> None:
+    """Until the view has drawn ``rows`` rows of ``entity`` (its backlog query answered, so its subscriber
+    is declared at the publisher: Zenoh delivers a link's messages in order)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and view.poll() is None:
+        if _partial_rows(rrd)[entity] >= rows:
+            return
+        time.sleep(0.2)
+
+
 @pytest.fixture
 def agent_session():
     port = free_port()
@@ -88,6 +98,7 @@ def test_view_draws_backlog_and_live_records_of_a_fleet(agent_session, tmp_path)
                              "change_cycle": 5})
         total = 3 * (backlog + live)
         view = start_view(port, rrd, "--count", str(total), "--duration", "60")
+        _wait_for_rows(view, rrd, "/robot/beta/joint/3/wear/estimate", backlog)   # subscription routed
         for cycle in range(backlog, backlog + live):     # while it runs
             for publisher, joints in publishers.values():
                 for joint in joints:
@@ -114,11 +125,7 @@ def test_view_filters_one_robot_and_stops_on_sigint(agent_session, tmp_path):
             alpha.publish_symptom(symptom("alpha", 0, cycle))
             beta.publish_symptom(symptom("beta", 0, cycle))
         view = start_view(port, rrd, "--robot", "beta", "--duration", "60")
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and view.poll() is None:   # until the backlog is drawn
-            if _partial_rows(rrd)["/robot/beta/joint/0/wear/estimate"] == 5:
-                break
-            time.sleep(0.2)
+        _wait_for_rows(view, rrd, "/robot/beta/joint/0/wear/estimate", 5)
         view.send_signal(signal.SIGINT)
         out, err = view.communicate(timeout=30)
     assert view.returncode == 0, err

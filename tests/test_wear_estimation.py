@@ -29,7 +29,7 @@ LOAD_MEAN, LOAD_STD = 0.5, 0.1
 DEFAULT_SPEEDS = [2.1, 8.7, 15.3, 21.9, 28.5, 35.1, 41.7, 82.2, 133.5, 184.7, 236.2, 287.1]
 BAD_SPEEDS = [82.0, 133.0]
 Z_999 = 3.29  # two-sided 0.1 % normal quantile
-RECORD_KEYS = {"estimate", "std", "temperature", "upper_95", "identifiable", "posterior_mean"}
+RECORD_KEYS = {"estimate", "std", "temperature", "upper_95", "identifiable", "posterior_mean", "evidence"}
 
 
 @pytest.fixture(scope="module")

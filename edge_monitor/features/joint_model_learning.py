@@ -13,7 +13,7 @@ controller's load estimates and motor temperatures; then it identifies (docs/ALG
   coefficients fcl, fsl only when the spread of the load estimates exceeds twice their own noise
   (otherwise the noise of the regressor biases them). A parameter whose standard error exceeds
   ``max_relative_std`` of its value keeps the base value. Nonlinear parameters keep the base values.
-* how the motor temperature of JointStatus relates to ξk (offset and spread of ξ ≈ smoothed motor
+* how the motor temperature of JointStatus relates to ξk (offset and spread of ξ ≈ motor
   temperature − offset; :mod:`edge_monitor.features.temperature_prior`).
 
 What it falls back on: the base parameters (``[friction]`` / ``[joint.N.friction]``) for whatever is
@@ -54,7 +54,6 @@ class ModelConfig:
     learning_cycles: int = 20
     temperature_span: float = 15.0       # °C of ξk spread needed to identify fsξ and fvξ
     max_relative_std: float = 0.5        # a parameter less certain than this keeps its base value
-    motor_smoothing: float = 0.2         # weight of the newest cycle in the smoothed motor temperature
 
     def __post_init__(self) -> None:
         require(isinstance(self.learning_cycles, int) and 5 <= self.learning_cycles <= 10_000,
@@ -63,8 +62,6 @@ class ModelConfig:
                 f"must be > 0 °C, got {self.temperature_span}")
         require(math.isfinite(self.max_relative_std) and self.max_relative_std > 0, "model.max_relative_std",
                 f"must be > 0, got {self.max_relative_std}")
-        require(math.isfinite(self.motor_smoothing) and 0 < self.motor_smoothing <= 1, "model.motor_smoothing",
-                f"must be in (0, 1], got {self.motor_smoothing}")
 
     def fingerprint(self) -> dict[str, Any]:
         return asdict(self)
@@ -75,7 +72,7 @@ class _Cycle:
     speeds: list[float]
     friction: list[float]
     load: float
-    motor: float | None          # smoothed motor temperature [°C]
+    motor: float | None          # the cycle's motor temperature [°C]
 
 
 class JointModelLearner:
@@ -103,9 +100,8 @@ class JointModelLearner:
         """Collect one learning cycle; True when this cycle completed the learning."""
         if self.learned:
             return False
-        if cycle.motor_temperature is not None and math.isfinite(cycle.motor_temperature):
-            self._motor = cycle.motor_temperature if self._motor is None else \
-                self._motor + self.config.motor_smoothing * (cycle.motor_temperature - self._motor)
+        ok = cycle.motor_temperature is not None and math.isfinite(cycle.motor_temperature)
+        self._motor = cycle.motor_temperature if ok else None
         curve = cycle.friction
         if len(curve.speeds) < 2 or cycle.partial:
             return False

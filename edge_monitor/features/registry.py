@@ -52,22 +52,27 @@ class FeatureSpec:
     waits_for_model: bool = False
 
 
+#: Feature quantities watched as their logarithm when ``decision.log_scale`` is on: positive and
+#: right-skewed (KL distances, the wear evidence); their logarithms are close to normal, and the
+#: nominal densities of 60 values have thin tails.
+LOG_SCALE = frozenset({"wear_evidence", "kl_raw", "kl_weighted"})
+
+
 @dataclass(frozen=True)
 class QuantitySpec:
-    """A quantity a detector can watch: made of one or more feature quantities (``inputs``).
-
-    ``log_scale``: the feature's value is watched as its logarithm when ``decision.log_scale`` is on
-    (positive, right-skewed quantities: KL distances, the wear posterior mean — their logarithms are
-    close to normal, and the nominal densities of 60 values have thin tails).
-    """
+    """A quantity a detector can watch: made of one or more feature quantities (``inputs``)."""
 
     name: str
     inputs: tuple[str, ...]
-    log_scale: bool = False
 
     @property
     def dim(self) -> int:
         return len(self.inputs)
+
+    @property
+    def log_scale(self) -> bool:
+        """Whether any input is watched as its logarithm (see :data:`LOG_SCALE`)."""
+        return any(q in LOG_SCALE for q in self.inputs)
 
 
 FEATURES: tuple[FeatureSpec, ...] = (
@@ -84,10 +89,10 @@ FEATURES: tuple[FeatureSpec, ...] = (
 )
 
 QUANTITIES: dict[str, QuantitySpec] = {q.name: q for q in (
-    QuantitySpec("wear", ("wear",), log_scale=True),
-    QuantitySpec("kl_raw", ("kl_raw",), log_scale=True),
-    QuantitySpec("kl_weighted", ("kl_weighted",), log_scale=True),
-    QuantitySpec("joint", ("wear", "kl_raw", "kl_weighted")),
+    QuantitySpec("wear", ("wear_evidence",)),
+    QuantitySpec("kl_raw", ("kl_raw",)),
+    QuantitySpec("kl_weighted", ("kl_weighted",)),
+    QuantitySpec("joint", ("wear_evidence", "kl_raw", "kl_weighted")),
 )}
 
 

@@ -3,11 +3,17 @@
 The lubricant temperature ξ is not measured, and friction data alone cannot always tell a warm joint
 from a worn one (docs/WEAR_ESTIMATION.md). The motor temperature of the JointStatus frame follows
 the lubricant with an offset and per-cycle noise of a few °C (docs/studies/DISTURBANCE_STUDY.md:
-correlation 0.82–0.87 per cycle, 0.97–0.985 averaged over 10 cycles). This component smooths the
-motor temperature over cycles (exponential, ``smoothing`` per cycle) and learns, over the first
-``learning_cycles`` cycles with both values, how it relates to the temperature the wear estimator
-finds from the friction data alone: ξ ≈ T_motor,smoothed − offset with a robust spread. After that it
-gives the wear estimator a Gaussian prior (T_motor,smoothed − offset, spread). Units: °C.
+correlation 0.82–0.87 per cycle, 0.97–0.985 averaged over 10 cycles). This component learns, over
+the first ``learning_cycles`` cycles with both values, how the cycle's motor temperature relates to
+the temperature the wear estimator finds from the friction data alone: ξ ≈ T_motor − offset with a
+robust spread. After that it gives the wear estimator a Gaussian prior (T_motor − offset, spread).
+Units: °C.
+
+The motor temperature is deliberately not smoothed over cycles: a smoothed prior is more precise,
+but its error is then correlated from cycle to cycle, and so are the wear estimates it informs (the
+variance of 20-cycle means of the wear quantity was 2–3× that of independent values with an
+exponential smoothing of 0.2 per cycle). The detectors' thresholds are calibrated for independent
+cycles (docs/DETECTION.md), so the prior trades some precision for independence.
 """
 
 from __future__ import annotations
@@ -22,24 +28,19 @@ MIN_SPREAD = 1.0
 
 
 class MotorTemperaturePrior:
-    """Learns ξ ≈ smoothed motor temperature − offset; ``prior()`` is (mean, std) or None while learning."""
+    """Learns ξ ≈ motor temperature − offset; ``prior()`` is (mean, std) or None while learning."""
 
-    def __init__(self, learning_cycles: int = 20, smoothing: float = 0.2) -> None:
+    def __init__(self, learning_cycles: int = 20) -> None:
         self.learning_cycles = int(learning_cycles)
-        self.smoothing = float(smoothing)
-        self.smoothed: float | None = None
+        self.motor: float | None = None
         self.offset: float | None = None
         self.spread: float | None = None
         self._pairs: list[tuple[float, float]] = []
 
     def observe_motor(self, motor_temperature: float | None) -> None:
         """The cycle's mean motor temperature [°C] (None or non-finite: no JointStatus this cycle)."""
-        if motor_temperature is None or not math.isfinite(motor_temperature):
-            return
-        if self.smoothed is None:
-            self.smoothed = float(motor_temperature)
-        else:
-            self.smoothed += self.smoothing * (float(motor_temperature) - self.smoothed)
+        ok = motor_temperature is not None and math.isfinite(motor_temperature)
+        self.motor = float(motor_temperature) if ok else None    # type: ignore[arg-type]
 
     def set_relation(self, offset: float, spread: float) -> None:
         """Adopt a relation learned elsewhere (the joint's model learning)."""
@@ -47,17 +48,17 @@ class MotorTemperaturePrior:
 
     def prior(self) -> tuple[float, float] | None:
         """(mean, std) of ξ [°C] once learned and a motor temperature is known, else None."""
-        if self.offset is None or self.spread is None or self.smoothed is None:
+        if self.offset is None or self.spread is None or self.motor is None:
             return None
-        return self.smoothed - self.offset, self.spread
+        return self.motor - self.offset, self.spread
 
     def learn(self, friction_temperature: float | None) -> None:
         """While learning: pair the wear estimator's own temperature (friction data only) with the
-        smoothed motor temperature; the last pair fixes offset and spread."""
-        if self.offset is not None or self.smoothed is None or friction_temperature is None \
+        motor temperature; the last pair fixes offset and spread."""
+        if self.offset is not None or self.motor is None or friction_temperature is None \
                 or not math.isfinite(friction_temperature):
             return
-        self._pairs.append((self.smoothed, float(friction_temperature)))
+        self._pairs.append((self.motor, float(friction_temperature)))
         if len(self._pairs) >= self.learning_cycles:
             residual = np.array([m - f for m, f in self._pairs])
             self.offset = float(np.median(residual))
@@ -74,14 +75,14 @@ class MotorTemperaturePrior:
         self._pairs = []
 
     def state_dict(self) -> dict[str, Any]:
-        return {"smoothed": self.smoothed, "offset": self.offset, "spread": self.spread,
+        return {"motor": self.motor, "offset": self.offset, "spread": self.spread,
                 "pairs": [list(p) for p in self._pairs]}
 
     def load_state(self, state: dict[str, Any]) -> None:
         def number(key: str) -> float | None:
             value = state.get(key)
             return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
-        self.smoothed, self.offset, self.spread = number("smoothed"), number("offset"), number("spread")
+        self.motor, self.offset, self.spread = number("motor"), number("offset"), number("spread")
         if (self.offset is None) != (self.spread is None):
             self.offset = self.spread = None
         pairs = state.get("pairs", [])

@@ -75,7 +75,7 @@ class WearFeature:
     where the maximum-likelihood estimate piles up at 0) and ``temperature`` (ξ̂, °C)."""
 
     name = "wear"
-    quantities = ("wear", "temperature")
+    quantities = ("wear", "wear_evidence", "temperature")
 
     def __init__(self, config: WearConfig, params: FrictionParams,
                  relation: tuple[float, float] | None = None) -> None:
@@ -105,7 +105,7 @@ class WearFeature:
                                            temperature_prior=self.prior.prior() if use_prior else None)
         if use_prior and not self.prior.learned:
             self.prior.learn(estimate.temperature)
-        values = {"wear": estimate.posterior_mean,
+        values = {"wear": estimate.posterior_mean, "wear_evidence": estimate.evidence,
                   "temperature": math.nan if estimate.temperature is None else estimate.temperature}
         return FeatureOutput(section=estimate.to_record(), values=values, reason=estimate.reason)
 

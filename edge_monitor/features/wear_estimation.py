@@ -100,6 +100,16 @@ class WearEstimate:
     def ok(self) -> bool:
         return self.reason is None
 
+    @property
+    def evidence(self) -> float:
+        """Posterior mean over posterior std (dimensionless): how many of its own standard deviations
+        the wear sits above none. On a healthy joint it stays put when the temperature moves, while the
+        posterior mean and std both grow with temperature as ϖ gets harder to identify (what the wear
+        detector watches, docs/DETECTION.md). NaN without a valid estimate."""
+        if not (math.isfinite(self.posterior_mean) and math.isfinite(self.std) and self.std > 0):
+            return math.nan
+        return self.posterior_mean / self.std
+
     def to_record(self) -> dict[str, float | bool | None]:
         """The ``"wear"`` field of a symptom record (docs/OUTPUTS.md); NaN/inf become ``None``.
 
@@ -109,7 +119,7 @@ class WearEstimate:
         return {"estimate": _json_number(self.estimate), "std": _json_number(self.std),
                 "temperature": None if self.temperature is None else _json_number(self.temperature),
                 "upper_95": _json_number(self.upper_95), "identifiable": bool(self.identifiable),
-                "posterior_mean": _json_number(self.posterior_mean)}
+                "posterior_mean": _json_number(self.posterior_mean), "evidence": _json_number(self.evidence)}
 
 
 def _json_number(x: float) -> float | None:

@@ -3,8 +3,9 @@
 :class:`DecisionConfig` (the ``[decision]`` table) says which registered quantities are watched and
 how; :class:`DetectorBank` turns the feature values of a cycle into one :class:`Decision` per quantity
 and the alarm transitions of that cycle. Positive, right-skewed quantities (KL distances, the wear
-posterior mean) are watched as their logarithm when ``log_scale`` is on; a vector quantity is made of
-its inputs' (transformed) values.
+evidence) are watched as their logarithm when ``log_scale`` is on; a vector quantity is made of its
+inputs' (transformed) values. Detectors look for an increase by default: wear and KL distances grow
+with a fault, a decrease is nominal.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from edge_monitor.errors import ConfigError, StateMismatch, require
-from edge_monitor.features.registry import QUANTITIES, QuantitySpec, feature_of
+from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
 from edge_monitor.records import Alarm, Decision
 from edge_monitor.stats.calibration import DEFAULT_ARL0, CalibrationBudget
 from edge_monitor.stats.sequential_detector import (
@@ -58,6 +59,9 @@ class DecisionConfig:
     rho: float = 1.0
     quantities: tuple[str, ...] = tuple(QUANTITIES)
     log_scale: bool = True
+    direction: str = "increase"
+    allowance: float = 0.5
+    clip_sigma: float = 3.0
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
 
@@ -95,8 +99,10 @@ class DecisionConfig:
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
-                              gamma0=self.gamma0, rho=self.rho, arl0=self.arl0,
-                              calibration_draws=self.calibration_draws, calibration_steps=self.calibration_steps)
+                              gamma0=self.gamma0, rho=self.rho, arl0=self.arl0, direction=self.direction,
+                              allowance=self.allowance, clip_sigma=self.clip_sigma,
+                              calibration_draws=self.calibration_draws,
+                              calibration_steps=self.calibration_steps)
 
     def fingerprint(self) -> dict[str, Any]:
         return {**asdict(self), "quantities": list(self.quantities)}
@@ -120,8 +126,7 @@ class DetectorBank:
                           for q in config.quantities} if config.enabled else {}
 
     def _transform(self, values: dict[str, float]) -> dict[str, float]:
-        logged = {q for q, spec in QUANTITIES.items() if spec.log_scale and spec.dim == 1}
-        return {q: _log_or_nan(v) if self.config.log_scale and q in logged else v for q, v in values.items()}
+        return {q: _log_or_nan(v) if self.config.log_scale and q in LOG_SCALE else v for q, v in values.items()}
 
     def update(self, values: dict[str, float], robot: str, joint: int, cycle: int
                ) -> tuple[dict[str, Decision], list[Alarm]]:

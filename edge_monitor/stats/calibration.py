@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
-from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch
+from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch, clip_range, null_box
 
 #: Default mean run length to false alarm per detector [cycles] (at 300 cycles a day: ~1 per month).
 DEFAULT_ARL0 = 10_000.0
@@ -97,41 +97,61 @@ def seed_from(values: ArrayLike) -> int:
 
 def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: float = 0.6, rho: float = 1.0,
               mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
-              seed: int | None = None) -> Calibration:
+              seed: int | None = None, direction: str = "both", allowance: float = 0.0,
+              clip_sigma: float = 0.0) -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
-    with the ``kind`` density (see the module docstring)."""
+    with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
+    null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
+    ``clip_sigma`` its winsorisation (:func:`~edge_monitor.stats.glr_batch.clip_range`), each
+    bootstrap detector from its own nominal set."""
     started = time.process_time()
     values = as_observations(nominal, name="nominal data")
     rng = np.random.default_rng(seed_from(values) if seed is None else seed)
     truth = fit_density(values, kind)
-    mixtures = _bootstrap_densities(truth, len(values), kind, budget.draws, rng)
+    mixtures, samples = _bootstrap_densities(truth, len(values), kind, budget.draws, rng)
+    boxes = _stacked([null_box(x, direction, allowance) for x in samples])
+    clips = _stacked([clip_range(x, clip_sigma) for x in samples])
     steps = budget.steps(arl0)
-    statistics = _simulate(truth, mixtures, window, gamma0, rho, mode, steps, rng)
+    # the least favourable nominal: the largest shift H0 allows (the drift allowance), on the side
+    # the detector watches; with no allowance, the learned nominal itself
+    drift = allowance * values.std(axis=0, ddof=1)
+    statistics = _simulate(truth, mixtures, boxes, clips, window, gamma0, rho, mode, steps, rng, drift)
     threshold, method, events, slope = _threshold_for(statistics, arl0)
     return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(mixtures), steps=steps,
                        events=events, slope=slope, cpu_s=time.process_time() - started)
 
 
-def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int,
-                         rng: np.random.Generator) -> list[GaussianMixture]:
+def _stacked(pairs: list[tuple[NDArray[np.float64], NDArray[np.float64]]]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    return np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+
+
+def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int, rng: np.random.Generator
+                         ) -> tuple[list[GaussianMixture], list[NDArray[np.float64]]]:
+    """B densities refitted on nominal sets drawn from ``truth``, and those sets."""
     mixtures: list[GaussianMixture] = []
+    samples: list[NDArray[np.float64]] = []
     attempts = 0
     while len(mixtures) < draws:
         attempts += 1
         if attempts > 4 * draws:
             raise CalibrationError(f"only {len(mixtures)} of {draws} bootstrap densities could be fitted")
+        sample = truth.sample(n0, rng)
         try:
-            mixtures.append(fit_density(truth.sample(n0, rng), kind))
+            mixtures.append(fit_density(sample, kind))
         except DensityError:
             continue
-    return mixtures
+        samples.append(sample)
+    return mixtures, samples
 
 
-def _simulate(truth: GaussianMixture, mixtures: list[GaussianMixture], window: int, gamma0: float, rho: float,
-              mode: GLRMode, steps: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    """Statistics (B, steps) of B detectors on streams drawn from ``truth``."""
-    glr = BatchWindowedGLR(MixtureBatch(mixtures), window, gamma0, rho, mode)
-    stream = truth.sample(len(mixtures) * steps, rng).reshape(len(mixtures), steps, truth.dim)
+def _simulate(truth: GaussianMixture, mixtures: list[GaussianMixture],
+              boxes: tuple[NDArray[np.float64], NDArray[np.float64]],
+              clips: tuple[NDArray[np.float64], NDArray[np.float64]], window: int, gamma0: float, rho: float,
+              mode: GLRMode, steps: int, rng: np.random.Generator, drift: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Statistics (B, steps) of B detectors on streams drawn from ``truth`` shifted by ``drift`` (d,)."""
+    glr = BatchWindowedGLR(MixtureBatch(mixtures), window, gamma0, rho, mode, null_box=boxes, clip=clips)
+    stream = truth.sample(len(mixtures) * steps, rng).reshape(len(mixtures), steps, truth.dim) + drift
     out = np.empty((len(mixtures), steps))
     for t in range(steps):
         out[:, t] = glr.update(stream[:, t])
@@ -191,10 +211,14 @@ class CalibrationJob:
     rho: float
     mode: str
     budget: CalibrationBudget
+    direction: str = "both"
+    allowance: float = 0.0
+    clip_sigma: float = 0.0
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
-                         "exact" if self.mode == "exact" else "recursive", self.budget)
+                         "exact" if self.mode == "exact" else "recursive", self.budget,
+                         direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget)}
@@ -203,7 +227,9 @@ class CalibrationJob:
     def from_dict(cls, state: dict[str, Any]) -> "CalibrationJob":
         return cls(nominal=tuple(tuple(float(x) for x in v) for v in state["nominal"]), kind=str(state["kind"]),
                    window=int(state["window"]), arl0=float(state["arl0"]), gamma0=float(state["gamma0"]),
-                   rho=float(state["rho"]), mode=str(state["mode"]), budget=CalibrationBudget(**state["budget"]))
+                   rho=float(state["rho"]), mode=str(state["mode"]), budget=CalibrationBudget(**state["budget"]),
+                   direction=str(state.get("direction", "both")), allowance=float(state.get("allowance", 0.0)),
+                   clip_sigma=float(state.get("clip_sigma", 0.0)))
 
 
 class Pending:

@@ -51,7 +51,8 @@ def threshold_from_pf(pf: float, dim: int) -> float:
 
 
 def miss_probability(delta: ArrayLike, fisher: ArrayLike, threshold: float, n: int = 1) -> float:
-    """Pm = P(χ'²_d(λ) ≤ 2h) with λ = n·ΔᵀF(0)Δ (F(0) per observation, n observations)."""
+    """Pm = P(χ'²_d(λ) ≤ 2h) with λ = n·ΔᵀF(0)Δ (F(0) per observation, n observations). With a null
+    box (:class:`WindowedGLR`), pass the part of the shift outside it."""
     d_vec = np.atleast_1d(np.asarray(delta, dtype=float))
     f = np.asarray(fisher, dtype=float).reshape(d_vec.size, d_vec.size)
     lam = max(float(n) * float(d_vec @ f @ d_vec), 0.0)
@@ -191,12 +192,16 @@ class WindowedGLR:
     log p0(yn − Δ̂(t:n)) − log p0(yn) with the estimate available at step n: O(W·K·d) per observation.
     ``mode="exact"`` recomputes each candidate's numerator over the ring buffer with its latest Δ̂:
     O(W²·K·d). Memory O(W·d) plus the mixture's O(K·d), constant in run length. ``threshold``
-    overrides h(Pf) (e.g. a calibrated one).
+    overrides h(Pf) (e.g. a calibrated one). ``null_box`` = (lower, upper), each (d,): the shifts H0
+    allows (one-sided tests, drift allowance; :mod:`edge_monitor.stats.glr_batch`), default Δ = 0;
+    ``clip`` = (lo, hi), each (d,): where observations are winsorised, default not at all.
     """
 
     def __init__(self, density: GaussianMixture, window: int = 100, pf: float = 0.01,
                  gamma0: float = 0.6, rho: float = 1.0, mode: GLRMode = "exact",
-                 step: SAStep = "fisher", threshold: float | None = None) -> None:
+                 step: SAStep = "fisher", threshold: float | None = None,
+                 null_box: tuple[ArrayLike, ArrayLike] | None = None,
+                 clip: tuple[ArrayLike, ArrayLike] | None = None) -> None:
         if int(window) < 1:
             raise GLRError(f"window = {window!r} must be a positive number of observations (e.g. 100)")
         if mode not in ("exact", "recursive"):
@@ -209,7 +214,8 @@ class WindowedGLR:
         self.gamma0, self.rho, self.mode, self.step = float(gamma0), float(rho), mode, step
         self.threshold = _threshold(density, self.pf, threshold)
         self._fisher = density.fisher_location()
-        self._glr = BatchWindowedGLR(MixtureBatch([density], step), self.window, gamma0, rho, mode)
+        self._glr = BatchWindowedGLR(MixtureBatch([density], step), self.window, gamma0, rho, mode,
+                                     null_box=_one_row(null_box, density.dim), clip=_one_row(clip, density.dim))
 
     @property
     def count(self) -> int:
@@ -225,7 +231,8 @@ class WindowedGLR:
         best = int(glr.best[0])
         delta = glr.delta[0, best]
         n_seg = int(glr.segment_length()[0])
-        pm = miss_probability(delta, self._fisher, self.threshold, n=n_seg)
+        excess = delta - glr.null_shift(delta[None, None, :])[0, 0]
+        pm = miss_probability(excess, self._fisher, self.threshold, n=n_seg)
         return GLRDecision(s, self.threshold, bool(s >= self.threshold), int(glr.times[best]),
                            delta.tolist(), pm, glr.count - 1, n_seg)
 
@@ -235,13 +242,16 @@ class WindowedGLR:
                 "gamma0": self.gamma0, "rho": self.rho, "mode": self.mode, "step": self.step,
                 "threshold": self.threshold, "count": g.count, "obs": g.obs[0].tolist(),
                 "base": g.base[0].tolist(), "times": g.times.tolist(),
-                "delta": g.delta[0].tolist(), "recursive_sum": g.sums[0].tolist()}
+                "delta": g.delta[0].tolist(), "recursive_sum": g.sums[0].tolist(),
+                "null_box": [_json_bounds(g.lower[0]), _json_bounds(g.upper[0])],
+                "clip": [_json_bounds(g.clip_lo[0]), _json_bounds(g.clip_hi[0])]}
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "WindowedGLR":
         glr = cls(GaussianMixture.from_state(state["density"]), state["window"], state["pf"],
                   state["gamma0"], state["rho"], state["mode"], state.get("step", "fisher"),
-                  threshold=state["threshold"])
+                  threshold=state["threshold"], null_box=_pair_from_json(state.get("null_box")),
+                  clip=_pair_from_json(state.get("clip")))
         d, w, g = glr.density.dim, glr.window, glr._glr
         g.count = int(state["count"])
         g.obs[0] = np.asarray(state["obs"], dtype=float).reshape(w, d)
@@ -250,3 +260,22 @@ class WindowedGLR:
         g.delta[0] = np.asarray(state["delta"], dtype=float).reshape(w, d)
         g.sums[0] = np.asarray(state["recursive_sum"], dtype=float).reshape(w)
         return glr
+
+
+def _json_bounds(bounds: NDArray[np.float64]) -> list[float | str]:
+    """Bounds for JSON: ±inf as the strings "-inf"/"inf" (JSON has no infinity)."""
+    return [float(b) if math.isfinite(b) else ("inf" if b > 0 else "-inf") for b in bounds]
+
+
+def _pair_from_json(pair: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    if pair is None:
+        return None
+    return np.array([float(v) for v in pair[0]]), np.array([float(v) for v in pair[1]])
+
+
+def _one_row(pair: tuple[ArrayLike, ArrayLike] | None, dim: int
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """(lo, hi) of one detector as the (1, d) rows of the batch recursion."""
+    if pair is None:
+        return None
+    return np.asarray(pair[0], dtype=float).reshape(1, dim), np.asarray(pair[1], dtype=float).reshape(1, dim)

@@ -13,6 +13,22 @@ and A = (S·F(0))⁻¹ (Fisher-scoring step, see :mod:`edge_monitor.stats.bias_e
 log p0(y − Δ̂) − log p0(y) is accumulated with the estimate of this step ("recursive", O(W·K)) or
 recomputed over the window with the latest estimate ("exact", O(W²·K)). The statistic is the largest
 sum over the candidates. Units: those of the observed quantity; statistics in nats.
+
+**Null hypothesis with a drift allowance** (project choice, docs/DETECTION.md). H0 may be the box
+of shifts ``lower ≤ Δ ≤ upper`` instead of Δ = 0: the denominator is then p0 at the shift of H0
+closest to the estimate, ``log p0(y − Δ̂) − log p0(y − clip(Δ̂, lower, upper))`` (for one Gaussian
+component exactly the GLR of the composite null; for mixtures the same projection). A one-sided
+test for an increase is ``lower = −∞, upper = 0``; an allowance ``a`` moves ``upper`` to ``a``, so
+slow drifts smaller than ``a`` (the CUSUM reference value in classical SPC) do not accumulate.
+With ``lower = upper = 0`` the recursion is the plain two-sided GLR above, bit for bit.
+
+**Winsorised observations** (project choice). A nominal density learned from 60 values cannot show
+its tails, and a Gaussian-kernel mixture has thinner tails than most real quantities: one value a
+few standard deviations out then gives a likelihood ratio that no simulation from the fitted density
+reproduces, and the calibrated threshold is too low. Observations may therefore be clipped to
+``[clip_lo, clip_hi]`` (the nominal mean ± c standard deviations, :func:`clip_range`) before they
+enter the recursion; the calibration clips its simulated streams the same way. A real shift moves
+many values and is still detected by accumulation.
 """
 
 from __future__ import annotations
@@ -26,6 +42,31 @@ from edge_monitor.stats.bias_em import step_matrix
 from edge_monitor.stats.densities import GaussianMixture
 
 GLRMode = Literal["exact", "recursive"]
+#: Directions of change a detector looks for: any shift, or only an increase (componentwise).
+DIRECTIONS = ("both", "increase")
+
+
+def null_box(nominal: ArrayLike, direction: str = "both", allowance: float = 0.0
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The shifts H0 allows for a detector that learned ``nominal`` (N0 × d): ``allowance`` standard
+    deviations of the nominal values on either side, or below for ``direction="increase"``
+    (then any decrease is nominal too). Returns ``(lower, upper)``, each (d,)."""
+    values = np.asarray(nominal, dtype=float)
+    if direction not in DIRECTIONS:
+        raise ValueError(f"direction = {direction!r}; choose one of {DIRECTIONS}")
+    spread = float(allowance) * values.std(axis=0, ddof=1) if allowance else np.zeros(values.shape[1])
+    lower = np.full(values.shape[1], -np.inf) if direction == "increase" else -spread
+    return lower, spread
+
+
+def clip_range(nominal: ArrayLike, clip_sigma: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where observations are winsorised for a detector that learned ``nominal`` (N0 × d): the
+    nominal mean ± ``clip_sigma`` standard deviations per dimension (±inf when ``clip_sigma`` is 0)."""
+    values = np.asarray(nominal, dtype=float)
+    if not clip_sigma:
+        return np.full(values.shape[1], -np.inf), np.full(values.shape[1], np.inf)
+    centre, spread = values.mean(axis=0), float(clip_sigma) * values.std(axis=0, ddof=1)
+    return centre - spread, centre + spread
 
 
 class MixtureBatch:
@@ -84,13 +125,29 @@ class BatchWindowedGLR:
 
     ``update(y)`` takes one observation per detector, shape (B, d), and returns the statistic of
     each, shape (B,). :attr:`best` holds, after each update, the slot of the maximising candidate.
+    ``null_box``: optional ``(lower, upper)``, each broadcastable to (B, d), the shifts H0 allows
+    (units of the observations; ``-inf``/``inf`` for an open side); default Δ = 0. ``clip``: optional
+    ``(lo, hi)`` of the same shape, where observations are winsorised; default none.
     """
 
     def __init__(self, mixtures: MixtureBatch, window: int, gamma0: float = 0.6, rho: float = 1.0,
-                 mode: GLRMode = "recursive") -> None:
+                 mode: GLRMode = "recursive", null_box: tuple[ArrayLike, ArrayLike] | None = None,
+                 clip: tuple[ArrayLike, ArrayLike] | None = None) -> None:
         if mode not in ("exact", "recursive"):
             raise ValueError(f"mode = {mode!r} must be 'exact' or 'recursive'")
         b, d, w = mixtures.size, mixtures.dim, int(window)
+        lower, upper = (0.0, 0.0) if null_box is None else null_box
+        self.lower = np.broadcast_to(np.asarray(lower, dtype=float), (b, d)).copy()
+        self.upper = np.broadcast_to(np.asarray(upper, dtype=float), (b, d)).copy()
+        if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(self.lower > 0) \
+                or np.any(self.upper < 0):
+            raise ValueError("null_box must contain Δ = 0: lower ≤ 0 ≤ upper")
+        self.simple_null = not (np.any(self.lower) or np.any(self.upper))
+        lo, hi = (-np.inf, np.inf) if clip is None else clip
+        self.clip_lo = np.broadcast_to(np.asarray(lo, dtype=float), (b, d)).copy()
+        self.clip_hi = np.broadcast_to(np.asarray(hi, dtype=float), (b, d)).copy()
+        if np.any(np.isnan(self.clip_lo)) or np.any(np.isnan(self.clip_hi)) or np.any(self.clip_lo >= self.clip_hi):
+            raise ValueError("clip must be (lo, hi) with lo < hi")
         self.mix, self.window, self.gamma0, self.rho, self.mode = mixtures, w, float(gamma0), float(rho), mode
         self.count = 0
         self.obs = np.zeros((b, w, d))
@@ -101,7 +158,7 @@ class BatchWindowedGLR:
         self.best = np.zeros(b, dtype=np.int64)
 
     def update(self, y: ArrayLike) -> NDArray[np.float64]:
-        obs = np.asarray(y, dtype=float).reshape(self.mix.size, self.mix.dim)
+        obs = np.clip(np.asarray(y, dtype=float).reshape(self.mix.size, self.mix.dim), self.clip_lo, self.clip_hi)
         now, slot = self.count, self.count % self.window
         self.count += 1
         self.obs[:, slot] = obs
@@ -126,17 +183,30 @@ class BatchWindowedGLR:
         self.best = active[best]
         return np.maximum(stats[np.arange(stats.shape[0]), best], 0.0)
 
+    def null_shift(self, delta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The shift of H0 closest to each estimate: ``clip(Δ̂, lower, upper)``, delta (B, A, d)."""
+        return np.clip(delta, self.lower[:, None, :], self.upper[:, None, :])
+
     def _statistics(self, obs: NDArray[np.float64], slot: int, active: NDArray[np.int64],
                     delta: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.mode == "recursive":
-            self.sums[:, active] += self.mix.logpdf(obs[:, None, :] - delta) - self.base[:, slot][:, None]
+            numerator = self.mix.logpdf(obs[:, None, :] - delta)
+            if self.simple_null:
+                self.sums[:, active] += numerator - self.base[:, slot][:, None]
+            else:
+                self.sums[:, active] += numerator - self.mix.logpdf(obs[:, None, :] - self.null_shift(delta))
             return self.sums[:, active]
         times = self.times[active]
         inside = times[None, :] >= times[:, None]                                      # (candidate, observation)
         b, a, d = delta.shape
-        shifted = self.obs[:, active][:, None, :, :] - delta[:, :, None, :]             # (B, A, A, d)
-        loglik = self.mix.logpdf(shifted.reshape(b, a * a, d)).reshape(b, a, a)
-        return np.sum(np.where(inside[None], loglik - self.base[:, active][:, None, :], 0.0), axis=2)
+        window_obs = self.obs[:, active][:, None, :, :]                                 # (B, 1, A, d)
+        loglik = self.mix.logpdf((window_obs - delta[:, :, None, :]).reshape(b, a * a, d)).reshape(b, a, a)
+        if self.simple_null:
+            null = self.base[:, active][:, None, :]
+        else:
+            shifted = window_obs - self.null_shift(delta)[:, :, None, :]
+            null = self.mix.logpdf(shifted.reshape(b, a * a, d)).reshape(b, a, a)
+        return np.sum(np.where(inside[None], loglik - null, 0.0), axis=2)
 
     def segment_length(self) -> NDArray[np.int64]:
         """ñ of the maximising candidate of each detector after the last update."""

@@ -40,6 +40,7 @@ from edge_monitor.stats.calibration import (
 )
 from edge_monitor.stats.densities import DENSITY_KINDS, DensityError, GaussianMixture, fit_density, min_points
 from edge_monitor.stats.glr import GLRError, WindowedGLR, check_pf, threshold_from_pf
+from edge_monitor.stats.glr_batch import DIRECTIONS, clip_range, null_box
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +85,9 @@ class DetectorConfig:
     mode: str = DEFAULT_MODE
     arl0: float = DEFAULT_ARL0
     pf: float | None = None
+    direction: str = "both"
+    allowance: float = 0.0
+    clip_sigma: float = 0.0
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
 
@@ -100,6 +104,11 @@ class DetectorConfig:
             require(self.mode in ("exact", "recursive"), "mode", f"must be 'exact' or 'recursive', got {self.mode!r}")
             require(isinstance(self.arl0, (int, float)) and 10 <= self.arl0 <= MAX_ARL0, "arl0",
                     f"mean run length to false alarm must be 10 … {MAX_ARL0:g} cycles, got {self.arl0!r}")
+            require(self.direction in DIRECTIONS, "direction", f"{self.direction!r}; choose one of {DIRECTIONS}")
+            require(isinstance(self.allowance, (int, float)) and 0 <= self.allowance <= 5, "allowance",
+                    f"must be 0 … 5 standard deviations of the nominal values, got {self.allowance!r}")
+            require(isinstance(self.clip_sigma, (int, float)) and (self.clip_sigma == 0 or 1 <= self.clip_sigma <= 20),
+                    "clip_sigma", f"must be 0 (off) or 1 … 20 standard deviations, got {self.clip_sigma!r}")
             require(isinstance(self.calibration_draws, int) and 8 <= self.calibration_draws <= 4096,
                     "calibration_draws", f"must be 8 … 4096, got {self.calibration_draws!r}")
             require(isinstance(self.calibration_steps, int) and 200 <= self.calibration_steps <= 1_000_000,
@@ -229,15 +238,20 @@ class SequentialDetector:
         try:
             density = fit_density(np.asarray(self._nominal), self.density_kind)
             threshold = threshold_from_pf(self.config.pf, self.dim) if self.config.pf is not None else math.inf
+            nominal = np.asarray(self._nominal)
             self._glr = WindowedGLR(density, self.window, 0.5, self.gamma0, self.rho,
-                                    "exact" if self.mode == "exact" else "recursive", threshold=threshold)
+                                    "exact" if self.mode == "exact" else "recursive", threshold=threshold,
+                                    null_box=null_box(nominal, self.config.direction, self.config.allowance),
+                                    clip=clip_range(nominal, self.config.clip_sigma))
         except (DensityError, GLRError) as exc:
             self._learning_note = f"nominal data unusable, still learning: {exc}"
             log.info("detector stays in learning: %s", exc)
             return Decision("learning", reason=self._learning_note, calibration=self.calibration_record())
         if self.config.pf is None:
             self._job = CalibrationJob(tuple(tuple(v) for v in self._nominal), self.density_kind, self.window,
-                                       float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget)
+                                       float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
+                                       self.config.direction, float(self.config.allowance),
+                                       float(self.config.clip_sigma))
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""

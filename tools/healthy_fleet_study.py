@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""False alarms of the agent on a healthy robot at the simulator's defaults, and detection of a wear
+ramp: the product's promise measured as a user meets it (docs/DETECTION.md, "Healthy robot").
+
+Each seed is one robot: the simulator's defaults (6 joints, ±8 % individual friction variation, the
+lubricant warming from 30 °C by the thermal model, load spread 0.3 … 0.7 per cycle), run through the
+agent at its shipped defaults on the cycle-level fast path (the per-cycle quantities equal those of
+``sim-controller record`` + ``edge-monitor replay``; tests/test_fast_path.py). ``--wear-ramp`` adds
+wear on some joints (``JOINT:START:END:FROM:TO``, as ``sim-controller record --wear-ramp``).
+
+Reported per quantity: monitored cycles of healthy joints (the exposure), false alarms (alarms on
+joints without wear), the run length to false alarm it implies (a lower bound when there are none),
+and per worn joint the cycle of its first alarm and the wear then. Seeds run in parallel worker
+processes (``--jobs``); a status line per seed and every ``--progress`` cycles.
+
+Usage: ``python tools/healthy_fleet_study.py --cycles 200 --seeds 1 2 [--wear-ramp 2:100:200:0:60]
+[--set decision.allowance=0] [--json OUT]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edge_monitor.config import config_from_mapping  # noqa: E402
+from edge_monitor.offline.fast_path import CycleFeeder  # noqa: E402
+from edge_monitor.pipeline.agent import Agent  # noqa: E402
+from sim_controller.config import SimConfig, wear_profiles_from_ramps  # noqa: E402
+from sim_controller.cycle_mode import cycle_signals  # noqa: E402
+
+log = logging.getLogger("healthy_fleet_study")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One simulated robot: seed, length [cycles], joints, wear ramps, agent overrides (TOML tables)."""
+
+    seed: int
+    cycles: int
+    joints: int = 6
+    wear_ramps: tuple[str, ...] = ()
+    overrides: tuple[tuple[str, Any], ...] = ()
+    progress: int = 50
+
+
+def _mapping(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for dotted, value in overrides:
+        table, _, key = dotted.rpartition(".")
+        node = doc
+        for part in filter(None, table.split(".")):
+            node = node.setdefault(part, {})
+        node[key] = value
+    return doc
+
+
+def run_robot(spec: RunSpec) -> dict[str, Any]:
+    """Simulate one robot through the agent; per joint the monitored cycles and alarms per quantity."""
+    sim = SimConfig(joints=spec.joints, cycles=spec.cycles, seed=spec.seed,
+                    wear=wear_profiles_from_ramps(spec.wear_ramps, spec.joints))
+    agent = Agent(config_from_mapping(_mapping(spec.overrides)))
+    feeder = CycleFeeder(agent)
+    monitored: dict[int, dict[str, int]] = {}
+    alarms: list[dict[str, Any]] = []
+    wear_truth: dict[tuple[int, int], float] = {}
+    temperatures: list[float] = []
+    started = time.monotonic()
+
+    def take(symptoms: list) -> None:
+        for s in symptoms:
+            for q, decision in s.decisions.items():
+                if decision.state == "monitoring" and decision.threshold is not None:
+                    counts = monitored.setdefault(s.joint, {})
+                    counts[q] = counts.get(q, 0) + 1
+
+    for signals in cycle_signals(sim):
+        for truth in signals.truth:
+            wear_truth[(int(truth["joint"]), int(truth["cycle"]))] = float(truth["wear"])
+            temperatures.append(float(truth["temperature"]))
+        take(feeder.update(signals))
+        if spec.progress and (signals.cycle + 1) % spec.progress == 0:
+            log.info("seed %d: cycle %d/%d, %d alarms, %.0f s", spec.seed, signals.cycle + 1, spec.cycles,
+                     len(agent.stats.alarms), time.monotonic() - started)
+    take(feeder.finish())
+    for alarm in agent.stats.alarms:
+        joint, cycle = int(alarm["joint"]), int(alarm["cycle"])
+        alarms.append({"joint": joint, "cycle": cycle, "quantity": alarm["quantity"],
+                       "wear": wear_truth.get((joint, cycle), math.nan)})
+    return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
+            "worn": sorted({j for (j, _), w in wear_truth.items() if w > 0}),
+            "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
+
+
+def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Pooled over robots: false alarms and exposure per quantity on unworn joints, first alarms of worn ones."""
+    exposure: dict[str, int] = {}
+    false_alarms: dict[str, int] = {}
+    detections = []
+    for run in runs:
+        worn = set(run["worn"])
+        for joint, counts in run["monitored"].items():
+            if int(joint) in worn:
+                continue
+            for q, n in counts.items():
+                exposure[q] = exposure.get(q, 0) + n
+        for alarm in run["alarms"]:
+            if alarm["joint"] in worn:
+                continue
+            false_alarms[alarm["quantity"]] = false_alarms.get(alarm["quantity"], 0) + 1
+        for joint in worn:
+            mine = [a for a in run["alarms"] if a["joint"] == joint]
+            first = min(mine, key=lambda a: a["cycle"]) if mine else None
+            detections.append({"seed": run["seed"], "joint": joint, "first_alarm": first})
+    per_quantity = {}
+    for q, n in sorted(exposure.items()):
+        k = false_alarms.get(q, 0)
+        # with no alarm, the 95 % one-sided Poisson bound: rate ≤ 3/exposure
+        per_quantity[q] = {"exposure": n, "false_alarms": k,
+                           "arl0": n / k if k else None, "arl0_95_lower": n / 3.0 if not k else None}
+    return {"per_quantity": per_quantity, "detections": detections,
+            "false_alarms": sum(false_alarms.values())}
+
+
+def _parse_set(text: str) -> tuple[str, Any]:
+    key, sep, raw = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"--set expects TABLE.KEY=VALUE, got {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    return key.strip(), value
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cycles", type=int, default=200)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--joints", type=int, default=6)
+    ap.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO")
+    ap.add_argument("--set", action="append", default=[], type=_parse_set, metavar="TABLE.KEY=VALUE",
+                    help="agent setting (value as JSON), e.g. decision.allowance=0")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--progress", type=int, default=50, help="status line every N cycles (0: off)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    specs = [RunSpec(seed, args.cycles, args.joints, tuple(args.wear_ramp), tuple(args.set), args.progress)
+             for seed in args.seeds]
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        runs = list(pool.map(run_robot, specs))
+    result = {"cycles": args.cycles, "seeds": args.seeds, "joints": args.joints, "wear_ramps": args.wear_ramp,
+              "overrides": dict(args.set), "runs": runs, "summary": summarise(runs)}
+    for q, row in result["summary"]["per_quantity"].items():
+        arl = f"ARL0 ≈ {row['arl0']:.0f}" if row["arl0"] else f"ARL0 ≥ {row['arl0_95_lower']:.0f} (95 %)"
+        print(f"{q:12s} monitored {row['exposure']:6d} healthy joint-cycles, false alarms {row['false_alarms']:3d}, {arl}")
+    for d in result["summary"]["detections"]:
+        first = d["first_alarm"]
+        print(f"seed {d['seed']} worn joint {d['joint']}: " + (
+            f"first alarm cycle {first['cycle']} ({first['quantity']}, wear {first['wear']:.1f})" if first
+            else "no alarm"))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
