@@ -1,10 +1,11 @@
 """``edge-monitor demo``: the whole system in one command, on embedded defaults.
 
 Starts the simulated controller as a separate process streaming over a pseudo-terminal slcan link
-(SocketCAN ``vcan0`` where the kernel has it) with an accelerated wear ramp on one joint and thermal
-drift on all, runs the agent on the other end of the link, publishes over Zenoh (peer mode,
-loopback, multicast scouting off), counts what an independent Zenoh subscriber receives, records
-to Rerun (and spawns the viewer when a display is available), then prints a summary table.
+(SocketCAN ``vcan0`` where the kernel has it) at the simulator's defaults (±8 % individual
+variation, the lubricant warming from 30 °C) with a wear ramp on one joint, runs the agent on the
+other end of the link, publishes over Zenoh (peer mode, loopback, multicast scouting off), counts
+what an independent Zenoh subscriber receives, records to Rerun (and spawns the viewer when a
+display is available), then prints a summary table.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 from edge_monitor.app import Outputs, build_app
 from edge_monitor.commands.common import open_state_store, summary_table
 from edge_monitor.errors import ConfigError
+from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
@@ -39,13 +41,14 @@ log = logging.getLogger(__name__)
 #: design point (ξ' = 40 °C, ϖ' = 35), rounded to 0.1 rad/s.
 DEMO_SPEEDS = (31.6, 36.6, 41.6, 46.6)
 DEMO_JOINTS = 2
+DEMO_CYCLES = 130
 WORN_JOINT = 1
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("demo", help="simulated controller + agent + Zenoh + Rerun in one command",
                               description=__doc__)
-    p.add_argument("--cycles", type=int, default=100, help="test cycles to simulate (default 100)")
+    p.add_argument("--cycles", type=int, default=DEMO_CYCLES, help=f"test cycles to simulate (default {DEMO_CYCLES})")
     p.add_argument("--joints", type=int, default=DEMO_JOINTS, help=f"joints (default {DEMO_JOINTS})")
     p.add_argument("--speedup", type=float, default=8.0,
                    help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
@@ -73,13 +76,13 @@ def demo_config(out: Path, nominal_cycles: int) -> AgentConfig:
 
 
 def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
-    wear_start = min(args.nominal_cycles + 5, args.cycles - 1)
+    """The simulator at its default individual variation (±8 % per joint) and thermal drift; the wear
+    ramp starts 5 cycles after the agent has learned the joint's model and its nominal behaviour."""
+    wear_start = min(ModelConfig().learning_cycles + args.nominal_cycles + 5, args.cycles - 1)
     return [sys.executable, "-m", "sim_controller.cli", "run", "--link", link,
             "--joints", str(args.joints), "--cycles", str(args.cycles), "--seed", str(args.seed),
             "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
-            "--speedup", str(args.speedup), "--vary", "0",
-            # thermal drift: lubricant starts at 40 °C and drifts towards its warm state (~46 °C)
-            "--ambient", "30", "--start-temperature", "40", "--time-acceleration", "60",
+            "--speedup", str(args.speedup),
             "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{args.cycles}:0:60",
             "--truth", str(truth)]
 

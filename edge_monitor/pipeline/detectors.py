@@ -60,7 +60,7 @@ class DecisionConfig:
     quantities: tuple[str, ...] = tuple(QUANTITIES)
     log_scale: bool = True
     direction: str = "increase"
-    allowance: float = 0.5
+    allowance: float = 0.75
     clip_sigma: float = 3.0
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
