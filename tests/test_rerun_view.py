@@ -83,6 +83,21 @@ def test_saved_recording_has_expected_entities_and_rows(tmp_path):
     assert counts == expected
 
 
+def test_density_as_numpy_arrays_draws_like_lists(tmp_path):
+    """In-process sinks get the cycle's density as numpy arrays (the live agent), viewers get JSON lists."""
+    path = tmp_path / "arrays.rrd"
+    records = [symptom("r1", 0, c) for c in range(3)]
+    for record in records:
+        record["density"] = {k: np.asarray(v) for k, v in record["density"].items()}
+    sink = RerunSink.open(f"save:{path}")
+    for record in records:
+        sink.log_symptom(record)
+    sink.close()
+    assert sink.errors == 0
+    counts = rows_by_entity(path)
+    assert counts["/robot/r1/joint/0/density/nominal"] == 3 and counts["/robot/r1/joint/0/density/cycle"] == 3
+
+
 def test_batch_path_writes_the_same_rows_as_record_by_record(tmp_path):
     records = [symptom(robot, j, c) for robot in ("a", "b") for j in range(3) for c in range(40)]
     path = tmp_path / "batch.rrd"

@@ -74,6 +74,14 @@ def _number(value: Any) -> float:
         return float("nan")
 
 
+def _array(value: Any) -> np.ndarray:
+    """A 1-d float array of a list or array (empty for None or what is not numeric)."""
+    try:
+        return np.asarray([] if value is None else value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        return np.empty(0)
+
+
 class RerunSink:
     """Draws symptom, alarm and health records into one Rerun recording (or nowhere, for ``off``).
 
@@ -344,18 +352,20 @@ class RerunSink:
 
     def _draw_density(self, base: str, record: dict) -> None:
         density = record.get("density")
-        if not isinstance(density, dict) or not density.get("grid"):
+        if not isinstance(density, dict):
+            return
+        grid = _array(density.get("grid")) * FRICTION_SCALE     # lists from JSON, arrays in-process
+        if not grid.size:
             return
         import rerun as rr
 
-        grid = np.asarray(density["grid"], float) * FRICTION_SCALE
-        nominal = np.asarray(density.get("nominal") or [], float)
+        nominal = _array(density.get("nominal"))
         peak = np.nanmax(nominal) if nominal.size and np.nanmax(nominal) > 0 else 1.0
         self.rec.set_time("cycle", sequence=int(record["cycle"]))
         if record.get("t") is not None:
             self.rec.set_time("controller_time", duration=float(record["t"]))
         for name, color in (("nominal", [150, 150, 150]), ("cycle", [230, 120, 30])):
-            values = np.asarray(density.get(name) or [], float)
+            values = _array(density.get(name))
             if values.size != grid.size:
                 continue
             strip = np.stack([grid, -DENSITY_HEIGHT * values / peak], axis=-1)
