@@ -6,7 +6,7 @@ mean run length to false alarm of 10⁴ cycles at the drift allowance boundary (
 healthy joint is monitored for ≈ 4 × 110 detector-cycles (4 quantities, monitoring from cycle ≈ 90), so
 the expected number of false alarms is ≈ 0.04 if its drift stays inside the allowance; an alarm here
 means the drift left the nominal behaviour the issue asks for. The worn joint's wear rises 0 → 60
-(critical 100) from cycle 100 on: by cycle 200 its friction has moved by several nominal standard
+(critical 35) from cycle 100 on: by cycle 200 its friction has moved by several nominal standard
 deviations, which every quantity is designed to see (the alarm side).
 """
 
