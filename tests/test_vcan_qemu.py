@@ -89,7 +89,7 @@ class TestGuestRun:
             # only the summation order may differ (blocks are cut where the frames happened to arrive)
             np.testing.assert_allclose(s["friction"]["torque"], h["friction"]["torque"], rtol=1e-9)
             np.testing.assert_allclose(s["friction"]["stderr"], h["friction"]["stderr"], rtol=1e-6)
-            assert s["kl"]["n_samples"] == h["kl"]["n_samples"]
+            assert s["kl"]["n_samples"] == h["kl"]["n_samples"] > 0
 
 
 # --- the tool's pieces (always run, no qemu) ------------------------------------------------------

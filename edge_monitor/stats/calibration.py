@@ -23,6 +23,7 @@ B·steps·W·K mixture evaluations; deterministic for a given seed.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -33,6 +34,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
 from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch, clip_range, null_box
+
+log = logging.getLogger(__name__)
 
 #: Default mean run length to false alarm per detector [cycles] (at 300 cycles a day: ~1 per month).
 DEFAULT_ARL0 = 10_000.0
@@ -274,8 +277,14 @@ class ProcessCalibrator:
         import concurrent.futures
         import multiprocessing
 
-        self._pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._pool: concurrent.futures.Executor
+        try:
+            self._pool = concurrent.futures.ProcessPoolExecutor(
+                max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        except OSError as exc:       # e.g. no /dev/shm (minimal containers, initramfs): no semaphores
+            log.warning("calibration worker process unavailable (%s); calibrating in a background thread "
+                        "instead (frames are still taken, the numerics share the CPU)", exc)
+            self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration")
 
     def submit(self, job: CalibrationJob) -> Pending:
         return _FuturePending(self._pool.submit(job.run))

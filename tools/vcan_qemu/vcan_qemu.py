@@ -81,7 +81,10 @@ class Workload:
 
     def agent_config(self) -> str:
         speeds = ", ".join(f"{v:g}" for v in self.speeds)
-        return f'robot = "vcan-guest"\nstatus_interval_s = 10.0\n[segmentation]\nspeeds = [{speeds}]\n'
+        # no per-joint model learning: the 3 cycles would all be spent learning it, and the KL path
+        # (whose sample counts the host comparison checks) would never run
+        return (f'robot = "vcan-guest"\nstatus_interval_s = 10.0\n[segmentation]\nspeeds = [{speeds}]\n'
+                '[model]\nenabled = false\n')
 
 
 @dataclass
