@@ -14,6 +14,8 @@ import logging
 import sys
 from typing import Sequence
 
+from protocol import package_version
+
 #: Subcommands and the module under ``edge_monitor.commands`` that defines each.
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("run", "run"), ("replay", "replay"), ("demo", "demo"), ("design", "design"),
@@ -23,6 +25,7 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="edge-monitor", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for _name, module_name in SUBCOMMANDS:

@@ -6,6 +6,8 @@ catalogue, loaded via cantools), ``links`` (python-can buses from link strings, 
 pair, vcan detection), ``slcan_fast`` (chunked slcan reader), ``bench_micro`` (micro-benchmarks).
 """
 
+from importlib import metadata as _metadata
+
 from protocol.crc import crc8h2f, crc8h2f_block
 from protocol.e2e import E2EReceiver, E2EState, E2EStatus
 from protocol.frames import (
@@ -27,8 +29,21 @@ from protocol.frames import (
     to_message,
 )
 
+#: Installed distribution that ships the simulator, the protocol and the agent (one version for all).
+DISTRIBUTION = "joint-wear-monitor"
+
+
+def package_version() -> str:
+    """The installed version of the distribution ("unknown" when run from an uninstalled checkout)."""
+    try:
+        return _metadata.version(DISTRIBUTION)
+    except _metadata.PackageNotFoundError:
+        return "unknown"
+
+
 __all__ = [
     "CATALOGUE", "ControllerStatus", "DecodeError", "DecodeErrorKind", "DecodedBlock", "E2EReceiver",
     "E2EState", "E2EStatus", "FrameKind", "JointStatus", "Mode", "MotorState", "SignalRole", "crc8h2f",
-    "crc8h2f_block", "decode", "decode_block", "decode_message", "frame_crc", "messages_to_arrays", "to_message",
+    "DISTRIBUTION", "crc8h2f_block", "decode", "decode_block", "decode_message", "frame_crc", "messages_to_arrays",
+    "package_version", "to_message",
 ]

@@ -19,6 +19,7 @@ import logging
 import sys
 from typing import Any, Sequence
 
+from protocol import package_version
 from protocol.links import LinkError
 from sim_controller.config import (
     SimConfig,
@@ -144,6 +145,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sim-controller", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="stream frames onto a link in real time or faster")
     p_run.add_argument("--link", help="slcan:DEVICE_OR_URL, socketcan:IFACE, virtual:NAME (default: python-can config)")
