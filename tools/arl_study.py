@@ -390,7 +390,7 @@ def allowance_study(allowance: float, target: float = 1e4, detectors: int = 32, 
                     clip_sigma: float = 3.0, kind: str = "gce") -> dict[str, object]:
     """ARL at drifts inside/at/beyond the allowance and delays, for ``detectors`` learned nominals."""
     from edge_monitor.stats.calibration import calibrate
-    from edge_monitor.stats.glr_batch import BatchWindowedGLR, MixtureBatch, clip_range, null_box
+    from edge_monitor.stats.glr_batch import BatchWindowedGLR, MixtureBatch, clip_range, null_box, stack_bounds
 
     rng = np.random.default_rng(seed)
     nominals = [rng.standard_normal((60, 1)) for _ in range(detectors)]
@@ -400,11 +400,8 @@ def allowance_study(allowance: float, target: float = 1e4, detectors: int = 32, 
     cpu = (time.process_time() - started) / detectors
     mixtures = MixtureBatch([fit_density(n, kind) for n in nominals])
 
-    def stacked(pairs: list) -> tuple[np.ndarray, np.ndarray]:
-        return np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
-
-    box = stacked([null_box(n, "increase", allowance) for n in nominals])
-    clip = stacked([clip_range(n, clip_sigma) for n in nominals])
+    box = stack_bounds([null_box(n, "increase", allowance) for n in nominals])
+    clip = stack_bounds([clip_range(n, clip_sigma) for n in nominals])
 
     def first_alarms(shift: float, steps: int) -> np.ndarray:
         glr = BatchWindowedGLR(mixtures, 100, 0.6, 1.0, "recursive", null_box=box, clip=clip)

@@ -28,15 +28,15 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
-from edge_monitor.offline.fast_path import CycleFeeder  # noqa: E402
+from edge_monitor.offline.fast_path import run_cycles  # noqa: E402
 from edge_monitor.pipeline.agent import Agent  # noqa: E402
 from sim_controller.config import SimConfig, wear_profiles_from_ramps  # noqa: E402
-from sim_controller.cycle_mode import cycle_signals  # noqa: E402
+from sim_controller.cycle_mode import CycleSignals, cycle_signals  # noqa: E402
 
 log = logging.getLogger("healthy_fleet_study")
 
@@ -69,29 +69,28 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
     sim = SimConfig(joints=spec.joints, cycles=spec.cycles, seed=spec.seed,
                     wear=wear_profiles_from_ramps(spec.wear_ramps, spec.joints))
     agent = Agent(config_from_mapping(_mapping(spec.overrides)))
-    feeder = CycleFeeder(agent)
     monitored: dict[int, dict[str, int]] = {}
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[tuple[int, int], float] = {}
     temperatures: list[float] = []
     started = time.monotonic()
 
-    def take(symptoms: list) -> None:
-        for s in symptoms:
-            for q, decision in s.decisions.items():
-                if decision.state == "monitoring" and decision.threshold is not None:
-                    counts = monitored.setdefault(s.joint, {})
-                    counts[q] = counts.get(q, 0) + 1
+    def cycles() -> Iterator[CycleSignals]:
+        """The simulated cycles, their ground truth kept on the way, a status line now and then."""
+        for signals in cycle_signals(sim):
+            for truth in signals.truth:
+                wear_truth[(int(truth["joint"]), int(truth["cycle"]))] = float(truth["wear"])
+                temperatures.append(float(truth["temperature"]))
+            if spec.progress and signals.cycle % spec.progress == 0 and signals.cycle:
+                log.info("seed %d: cycle %d/%d, %d alarms, %.0f s", spec.seed, signals.cycle, spec.cycles,
+                         len(agent.stats.alarms), time.monotonic() - started)
+            yield signals
 
-    for signals in cycle_signals(sim):
-        for truth in signals.truth:
-            wear_truth[(int(truth["joint"]), int(truth["cycle"]))] = float(truth["wear"])
-            temperatures.append(float(truth["temperature"]))
-        take(feeder.update(signals))
-        if spec.progress and (signals.cycle + 1) % spec.progress == 0:
-            log.info("seed %d: cycle %d/%d, %d alarms, %.0f s", spec.seed, signals.cycle + 1, spec.cycles,
-                     len(agent.stats.alarms), time.monotonic() - started)
-    take(feeder.finish())
+    for symptom in run_cycles(agent, cycles()):
+        for q, decision in symptom.decisions.items():
+            if decision.state == "monitoring" and decision.threshold is not None:
+                counts = monitored.setdefault(symptom.joint, {})
+                counts[q] = counts.get(q, 0) + 1
     for alarm in agent.stats.alarms:
         joint, cycle = int(alarm["joint"]), int(alarm["cycle"])
         alarms.append({"joint": joint, "cycle": cycle, "quantity": alarm["quantity"],

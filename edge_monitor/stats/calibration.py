@@ -33,7 +33,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
-from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch, clip_range, null_box
+from edge_monitor.stats.glr_batch import (
+    BatchWindowedGLR,
+    GLRMode,
+    MixtureBatch,
+    clip_range,
+    null_box,
+    stack_bounds,
+)
 
 log = logging.getLogger(__name__)
 
@@ -112,8 +119,8 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     rng = np.random.default_rng(seed_from(values) if seed is None else seed)
     truth = fit_density(values, kind)
     mixtures, samples = _bootstrap_densities(truth, len(values), kind, budget.draws, rng)
-    boxes = _stacked([null_box(x, direction, allowance) for x in samples])
-    clips = _stacked([clip_range(x, clip_sigma) for x in samples])
+    boxes = stack_bounds([null_box(x, direction, allowance) for x in samples])
+    clips = stack_bounds([clip_range(x, clip_sigma) for x in samples])
     steps = budget.steps(arl0)
     # the least favourable nominal: the largest shift H0 allows (the drift allowance), on the side
     # the detector watches; with no allowance, the learned nominal itself
@@ -122,11 +129,6 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     threshold, method, events, slope = _threshold_for(statistics, arl0)
     return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(mixtures), steps=steps,
                        events=events, slope=slope, cpu_s=time.process_time() - started)
-
-
-def _stacked(pairs: list[tuple[NDArray[np.float64], NDArray[np.float64]]]
-             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    return np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
 
 
 def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int, rng: np.random.Generator

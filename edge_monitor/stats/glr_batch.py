@@ -69,6 +69,21 @@ def clip_range(nominal: ArrayLike, clip_sigma: float) -> tuple[NDArray[np.float6
     return centre - spread, centre + spread
 
 
+def stack_bounds(pairs: list[tuple[NDArray[np.float64], NDArray[np.float64]]]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per-detector ``(lo, hi)`` pairs (each (d,)) as the (B, d) rows :class:`BatchWindowedGLR` takes."""
+    return np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+
+
+def _bounds(pair: tuple[ArrayLike, ArrayLike] | None, default: tuple[float, float], shape: tuple[int, int]
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(lo, hi)`` broadcast to ``shape`` (``default`` when None); NaN refused."""
+    lo, hi = (np.broadcast_to(np.asarray(v, dtype=float), shape).copy() for v in (pair or default))
+    if np.any(np.isnan(lo)) or np.any(np.isnan(hi)):
+        raise ValueError("bounds must not be NaN (use ±inf for an open side)")
+    return lo, hi
+
+
 class MixtureBatch:
     """B Gaussian mixtures of one dimension d, padded to K components (padding has weight 0)."""
 
@@ -136,17 +151,12 @@ class BatchWindowedGLR:
         if mode not in ("exact", "recursive"):
             raise ValueError(f"mode = {mode!r} must be 'exact' or 'recursive'")
         b, d, w = mixtures.size, mixtures.dim, int(window)
-        lower, upper = (0.0, 0.0) if null_box is None else null_box
-        self.lower = np.broadcast_to(np.asarray(lower, dtype=float), (b, d)).copy()
-        self.upper = np.broadcast_to(np.asarray(upper, dtype=float), (b, d)).copy()
-        if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(self.lower > 0) \
-                or np.any(self.upper < 0):
+        self.lower, self.upper = _bounds(null_box, (0.0, 0.0), (b, d))
+        if np.any(self.lower > 0) or np.any(self.upper < 0):
             raise ValueError("null_box must contain Δ = 0: lower ≤ 0 ≤ upper")
         self.simple_null = not (np.any(self.lower) or np.any(self.upper))
-        lo, hi = (-np.inf, np.inf) if clip is None else clip
-        self.clip_lo = np.broadcast_to(np.asarray(lo, dtype=float), (b, d)).copy()
-        self.clip_hi = np.broadcast_to(np.asarray(hi, dtype=float), (b, d)).copy()
-        if np.any(np.isnan(self.clip_lo)) or np.any(np.isnan(self.clip_hi)) or np.any(self.clip_lo >= self.clip_hi):
+        self.clip_lo, self.clip_hi = _bounds(clip, (-np.inf, np.inf), (b, d))
+        if np.any(self.clip_lo >= self.clip_hi):
             raise ValueError("clip must be (lo, hi) with lo < hi")
         self.mix, self.window, self.gamma0, self.rho, self.mode = mixtures, w, float(gamma0), float(rho), mode
         self.count = 0

@@ -236,9 +236,9 @@ class SequentialDetector:
         if len(self._nominal) < self.n_nominal:
             return Decision("learning", reason=self._learning_reason(), calibration=self.calibration_record())
         try:
-            density = fit_density(np.asarray(self._nominal), self.density_kind)
-            threshold = threshold_from_pf(self.config.pf, self.dim) if self.config.pf is not None else math.inf
             nominal = np.asarray(self._nominal)
+            density = fit_density(nominal, self.density_kind)
+            threshold = threshold_from_pf(self.config.pf, self.dim) if self.config.pf is not None else math.inf
             self._glr = WindowedGLR(density, self.window, 0.5, self.gamma0, self.rho,
                                     "exact" if self.mode == "exact" else "recursive", threshold=threshold,
                                     null_box=null_box(nominal, self.config.direction, self.config.allowance),
