@@ -1,4 +1,6 @@
-"""``edge-monitor`` command line: dispatches to one module per subcommand (``edge_monitor.commands``)."""
+"""``edge-monitor`` command line: dispatches to one module per subcommand (``edge_monitor.commands``).
+
+``-v``/``-vv``/``-q`` work before and after the subcommand; exit codes in ``protocol.console``."""
 
 from __future__ import annotations
 
@@ -10,11 +12,19 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import importlib
-import logging
 import sys
 from typing import Sequence
 
 from protocol import package_version
+from protocol.console import (
+    EXIT_INTERRUPTED,
+    UsageError,
+    configure_logging,
+    install_conventions,
+    subcommands,
+    usage_error,
+    verbosity,
+)
 
 #: Subcommands and the module under ``edge_monitor.commands`` that defines each.
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
@@ -26,22 +36,24 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="edge-monitor", description=__doc__)
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for _name, module_name in SUBCOMMANDS:
         importlib.import_module(f"edge_monitor.commands.{module_name}").add_parser(subparsers)
+    install_conventions(parser)
     return parser
 
 
-def configure_logging(verbosity: int) -> None:
-    level = logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    configure_logging(args.verbose)
-    return int(args.func(args) or 0)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    configure_logging(verbosity(args))
+    try:
+        return int(args.func(args) or 0)
+    except UsageError as exc:       # a bad value found after parsing: the subcommand's usage, exit 2
+        return usage_error(subcommands(parser)[args.command], str(exc))
+    except KeyboardInterrupt:
+        print(f"edge-monitor {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 Modules: ``crc`` (CRC-8H2F: crccheck scalar, numpy block), ``frames`` (catalogue, encoders,
 decoders, block codecs), ``e2e`` (receiver check state machine), ``dbc`` (DBC rendered from the
 catalogue, loaded via cantools), ``links`` (python-can buses from link strings, log files, pty
-pair, vcan detection), ``slcan_fast`` (chunked slcan reader), ``bench_micro`` (micro-benchmarks).
+pair, vcan detection), ``slcan_fast`` (chunked slcan reader), ``bench_micro`` (micro-benchmarks),
+``console`` (conventions of both command-line tools: verbosity, exit codes, -i/-c/-b, progress bars).
 """
 
 from importlib import metadata as _metadata

@@ -7,7 +7,7 @@ Link strings (docs/PROTOCOL.md, "Links"):
                                  URL such as ``socket://127.0.0.1:PORT``
 * ``virtual:NAME``               python-can in-process bus (one process only)
 * ``None``                       python-can's own configuration (arguments, ``CAN_*`` environment,
-                                 ``~/.canrc``)
+                                 ``~/.canrc``); none of them naming an interface raises ``NoCanConfigError``
 * a log file (``.blf``, ``.log``, ``.asc``, ``.csv``, ``.trc``) is not a bus: see ``is_log_file``.
 """
 
@@ -33,6 +33,14 @@ LINK_SCHEMES = ("socketcan", "slcan", "virtual")
 
 class LinkError(ValueError):
     """A link could not be opened or is malformed; the message starts with the link."""
+
+
+class NoCanConfigError(LinkError):
+    """No link given and python-can's configuration names no interface: the message says what to do."""
+
+
+NO_CAN_CONFIG = ("no CAN interface configured: pass --link socketcan:IFACE or slcan:/dev/pts/N, -i/--interface "
+                 "with -c/--channel, or set CAN_INTERFACE/CAN_CHANNEL or a python-can config file (~/.canrc)")
 
 
 def is_log_file(link: str | os.PathLike | None) -> bool:
@@ -127,6 +135,8 @@ def _open_configured(
     if receive_own_messages:
         options["receive_own_messages"] = True
     described = f"interface={interface or '(config)'} channel={channel or '(config)'}"
+    if interface is None and not _interface_configured(options.get("config_context")):
+        raise NoCanConfigError(NO_CAN_CONFIG)
     try:
         config = can.util.load_config(config={k: v for k, v in options.items()
                                               if k in ("interface", "channel", "bitrate")},
@@ -140,6 +150,17 @@ def _open_configured(
     except Exception as error:  # noqa: BLE001
         raise LinkError(f"{described}: {_reason(error)}; set --interface/--channel, CAN_INTERFACE/"
                         "CAN_CHANNEL or ~/.canrc") from error
+
+
+def _interface_configured(context: str | None) -> bool:
+    """Whether python-can's configuration chain (``can.rc``, ``CAN_*`` environment, config files)
+    names an interface; when unsure, True (python-can then says what is wrong)."""
+    try:
+        sources = [can.rc, can.util.load_environment_config(context), can.util.load_environment_config(),
+                   can.util.load_file_config(None, context) if context else {}, can.util.load_file_config()]
+    except Exception:  # noqa: BLE001 - e.g. CAN_CONFIG not JSON: python-can reports it
+        return True
+    return any(source.get("interface") or source.get("bustype") for source in sources)
 
 
 def _reason(error: BaseException) -> str:

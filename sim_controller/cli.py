@@ -1,8 +1,9 @@
 """``sim-controller run | record``: the simulated robot controller on the command line.
 
 Options given on the command line override a ``--scenario`` file; see docs/SIMULATOR.md.
-Invalid input is refused with a message naming the field (exit code 2); a link or file that
-cannot be opened says which and why (exit code 1).
+Invalid input is refused with the subcommand's usage and a message naming the field (exit code 2);
+a link or file that cannot be opened says which and why (exit code 1); Ctrl-C exits with 130.
+``-v``/``-vv``/``-q`` work before and after the subcommand (``protocol.console``).
 """
 
 from __future__ import annotations
@@ -17,10 +18,20 @@ import argparse
 import json
 import logging
 import sys
-from typing import Any, Sequence
+from typing import Any, NoReturn, Sequence
 
 from protocol import package_version
-from protocol.links import LinkError
+from protocol.console import (
+    EXIT_FAILURE,
+    EXIT_INTERRUPTED,
+    add_can_arguments,
+    can_options,
+    configure_logging,
+    install_conventions,
+    subcommands,
+    verbosity,
+)
+from protocol.links import LinkError, NoCanConfigError, is_log_file
 from sim_controller.config import (
     SimConfig,
     SimConfigError,
@@ -104,7 +115,6 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     g.add_argument("--truth", metavar="PATH.jsonl",
                    help="write ground truth (one record per joint per cycle, then a fault summary)")
     g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
-    g.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
 
 
 _FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "seed": "seed", "speeds": "speeds",
@@ -148,10 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="stream frames onto a link in real time or faster")
-    p_run.add_argument("--link", help="slcan:DEVICE_OR_URL, socketcan:IFACE, virtual:NAME (default: python-can config)")
-    p_run.add_argument("--interface", help="python-can interface (when --link is not given)")
-    p_run.add_argument("--channel", help="python-can channel (when --link is not given)")
-    p_run.add_argument("--bitrate", type=_number("bitrate", int), help="bitrate in bit/s")
+    add_can_arguments(p_run, "slcan:DEVICE_OR_URL | socketcan:IFACE | virtual:NAME "
+                             "(omit to use -i/-c/-b or python-can's CAN_*/~/.canrc config)")
     pace = p_run.add_mutually_exclusive_group()
     pace.add_argument("--realtime", action="store_true", help="pace at real time (default)")
     pace.add_argument("--speedup", type=_number("speedup"), metavar="X",
@@ -160,47 +168,56 @@ def build_parser() -> argparse.ArgumentParser:
     p_rec = sub.add_parser("record", help="write frames to a python-can log file as fast as possible")
     p_rec.add_argument("--out", required=True, metavar="FILE.{blf,log,asc}", help="log file (format from the suffix)")
     _add_common(p_rec)
+    install_conventions(parser)
     return parser
 
 
-def _configure_logging(verbosity: int) -> None:
-    level = logging.INFO if verbosity <= 1 else logging.DEBUG
-    logging.basicConfig(level=level if verbosity else logging.WARNING,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if verbosity == 0:
-        logging.getLogger("sim_controller").setLevel(logging.INFO)   # progress lines of long runs
+def _run_option_error(args: argparse.Namespace) -> str | None:
+    """What is wrong with the options of ``run`` beyond their syntax, or None."""
+    if args.speedup is not None and args.speedup < 0:
+        return f"speedup: must be ≥ 0, got {args.speedup}"
+    if is_log_file(args.link):
+        return f"--link {args.link} is a log file; use `sim-controller record --out {args.link}`"
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    _configure_logging(args.verbose)
+    configure_logging(verbosity(args))
+    command_parser = subcommands(parser)[args.command]
+
+    def usage_error(message: str) -> NoReturn:
+        command_parser.error(message)   # the subcommand's usage and the message, exit 2
+
     try:
         config = build_config(args)
     except ValueError as exc:   # SimConfigError, WearScenarioError, FaultSpecError, FrictionParams errors
-        parser.error(str(exc))   # exit 2
+        usage_error(str(exc))
+    log.info("%s: %d joints, %d cycles at %g Hz, seed %d -> %s", args.command, config.joints, config.cycles,
+             config.rate, config.seed, getattr(args, "out", None) or args.link or "python-can configuration")
     try:
         if args.command == "record":
-            summary = record(config, args.out, args.truth)
+            summary = record(config, args.out, args.truth, progress=verbosity(args) >= 0)
         else:
-            if args.speedup is not None and args.speedup < 0:
-                parser.error(f"speedup: must be ≥ 0, got {args.speedup}")
+            if (problem := _run_option_error(args)) is not None:
+                usage_error(problem)
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
-            bus_kwargs = {k: getattr(args, k) for k in ("interface", "channel", "bitrate") if getattr(args, k)}
-            summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=bus_kwargs)
-    except LinkError as exc:
+            summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args))
+    except NoCanConfigError as exc:
+        usage_error(str(exc))
+    except (LinkError, OSError) as exc:
         print(f"sim-controller: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"sim-controller: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_FAILURE
     except KeyboardInterrupt:
-        return 130
+        print(f"sim-controller {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     if args.summary_json:
         print(json.dumps(summary.to_dict()))
-    else:
-        log.info("%d frames, %d cycles, %.1f s simulated in %.2f s (%.1f× real time)", summary.frames_sent,
-                 summary.cycles, summary.simulated_s, summary.wall_s, summary.speed_ratio)
+    elif verbosity(args) >= 0:
+        print(f"sim-controller {args.command}: {summary.frames_sent} frames, {summary.cycles} cycles, "
+              f"{summary.simulated_s:.1f} s simulated in {summary.wall_s:.2f} s "
+              f"({summary.speed_ratio:.1f}× real time)", file=sys.stderr)
     return 0
 
 

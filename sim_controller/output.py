@@ -1,7 +1,8 @@
 """Outputs of a simulation: a python-can log file (``record``) or a live bus (``run``), plus truth.
 
 ``record`` writes as fast as possible with python-can's writer for the file suffix (``.blf``,
-``.log`` candump, ``.asc``, …; block writers in ``log_writers``); timestamps are controller time. ``run`` paces the
+``.log`` candump, ``.asc``, …; block writers in ``log_writers``); timestamps are controller time; with
+``progress`` a bar over the cycles shows on stderr when it is a terminal. ``run`` paces the
 frames to wall time (``speedup`` × real time, ``None`` = as fast as the link takes them) and sends
 them on a bus opened with ``protocol.links.open_bus``; timestamps are wall time.
 
@@ -21,6 +22,7 @@ from typing import IO, Any, Callable
 
 import can
 
+from protocol.console import progress_bar
 from protocol.links import open_bus
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
@@ -28,7 +30,7 @@ from sim_controller.log_writers import block_messages, open_block_writer
 
 log = logging.getLogger(__name__)
 
-#: Seconds of wall time between progress log lines.
+#: Seconds of wall time between progress log lines (INFO, ``-v``; ``record`` logs them only without a bar).
 STATUS_INTERVAL_S = 10.0
 #: Frames due less than this far in the future are sent at once (bounded sleep overhead) [s].
 PACING_SLACK_S = 1e-3
@@ -98,20 +100,25 @@ class _Progress:
                      c.simulated_seconds / max(now - self.start, 1e-9), c.frames_emitted)
 
 
-def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = None) -> RunSummary:
-    """Simulate ``config`` and write all frames to the log ``path`` (format from the suffix)."""
+def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = None,
+           progress: bool = False) -> RunSummary:
+    """Simulate ``config`` and write all frames to the log ``path`` (format from the suffix);
+    ``progress``: a bar over the cycles on stderr if it is a terminal, else INFO lines every 10 s."""
     controller = Controller(config)
     writer = open_block_writer(path)
     truth = _TruthWriter(controller, truth_path)
-    progress = _Progress(controller, f"record {path}")
+    status = _Progress(controller, f"record {path}")
     start = time.perf_counter()
     sent = 0
     try:
-        for block in controller.frames():
-            writer.write_block(block)
-            sent += len(block)
-            truth.drain()
-            progress.tick()
+        with progress_bar(config.cycles, f"record {Path(path).name}", enabled=progress, unit="cycle") as bar:
+            for block in controller.frames():
+                writer.write_block(block)
+                sent += len(block)
+                truth.drain()
+                bar.update(controller.cycles_done - bar.n)
+                if bar.disable:
+                    status.tick()
     finally:
         writer.stop()
         truth.close(sent)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from edge_monitor.offline.commissioning import CommissioningDataError, identify, load_csv
 from joint_model.friction import DEFAULT_PARAMS, FrictionParams
+from protocol.console import EXIT_FAILURE, EXIT_USAGE
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         result = identify(load_csv(args.data), base)
     except ValueError as exc:  # CommissioningDataError and FrictionParams validation errors
         print(f"edge-monitor commission: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     toml_text = result.to_toml()
     report = json.dumps(result.report(), indent=2)
     try:
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
             args.report.write_text(report + "\n", encoding="utf-8")
     except OSError as exc:
         print(f"edge-monitor commission: cannot write output: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_FAILURE
     if args.json:
         print(report)
     elif args.out is None:

@@ -12,6 +12,7 @@ from edge_monitor.errors import StateError
 from edge_monitor.pipeline.state_store import StateStore
 from edge_monitor.records import to_json
 from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, MODES, ZenohOptions
+from protocol.console import EXIT_FAILURE, EXIT_USAGE
 
 log = logging.getLogger(__name__)
 
@@ -57,17 +58,20 @@ def load_agent_config(args: argparse.Namespace) -> AgentConfig:
             import dataclasses
             cfg = with_overrides(cfg, decision=dataclasses.replace(cfg.decision, pf=args.pf))
         return cfg
-    except ConfigError as exc:
-        raise SystemExit(f"edge-monitor: configuration error: {exc}") from None
+    except ConfigError as exc:      # invalid input, like a bad option value: exit code 2
+        print(f"edge-monitor: configuration error: {exc}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE) from None
 
 
 def open_state_store(cfg: AgentConfig) -> StateStore | None:
+    """The state store of ``--state-dir``; exits with code 1 when it cannot be used (a runtime failure)."""
     if not cfg.state_dir:
         return None
     try:
         return StateStore(cfg.state_dir)
     except StateError as exc:
-        raise SystemExit(f"edge-monitor: {exc}") from None
+        print(f"edge-monitor: {exc}", file=sys.stderr)
+        raise SystemExit(EXIT_FAILURE) from None
 
 
 def print_json(obj: Any) -> None:

@@ -34,6 +34,7 @@ from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
+from protocol.console import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, verbosity
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +85,7 @@ def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
             "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
             "--speedup", str(args.speedup),
             "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{args.cycles}:0:60",
-            "--truth", str(truth)]
+            "--truth", str(truth), *(["-q"] if verbosity(args) < 0 else [])]
 
 
 def choose_link(kind: str, stack: ExitStack) -> tuple[str, str, str]:
@@ -105,10 +106,10 @@ def rerun_spec(requested: str | None, out: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from protocol.links import LinkError, open_bus
-    logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
     if args.cycles < 2 or args.joints < 1 or args.joints > 8:
-        print("edge-monitor demo: need --cycles >= 2 and 1 <= --joints <= 8", file=sys.stderr)
-        return 2
+        raise UsageError("need --cycles >= 2 and 1 <= --joints <= 8")
+    if verbosity(args) >= 0:        # the demo shows its status line unless -q
+        logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("symptoms.jsonl", "truth.jsonl", "state/agent_state.json"):
@@ -117,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = demo_config(out, args.nominal_cycles)
     except ConfigError as exc:
         print(f"edge-monitor demo: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     port = free_loopback_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     spec = rerun_spec(args.rerun, out)
@@ -132,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
                             stack, open_state_store(cfg), live=True)
         except ValueError as exc:      # ZenohSetupError, RerunSetupError: say what to fix
             print(f"edge-monitor demo: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_USAGE
         agent = app.agent
         last = LastSymptomSink()
         agent.sinks.append(last)
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
             bus = open_bus(agent_link)
         except LinkError as exc:
             print(f"edge-monitor demo: cannot open the agent's end of the link: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_FAILURE
         stack.callback(bus.shutdown)
         runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
                             status_interval_s=cfg.status_interval_s)
@@ -149,10 +150,12 @@ def run(args: argparse.Namespace) -> int:
         agent_thread.start()
         truth = out / "truth.jsonl"
         sim = subprocess.Popen(sim_command(sim_link, args, truth), stdin=subprocess.DEVNULL)
+        interrupted = False
         try:
             sim_rc = sim.wait()
             runner.wait_drained(quiet_s=2.0)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt:       # Ctrl-C: stop the simulator, still show what was seen so far
+            interrupted = True
             sim.terminate()
             sim_rc = sim.wait()
         runner.stop_event.set()
@@ -180,7 +183,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json_summary:
         Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_summary).write_text(json.dumps(summary, indent=2))
-    return 0 if sim_rc == 0 else 1
+    if interrupted:
+        return EXIT_INTERRUPTED
+    return 0 if sim_rc == 0 else EXIT_FAILURE
 
 
 def _frames_sent(truth: Path) -> int | None:

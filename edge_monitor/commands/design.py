@@ -13,6 +13,7 @@ from pathlib import Path
 
 from edge_monitor.offline.experiment_design import DesignError, design_speeds
 from joint_model.friction import FRICTION_NOISE_STD
+from protocol.console import EXIT_FAILURE, UsageError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -41,9 +42,8 @@ def run(args: argparse.Namespace) -> int:
                                load_mean=args.load_mean, load_std=args.load_std, noise_std=args.noise_std,
                                speed_min=args.speed_min, speed_max=args.speed_max,
                                min_separation=args.min_separation, seed=args.seed)
-    except DesignError as exc:
-        print(f"edge-monitor design: {exc}", file=sys.stderr)
-        return 2
+    except DesignError as exc:      # the options ask for something impossible
+        raise UsageError(str(exc)) from None
     payload = result.to_json()
     text = json.dumps(payload, indent=2)
     if args.out is not None:
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             args.out.write_text(text + "\n", encoding="utf-8")
         except OSError as exc:
             print(f"edge-monitor design: --out: cannot write {args.out}: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_FAILURE
     if args.json:
         print(text)
     else:

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from edge_monitor.features.disturbance_weights import WeightFitError, fit_index_weights, fit_weight_function
 from joint_model import CRITICAL_WEAR, DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction
+from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError
 
 
 class CycleDataError(ValueError):
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.simulate:
             if args.cycles < 2:
-                raise CycleDataError("--cycles: need >= 2 cycles per class")
+                raise UsageError("--cycles: need >= 2 cycles per class")
             rng = np.random.default_rng(args.seed)
             load = None if args.load is None else (args.load[0], args.load[1])
             healthy, speed, _ = simulate_cycles(args.cycles, 0.0, tuple(args.temperature), rng, gravity=load)
@@ -192,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
                 write_cycles_csv(args.write_csv / "faulty.csv", faulty, speed)
         else:
             if args.healthy is None or args.faulty is None:
-                raise CycleDataError("give --healthy and --faulty CSV files, or --simulate")
+                raise UsageError("give --healthy and --faulty CSV files, or --simulate")
             healthy, speed = read_cycles_csv(args.healthy)
             faulty, speed_f = read_cycles_csv(args.faulty)
             if speed_f.shape != speed.shape or not np.allclose(speed_f, speed, atol=0.05):
@@ -200,11 +201,15 @@ def run(args: argparse.Namespace) -> int:
         result = fit(healthy, faulty, speed, center=not args.no_center)
     except (CycleDataError, WeightFitError) as exc:
         print(f"edge-monitor fit-weights: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     result["source"] = "simulate" if args.simulate else {"healthy": str(args.healthy), "faulty": str(args.faulty)}
     text = json.dumps(result)
     if args.output:
-        args.output.write_text(text + "\n")
+        try:
+            args.output.write_text(text + "\n")
+        except OSError as exc:
+            print(f"edge-monitor fit-weights: -o: cannot write {args.output}: {exc}", file=sys.stderr)
+            return EXIT_FAILURE
         print(f"alpha={result['alpha']:.4g} beta={result['beta']:.4g} -> {args.output}")
     else:
         print(text)

@@ -2,7 +2,8 @@
 
 Reads a nominal CSV and a test CSV (header row; every numeric column is one dimension of the
 observation, text-only columns such as timestamps are ignored), fits the nominal density and tests
-the test rows for a shift of it. Exit code 0 when the test ran (alarm or not), 2 on bad input.
+the test rows for a shift of it. Exit code 0 when the test ran (alarm or not), 2 on bad input
+(bad option values also print the usage).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from edge_monitor.stats.densities import DENSITY_KINDS, fit_density
 from edge_monitor.stats.glr import GLRResult, bootstrap_threshold, check_pf, glr_known_change, glr_unknown_change
+from protocol.console import EXIT_USAGE, UsageError
 
 
 class CsvInputError(ValueError):
@@ -92,16 +94,25 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def _fail(message: str) -> int:
     print(f"edge-monitor glr: error: {message}", file=sys.stderr)
-    return 2
+    return EXIT_USAGE
+
+
+def _check_options(args: argparse.Namespace) -> float:
+    """The false-alarm probability; bad option values raise UsageError."""
+    try:
+        pf = check_pf(args.pf)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.window is not None and args.window < 1:
+        raise UsageError(f"--window {args.window} must be ≥ 1 row")
+    if args.threshold == "bootstrap" and args.change_time != "known":
+        raise UsageError("--threshold bootstrap is available for --change-time known only")
+    return pf
 
 
 def run(args: argparse.Namespace) -> int:
+    pf = _check_options(args)
     try:
-        pf = check_pf(args.pf)
-        if args.window is not None and args.window < 1:
-            raise ValueError(f"--window {args.window} must be ≥ 1 row")
-        if args.threshold == "bootstrap" and args.change_time != "known":
-            raise ValueError("--threshold bootstrap is available for --change-time known only")
         nominal_cols, nominal = read_observations(args.nominal)
         test_cols, test = read_observations(args.test)
         if nominal.shape[1] != test.shape[1]:

@@ -1,13 +1,18 @@
-"""``edge-monitor replay FILE``: run the agent over a recorded log, deterministically, as fast as possible."""
+"""``edge-monitor replay FILE``: run the agent over a recorded log, deterministically, as fast as possible.
+
+Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO line every 5 s (``-v``).
+A log that cannot be found or read exits with code 1."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import struct
 import sys
 import time
 from contextlib import ExitStack
+from typing import Iterator
 
 from edge_monitor.app import Outputs, build_app
 from edge_monitor.commands.common import (
@@ -18,8 +23,9 @@ from edge_monitor.commands.common import (
     summary_table,
 )
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import log_blocks
+from edge_monitor.pipeline.frame_source import FrameArrays, log_blocks_with_position
 from edge_monitor.sinks.base import LastSymptomSink
+from protocol.console import EXIT_FAILURE, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
 
@@ -39,9 +45,9 @@ class LogReadError(ValueError):
     """The log file cannot be read (not the agent's fault)."""
 
 
-def _blocks(path: str, block_size: int):
-    """Frame blocks of the log; reading errors become LogReadError naming the file."""
-    it = log_blocks(path, block_size)
+def _blocks(path: str, block_size: int) -> Iterator[tuple[FrameArrays, int]]:
+    """Frame blocks of the log with the bytes read so far; reading errors become LogReadError naming the file."""
+    it = log_blocks_with_position(path, block_size)
     while True:
         try:
             block = next(it)
@@ -54,14 +60,20 @@ def _blocks(path: str, block_size: int):
         yield block
 
 
-def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0) -> None:
-    next_report = time.monotonic() + progress_s
-    for ids, data, dlc, ts in _blocks(path, block_size):
-        agent.update(ids, data, dlc, ts)
-        if time.monotonic() >= next_report:
-            log.warning("replay: %d frames, %d cycles, %d symptoms", agent.frames_total, agent.stats.cycles,
-                        agent.stats.symptoms)
-            next_report = time.monotonic() + progress_s
+def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, bar: bool = False) -> None:
+    """Feed the log to the agent; progress as a bar over the file's bytes (``bar`` and stderr a
+    terminal), else an INFO line every ``progress_s``."""
+    size = os.path.getsize(path) if os.path.isfile(path) else None
+    with progress_bar(size, f"replay {os.path.basename(path)}", enabled=bar, unit="B", unit_scale=True,
+                      unit_divisor=1024) as progress:
+        next_report = time.monotonic() + progress_s
+        for (ids, data, dlc, ts), position in _blocks(path, block_size):
+            agent.update(ids, data, dlc, ts)
+            progress.update(max(position - progress.n, 0))
+            if progress.disable and time.monotonic() >= next_report:
+                log.info("replay: %d frames, %d cycles, %d symptoms", agent.frames_total, agent.stats.cycles,
+                         agent.stats.symptoms)
+                next_report = time.monotonic() + progress_s
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,10 +83,10 @@ def run(args: argparse.Namespace) -> int:
         agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg)).agent
         agent.sinks.append(last)
         try:
-            replay(agent, args.file, cfg.block_size)
+            replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
         except (FileNotFoundError, LogReadError) as exc:
             print(f"edge-monitor replay: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_FAILURE
         agent.finish(close_open_cycle=not args.no_close)
         stats = agent.run_statistics()
     if args.json:

@@ -2,7 +2,9 @@
 
 Receives frames from a CAN link, publishes per-cycle symptoms over Zenoh (and optionally JSONL and
 Rerun), persists learned models in ``--state-dir`` and shuts down cleanly on SIGINT/SIGTERM
-(state saved, Zenoh undeclared, Rerun flushed).
+(state saved, Zenoh undeclared, Rerun flushed; exit code 0: the normal end of a monitor that runs
+until stopped). The status line (every ``status_interval_s``) is logged at INFO (``-v``); a final
+line says why it stopped.
 """
 
 from __future__ import annotations
@@ -26,17 +28,25 @@ from edge_monitor.commands.common import (
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.sinks.zenoh_session import ZenohSetupError
+from protocol.console import (
+    EXIT_CODES_HELP,
+    EXIT_FAILURE,
+    EXIT_USAGE,
+    UsageError,
+    add_can_arguments,
+    can_options,
+    verbosity,
+)
 
 log = logging.getLogger(__name__)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("run", help="monitor a live CAN link", description=__doc__)
-    p.add_argument("--link", help="socketcan:IFACE | slcan:DEVICE_OR_URL | virtual:NAME "
-                                  "(omit to use python-can's --interface/--channel or CAN_*/~/.canrc config)")
-    p.add_argument("-i", "--interface", help="python-can interface (when --link is not given)")
-    p.add_argument("-c", "--channel", help="python-can channel (when --link is not given)")
-    p.add_argument("-b", "--bitrate", type=int, help="CAN bitrate")
+    p = subparsers.add_parser("run", help="monitor a live CAN link", description=__doc__,
+                              epilog=f"{EXIT_CODES_HELP}. Ctrl-C or SIGTERM is the normal end of a run: "
+                                     "state saved, exit code 0")
+    add_can_arguments(p, "socketcan:IFACE | slcan:DEVICE_OR_URL | virtual:NAME "
+                         "(omit to use -i/-c/-b or python-can's CAN_*/~/.canrc config)")
     add_config_arguments(p)
     add_zenoh_arguments(p)
     p.add_argument("--no-zenoh", action="store_true", help="do not publish over Zenoh")
@@ -61,15 +71,31 @@ def install_signal_handlers(stop: threading.Event) -> None:
         signal.signal(signal.SIGTERM, handler)
 
 
+def stop_text(runner: LiveRunner, args: argparse.Namespace) -> str:
+    """Why the runner stopped, in the words of the options."""
+    reason = runner.stop_reason
+    if reason == "idle":
+        return f"the bus was idle for {args.idle_stop:g} s (--idle-stop)"
+    if reason == "duration":
+        return f"--duration {args.duration:g} s reached"
+    if reason == "max_cycles":
+        return f"--max-cycles {args.max_cycles} reached"
+    return "signal" if reason == "stopped" else "end of the frame stream"
+
+
+def final_line(runner: LiveRunner, args: argparse.Namespace) -> str:
+    h = runner.health().counters
+    return (f"edge-monitor run: stopped: {stop_text(runner, args)}; {h['frames_total']} frames (ok {h['frames_ok']}), "
+            f"{h['cycles']} cycles, {h['symptoms']} symptoms, {h['alarms']} alarms")
+
+
 def run(args: argparse.Namespace) -> int:
-    from protocol.links import LinkError, is_log_file, open_bus
-    logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
+    from protocol.links import LinkError, NoCanConfigError, is_log_file, open_bus
+    if args.link and is_log_file(args.link):
+        raise UsageError(f"--link {args.link} is a log file; use `edge-monitor replay {args.link}`")
     cfg = load_agent_config(args)
     if args.allow_remote_maintenance:
         cfg = dataclasses.replace(cfg, maintenance=dataclasses.replace(cfg.maintenance, remote=True))
-    if args.link and is_log_file(args.link):
-        print(f"edge-monitor run: {args.link} is a log file; use `edge-monitor replay {args.link}`", file=sys.stderr)
-        return 2
     store = open_state_store(cfg)
     with ExitStack() as stack:
         try:
@@ -78,25 +104,28 @@ def run(args: argparse.Namespace) -> int:
             app = build_app(cfg, outputs, stack, store, live=True)
         except (ZenohSetupError, ValueError) as exc:
             print(f"edge-monitor run: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_USAGE
         agent = app.agent
         for joint in args.maintenance:
             try:
                 agent.declare_maintenance(joint)
             except ValueError as exc:
-                print(f"edge-monitor run: --maintenance {joint}: {exc}", file=sys.stderr)
-                return 2
+                raise UsageError(f"--maintenance {joint}: {exc}") from None
         try:
-            bus = open_bus(args.link, interface=args.interface, channel=args.channel, bitrate=args.bitrate)
+            bus = open_bus(args.link, **can_options(args))
+        except NoCanConfigError as exc:
+            raise UsageError(str(exc)) from None
         except LinkError as exc:
             print(f"edge-monitor run: cannot open the CAN link: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_FAILURE
         stack.callback(bus.shutdown)
         runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
                             status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters)
         install_signal_handlers(runner.stop_event)
         runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
-    if runner.link_failure:
-        print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
-        return 1
+        if runner.link_failure:
+            print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
+            return EXIT_FAILURE
+        if verbosity(args) >= 0:
+            print(final_line(runner, args), file=sys.stderr, flush=True)
     return 0

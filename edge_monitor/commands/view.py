@@ -19,6 +19,7 @@ from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
 from edge_monitor.sinks.rerun_view import RerunSetupError, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohSetupError, open_session
+from protocol.console import EXIT_CODES_HELP
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +29,9 @@ QUEUE_SIZE = 100_000      # bounded hand-over from Zenoh's thread; overflow is c
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("view", help="draw the symptoms of any number of robots in Rerun",
-                                   description=__doc__.replace("``", ""))
+                                   description=__doc__.replace("``", ""),
+                                   epilog=f"{EXIT_CODES_HELP}. Ctrl-C or SIGTERM is the normal end of a view: "
+                                          "exit code 0")
     add_zenoh_arguments(parser)
     parser.add_argument("--robot", default=None, help="only this robot (default: every robot under edge/)")
     parser.add_argument("--rerun", default="spawn", metavar="SPEC",

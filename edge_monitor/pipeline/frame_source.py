@@ -8,6 +8,7 @@ it never raises into the Notifier. The processing thread takes frames out in blo
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 from dataclasses import dataclass
@@ -27,6 +28,13 @@ FrameArrays = tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int64], NDA
 
 def log_blocks(path: str | Path, block_size: int = 4096) -> Iterator[FrameArrays]:
     """Yield the frames of a python-can log file (.blf, .log, .asc, …) as array blocks, in file order."""
+    for block, _ in log_blocks_with_position(path, block_size):
+        yield block
+
+
+def log_blocks_with_position(path: str | Path, block_size: int = 4096) -> Iterator[tuple[FrameArrays, int]]:
+    """As :func:`log_blocks`, each block with the bytes of the file read so far (for a progress bar;
+    read-ahead makes it run early, 0 where the reader does not tell)."""
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"log file {p} not found")
@@ -35,10 +43,18 @@ def log_blocks(path: str | Path, block_size: int = 4096) -> Iterator[FrameArrays
         for msg in reader:
             buf.append(msg)
             if len(buf) >= block_size:
-                yield messages_to_arrays(buf)
+                yield messages_to_arrays(buf), _bytes_read(reader)
                 buf = []
-    if buf:
-        yield messages_to_arrays(buf)
+        if buf:
+            yield messages_to_arrays(buf), _bytes_read(reader)
+
+
+def _bytes_read(reader: object) -> int:
+    """Position of the reader's underlying file descriptor (compressed bytes for .gz logs)."""
+    try:
+        return os.lseek(reader.file.fileno(), 0, os.SEEK_CUR)   # type: ignore[attr-defined]
+    except (AttributeError, OSError, ValueError):
+        return 0
 
 
 class BoundedQueueListener(can.Listener):

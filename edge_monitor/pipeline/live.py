@@ -29,6 +29,8 @@ class LiveRunner:
     processing_errors: int = 0
     discarded_at_stop: int = 0
     link_failure: str | None = None
+    #: Why :meth:`run` returned: "link_failure", "duration", "max_cycles", "idle", "stopped" (stop_event) or "end".
+    stop_reason: str | None = None
 
     def link_counters(self) -> dict[str, Any]:
         """The live loop's own counters (receive queue, bus, processing), added to the agent's health."""
@@ -59,6 +61,7 @@ class LiveRunner:
         next_status = start + self.status_interval_s
         last_frame = start
         seen_any = False
+        self.stop_reason = "end"
         try:
             for block in self.source.blocks():
                 now = time.monotonic()
@@ -71,17 +74,21 @@ class LiveRunner:
                     next_status = now + self.status_interval_s
                 failure = self.source.notifier_failed
                 if failure is not None:
-                    self.link_failure = failure
+                    self.link_failure, self.stop_reason = failure, "link_failure"
                     log.error("CAN link failed (%s); stopping", failure)
                     break
                 if duration_s is not None and now - start >= duration_s:
+                    self.stop_reason = "duration"
                     break
                 if max_cycles is not None and self.agent.stats.cycles >= max_cycles:
+                    self.stop_reason = "max_cycles"
                     break
                 if idle_stop_s is not None and seen_any and now - last_frame >= idle_stop_s:
                     log.info("no frames for %.1f s: end of stream", idle_stop_s)
+                    self.stop_reason = "idle"
                     break
                 if self.stop_event.is_set():
+                    self.stop_reason = "stopped"
                     break
         finally:
             self.source.stop()

@@ -72,7 +72,7 @@ HOST_ENV="PATH=$VENV_BIN:/usr/local/bin:/usr/bin:/bin HOME=$RESULTS_DIR/tmp TMPD
 # --- 4. agent, then simulator --------------------------------------------------------------------
 echo "VCAN-QEMU: starting the agent"
 timeout "$STEP_TIMEOUT_S" env -i $HOST_ENV chroot /host /bin/sh -c 'cd "$TMPDIR" && exec "$@"' in_tmp \
-    "$VENV_BIN/edge-monitor" run --link socketcan:vcan0 --no-zenoh --config "$RESULTS_DIR/agent.toml" \
+    "$VENV_BIN/edge-monitor" run -v --link socketcan:vcan0 --no-zenoh --config "$RESULTS_DIR/agent.toml" \
     --jsonl "$RESULTS_DIR/symptoms.jsonl" --state-dir "$RESULTS_DIR/state" --idle-stop "$IDLE_STOP_S" \
     > /results/agent.log 2>&1 &
 agent_pid=$!

@@ -1,0 +1,126 @@
+"""Conventions shared by the command-line tools ``edge-monitor`` and ``sim-controller``.
+
+One place for what a CAN user expects of both: ``-v``/``-vv``/``-q`` before or after the subcommand
+(default: warnings only), documented exit codes, python-can's ``-i/-c/-b`` options with its
+configuration chain, and progress bars on stderr that show only on a terminal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from contextlib import contextmanager
+from typing import Any, Iterator, TextIO
+
+from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
+
+EXIT_OK = 0
+#: A CAN link or log file cannot be opened, read or written, an output cannot be written, the link failed.
+EXIT_FAILURE = 1
+#: Bad arguments or option values, invalid input/settings files, no CAN interface configured.
+EXIT_USAGE = 2
+#: Interrupted with Ctrl-C before the work was done.
+EXIT_INTERRUPTED = 130
+
+EXIT_CODES_HELP = (
+    "exit codes: 0 ok; 1 runtime failure (a CAN link, log or output file cannot be opened, read or written, "
+    "or the link failed); 2 usage error (bad arguments or values, invalid input or settings file, no CAN "
+    "interface configured); 130 interrupted (Ctrl-C)")
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+class UsageError(ValueError):
+    """Bad arguments or option values: reported with the subcommand's usage, exit code 2."""
+
+
+def add_verbosity_arguments(parser: argparse.ArgumentParser, *, after_command: bool = False) -> None:
+    """``-v``/``--verbose`` (repeatable) and ``-q``/``--quiet``; separate destinations after the
+    subcommand, so that ``-v run -v`` counts both."""
+    suffix = "_after" if after_command else ""
+    parser.add_argument("-v", "--verbose", action="count", default=0, dest="verbose" + suffix,
+                        help="more log output: -v info (status lines), -vv debug")
+    parser.add_argument("-q", "--quiet", action="count", default=0, dest="quiet" + suffix,
+                        help="errors only: no warnings, summary lines or progress bar")
+
+
+def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """The subcommand parsers of ``parser`` by name (empty without subcommands)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
+def install_conventions(parser: argparse.ArgumentParser) -> None:
+    """Verbosity options on ``parser`` and on every subcommand, exit codes in every ``--help``."""
+    parser.epilog = parser.epilog or EXIT_CODES_HELP
+    add_verbosity_arguments(parser)
+    for sub in subcommands(parser).values():
+        add_verbosity_arguments(sub, after_command=True)
+        sub.epilog = sub.epilog or EXIT_CODES_HELP
+
+
+def verbosity(args: argparse.Namespace) -> int:
+    """-1 quiet, 0 default, 1 info, 2 debug (``-v``/``-q`` before and after the subcommand add up)."""
+    loud = getattr(args, "verbose", 0) + getattr(args, "verbose_after", 0)
+    quiet = getattr(args, "quiet", 0) + getattr(args, "quiet_after", 0)
+    return max(-1, min(2, loud - quiet))
+
+
+def configure_logging(level_of_detail: int) -> None:
+    """Root logging at ERROR (-1), WARNING (0), INFO (1) or DEBUG (2), to stderr."""
+    level = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO}.get(level_of_detail, logging.DEBUG)
+    logging.basicConfig(level=level, format=LOG_FORMAT)
+    logging.getLogger().setLevel(level)
+
+
+def usage_error(parser: argparse.ArgumentParser, message: str) -> int:
+    """What ``parser.error`` prints (usage and message on stderr), returning the exit code instead of exiting."""
+    parser.print_usage(sys.stderr)
+    print(f"{parser.prog}: error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def add_can_arguments(parser: argparse.ArgumentParser, link_help: str) -> None:
+    """``--link`` and python-can's ``-i/--interface``, ``-c/--channel``, ``-b/--bitrate``."""
+    group = parser.add_argument_group(
+        "CAN link", "--link, or python-can's configuration: -i/-c/-b, else CAN_INTERFACE/CAN_CHANNEL/CAN_BITRATE, "
+                    "else a config file (~/.canrc, ~/can.conf, /etc/can.conf)")
+    group.add_argument("--link", help=link_help)
+    group.add_argument("-i", "--interface", help="python-can interface, e.g. socketcan, slcan, pcan (without --link)")
+    group.add_argument("-c", "--channel", help="python-can channel, e.g. can0 or /dev/ttyACM0 (without --link)")
+    group.add_argument("-b", "--bitrate", type=int, help="CAN bitrate in bit/s")
+
+
+def can_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``-i/-c/-b`` values given, as keyword arguments of ``protocol.links.open_bus``."""
+    return {k: getattr(args, k) for k in ("interface", "channel", "bitrate") if getattr(args, k, None) is not None}
+
+
+def _fallback_size(stream: TextIO) -> dict[str, int]:
+    """A terminal reporting no size (serial console, bare pty) would hide the bar: assume 80×24 there."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError):
+        return {}
+    return {} if size.columns and size.lines else {"ncols": size.columns or 80, "nrows": size.lines or 24}
+
+
+@contextmanager
+def progress_bar(total: float | None, desc: str, *, enabled: bool = True, **options: Any) -> Iterator[tqdm]:
+    """A tqdm bar on stderr, shown only when stderr is a terminal and ``enabled`` (off with ``-q``);
+    log records go around it while it shows. ``bar.disable`` tells whether it shows."""
+    bar = tqdm(total=total, desc=desc, file=sys.stderr, disable=None if enabled else True, leave=False,
+               **_fallback_size(sys.stderr), **options)
+    try:
+        if bar.disable:
+            yield bar
+        else:
+            with logging_redirect_tqdm():
+                yield bar
+    finally:
+        bar.close()
