@@ -53,9 +53,9 @@ class FeatureSpec:
 
 
 #: Feature quantities watched as their logarithm when ``decision.log_scale`` is on: positive and
-#: right-skewed (KL distances, the wear evidence); their logarithms are close to normal, and the
+#: right-skewed (the KL distances); their logarithms are close to normal, and the
 #: nominal densities of 60 values have thin tails.
-LOG_SCALE = frozenset({"wear_evidence", "kl_raw", "kl_weighted"})
+LOG_SCALE = frozenset({"kl_raw", "kl_weighted"})
 
 
 @dataclass(frozen=True)
@@ -89,10 +89,10 @@ FEATURES: tuple[FeatureSpec, ...] = (
 )
 
 QUANTITIES: dict[str, QuantitySpec] = {q.name: q for q in (
-    QuantitySpec("wear", ("wear_evidence",)),
+    QuantitySpec("wear", ("wear_score",)),
     QuantitySpec("kl_raw", ("kl_raw",)),
     QuantitySpec("kl_weighted", ("kl_weighted",)),
-    QuantitySpec("joint", ("wear_evidence", "kl_raw", "kl_weighted")),
+    QuantitySpec("joint", ("wear_score", "kl_raw", "kl_weighted")),
 )}
 
 

@@ -71,11 +71,13 @@ class WearFeature:
     """Per-cycle wear estimate of one joint. With ``motor_temperature_prior`` it first learns how the
     controller's motor temperature relates to the lubricant temperature the friction data show
     (:mod:`edge_monitor.features.temperature_prior`) and then uses it as a prior on ξ. Publishes the
-    quantities ``wear`` (what the detector watches: the posterior mean of ϖ, continuous near ϖ = 0
-    where the maximum-likelihood estimate piles up at 0) and ``temperature`` (ξ̂, °C)."""
+    quantities ``wear`` (the posterior mean of ϖ, continuous near ϖ = 0 where the maximum-likelihood
+    estimate piles up at 0), ``wear_evidence`` (posterior mean / std), ``wear_score`` (the signed
+    root of the likelihood ratio against no wear, ≈ N(0, 1) on a healthy joint at any temperature:
+    what the detector watches) and ``temperature`` (ξ̂, °C)."""
 
     name = "wear"
-    quantities = ("wear", "wear_evidence", "temperature")
+    quantities = ("wear", "wear_evidence", "wear_score", "temperature")
 
     def __init__(self, config: WearConfig, params: FrictionParams,
                  relation: tuple[float, float] | None = None) -> None:
@@ -105,7 +107,7 @@ class WearFeature:
                                            temperature_prior=self.prior.prior() if use_prior else None)
         if use_prior and not self.prior.learned:
             self.prior.learn(estimate.temperature)
-        values = {"wear": estimate.posterior_mean, "wear_evidence": estimate.evidence,
+        values = {"wear": estimate.posterior_mean, "wear_evidence": estimate.evidence, "wear_score": estimate.score,
                   "temperature": math.nan if estimate.temperature is None else estimate.temperature}
         return FeatureOutput(section=estimate.to_record(), values=values, reason=estimate.reason)
 

@@ -2,10 +2,10 @@
 
 :class:`DecisionConfig` (the ``[decision]`` table) says which registered quantities are watched and
 how; :class:`DetectorBank` turns the feature values of a cycle into one :class:`Decision` per quantity
-and the alarm transitions of that cycle. Positive, right-skewed quantities (KL distances, the wear
-evidence) are watched as their logarithm when ``log_scale`` is on; a vector quantity is made of its
-inputs' (transformed) values. Detectors look for an increase by default: wear and KL distances grow
-with a fault, a decrease is nominal.
+and the alarm transitions of that cycle. Positive, right-skewed quantities (the KL distances) are
+watched as their logarithm when ``log_scale`` is on; the wear is watched as its likelihood-ratio
+score; a vector quantity is made of its inputs' (transformed) values. Detectors look for an increase
+by default: wear and KL distances grow with a fault, a decrease is nominal.
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ class DetectorBank:
     def _fingerprint(self, quantity: str) -> dict[str, Any]:
         spec = QUANTITIES[quantity]
         features = sorted({feature_of(q) for q in spec.inputs})
-        return {"log": self.config.log_scale and spec.log_scale,
+        return {"log": self.config.log_scale and spec.log_scale, "inputs": list(spec.inputs),
                 "sources": {f: self.sources.get(f, {}) for f in features}}
 
     def state_dict(self) -> dict[str, Any]:
@@ -173,6 +173,8 @@ class DetectorBank:
             return
         saved = saved if isinstance(saved, dict) else {}
         changes: dict[str, tuple[object, object]] = {}
+        if saved.get("inputs") != current["inputs"]:
+            changes["quantity inputs"] = (saved.get("inputs"), current["inputs"])
         if saved.get("log") != current["log"]:
             changes["decision.log_scale"] = (saved.get("log"), current["log"])
         for feature, settings in current["sources"].items():
