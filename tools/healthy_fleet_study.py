@@ -10,7 +10,9 @@ wear on some joints (``JOINT:START:END:FROM:TO``, as ``sim-controller record --w
 
 Reported per quantity: monitored cycles of healthy joints (the exposure), false alarms (alarms on
 joints without wear), the run length to false alarm it implies (a lower bound when there are none),
-and per worn joint the cycle of its first alarm and the wear then. Seeds run in parallel worker
+and per worn joint the cycle of its first alarm and the wear then; with worn joints, per quantity the
+fraction of them not alarmed yet next to the mean miss probability the detectors reported (Pm against
+observed misses). Seeds run in parallel worker
 processes (``--jobs``); a status line per seed and every ``--progress`` cycles.
 
 Usage: ``python tools/healthy_fleet_study.py --cycles 200 --seeds 1 2 [--wear-ramp 2:100:200:0:60]
@@ -86,17 +88,24 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
                          len(agent.stats.alarms), time.monotonic() - started)
             yield signals
 
+    miss: dict[int, dict[str, dict[int, float]]] = {}    # joint → quantity → cycle → reported Pm
     for symptom in run_cycles(agent, cycles()):
         for q, decision in symptom.decisions.items():
             if decision.state == "monitoring" and decision.threshold is not None:
                 counts = monitored.setdefault(symptom.joint, {})
                 counts[q] = counts.get(q, 0) + 1
+                if decision.miss_probability is not None and not decision.alarm:
+                    miss.setdefault(symptom.joint, {}).setdefault(q, {})[symptom.cycle] = decision.miss_probability
     for alarm in agent.stats.alarms:
         joint, cycle = int(alarm["joint"]), int(alarm["cycle"])
         alarms.append({"joint": joint, "cycle": cycle, "quantity": alarm["quantity"],
                        "wear": wear_truth.get((joint, cycle), math.nan)})
+    worn = sorted({j for (j, _), w in wear_truth.items() if w > 0})
     return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
-            "worn": sorted({j for (j, _), w in wear_truth.items() if w > 0}),
+            "worn": worn, "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()}
+                                                         for q, per in miss.get(j, {}).items()} for j in worn},
+            "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(spec.cycles) if (j, c) in wear_truth]
+                           for j in worn},
             "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
 
 
@@ -127,7 +136,34 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         per_quantity[q] = {"exposure": n, "false_alarms": k,
                            "arl0": n / k if k else None, "arl0_95_lower": n / 3.0 if not k else None}
     return {"per_quantity": per_quantity, "detections": detections,
-            "false_alarms": sum(false_alarms.values())}
+            "false_alarms": sum(false_alarms.values()), "miss_forecast": miss_forecast(runs)}
+
+
+def miss_forecast(runs: list[dict[str, Any]], every: int = 5) -> dict[str, list[dict[str, float]]]:
+    """Per quantity and every ``every`` cycles over the worn joints: the fraction not alarmed yet (the
+    observed miss frequency) next to the mean reported miss probability (an alarmed joint counts 0),
+    and the mean true wear (docs/DETECTION.md, "Miss probability against observed misses")."""
+    out: dict[str, list[dict[str, float]]] = {}
+    worn = [(run, j) for run in runs for j in run["worn"]]
+    if not worn:
+        return out
+    cycles = len(next(iter(worn[0][0]["wear_truth"].values())))
+    quantities = sorted({a["quantity"] for run, _ in worn for a in run["alarms"]})
+    for q in quantities:
+        rows = []
+        for cycle in range(0, cycles, every):
+            missed, reported, wear = 0, 0.0, 0.0
+            for run, j in worn:
+                first = min((a["cycle"] for a in run["alarms"] if a["joint"] == j and a["quantity"] == q),
+                            default=math.inf)
+                if cycle < first:
+                    missed += 1
+                    reported += run["miss_probability"].get(str(j), {}).get(q, {}).get(str(cycle), 1.0)
+                wear += run["wear_truth"][str(j)][cycle]
+            n = len(worn)
+            rows.append({"cycle": cycle, "wear": wear / n, "observed_miss": missed / n, "mean_pm": reported / n})
+        out[q] = rows
+    return out
 
 
 def _parse_set(text: str) -> tuple[str, Any]:
@@ -168,6 +204,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {d['seed']} worn joint {d['joint']}: " + (
             f"first alarm cycle {first['cycle']} ({first['quantity']}, wear {first['wear']:.1f})" if first
             else "no alarm"))
+    for q, rows in result["summary"]["miss_forecast"].items():
+        shown = [r for r in rows if 0 < r["observed_miss"] < 1 or 0 < r["mean_pm"] < 0.999]
+        print(f"{q:12s} miss observed / mean reported Pm: " + ", ".join(
+            f"wear {r['wear']:.0f}: {r['observed_miss']:.2f}/{r['mean_pm']:.2f}" for r in shown))
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
     return 0
