@@ -26,7 +26,7 @@ import numpy as np
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, WearConfig
 from edge_monitor.features.wear_estimation import WearEstimator
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import log_blocks
+from edge_monitor.pipeline.log_source import log_blocks
 from sim_controller.config import SimConfig
 from sim_controller.output import record
 

@@ -717,9 +717,9 @@ def _subsets(levels: int) -> dict[str, Any]:
 def segments(name: str, out: Path, default_dir: Path, joints: Iterable[int] | None, cycles: int | None) -> dict:
     """KL distances of parts of the cycle, per cycle, from the decoded log of a finished run."""
     from edge_monitor.disturbance_weights import WeightFunction
-    from edge_monitor.frame_source import log_blocks
     from edge_monitor.ingest import Ingest
     from edge_monitor.kl_monitor import KLMonitor
+    from edge_monitor.pipeline.log_source import log_blocks
     from sim_controller.config import DEFAULT_SPEEDS
 
     d = scenario_dir(out, name, default_dir)

@@ -1,5 +1,9 @@
 """``edge-monitor replay FILE``: run the agent over a recorded log, deterministically, as fast as possible.
 
+A damaged log is read as far as it goes: bad lines of a text log are skipped and counted, a file cut
+short is reported and its last cycle is left open (not published; a later replay of the complete log
+publishes it). Both are in the summary and in ``--json`` under ``"log"``.
+
 Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO line every 5 s (``-v``).
 A log that cannot be found or read exits with code 1."""
 
@@ -8,7 +12,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import struct
 import sys
 import time
 from contextlib import ExitStack
@@ -23,7 +26,8 @@ from edge_monitor.commands.common import (
     summary_table,
 )
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import FrameArrays, log_blocks_with_position
+from edge_monitor.pipeline.frame_source import FrameArrays
+from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
 from edge_monitor.sinks.base import LastSymptomSink
 from protocol.console import EXIT_FAILURE, progress_bar, verbosity
 
@@ -41,39 +45,32 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-class LogReadError(ValueError):
-    """The log file cannot be read (not the agent's fault)."""
-
-
-def _blocks(path: str, block_size: int) -> Iterator[tuple[FrameArrays, int]]:
-    """Frame blocks of the log with the bytes read so far; reading errors become LogReadError naming the file."""
-    it = log_blocks_with_position(path, block_size)
-    while True:
-        try:
-            block = next(it)
-        except StopIteration:
-            return
-        except FileNotFoundError:
+def _blocks(path: str, block_size: int, report: LogReport) -> Iterator[tuple[FrameArrays, int]]:
+    """Frame blocks of the log with the bytes read so far; an I/O error becomes LogReadError naming the file."""
+    try:
+        yield from log_blocks_with_position(path, block_size, report)
+    except OSError as exc:
+        if isinstance(exc, FileNotFoundError):
             raise
-        except (ValueError, OSError, EOFError, struct.error) as exc:
-            raise LogReadError(f"cannot read {path}: {exc}") from exc
-        yield block
+        raise LogReadError(f"cannot read {path}: {exc}") from exc
 
 
-def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, bar: bool = False) -> None:
+def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, bar: bool = False) -> LogReport:
     """Feed the log to the agent; progress as a bar over the file's bytes (``bar`` and stderr a
-    terminal), else an INFO line every ``progress_s``."""
+    terminal), else an INFO line every ``progress_s``. Returns what reading the file found."""
+    report = LogReport()
     size = os.path.getsize(path) if os.path.isfile(path) else None
     with progress_bar(size, f"replay {os.path.basename(path)}", enabled=bar, unit="B", unit_scale=True,
                       unit_divisor=1024) as progress:
         next_report = time.monotonic() + progress_s
-        for (ids, data, dlc, ts), position in _blocks(path, block_size):
+        for (ids, data, dlc, ts), position in _blocks(path, block_size, report):
             agent.update(ids, data, dlc, ts)
             progress.update(max(position - progress.n, 0))
             if progress.disable and time.monotonic() >= next_report:
                 log.info("replay: %d frames, %d cycles, %d symptoms", agent.frames_total, agent.stats.cycles,
                          agent.stats.symptoms)
                 next_report = time.monotonic() + progress_s
+    return report
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,12 +80,12 @@ def run(args: argparse.Namespace) -> int:
         agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg)).agent
         agent.sinks.append(last)
         try:
-            replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
+            report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
         except (FileNotFoundError, LogReadError) as exc:
             print(f"edge-monitor replay: {exc}", file=sys.stderr)
             return EXIT_FAILURE
-        agent.finish(close_open_cycle=not args.no_close)
-        stats = agent.run_statistics()
+        agent.finish(close_open_cycle=not args.no_close and report.truncated is None)
+        stats = {**agent.run_statistics(), "log": report.to_dict()}
     if args.json:
         print_json(stats)
     else:
@@ -96,4 +93,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
               f"{stats['frames_per_second']:.0f} frames/s")
+        if report.skipped or report.truncated:
+            print(f"log: {report.skipped} unreadable record(s) skipped"
+                  + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
+                     else ""))
     return 0

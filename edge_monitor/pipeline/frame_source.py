@@ -1,4 +1,4 @@
-"""Sources of frame blocks: a python-can log file (replay) or a live bus (bounded queue).
+"""Frame blocks from a live bus (bounded queue); log files are :mod:`~edge_monitor.pipeline.log_source`.
 
 The live path follows python-can's Bus/Listener boundary: the listener runs on the Notifier's
 receive thread and only enqueues into a bounded queue (a full queue drops and counts the frame);
@@ -8,11 +8,9 @@ it never raises into the Notifier. The processing thread takes frames out in blo
 from __future__ import annotations
 
 import logging
-import os
 import queue
 import threading
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterator
 
 import can
@@ -24,37 +22,6 @@ from protocol.frames import messages_to_arrays
 log = logging.getLogger(__name__)
 
 FrameArrays = tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int64], NDArray[np.float64]]
-
-
-def log_blocks(path: str | Path, block_size: int = 4096) -> Iterator[FrameArrays]:
-    """Yield the frames of a python-can log file (.blf, .log, .asc, …) as array blocks, in file order."""
-    for block, _ in log_blocks_with_position(path, block_size):
-        yield block
-
-
-def log_blocks_with_position(path: str | Path, block_size: int = 4096) -> Iterator[tuple[FrameArrays, int]]:
-    """As :func:`log_blocks`, each block with the bytes of the file read so far (for a progress bar;
-    read-ahead makes it run early, 0 where the reader does not tell)."""
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"log file {p} not found")
-    buf: list[can.Message] = []
-    with can.LogReader(str(p)) as reader:
-        for msg in reader:
-            buf.append(msg)
-            if len(buf) >= block_size:
-                yield messages_to_arrays(buf), _bytes_read(reader)
-                buf = []
-        if buf:
-            yield messages_to_arrays(buf), _bytes_read(reader)
-
-
-def _bytes_read(reader: object) -> int:
-    """Position of the reader's underlying file descriptor (compressed bytes for .gz logs)."""
-    try:
-        return os.lseek(reader.file.fileno(), 0, os.SEEK_CUR)   # type: ignore[attr-defined]
-    except (AttributeError, OSError, ValueError):
-        return 0
 
 
 class BoundedQueueListener(can.Listener):
