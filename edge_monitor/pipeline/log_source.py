@@ -124,7 +124,7 @@ def _resume(reader: Any) -> Iterator[can.Message]:
     """Go on reading a text log after a bad line: the file iterator is past it; the header (ASC) is
     already known, so it must not be searched for again."""
     if isinstance(reader, ASCReader):
-        setattr(reader, "_extract_header", lambda: None)   # instance override: keep base, start time, …
+        reader._extract_header = lambda: None  # type: ignore[method-assign]  # keep base, start time, …
     return iter(reader)
 
 
