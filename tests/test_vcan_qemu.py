@@ -95,7 +95,7 @@ class TestGuestRun:
 # --- the tool's pieces (always run, no qemu) ------------------------------------------------------
 
 def test_the_status_line_parser_reads_the_agents_real_status_line(tmp_path: Path):
-    proc = subprocess.run([sys.executable, "-m", "edge_monitor.cli", "run", "--link", "virtual:vcan-status",
+    proc = subprocess.run([sys.executable, "-m", "edge_monitor.cli", "-v", "run", "--link", "virtual:vcan-status",
                            "--no-zenoh", "--duration", "0.5", "--state-dir", str(tmp_path)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
