@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint test-vcan bench clean
+.PHONY: demo test lint test-vcan soak bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,11 @@ lint: $(STAMP)
 # Fetches qemu/busybox (apt, as root) and a Debian kernel (cached in .cache/) when missing.
 test-vcan: $(STAMP)
 	VCAN_QEMU=1 $(PY) -m pytest -q tests/test_vcan_qemu.py
+
+# Soak with chaos (docs/RELIABILITY.md): simulator, agent, Zenoh router and subscriber as processes over
+# the pty link; agent kill -9, router and controller restarts, bus silence; every frame and cycle reconciled.
+soak: $(STAMP)
+	$(PY) tools/soak.py --duration 60 --json
 
 bench: $(STAMP)
 	$(PY) -m pip install --quiet -e '.[test,bench]'

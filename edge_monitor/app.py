@@ -118,5 +118,19 @@ def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: St
             app.sinks.append(sink)
             app.agent.sinks.append(sink)
             log.debug("sink %s open", name)
+    _republish_recent(config, app)
     stack.callback(app.agent.close)     # first on exit: saves the state and closes the sinks
     return app
+
+
+def _republish_recent(config: AgentConfig, app: App) -> None:
+    """Send again over Zenoh the symptoms the JSONL file ends with (docs/RELIABILITY.md): after a kill,
+    puts Zenoh had not sent yet are lost, while the file (fsynced first) has them."""
+    if app.publisher is None:
+        return
+    from edge_monitor.sinks.jsonl import JsonlSink
+    for sink in app.sinks:
+        if isinstance(sink, JsonlSink) and sink.recent:
+            records = [r for r in sink.recent if r.get("robot") == config.robot]
+            sent = app.publisher.republish_symptoms(records)
+            log.info("zenoh: %d symptom record(s) of the JSONL file's tail published again", sent)

@@ -14,14 +14,17 @@ Link strings (docs/PROTOCOL.md, "Links"):
 from __future__ import annotations
 
 import errno
+import fcntl
 import logging
 import os
 import select
 import socket
+import struct
+import termios
 import threading
 import tty
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Protocol
 
 import can
 
@@ -185,6 +188,27 @@ def vcan_available(name: str = "vcan0") -> bool:
         return False
 
 
+class PtyObserver(Protocol):
+    """What a :class:`PtyPair` tells about the bytes travelling towards each end (``end`` is the
+    end's path, ``.a`` or ``.b``). Called on the bridge thread, in the order things happen: keep
+    the methods quick (e.g. append to a queue)."""
+
+    def queued(self, end: str, data: bytes) -> None:
+        """``data`` was accepted for ``end``'s user; in stream order: byte ``n`` of the concatenation of
+        every ``queued`` call for ``end`` is its stream position ``n``."""
+
+    def lost(self, end: str, data: bytes, reason: str) -> None:
+        """``data`` for ``end`` was dropped before it was queued; ``reason``: "closed" (no user had
+        ``end`` open) or "overflow" (``max_buffer`` reached)."""
+
+    def undelivered(self, end: str, start: int, stop: int) -> None:
+        """Queued bytes ``[start, stop)`` of ``end``'s stream never reached a user (still unread
+        when its user closed it, or a write error)."""
+
+    def closed(self, end: str) -> None:
+        """``end``'s last user closed it (after the matching :meth:`undelivered`)."""
+
+
 class PtyPair:
     """Two pseudo-terminals bridged both ways: bytes written to ``.a`` are read from ``.b`` and
     vice versa.  Each end behaves like one side of a null-modem cable, so two processes can talk
@@ -199,11 +223,15 @@ class PtyPair:
     Bytes written while the other end is open but not read are buffered up to ``max_buffer``
     bytes per direction, then dropped and counted in ``dropped_bytes``.
     Use as a context manager; ``close()`` stops the bridge thread and closes all descriptors.
+    ``observer`` (a :class:`PtyObserver`) is told the fate of every byte, e.g. to count frames per
+    receiving process; ``backlog()`` says how many bytes the bridge has still to move.
     """
 
-    def __init__(self, max_buffer: int = 1 << 20, poll_interval: float = 0.02) -> None:
+    def __init__(self, max_buffer: int = 1 << 20, poll_interval: float = 0.02,
+                 observer: PtyObserver | None = None) -> None:
         self.max_buffer = max_buffer
         self.poll_interval = poll_interval
+        self.observer = observer
         self.dropped_bytes = 0
         self.discarded_bytes = 0
         self._master_a, slave_a = os.openpty()
@@ -221,6 +249,7 @@ class PtyPair:
         self._peer = {self._master_a: self._master_b, self._master_b: self._master_a}
         self._pending = {self._master_a: bytearray(), self._master_b: bytearray()}  # waiting to be written
         self._open = {self._master_a: False, self._master_b: False}
+        self._queued = {self._master_a: 0, self._master_b: 0}                        # stream positions
         self._hangups = select.poll()
         for fd in self._peer:
             self._hangups.register(fd, 0)  # POLLHUP is always reported
@@ -249,21 +278,45 @@ class PtyPair:
                 self._read_from(fd)               # a user opened, wrote and closed in between
             self._open[fd] = now_open
 
+    def backlog(self) -> int:
+        """Bytes written by the users that the bridge has not moved yet (unread by the bridge, or
+        queued for an end and not yet written to it). The kernel hands what a user writes to the bridge's
+        side asynchronously: right after a write this can still be 0."""
+        unread = 0
+        for fd in self._peer:
+            try:
+                unread += struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+            except OSError:
+                pass
+        return unread + sum(len(p) for p in self._pending.values())
+
     def _end_closed(self, fd: int) -> None:
         self._read_from(fd)                       # what the closing user wrote last still goes over
-        self.discarded_bytes += len(self._pending[fd])
+        unwritten = len(self._pending[fd])
+        self.discarded_bytes += unwritten
         self._pending[fd].clear()
-        try:                                      # bytes the user did not read: drop them now
+        unread = self._drain(fd)                  # bytes the user did not read: drop them now
+        self.discarded_bytes += unread
+        if self.observer is not None:
+            end = self._queued[fd]
+            self.observer.undelivered(self._path[fd], end - unwritten - unread, end)
+            self.observer.closed(self._path[fd])
+
+    def _drain(self, fd: int) -> int:
+        """Read and drop what waits unread in ``fd``'s end; the number of bytes."""
+        drained = 0
+        try:
             slave = os.open(self._path[fd], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         except OSError:
-            return
+            return 0
         try:
             while chunk := os.read(slave, 65536):
-                self.discarded_bytes += len(chunk)
+                drained += len(chunk)
         except OSError:
             pass
         finally:
             os.close(slave)
+        return drained
 
     def _read_from(self, fd: int) -> None:
         """Move what ``fd``'s user wrote towards the peer (or discard it if the peer is closed)."""
@@ -277,14 +330,23 @@ class PtyPair:
             peer = self._peer[fd]
             if peer in self._closed_ends():
                 self.discarded_bytes += len(chunk)
+                self._tell_lost(peer, chunk, "closed")
                 continue
             target = self._pending[peer]
             room = max(self.max_buffer - len(target), 0)
             if len(chunk) > room:
                 self.dropped_bytes += len(chunk) - room
+                self._tell_lost(peer, chunk[room:], "overflow")
                 chunk = chunk[:room]
             target += chunk
+            self._queued[peer] += len(chunk)
+            if self.observer is not None and chunk:
+                self.observer.queued(self._path[peer], chunk)
             self._write_to(peer)
+
+    def _tell_lost(self, fd: int, data: bytes, reason: str) -> None:
+        if self.observer is not None and data:
+            self.observer.lost(self._path[fd], data, reason)
 
     def _write_to(self, fd: int) -> None:
         pending = self._pending[fd]
@@ -294,6 +356,8 @@ class PtyPair:
             pass
         except OSError:
             self.discarded_bytes += len(pending)
+            if self.observer is not None and pending:
+                self.observer.undelivered(self._path[fd], self._queued[fd] - len(pending), self._queued[fd])
             pending.clear()
 
     def _bridge(self) -> None:

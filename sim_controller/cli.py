@@ -3,7 +3,9 @@
 Options given on the command line override a ``--scenario`` file; see docs/SIMULATOR.md.
 Invalid input is refused with the subcommand's usage and a message naming the field (exit code 2);
 a link or file that cannot be opened says which and why (exit code 1); Ctrl-C exits with 130.
-``-v``/``-vv``/``-q`` work before and after the subcommand (``protocol.console``).
+SIGTERM ends ``run`` after the frame block being sent, with the ground truth and summary complete
+(exit code 0): a controller shut down in order. ``-v``/``-vv``/``-q`` work before and after the
+subcommand (``protocol.console``).
 """
 
 from __future__ import annotations
@@ -17,11 +19,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 from typing import Any, NoReturn, Sequence
 
 from protocol import package_version
 from protocol.console import (
+    EXIT_CODES_HELP,
     EXIT_FAILURE,
     EXIT_INTERRUPTED,
     add_can_arguments,
@@ -157,7 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sim-controller", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help="stream frames onto a link in real time or faster")
+    p_run = sub.add_parser("run", help="stream frames onto a link in real time or faster",
+                           epilog=f"{EXIT_CODES_HELP}. SIGTERM ends a run after the frame block being sent: "
+                                  "ground truth and summary complete, exit code 0")
     add_can_arguments(p_run, "slcan:DEVICE_OR_URL | socketcan:IFACE | virtual:NAME "
                              "(omit to use -i/-c/-b or python-can's CAN_*/~/.canrc config)")
     pace = p_run.add_mutually_exclusive_group()
@@ -179,6 +186,18 @@ def _run_option_error(args: argparse.Namespace) -> str | None:
     if is_log_file(args.link):
         return f"--link {args.link} is a log file; use `sim-controller record --out {args.link}`"
     return None
+
+
+def _stop_on_sigterm() -> threading.Event:
+    """An event set by SIGTERM (``run`` then ends after the current block, truth and summary complete)."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame: Any) -> None:
+        log.warning("signal %d: stopping after the current frame block", signum)
+        stop.set()
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+    return stop
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -203,7 +222,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if (problem := _run_option_error(args)) is not None:
                 usage_error(problem)
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
-            summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args))
+            summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args),
+                          stop=_stop_on_sigterm().is_set)
     except NoCanConfigError as exc:
         usage_error(str(exc))
     except (LinkError, OSError) as exc:

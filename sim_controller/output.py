@@ -34,6 +34,9 @@ log = logging.getLogger(__name__)
 STATUS_INTERVAL_S = 10.0
 #: Frames due less than this far in the future are sent at once (bounded sleep overhead) [s].
 PACING_SLACK_S = 1e-3
+#: A sender this far behind its schedule (the process was stopped, or starved of CPU) moves the schedule
+#: on instead of catching up in a burst: a frozen controller resumes at its pace [s].
+MAX_LAG_S = 1.0
 
 
 @dataclass
@@ -133,7 +136,8 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
 
     ``link`` is a link string (``slcan:…``, ``socketcan:…``, ``virtual:…``) or ``None`` for
     python-can's configuration; ``bus_kwargs`` go to ``open_bus``. ``stop()`` returning True ends
-    the run early (checked per frame block).
+    the run early (checked per frame block). A sender more than ``MAX_LAG_S`` behind its schedule
+    goes on at its pace from there (no burst; frames are never dropped).
     """
     bus = open_bus(link, **(bus_kwargs or {}))
     controller = Controller(config)
@@ -142,6 +146,7 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
     start = time.perf_counter()
     wall0 = time.time()
     t0: float | None = None
+    shift = 0.0                                   # schedule moved on after stalls [s]
     sent = errors = 0
     try:
         for block in controller.frames():
@@ -149,9 +154,10 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
                 t0 = float(block.timestamps[0])
             for message, t in zip(block_messages(block), block.timestamps.tolist()):
                 if speedup is not None:
-                    due = start + (t - t0) / speedup
-                    delay = due - time.perf_counter()
-                    if delay > PACING_SLACK_S:   # sleep in ≥ 1 ms steps; frames between go out back to back
+                    delay = start + shift + (t - t0) / speedup - time.perf_counter()
+                    if delay < -MAX_LAG_S:
+                        shift -= delay
+                    elif delay > PACING_SLACK_S:   # sleep in ≥ 1 ms steps; frames between go out back to back
                         time.sleep(delay)
                 message.timestamp = wall0 + (time.perf_counter() - start)
                 try:

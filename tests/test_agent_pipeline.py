@@ -190,3 +190,21 @@ def test_alarm_is_raised_once_and_cleared_by_a_declared_maintenance():
     after = agent.finish()
     assert after[-1].to_dict()["decisions"]["wear"]["state"] == "learning"
     assert after[-1].to_dict()["alarm"] is False
+
+
+def test_a_restart_in_a_later_cycle_marks_the_cycle_it_joined_partial(frames, tmp_path):
+    """Killed early in one cycle, restarted in the middle of a later one: the cycle joined mid-way is
+    published partial (it feeds neither learning nor the detectors); the next one is whole."""
+    ids, data = frames[0], frames[1]
+    status = np.flatnonzero(ids == 0x080)
+    cycle = (data[status].view("<u8").reshape(-1) >> np.uint64(16)) & np.uint64(0xFFFF)
+    first_row = {int(c): int(status[np.argmax(cycle == c)]) for c in np.unique(cycle)}
+    first = Agent(small_config(), state_store=StateStore(tmp_path))
+    feed(first, frames, stop=first_row[1] + 50)
+    first.save_state()                                   # then killed: no close
+    second = Agent(small_config(), state_store=StateStore(tmp_path))
+    resume = (first_row[2] + first_row[3]) // 2
+    outs = [o.to_dict() for o in feed(second, frames, start=resume) + second.finish()]
+    by_cycle = {(o["joint"], o["cycle"]): o for o in outs}
+    assert by_cycle[(0, 2)].get("partial") is True and by_cycle[(1, 2)].get("partial") is True
+    assert not by_cycle[(0, 3)].get("partial")

@@ -35,6 +35,7 @@ def test_torn_line_is_cut_and_repeated_records_are_written_once(tmp_path: Path) 
         fh.write('{"schema": 1, "robot": "r1", "joint": 0, "cyc')          # killed mid-write
     sink = JsonlSink(path)
     assert sink.torn_bytes_removed > 0
+    assert [(r["joint"], r["cycle"]) for r in sink.recent] == [(j, c) for c in range(3) for j in (0, 1)]
     for cycle in (1, 2, 3):                      # the restarted agent repeats what its state had not saved
         for joint in (0, 1):
             sink.on_symptom(symptom(joint, cycle))

@@ -343,3 +343,46 @@ def test_pty_pair_forwards_what_a_short_lived_writer_sent():
         finally:
             os.close(fd_b)
         assert pty.discarded_bytes == 0
+
+
+class _Recorder:
+    """A PtyObserver that keeps what it is told."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple] = []
+
+    def queued(self, end, data):
+        self.events.append(("queued", end, bytes(data)))
+
+    def lost(self, end, data, reason):
+        self.events.append(("lost", end, bytes(data), reason))
+
+    def undelivered(self, end, start, stop):
+        self.events.append(("undelivered", end, start, stop))
+
+    def closed(self, end):
+        self.events.append(("closed", end))
+
+
+def test_pty_pair_observer_is_told_the_fate_of_every_byte():
+    import os
+
+    seen = _Recorder()
+    with PtyPair(observer=seen) as pty:
+        fd_a = os.open(pty.a, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd_a, b"early\r")                   # nobody has .b open: lost
+            assert _wait_for(lambda: pty.discarded_bytes == 6 and pty.backlog() == 0)
+            fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)
+            os.write(fd_a, b"read\r")
+            assert _read_exactly(fd_b, 5) == b"read\r"
+            os.write(fd_a, b"unread\r")
+            assert _wait_for(lambda: ("queued", pty.b, b"unread\r") in seen.events and pty.backlog() == 0)
+            os.close(fd_b)                                # 7 queued bytes never read
+            assert _wait_for(lambda: ("closed", pty.b) in seen.events), seen.events
+        finally:
+            os.close(fd_a)
+    to_b = [e for e in seen.events if e[1] == pty.b]
+    assert to_b[0] == ("lost", pty.b, b"early\r", "closed")
+    assert b"".join(e[2] for e in to_b if e[0] == "queued") == b"read\runread\r"
+    assert to_b[-2:] == [("undelivered", pty.b, 5, 12), ("closed", pty.b)]

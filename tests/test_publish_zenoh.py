@@ -87,6 +87,20 @@ def test_late_subscriber_recovers_cached_symptoms(peers):
             assert subscriber.records("symptom")[-1]["cycle"] == n
 
 
+def test_republished_records_keep_the_last_cache_size_per_joint_and_reach_a_subscriber(peers):
+    pub_session, sub_session = peers
+    sub = SymptomSubscriber(sub_session, "edge/r1/**", history=True)
+    publisher = SymptomPublisher(pub_session, "r1", [0, 1], cache_size=3)
+    old = [symptom("r1", j, c) for c in range(5) for j in (0, 1)]      # an earlier run's JSONL tail
+    assert publisher.republish_symptoms(old) == 6
+    assert publisher.stats()["symptoms_republished"] == 6 and publisher.stats()["symptoms_published"] == 0
+    wanted = {(j, c) for j in (0, 1) for c in (2, 3, 4)}
+    assert wait_until(lambda: {(r["joint"], r["cycle"]) for r in sub.records("symptom")} >= wanted, WAIT_S)
+    assert {(r["joint"], r["cycle"]) for r in sub.records("symptom")} == wanted
+    publisher.close()
+    sub.close()
+
+
 def test_liveliness_token_appears_and_goes(peers):
     pub_session, sub_session = peers
     with SymptomSubscriber(sub_session) as subscriber:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -162,6 +163,33 @@ def test_cross_process_run_over_pty_slcan_reaches_a_python_can_receiver(tmp_path
     assert np.array_equal(decoded.counter[motor], np.arange(motor.sum()) % 256)
     assert np.any(np.abs(decoded.speed[motor] - 20.0) < 0.1)
     assert all(not m.is_extended_id for m in messages)
+
+
+def test_sigterm_ends_a_run_in_order_with_every_sent_frame_in_the_truth_summary(tmp_path):
+    truth = tmp_path / "truth.jsonl"
+    with PtyPair() as pty:
+        receiver = open_bus(f"slcan:{pty.b}")
+        try:
+            proc = subprocess.Popen([*SIM, "run", "--link", f"slcan:{pty.a}", "--speedup", "1", "--joints", "1",
+                                     "--cycles", "1000", "--speeds", "20", "--plateau-time", "0.3",
+                                     "--truth", str(truth), "--summary-json"],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            received = 0
+            deadline = time.monotonic() + 120
+            while received < 1000 and time.monotonic() < deadline:     # streaming: then stop it
+                received += receiver.recv(timeout=0.5) is not None
+            proc.send_signal(signal.SIGTERM)
+            while time.monotonic() < deadline:
+                if receiver.recv(timeout=0.5) is not None:
+                    received += 1
+                elif proc.poll() is not None:
+                    break
+            out, err = proc.communicate(timeout=30)
+        finally:
+            receiver.shutdown()
+    assert proc.returncode == 0, err
+    _, last = read_truth(truth)
+    assert last["frames_sent"] == json.loads(out)["frames_sent"] == received >= 1000
 
 
 def test_run_on_virtual_bus_in_process_paced_by_speedup():

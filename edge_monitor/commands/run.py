@@ -4,7 +4,8 @@ Receives frames from a CAN link, publishes per-cycle symptoms over Zenoh (and op
 Rerun), persists learned models in ``--state-dir`` and shuts down cleanly on SIGINT/SIGTERM
 (state saved, Zenoh undeclared, Rerun flushed; exit code 0: the normal end of a monitor that runs
 until stopped). The status line (every ``status_interval_s``) is logged at INFO (``-v``); a final
-line says why it stopped.
+line says why it stopped; ``--summary-json`` also prints the final counters (the health record) as
+one JSON line on standard output.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from edge_monitor.commands.common import (
 )
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
+from edge_monitor.records import to_json
 from edge_monitor.sinks.zenoh_session import ZenohSetupError
 from protocol.console import (
     EXIT_CODES_HELP,
@@ -56,6 +58,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--idle-stop", type=float, help="stop after this many seconds without frames")
     p.add_argument("--maintenance", type=int, action="append", default=[], metavar="JOINT",
                    help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models")
+    p.add_argument("--summary-json", action="store_true",
+                   help="at the end, print the final counters (the health record) as one JSON line on stdout")
     p.add_argument("--allow-remote-maintenance", action="store_true",
                    help="accept maintenance declarations put on Zenoh key edge/<robot>/<joint>/maintenance "
                         "(off by default; rate-limited; restrict who may put with a Zenoh ACL, docs/SECURITY.md)")
@@ -123,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
                             status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters)
         install_signal_handlers(runner.stop_event)
         runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
+        if args.summary_json:
+            print(to_json(runner.health().to_dict()), flush=True)
         if runner.link_failure:
             print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
             return EXIT_FAILURE

@@ -89,10 +89,11 @@ class Agent:
         outputs: list[Symptom] = []
         for run in block.runs:
             if run.cycle is not None and run.cycle != self._open_cycle:
+                first = self._open_cycle is None
                 if self._open_cycle is not None:
                     outputs += self._close_cycle(self._open_cycle)
-                elif run.starts_at_boundary is not True:   # first cycle of this instance, start not seen
-                    self._partial_cycle = run.cycle
+                if run.starts_at_boundary is False or (first and run.starts_at_boundary is not True):
+                    self._partial_cycle = run.cycle     # its start was not seen by this instance
                 self._open_cycle = run.cycle
             for joint, samples in run.samples.items():
                 monitor = self._monitor(joint)

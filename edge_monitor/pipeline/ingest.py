@@ -173,7 +173,9 @@ class Ingest:
         elif raw != self._cycle_raw:
             step = (raw - self._cycle_raw) % CYCLE_MODULUS
             cycle = self._cycle + (step if 0 < step <= MAX_CYCLE_STEP else 1)
-            first_seen[cycle] = True
+            # after a restart (state restored, no status frame seen yet) the controller may be anywhere
+            # in the cycle: its start was seen only if this is the cycle's first segment
+            first_seen[cycle] = self._anchored or segment <= 1
         else:
             cycle = self._cycle
             if not self._anchored:                              # restored state, same cycle: mid-cycle

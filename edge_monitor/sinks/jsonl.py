@@ -6,7 +6,8 @@ last line (cut mid-write; removed and counted when the file is opened again) and
 after the last state save, which the restarted agent emits again: those exact duplicates (same
 robot, joint and cycle as a record in the file's tail) are skipped and counted, so the file holds
 every cycle once. Only exact matches are skipped: a controller that restarts its cycle numbers
-still gets every record written.
+still gets every record written. ``recent`` holds the symptom records of the file's tail, e.g. for
+the Zenoh publisher to send again after a restart (``edge_monitor.app``).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ class JsonlSink:
         self.failed = 0
         self.duplicates_skipped = 0
         self.torn_bytes_removed = 0
+        self.recent: list[dict[str, Any]] = []        # symptom records of the tail found at opening
         self._seen: set[tuple[Any, Any, Any]] = set()
         self._fh: TextIO | None = None
         try:
@@ -73,6 +75,7 @@ class JsonlSink:
                 continue                                    # the first, partial line of the tail window
             if isinstance(record, dict) and "kind" not in record:
                 seen.add((record.get("robot"), record.get("joint"), record.get("cycle")))
+                self.recent.append(record)
         return seen
 
     def _write(self, record: dict[str, Any]) -> None:

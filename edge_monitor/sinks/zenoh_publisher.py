@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
@@ -67,6 +68,7 @@ class SymptomPublisher:
         self.published = {kind: 0 for kind in KINDS}
         self.undelivered = {kind: 0 for kind in KINDS}
         self.queries_answered = 0
+        self.republished = 0
         self._failed_kinds: set[str] = set()
         self._lock = threading.Lock()
         self._joint_publishers: dict[int, dict[str, Any]] = {}
@@ -115,6 +117,19 @@ class SymptomPublisher:
         """Publish one per-cycle symptom record; True when handed to Zenoh."""
         return self._put(SYMPTOM, record.get("joint"), record)
 
+    def republish_symptoms(self, records: list[dict]) -> int:
+        """Publish again symptom records of an earlier run, in order: the last ``cache_size`` of each joint
+        (e.g. the tail of the JSONL file at a restart: a crash can cut off puts Zenoh had not sent yet,
+        and this run's caches start empty). Subscribers see them twice when they had them already.
+        Counted in ``symptoms_republished``; returns how many were handed to Zenoh."""
+        remaining = Counter(r.get("joint") for r in records)
+        for record in records:
+            joint = record.get("joint")
+            remaining[joint] -= 1
+            if remaining[joint] < self.cache_size and self._put(SYMPTOM, joint, record, count=False):
+                self.republished += 1
+        return self.republished
+
     def publish_alarm(self, record: dict) -> bool:
         """Publish one alarm raised/cleared record."""
         return self._put(ALARM, record.get("joint"), record)
@@ -129,7 +144,7 @@ class SymptomPublisher:
                   "symptoms_undelivered": self.undelivered[SYMPTOM], **record}
         return self._put(HEALTH, None, record)
 
-    def _put(self, kind: str, joint: Any, record: dict) -> bool:
+    def _put(self, kind: str, joint: Any, record: dict, count: bool = True) -> bool:
         try:
             if self._closed:
                 raise RuntimeError("publisher is closed")
@@ -143,18 +158,20 @@ class SymptomPublisher:
                 log.warning("zenoh %s not delivered (further failures of this kind are only counted): %s",
                             kind, exc)
             return False
-        self.published[kind] += 1
+        if count:
+            self.published[kind] += 1
         return True
 
     def stats(self) -> dict[str, int]:
         """Counters: ``symptoms_published``, ``symptoms_undelivered``, ``alarms_…``, ``friction_…``,
-        ``health_…`` and ``state_queries``."""
+        ``health_…``, ``state_queries`` and ``symptoms_republished``."""
         out: dict[str, int] = {}
         for kind in KINDS:
             name = _STAT_NAMES[kind]
             out[f"{name}_published"] = self.published[kind]
             out[f"{name}_undelivered"] = self.undelivered[kind]
         out["state_queries"] = self.queries_answered
+        out["symptoms_republished"] = self.republished
         return out
 
     # -- queryable ---------------------------------------------------------------------------------
