@@ -150,13 +150,13 @@ def miss_forecast(runs: list[dict[str, Any]], every: int = 5) -> dict[str, list[
     cycles = len(next(iter(worn[0][0]["wear_truth"].values())))
     quantities = sorted({a["quantity"] for run, _ in worn for a in run["alarms"]})
     for q in quantities:
+        first = [min((a["cycle"] for a in run["alarms"] if a["joint"] == j and a["quantity"] == q),
+                     default=math.inf) for run, j in worn]
         rows = []
         for cycle in range(0, cycles, every):
             missed, reported, wear = 0, 0.0, 0.0
-            for run, j in worn:
-                first = min((a["cycle"] for a in run["alarms"] if a["joint"] == j and a["quantity"] == q),
-                            default=math.inf)
-                if cycle < first:
+            for (run, j), first_alarm in zip(worn, first):
+                if cycle < first_alarm:
                     missed += 1
                     reported += run["miss_probability"].get(str(j), {}).get(q, {}).get(str(cycle), 1.0)
                 wear += run["wear_truth"][str(j)][cycle]
