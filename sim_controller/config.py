@@ -64,6 +64,8 @@ class SimConfig:
     # load
     load_range: tuple[float, float] = (0.3, 0.7)   # |τl| uniform per cycle
     load_std: float = 0.1              # σl of the controller's estimate
+    payload_error: float = 0.0         # relative error of the controller's payload mass: its load estimate
+                                       # (and gravity feedforward) is (1 + payload_error)·τl + N(0, σl²)
     # temperature
     temperature_range: tuple[float, float] | None = None   # per-cycle uniform draw instead of the thermal model
     ambient: float = 30.0
@@ -141,6 +143,8 @@ def validate(c: SimConfig) -> None:
     _require(_finite(lo) and _finite(hi) and 0.0 <= lo <= hi <= 1.0, "load_range",
              f"need 0 ≤ LOW ≤ HIGH ≤ 1 (|τl|, fraction of max torque), got {lo!r}:{hi!r}")
     _require(_finite(c.load_std) and 0.0 <= c.load_std <= 0.5, "load_std", f"must be 0 … 0.5, got {c.load_std!r}")
+    _require(_finite(c.payload_error) and -0.5 <= c.payload_error <= 0.5, "payload_error",
+             f"must be −0.5 … 0.5 (a fraction of the payload mass), got {c.payload_error!r}")
     if c.temperature_range is not None:
         lo, hi = c.temperature_range
         _require(_finite(lo) and _finite(hi) and lo <= hi, "temperature_range", f"need LOW ≤ HIGH, got {lo!r}:{hi!r}")

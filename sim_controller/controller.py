@@ -11,7 +11,7 @@ JointStatus per joint (load estimate, its σl, motor temperature). Frames of one
 by the time one 8-byte frame takes on a 1 Mbit/s bus, so timestamps strictly increase.
 
 Per cycle and joint (constant within the cycle): manipulation load |τl| ~ U(load_range) with the
-joint's gravity sign, the controller's estimate μl = τl + N(0, σl²), the lubricant temperature
+joint's gravity sign, the controller's estimate μl = (1 + payload_error)·τl + N(0, σl²), the lubricant temperature
 (thermal model or uniform draw), the wear level of the joint's scenario, and a friction model
 error δk ~ N(0, σm²) per speed level k, added to the friction magnitude in both directions.
 """
@@ -206,6 +206,7 @@ class Controller:
                 "speeds": list(c.speeds), "variation": c.effective_variation(),
                 "friction_model_error": c.friction_model_error, "torque_noise": c.torque_noise,
                 "speed_noise": c.speed_noise, "load_range": list(c.load_range), "load_std": c.load_std,
+                "payload_error": c.payload_error,
                 "temperature_range": None if c.temperature_range is None else list(c.temperature_range),
                 "thermal_time_constant": c.thermal_time_constant, "time_acceleration": c.time_acceleration,
                 "wear": [c.wear_profile(j).to_dict() for j in range(c.joints)], "faults": c.faults.to_dict()}
@@ -216,7 +217,7 @@ class Controller:
         c, rng, n = self.config, self._cycle_rng, self.config.joints
         magnitude = rng.uniform(c.load_range[0], c.load_range[1], size=n)
         load = magnitude * np.array([s.load_sign for s in self.joints])
-        estimate = load + rng.normal(0.0, c.load_std, size=n)
+        estimate = load * (1.0 + c.payload_error) + rng.normal(0.0, c.load_std, size=n)
         if c.temperature_range is not None:
             temperature = rng.uniform(c.temperature_range[0], c.temperature_range[1], size=n)
         else:
