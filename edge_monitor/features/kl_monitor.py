@@ -59,7 +59,7 @@ from edge_monitor.features.disturbance_weights import DEFAULT_ALPHA, DEFAULT_BET
 from edge_monitor.features.kl_channel import KLChannel
 from edge_monitor.features.temperature_compensation import TemperatureCompensation
 from edge_monitor.records import finite_or_none
-from edge_monitor.stats.kde_stream import symmetric_kl
+from edge_monitor.stats.kde_stream import MAX_GRID, symmetric_kl
 from joint_model import FrictionParams
 from protocol.frames import SEGMENT_PRODUCTION
 
@@ -69,8 +69,6 @@ Window = Literal["cycle", "production"]
 CHANNELS = ("raw", "weighted")
 #: Section of a symptom when there is no KL value (feature off, or a partial cycle).
 EMPTY_SECTION: dict[str, Any] = {"raw": None, "weighted": None}
-#: Largest KDE grid [points]: memory per channel is O(grid); 65536 points is 0.5 MB.
-MAX_GRID = 65536
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,12 @@ from typing import Any, Callable, Iterable
 
 from numpy.typing import NDArray
 
+from edge_monitor.errors import StateError
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateStore
+from edge_monitor.pipeline.state_validation import validate_state
 from edge_monitor.records import Alarm, Health, Symptom
 from edge_monitor.sinks.base import Sink
 from edge_monitor.stats.sequential_detector import Calibrator
@@ -35,6 +37,8 @@ class RunStats:
     duplicate_cycles_skipped: int = 0
     partial_cycles: int = 0
     sink_errors: int = 0
+    states_rejected: int = 0          # saved state files moved aside (unusable), relearned from scratch
+    joint_states_rejected: int = 0    # joints whose saved models did not load, relearned alone
     started: float = field(default_factory=time.perf_counter)
 
 
@@ -57,6 +61,7 @@ class Agent:
         self.lock = threading.RLock()     # processing vs. state queries from output threads
         if state_store is not None:
             self._restore(state_store.load())
+            self.stats.states_rejected = state_store.rejected
 
     # ------------------------------------------------------------------ input
     def update(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> list[Symptom]:
@@ -108,12 +113,24 @@ class Agent:
     def _monitor(self, joint: int) -> JointMonitor:
         monitor = self.joints.get(joint)
         if monitor is None:
-            saved = self._restored_joint_states.pop(joint, None)
-            monitor = JointMonitor(joint, self.config, self.calibrator) if saved is None else \
-                JointMonitor.from_state(joint, self.config, saved, self.calibrator)
+            monitor = self._restored_monitor(joint) or JointMonitor(joint, self.config, self.calibrator)
             self.joints[joint] = monitor
             log.info("joint %d: monitoring started", joint)
         return monitor
+
+    def _restored_monitor(self, joint: int) -> JointMonitor | None:
+        """The joint's monitor from the saved state, or None (nothing saved, or saved models that do
+        not load: the joint relearns, with a warning and ``joint_states_rejected`` counted)."""
+        saved = self._restored_joint_states.pop(joint, None)
+        if saved is None:
+            return None
+        try:
+            return JointMonitor.from_state(joint, self.config, saved, self.calibrator)
+        except Exception as exc:        # noqa: BLE001 — the state is untrusted input: any failure → relearn
+            log.warning("joint %d: saved models unusable (%s: %s); relearning this joint", joint,
+                        type(exc).__name__, exc)
+            self.stats.joint_states_rejected += 1
+            return None
 
     def _close_cycle(self, cycle: int) -> list[Symptom]:
         outputs: list[Symptom] = []
@@ -217,6 +234,8 @@ class Agent:
                 "alarms": len(self.stats.alarms), "sink_errors": self.stats.sink_errors,
                 "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
                 "partial_cycles": self.stats.partial_cycles,
+                "states_rejected": self.stats.states_rejected,
+                "joint_states_rejected": self.stats.joint_states_rejected,
                 "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
                 "segmentation": {str(j): m.counters()["segmentation"] for j, m in self.joints.items()},
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
@@ -253,9 +272,15 @@ class Agent:
     def _restore(self, state: dict[str, Any] | None) -> None:
         if not state:
             return
-        self._last_emitted = {int(j): int(c) for j, c in state.get("last_emitted", {}).items()}
-        if state.get("ingest"):
-            self.ingest.load_state(state["ingest"])
+        try:
+            validate_state(state, self.config.robot, self.config.joints)
+            if state.get("ingest"):
+                self.ingest.load_state(state["ingest"])
+        except (StateError, KeyError, TypeError, ValueError) as exc:
+            if self.store is not None:
+                self.store.reject(str(exc))
+            return
+        self._last_emitted = {int(j): c for j, c in state.get("last_emitted", {}).items()}
         self._restored_joint_states = {int(j): s for j, s in state.get("joints", {}).items()}
         log.info("restored state of joints %s (last cycles %s)", sorted(self._restored_joint_states),
                  self._last_emitted)

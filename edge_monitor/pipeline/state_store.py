@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -36,19 +37,36 @@ class StateStore:
         if not os.access(self.dir, os.W_OK):
             raise StateError(f"state directory {self.dir} is not writable; pass a writable --state-dir")
         self.path = self.dir / STATE_FILE
+        self.rejected = 0         # state files moved aside as unusable
 
     def load(self) -> dict[str, Any] | None:
+        """The saved state, or None when there is none or it is unusable (then it is moved aside by
+        :meth:`reject`, and the agent relearns)."""
         if not self.path.exists():
             return None
         try:
             state = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise StateError(f"state file {self.path} is unreadable ({exc}); move it away to start "
-                             f"learning afresh") from None
-        if state.get("version") != STATE_VERSION:
-            raise StateError(f"state file {self.path} has version {state.get('version')!r}, expected "
-                             f"{STATE_VERSION}; move it away to start learning afresh")
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            self.reject(f"unreadable ({exc})")
+            return None
+        version = state.get("version") if isinstance(state, dict) else None
+        if version != STATE_VERSION:
+            self.reject(f"version {version!r}, expected {STATE_VERSION}")
+            return None
         return state
+
+    def reject(self, reason: str) -> Path | None:
+        """Move an unusable state file aside (``agent_state.json.rejected-<UTC time>``) with a warning;
+        the agent then starts learning afresh. Returns where it went (None if it could not move)."""
+        aside = self.path.with_name(f"{STATE_FILE}.rejected-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
+        try:
+            os.replace(self.path, aside)
+        except OSError as exc:
+            raise StateError(f"state file {self.path} is unusable ({reason}) and cannot be moved aside "
+                             f"({exc.strerror}); move it away to start learning afresh") from None
+        self.rejected += 1
+        log.warning("state file %s is unusable: %s; moved it to %s, learning afresh", self.path, reason, aside.name)
+        return aside
 
     def save(self, state: dict[str, Any]) -> None:
         payload = to_json({"version": STATE_VERSION, **state})

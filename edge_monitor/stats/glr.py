@@ -29,6 +29,9 @@ from edge_monitor.stats.bias_em import SAStep, check_gain, check_step, em_bias
 from edge_monitor.stats.densities import GaussianMixture, as_observations
 from edge_monitor.stats.glr_batch import BatchWindowedGLR, GLRMode, MixtureBatch
 
+#: Largest window [observations]: memory and time per observation are O(window).
+MAX_WINDOW = 10_000
+
 
 class GLRError(ValueError):
     """Invalid GLR settings or input (names the parameter and its valid range)."""
@@ -248,7 +251,10 @@ class WindowedGLR:
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "WindowedGLR":
-        glr = cls(GaussianMixture.from_state(state["density"]), state["window"], state["pf"],
+        window = int(state["window"])
+        if not 1 <= window <= MAX_WINDOW:     # a corrupted size must not allocate gigabytes
+            raise GLRError(f"WindowedGLR.from_state: window = {window} outside 1 … {MAX_WINDOW}")
+        glr = cls(GaussianMixture.from_state(state["density"]), window, state["pf"],
                   state["gamma0"], state["rho"], state["mode"], state.get("step", "fisher"),
                   threshold=state["threshold"], null_box=_pair_from_json(state.get("null_box")),
                   clip=_pair_from_json(state.get("clip")))

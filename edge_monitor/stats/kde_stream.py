@@ -20,6 +20,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import fftconvolve
 
+#: Largest grid [points]: memory is O(grid); 65536 points is 0.5 MB.
+MAX_GRID = 65536
 #: Kernel truncation in bandwidths: the Gaussian mass beyond 5 h is 5.7e-7.
 KERNEL_TRUNCATION = 5.0
 #: Default density floor for the KL distance, relative to the larger of the two peaks. The floor
@@ -294,7 +296,10 @@ class StreamingKDE:
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "StreamingKDE":
-        kde = cls(state["lo"], state["hi"], state["n_grid"])
+        n_grid = int(state["n_grid"])
+        if not 2 <= n_grid <= MAX_GRID:       # a corrupted size must not allocate gigabytes
+            raise ValueError(f"StreamingKDE.from_state: n_grid = {n_grid} outside 2 … {MAX_GRID}")
+        kde = cls(state["lo"], state["hi"], n_grid)
         mass = np.asarray(state["mass"], dtype=float).reshape(-1)
         offset = int(state.get("mass_offset", 0))      # states without it hold the full grid
         if "mass_offset" not in state and mass.size != kde.n_grid:

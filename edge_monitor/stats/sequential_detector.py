@@ -39,15 +39,13 @@ from edge_monitor.stats.calibration import (
     Pending,
 )
 from edge_monitor.stats.densities import DENSITY_KINDS, DensityError, GaussianMixture, fit_density, min_points
-from edge_monitor.stats.glr import GLRError, WindowedGLR, check_pf, threshold_from_pf
+from edge_monitor.stats.glr import MAX_WINDOW, GLRError, WindowedGLR, check_pf, threshold_from_pf
 from edge_monitor.stats.glr_batch import DIRECTIONS, clip_range, null_box
 
 log = logging.getLogger(__name__)
 
 #: Candidate change times kept by the agent's detectors [cycles].
 DEFAULT_WINDOW = 100
-#: Largest window [cycles]: memory and time per cycle are O(window).
-MAX_WINDOW = 10_000
 #: Learning phase length [cycles] (docs/ALGORITHMS.md §6: 50 … 70).
 DEFAULT_NOMINAL = 60
 #: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
