@@ -306,6 +306,33 @@ def test_pty_pair_does_not_deliver_bytes_sent_before_the_receiver_opened():
         assert pty.discarded_bytes == len(stale) and pty.dropped_bytes == 0
 
 
+_WRITE_AND_EXIT = "import os, sys\nfd = os.open(sys.argv[1], os.O_WRONLY | os.O_NOCTTY)\nos.write(fd, sys.argv[2].encode())\n"
+
+
+def test_pty_pair_learns_of_opens_and_closes_at_once_without_polling():
+    """Another process writes before the receiver opens and exits: with inotify the bridge learns of
+    it at once and discards its bytes (the poll fallback is set to an hour here, so only inotify can
+    wake the bridge); a receiver opened after that gets only what is written later, by another process."""
+    import os
+    import subprocess
+    import sys
+
+    with PtyPair(poll_interval=3600.0) as pty:
+        if pty._inotify < 0:
+            pytest.skip("no inotify on this system: the bridge polls every poll_interval")
+        stale = "stale\r" * 1000
+        subprocess.run([sys.executable, "-c", _WRITE_AND_EXIT, pty.a, stale], check=True, timeout=60)
+        assert _wait_for(lambda: pty.discarded_bytes == len(stale)), pty.discarded_bytes
+        fd_b = os.open(pty.b, os.O_RDWR | os.O_NOCTTY)
+        try:
+            subprocess.run([sys.executable, "-c", _WRITE_AND_EXIT, pty.a, "fresh\r"], check=True, timeout=60)
+            assert _read_exactly(fd_b, 6) == b"fresh\r"
+            assert _read_available(fd_b) == b""
+        finally:
+            os.close(fd_b)
+        assert pty.discarded_bytes == len(stale) and pty.dropped_bytes == 0
+
+
 def test_pty_pair_drops_unread_bytes_when_the_receiver_closes():
     import os
 

@@ -63,10 +63,10 @@ class TestGuestRun:
         assert agent["queue_dropped"] == 0 and agent["queue_depth"] == 0
 
     def test_one_symptom_per_joint_per_completed_cycle(self, guest):
-        # The simulator ran `cycles` cycles; a live agent closes a cycle when the next one begins, so
-        # the last one is still open when the stream ends.
+        # The simulator ran `cycles` cycles; the agent closes a cycle when the next one begins, and the
+        # last one when the stream ends (--idle-stop), as replay does at the end of a file.
         assert len(guest.truth) == WORKLOAD.joints * WORKLOAD.cycles
-        completed = {(j, c) for j in range(WORKLOAD.joints) for c in range(WORKLOAD.cycles - 1)}
+        completed = {(j, c) for j in range(WORKLOAD.joints) for c in range(WORKLOAD.cycles)}
         keys = [(s["joint"], s["cycle"]) for s in guest.symptoms]
         assert len(keys) == len(set(keys)) and set(keys) == completed, keys
         assert guest.agent["cycles"] == guest.agent["symptoms"] == len(completed)
@@ -78,7 +78,7 @@ class TestGuestRun:
         (tmp_path / "agent.toml").write_text(WORKLOAD.agent_config())
         subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(log), *WORKLOAD.sim_args()],
                        check=True, capture_output=True, timeout=300)
-        replay = subprocess.run([sys.executable, "-m", "edge_monitor.cli", "replay", str(log), "--no-close", "--json",
+        replay = subprocess.run([sys.executable, "-m", "edge_monitor.cli", "replay", str(log), "--json",
                                  "--config", str(tmp_path / "agent.toml"), "--jsonl", str(symptoms)],
                                 check=True, capture_output=True, text=True, timeout=300)
         assert json.loads(replay.stdout)["frames_total"] == guest.frames_sent

@@ -55,7 +55,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--rerun", default=None, help="off | save:PATH | spawn | connect:URL (default: config, off)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--max-cycles", type=int, help="stop after this many cycles")
-    p.add_argument("--idle-stop", type=float, help="stop after this many seconds without frames")
+    p.add_argument("--idle-stop", type=float,
+                   help="stop after this many seconds without frames: the end of the stream, which closes and "
+                        "publishes the last cycle, like replay at the end of a file (unless --no-close)")
+    p.add_argument("--no-close", action="store_true",
+                   help="at the end of the stream (--idle-stop) leave the last cycle open, as replay --no-close")
     p.add_argument("--maintenance", type=int, action="append", default=[], metavar="JOINT",
                    help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models")
     p.add_argument("--summary-json", action="store_true",
@@ -127,6 +131,12 @@ def run(args: argparse.Namespace) -> int:
                             status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters)
         install_signal_handlers(runner.stop_event)
         runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
+        if runner.stop_reason == "idle" and not args.no_close:
+            # the stream ended (docs/OUTPUTS.md "End of the stream"): its last cycle is complete, publish it
+            # as replay does at the end of a file; a stop mid-stream (signal, --duration, --max-cycles,
+            # a link failure) leaves it open
+            agent.finish(close_open_cycle=True)
+            runner.report()
         if args.summary_json:
             print(to_json(runner.health().to_dict()), flush=True)
         if runner.link_failure:

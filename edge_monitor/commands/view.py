@@ -16,7 +16,7 @@ import time
 
 from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
 from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
-from edge_monitor.sinks.rerun_view import RerunSetupError, RerunSink
+from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSetupError, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohSetupError, open_session
 from protocol.console import EXIT_CODES_HELP
@@ -60,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
         if args.robot is not None:
             check_robot_name(args.robot)
         options = zenoh_options(args)
-        sink = RerunSink.open(args.rerun, fallback_save="edge-view.rrd")
+        # a live display, also when saving: what arrived within a second is drawn as one block
+        sink = RerunSink.open(args.rerun, fallback_save="edge-view.rrd", batching=LIVE_BATCHING)
     except (ZenohSetupError, RerunSetupError, ValueError) as exc:
         print(f"edge-monitor view: {exc}", file=sys.stderr)
         return 2

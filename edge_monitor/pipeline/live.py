@@ -46,6 +46,10 @@ class LiveRunner:
     def health(self) -> Health:
         return self.agent.health(self.link_counters())
 
+    def report(self) -> None:
+        """A status line and a health record now (e.g. after the last cycle was closed at the end)."""
+        self._tick()
+
     def _tick(self) -> None:
         self.agent.poll(time.time())        # counts NO_NEW_DATA per identifier in the E2E statistics
         h = self.agent.publish_health(self.link_counters()).counters

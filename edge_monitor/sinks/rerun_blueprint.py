@@ -1,4 +1,7 @@
-"""The default Rerun blueprint of the fleet view: a wear overview, one tab per joint, one per agent."""
+"""The default Rerun blueprint of the fleet view: a wear overview, one tab per joint, one per agent.
+
+Sent once per recording (with the first block of records; again only if a robot or joint appears later).
+"""
 
 from __future__ import annotations
 
@@ -23,12 +26,12 @@ def fleet_blueprint(layout: Mapping[str, set[int]], health_robots: set[str]) -> 
             base = joint_path(robot, joint)
             overview.append(rrb.TimeSeriesView(origin=f"{base}/wear", name=f"{robot} · joint {joint} wear"))
             tabs.append(rrb.Grid(
-                rrb.TimeSeriesView(origin=f"{base}/wear", name="wear estimate ± 2σ"),
+                rrb.TimeSeriesView(origin=f"{base}/wear", name="wear: estimate, bounds, critical level"),
                 rrb.TimeSeriesView(origin=f"{base}/kl", name="KL distance"),
                 rrb.TimeSeriesView(origin=f"{base}/glr", name="GLR statistic vs threshold"),
                 rrb.TimeSeriesView(origin=f"{base}/miss", name="miss probability",
                                    axis_y=rrb.ScalarAxis(range=(0.0, 1.0))),
-                rrb.Spatial2DView(origin=f"{base}/friction", name="friction ‰ vs speed rad/s (by cycle)",
+                rrb.Spatial2DView(origin=f"{base}/friction", name="friction ‰ (up) vs speed rad/s, by cycle",
                                   time_ranges=[all_cycles]),
                 rrb.Spatial2DView(origin=f"{base}/density", name="torque density: cycle vs nominal"),
                 rrb.TimeSeriesView(origin=f"{base}/temperature", name="lubricant temperature °C"),
