@@ -62,6 +62,8 @@ class AgentConfig:
         require(math.isfinite(self.rate_hz) and 1 <= self.rate_hz <= 100_000, "rate_hz",
                 f"must be 1 … 100000 Hz, got {self.rate_hz}")
         if self.joints is not None:
+            require(isinstance(self.joints, tuple | list), "joints",
+                    f"expected a list of joint indices such as [0, 1, 2], got {self.joints!r}")
             require(len(self.joints) > 0, "joints",
                     "an empty list monitors nothing; omit the key to monitor every joint")
             require(all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < MAX_JOINTS for j in self.joints),

@@ -1,0 +1,68 @@
+"""Fuzz of the agent's config loading (issue #12): any value for any key, and any text as a TOML
+file, gives either a valid configuration or a ConfigError naming the field — never another
+exception, and no accepted size beyond its bound."""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from importlib import resources
+from typing import Any
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from edge_monitor.config import config_from_mapping, load_config
+from edge_monitor.errors import ConfigError
+from edge_monitor.stats.glr import MAX_WINDOW
+from edge_monitor.stats.kde_stream import MAX_GRID
+
+DEFAULTS = tomllib.loads(resources.files("edge_monitor").joinpath("defaults/agent.toml").read_text())
+
+
+def _paths(table: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    out = []
+    for key, value in table.items():
+        out.append(prefix + (key,))
+        if isinstance(value, dict):
+            out += _paths(value, prefix + (key,))
+    return out
+
+
+PATHS = _paths(DEFAULTS) + [("joints",), ("robot",), ("status_interval_s",), ("no_such_key",)]
+VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30),
+                   st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
+                   st.lists(st.integers(-5, 100), max_size=5), st.dictionaries(st.text(max_size=3), st.integers(),
+                                                                              max_size=2))
+
+
+@settings(max_examples=400, deadline=None)
+@given(path=st.sampled_from(PATHS), value=VALUES)
+def test_any_value_for_any_key_is_accepted_within_bounds_or_refused_by_name(path, value):
+    doc = copy.deepcopy(DEFAULTS)
+    node = doc
+    for key in path[:-1]:
+        node = node.setdefault(key, {})
+    if value is None:
+        node.pop(path[-1], None)
+    else:
+        node[path[-1]] = value
+    try:
+        cfg = config_from_mapping(doc)
+    except ConfigError as exc:
+        assert str(exc) and "\n" not in str(exc).strip()
+        return
+    assert 1 <= cfg.decision.window <= MAX_WINDOW
+    assert 64 <= cfg.kl.n_grid <= MAX_GRID
+    assert cfg.joints is None or 0 < len(cfg.joints) <= 64
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.text(max_size=200))
+def test_any_text_as_a_config_file_loads_or_is_refused(tmp_path, text):
+    path = tmp_path / "agent.toml"
+    path.write_text(text, encoding="utf-8")
+    try:
+        load_config(path)
+    except ConfigError as exc:
+        assert str(path) in str(exc) or ":" in str(exc)
