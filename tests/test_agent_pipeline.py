@@ -208,3 +208,18 @@ def test_a_restart_in_a_later_cycle_marks_the_cycle_it_joined_partial(frames, tm
     by_cycle = {(o["joint"], o["cycle"]): o for o in outs}
     assert by_cycle[(0, 2)].get("partial") is True and by_cycle[(1, 2)].get("partial") is True
     assert not by_cycle[(0, 3)].get("partial")
+
+
+def test_a_cycle_cut_by_a_controller_restart_is_published_partial(frames):
+    """The controller restarts in the middle of cycle 2 (its counters start again at 0): cycle 2 ended
+    early, so it is published partial (kept from learning and the detectors); numbering goes on."""
+    ids, data = frames[0], frames[1]
+    status = np.flatnonzero(ids == 0x080)
+    cycle = (data[status].view("<u8").reshape(-1) >> np.uint64(16)) & np.uint64(0xFFFF)
+    first_row = {int(c): int(status[np.argmax(cycle == c)]) for c in np.unique(cycle)}
+    cut = (first_row[2] + first_row[3]) // 2
+    agent = Agent(small_config())
+    outs = feed(agent, frames, stop=cut) + feed(agent, frames, stop=first_row[2] + 50) + agent.finish()
+    by_cycle = {(o.joint, o.cycle): o.to_dict() for o in outs}
+    assert sorted({c for _, c in by_cycle}) == [0, 1, 2, 3, 4, 5]
+    assert [bool(by_cycle[(0, c)].get("partial")) for c in range(6)] == [False, False, True, False, False, False]

@@ -56,7 +56,8 @@ class Agent:
         self.stats = RunStats()
         self._open_cycle: int | None = None
         self._last_emitted: dict[int, int] = {}
-        self._partial_cycle: int | None = None   # first cycle after start: its beginning was not seen
+        self._partial_cycle: int | None = None   # its beginning was not seen (first after a start) or
+                                                 # its end (cut by a controller restart)
         self._restored_joint_states: dict[int, dict] = {}
         self.lock = threading.RLock()     # processing vs. state queries from output threads
         if state_store is not None:
@@ -96,6 +97,8 @@ class Agent:
             if run.cycle is not None and run.cycle != self._open_cycle:
                 first = self._open_cycle is None
                 if self._open_cycle is not None:
+                    if run.previous_cut:       # a controller restart cut it: published, kept from the detectors
+                        self._partial_cycle = self._open_cycle
                     outputs += self._close_cycle(self._open_cycle)
                 if run.starts_at_boundary is False or (first and run.starts_at_boundary is not True):
                     self._partial_cycle = run.cycle     # its start was not seen by this instance

@@ -57,6 +57,8 @@ class CycleRun:
     samples: dict[int, JointSamples]
     joint_status: dict[int, JointStatusBlock]
     starts_at_boundary: bool | None = None              # first run of a cycle: was its start seen?
+    previous_cut: bool = False                          # entered by a controller restart: the cycle
+                                                        # before it ended early (its end is unknown)
 
 
 @dataclass
@@ -89,6 +91,7 @@ class Ingest:
         self._cycle: int | None = None        # unwrapped cycle in force
         self._cycle_raw: int | None = None
         self._segment = -1                    # segment in force
+        self._restarted_into: set[int] = set()     # cycles of this block entered by a controller restart
         self._status_tick: int | None = None  # last controller tick from the status frame (unwrapped)
         self._status_tick_raw: int | None = None
         self._anchored = False                # a status frame was seen by this instance
@@ -141,6 +144,7 @@ class Ingest:
         status_rows = np.flatnonzero(usable & (dec.kind == FrameKind.CONTROLLER_STATUS))
         cycles = np.empty(status_rows.size, dtype=np.int64)
         first_seen: dict[int, bool] = {}
+        self._restarted_into.clear()
         in_force = -1 if self._cycle is None else self._cycle      # before this block's status frames
         for i, r in enumerate(status_rows):           # a few status frames per block: Python is fine
             cycles[i] = self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen)
@@ -172,7 +176,10 @@ class Ingest:
             first_seen[raw] = segment <= 1                      # its start seen: segment 0 or 1
         elif raw != self._cycle_raw:
             step = (raw - self._cycle_raw) % CYCLE_MODULUS
-            cycle = self._cycle + (step if 0 < step <= MAX_CYCLE_STEP else 1)
+            restart = not 0 < step <= MAX_CYCLE_STEP
+            cycle = self._cycle + (1 if restart else step)
+            if restart:
+                self._restarted_into.add(cycle)
             # after a restart (state restored, no status frame seen yet) the controller may be anywhere
             # in the cycle: its start was seen only if this is the cycle's first segment
             first_seen[cycle] = self._anchored or segment <= 1
@@ -256,7 +263,8 @@ class Ingest:
                                                    dec.motor_temperature[rows])
                       for joint in np.unique(dec.joint[js]) for rows in (js[dec.joint[js] == joint],)}
             runs.append(CycleRun(cycle=None if cyc < 0 else cyc, samples=samples, joint_status=status,
-                                 starts_at_boundary=first_seen.get(cyc)))
+                                 starts_at_boundary=first_seen.get(cyc),
+                                 previous_cut=cyc in self._restarted_into))
         return runs
 
 

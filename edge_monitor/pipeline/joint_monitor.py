@@ -113,7 +113,7 @@ class JointMonitor:
             feature.discard_cycle()
 
     def end_cycle(self, cycle: int, partial: bool = False) -> Symptom:
-        """Close the open cycle ``cycle``. A ``partial`` cycle (its beginning was not seen) is published
+        """Close the open cycle ``cycle``. A ``partial`` cycle (its beginning or its end was not seen) is published
         with its friction data and wear estimate but feeds neither learning nor the detectors."""
         return self.update_cycle(self.assembler.end_cycle(cycle, partial))
 
