@@ -52,8 +52,13 @@ def _plot_coefficients(plt: Any, result: dict[str, Any], path: Path) -> None:
         ax.axhline(y, color="red", lw=0.8, ls="--")
     ax.set_ylabel("η / η0 (coefficient / fault main effect)")
     ax.set_title("Normalised surrogate coefficients (|η/η0| > 1: moves q more than the fault)")
+    _save(plt, fig, path)
+
+
+def _save(plt: Any, fig: Any, path: Path, dpi: int = 80) -> None:
+    """Write ``fig`` as PNG (small: the report is committed) and free it."""
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
@@ -70,9 +75,7 @@ def _plot_influence(plt: Any, result: dict[str, Any], path: Path) -> None:
     ax.set_yticks(range(len(dets)), dets)
     fig.colorbar(im, ax=ax, label="log10 influence")
     ax.set_title("Disturbance influence relative to the fault effect")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def _plot_snr(plt: Any, result: dict[str, Any], path: Path) -> None:
@@ -85,9 +88,7 @@ def _plot_snr(plt: Any, result: dict[str, Any], path: Path) -> None:
     ax.set_ylabel("SNR (μ1 − μ0)/σ1")
     ax.set_title(f"SNR at f0 = {s['f0']}, Δ = {s['delta']}, σ = {s['sigma']} (coded)")
     ax.axhline(0, color="k", lw=0.5)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def _plot_scope(plt: Any, det: str, entry: dict[str, Any], grid: dict[str, Any], step: float, path: Path) -> None:
@@ -102,9 +103,7 @@ def _plot_scope(plt: Any, det: str, entry: dict[str, Any], grid: dict[str, Any],
         ax.tick_params(labelsize=7)
     axes[0][0].set_ylabel("σ (coded)", fontsize=8)
     fig.suptitle(f"{det}: scope (Pd ≥ 0.99 at Pf = 0.01), yellow = in scope", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=72)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=72)
 
 
 def findings(result: dict[str, Any]) -> dict[str, Any]:
