@@ -147,3 +147,19 @@ def test_bad_configuration_is_a_clear_error(kwargs: dict, match: str) -> None:
 def test_default_false_alarm_setting_is_the_documented_product_default() -> None:
     config = SequentialDetector(DetectorConfig()).config
     assert config.arl0 == DEFAULT_ARL0 == 10_000 and config.pf is None
+
+
+def test_threshold_when_the_smallest_threshold_already_reaches_the_target() -> None:
+    """Statistics that stay 0 until one late excursion (an allowance calibrated inside its null): the
+    first grid threshold already gives ARL0 ≥ target. Found by the ARL study: the interpolation read
+    one point past the reliable range and raised."""
+    from edge_monitor.stats.calibration import H_STEP, _threshold_for
+
+    statistics = np.zeros((16, 600))
+    statistics[:, 590] = 1.2 * H_STEP            # one excursion per detector, just above the first grid point
+    h, method, events, _ = _threshold_for(statistics, arl0=100.0)
+    assert h == H_STEP and method == "simulated" and events == 16
+    statistics[:8, 590] = 0.0                     # not reliable beyond: half the detectors never alarm
+    statistics[:8, 300] = 3 * H_STEP
+    h, method, _, _ = _threshold_for(statistics, arl0=400.0)
+    assert H_STEP <= h <= 3 * H_STEP and method in ("simulated", "extrapolated")

@@ -190,10 +190,11 @@ def _threshold_for(statistics: NDArray[np.float64], arl0: float) -> tuple[float,
     last = int(np.flatnonzero(reliable)[-1])
     log_mean = np.log(mean[: last + 1])
     if mean[last] >= arl0:                        # interpolate inside the simulated range
-        k = int(np.searchsorted(log_mean, math.log(arl0)))
-        k = max(k, 1)
+        k = int(np.argmax(log_mean >= math.log(arl0)))     # the first grid point reaching ARL0
+        if k == 0:                                # already at the smallest threshold of the grid
+            return float(grid[0]), "simulated", int(events[0]), None
         h = float(np.interp(math.log(arl0), log_mean[k - 1:k + 1], grid[k - 1:k + 1]))
-        return h, "simulated", int(events[min(k, last)]), None
+        return h, "simulated", int(events[k]), None
     # extrapolate along the upper half of the reliable range (log E[T] is close to linear in h there)
     lo = int(np.flatnonzero(mean >= math.sqrt(max(mean[0], 1.0) * mean[last]))[0])
     lo = min(lo, max(last - 10, 0))
