@@ -163,3 +163,21 @@ def test_threshold_when_the_smallest_threshold_already_reaches_the_target() -> N
     statistics[:8, 300] = 3 * H_STEP
     h, method, _, _ = _threshold_for(statistics, arl0=400.0)
     assert H_STEP <= h <= 3 * H_STEP and method in ("simulated", "extrapolated")
+
+
+def test_a_failed_inline_calibration_falls_back_to_the_asymptotic_threshold(monkeypatch, caplog) -> None:
+    """Replay calibrates inline: a calibration that fails (too few simulated alarms) must not raise out
+    of update(); the detector monitors with the asymptotic Pf = 1e-9 threshold and says so."""
+    from edge_monitor.stats.calibration import CalibrationError, CalibrationJob
+    from edge_monitor.stats.glr import threshold_from_pf
+
+    def fail(self):
+        raise CalibrationError("too few simulated alarms to calibrate")
+
+    monkeypatch.setattr(CalibrationJob, "run", fail)
+    det = SequentialDetector(DetectorConfig(n_nominal=20, window=30))
+    with caplog.at_level("WARNING"):
+        decisions = [det.update(v, cycle=i) for i, v in enumerate(np.random.default_rng(1).normal(size=25))]
+    assert decisions[-1].state == "monitoring"
+    assert det.calibration.method == "fallback" and det.threshold == pytest.approx(threshold_from_pf(1e-9, 1))
+    assert any("threshold calibration failed" in r.getMessage() for r in caplog.records)

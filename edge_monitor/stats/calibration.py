@@ -246,10 +246,14 @@ class Pending:
 
 
 class Done(Pending):
-    def __init__(self, calibration: Calibration) -> None:
-        self._calibration = calibration
+    """A finished calibration, or the error it ended with (raised by :meth:`result`, as a future does)."""
 
-    def result(self) -> Calibration:
+    def __init__(self, calibration: Calibration | None = None, error: Exception | None = None) -> None:
+        self._calibration, self._error = calibration, error
+
+    def result(self) -> Calibration | None:
+        if self._error is not None:
+            raise self._error
         return self._calibration
 
 
@@ -257,7 +261,10 @@ class InlineCalibrator:
     """Calibrates at once, in the calling thread (replay and studies: deterministic and simple)."""
 
     def submit(self, job: CalibrationJob) -> Pending:
-        return Done(job.run())
+        try:
+            return Done(job.run())
+        except (CalibrationError, DensityError, ValueError) as exc:   # reported where the result is read
+            return Done(error=exc)
 
     def close(self) -> None:
         """Nothing to release."""
