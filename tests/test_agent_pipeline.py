@@ -222,4 +222,36 @@ def test_a_cycle_cut_by_a_controller_restart_is_published_partial(frames):
     outs = feed(agent, frames, stop=cut) + feed(agent, frames, stop=first_row[2] + 50) + agent.finish()
     by_cycle = {(o.joint, o.cycle): o.to_dict() for o in outs}
     assert sorted({c for _, c in by_cycle}) == [0, 1, 2, 3, 4, 5]
-    assert [bool(by_cycle[(0, c)].get("partial")) for c in range(6)] == [False, False, True, False, False, False]
+    # cycle 5 is cut by the end of the stream (50 frames into it): partial as well
+    assert [bool(by_cycle[(0, c)].get("partial")) for c in range(6)] == [False, False, True, False, False, True]
+
+
+def test_the_last_cycle_is_partial_when_the_stream_stops_inside_it(frames):
+    """End of a log or `run --idle-stop` in the middle of a cycle: the cycle's last segment was not
+    reached (segments of the previous whole cycle tell how far a cycle goes), so it is partial; a
+    stream that ends after a whole cycle publishes it whole."""
+    ids, data = frames[0], frames[1]
+    status = np.flatnonzero(ids == 0x080)
+    cycle = (data[status].view("<u8").reshape(-1) >> np.uint64(16)) & np.uint64(0xFFFF)
+    first_row = {int(c): int(status[np.argmax(cycle == c)]) for c in np.unique(cycle)}
+    cut = Agent(small_config())
+    outs = feed(cut, frames, stop=(first_row[2] + first_row[3]) // 2) + cut.finish()
+    assert [bool(o.to_dict().get("partial")) for o in outs if o.joint == 0] == [False, False, True]
+    whole = Agent(small_config())
+    outs = feed(whole, frames) + whole.finish()
+    assert not any(o.to_dict().get("partial") for o in outs)
+
+
+def test_a_controller_restart_is_seen_by_its_tick_even_when_the_cycle_number_looks_like_progress():
+    """Restart near the counter's wrap (64600 → 0 is 936 steps 'forward') or into the same cycle number:
+    the controller tick going backward tells."""
+    from edge_monitor.pipeline.ingest import Ingest
+
+    for before, after in ((64_600, 0), (5, 5)):
+        ingest = Ingest()
+        assert ingest._update_cycle(before, 3, {}, tick_raw=900_000) == before
+        assert ingest._update_cycle(after, 0, {}, tick_raw=10) == before + 1     # restart: numbering goes on
+        assert ingest._restarted_into == {before + 1}
+    ingest = Ingest()                                  # ordinary progress: no restart
+    ingest._update_cycle(7, 5, {}, tick_raw=1000)
+    assert ingest._update_cycle(8, 0, {}, tick_raw=9000) == 8 and not ingest._restarted_into

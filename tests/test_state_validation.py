@@ -146,8 +146,8 @@ def test_validate_state_names_the_problem(saved):
         validate_state({**saved, "last_emitted": {"0": MAX_CYCLE + 1}}, robot)
     with pytest.raises(StateError, match="robot 'robot-b'"):
         validate_state({**saved, "robot": "robot-b"}, robot)
-    with pytest.raises(StateError, match="configured joints"):
-        validate_state(saved, robot, joints=(0,))
+    with pytest.raises(StateError, match="not one of 0 … 63"):
+        validate_state({**saved, "joints": {"64": {}}}, robot)
     bad = copy.deepcopy(saved)
     _joint0(bad)["maintenances"] = math.nan
     with pytest.raises(StateError, match=r"state\.joints\.0\.maintenances: nan"):
@@ -190,3 +190,35 @@ def test_any_single_corruption_is_survived(saved, frames, tmp_path_factory, data
     tmp = tmp_path_factory.mktemp("fuzz")
     agent, outs = _restart(tmp, json.dumps(state), frames)       # must not raise
     assert {o.joint for o in outs} == {0, 1}
+
+
+def test_joints_no_longer_configured_are_dropped_and_the_others_kept(saved, frames, tmp_path, caplog):
+    """`joints = [0]` after learning joints 0 and 1: joint 1's saved models are forgotten (a warning),
+    joint 0 keeps monitoring — the file is not rejected."""
+    (tmp_path / STATE_FILE).write_text(json.dumps(saved))
+    with caplog.at_level("WARNING"):
+        agent = Agent(small_config(joints=(0,)), state_store=StateStore(tmp_path))
+        outs = feed(agent, frames, start=len(frames[0]) * 4 // 5 + 77) + agent.finish()
+    assert not list(tmp_path.glob(f"{STATE_FILE}.rejected-*")) and agent.stats.states_rejected == 0
+    assert any("joints ['1'] dropped" in r.getMessage() for r in caplog.records)
+    assert {o.joint for o in outs} == {0} and outs[-1].decisions["wear"].state == "monitoring"
+
+
+def test_a_state_file_this_user_cannot_read_is_an_error_not_a_rejection(saved, tmp_path, monkeypatch):
+    """Permissions are the operator's to fix: the learned models must not be moved aside for it."""
+    import edge_monitor.pipeline.state_store as store_module
+
+    (tmp_path / STATE_FILE).write_text(json.dumps(saved))
+    real_access = store_module.os.access
+    monkeypatch.setattr(store_module.os, "access",
+                        lambda path, mode: False if str(path).endswith(STATE_FILE) else real_access(path, mode))
+    with pytest.raises(StateError, match="not readable and writable"):
+        StateStore(tmp_path)
+    assert (tmp_path / STATE_FILE).exists() and not list(tmp_path.glob(f"{STATE_FILE}.rejected-*"))
+
+
+def test_two_rejections_in_one_second_keep_both_files(tmp_path):
+    for text in ("first", "second"):
+        (tmp_path / STATE_FILE).write_text(text)
+        assert StateStore(tmp_path).load() is None
+    assert sorted(p.read_text() for p in tmp_path.glob(f"{STATE_FILE}.rejected-*")) == ["first", "second"]

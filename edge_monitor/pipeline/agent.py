@@ -59,6 +59,8 @@ class Agent:
         self._partial_cycle: int | None = None   # its beginning was not seen (first after a start) or
                                                  # its end (cut by a controller restart)
         self._restored_joint_states: dict[int, dict] = {}
+        self._open_last_segment = -1              # highest segment seen in the open cycle
+        self._complete_last_segment: int | None = None    # … in the last cycle that ended normally
         self.lock = threading.RLock()     # processing vs. state queries from output threads
         if state_store is not None:
             self._restore(state_store.load())
@@ -99,10 +101,16 @@ class Agent:
                 if self._open_cycle is not None:
                     if run.previous_cut:       # a controller restart cut it: published, kept from the detectors
                         self._partial_cycle = self._open_cycle
+                    else:
+                        self._complete_last_segment = self._open_last_segment
                     outputs += self._close_cycle(self._open_cycle)
+                self._open_last_segment = -1
                 if run.starts_at_boundary is False or (first and run.starts_at_boundary is not True):
                     self._partial_cycle = run.cycle     # its start was not seen by this instance
                 self._open_cycle = run.cycle
+            if run.cycle is not None:
+                self._open_last_segment = max([self._open_last_segment] + [
+                    int(x.segment.max()) for x in run.samples.values() if x.segment.size])
             for joint, samples in run.samples.items():
                 monitor = self._monitor(joint)
                 inferred = monitor.update(samples.tick, samples.speed, samples.torque,
@@ -188,6 +196,10 @@ class Agent:
         for monitor in self.joints.values():
             monitor.flush()
         if self._open_cycle is not None:
+            if self._complete_last_segment is not None and self._open_last_segment < self._complete_last_segment:
+                log.info("cycle %d ends at segment %d of %d (the stream stopped inside it): published partial",
+                         self._open_cycle, self._open_last_segment, self._complete_last_segment)
+                self._partial_cycle = self._open_cycle
             outputs = self._close_cycle(self._open_cycle)
             self._open_cycle = None
         else:   # no status frames: each joint closes its own inferred cycle if it holds data

@@ -92,6 +92,7 @@ class Ingest:
         self._cycle_raw: int | None = None
         self._segment = -1                    # segment in force
         self._restarted_into: set[int] = set()     # cycles of this block entered by a controller restart
+        self._cycle_tick_raw: int | None = None    # status tick of the last status frame (restart check)
         self._status_tick: int | None = None  # last controller tick from the status frame (unwrapped)
         self._status_tick_raw: int | None = None
         self._anchored = False                # a status frame was seen by this instance
@@ -116,12 +117,13 @@ class Ingest:
         row_cycle, row_segment, first_seen = self._label_rows(dec, usable)
         row_tick = self._status_ticks(dec)
         motor = usable & (dec.kind == FrameKind.MOTOR_STATE)
-        if self.joints is not None:
-            keep = np.isin(dec.joint, list(self.joints))
-            self.c.joint_filtered += int((motor & ~keep).sum())
-            motor &= keep
-        ticks = self._unwrap_ticks(dec, motor, row_tick)
         jstatus = usable & (dec.kind == FrameKind.JOINT_STATUS)
+        if self.joints is not None:         # joints outside the configured set: counted, never monitored
+            keep = np.isin(dec.joint, list(self.joints))
+            self.c.joint_filtered += int(((motor | jstatus) & ~keep).sum())
+            motor &= keep
+            jstatus &= keep
+        ticks = self._unwrap_ticks(dec, motor, row_tick)
         return IngestBlock(self._split_runs(dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen))
 
     # ------------------------------------------------------------------ internals
@@ -147,7 +149,8 @@ class Ingest:
         self._restarted_into.clear()
         in_force = -1 if self._cycle is None else self._cycle      # before this block's status frames
         for i, r in enumerate(status_rows):           # a few status frames per block: Python is fine
-            cycles[i] = self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen)
+            cycles[i] = self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen,
+                                           int(dec.status_tick[r]))
         at, known = _forward_index(n, status_rows)
         segments = dec.segment[status_rows].astype(np.int64)
         row_cycle = np.where(known, cycles[at] if cycles.size else -1, in_force)
@@ -166,17 +169,21 @@ class Ingest:
         at, known = _forward_index(len(dec), rows)
         return np.where(known, ticks[at] if ticks.size else -1, carry).astype(np.int64)
 
-    def _update_cycle(self, raw: int, segment: int, first_seen: dict[int, bool]) -> int:
+    def _update_cycle(self, raw: int, segment: int, first_seen: dict[int, bool], tick_raw: int) -> int:
         """Unwrap the 16-bit cycle counter; return the unwrapped cycle in force. Steps of 1 …
-        MAX_CYCLE_STEP are progress (lost status frames of whole cycles included); anything else is a
-        controller restart: numbering goes on from the last cycle + 1, so published cycle numbers stay
-        unique and increasing."""
+        MAX_CYCLE_STEP are progress (lost status frames of whole cycles included); anything else, or
+        a controller tick that went backward (a restart near the counter's wrap, or into the same
+        cycle number), is a controller restart: numbering goes on from the last cycle + 1, so
+        published cycle numbers stay unique and increasing."""
+        tick_back = self._cycle_tick_raw is not None and \
+            (tick_raw - self._cycle_tick_raw) % STATUS_TICK_MODULUS >= STATUS_TICK_MODULUS // 2
+        self._cycle_tick_raw = tick_raw
         if self._cycle_raw is None or self._cycle is None:     # first status frame, no restored state
             cycle = raw
             first_seen[raw] = segment <= 1                      # its start seen: segment 0 or 1
-        elif raw != self._cycle_raw:
+        elif raw != self._cycle_raw or tick_back:
             step = (raw - self._cycle_raw) % CYCLE_MODULUS
-            restart = not 0 < step <= MAX_CYCLE_STEP
+            restart = tick_back or not 0 < step <= MAX_CYCLE_STEP
             cycle = self._cycle + (1 if restart else step)
             if restart:
                 self._restarted_into.add(cycle)

@@ -37,6 +37,9 @@ class StateStore:
         if not os.access(self.dir, os.W_OK):
             raise StateError(f"state directory {self.dir} is not writable; pass a writable --state-dir")
         self.path = self.dir / STATE_FILE
+        if self.path.exists() and not os.access(self.path, os.R_OK | os.W_OK):
+            raise StateError(f"state file {self.path} is not readable and writable by this user; fix its "
+                             f"permissions (the learned models in it are kept) or pass another --state-dir")
         self.rejected = 0         # state files moved aside as unusable
 
     def load(self) -> dict[str, Any] | None:
@@ -56,9 +59,10 @@ class StateStore:
         return state
 
     def reject(self, reason: str) -> Path | None:
-        """Move an unusable state file aside (``agent_state.json.rejected-<UTC time>``) with a warning;
+        """Move an unusable state file aside (``agent_state.json.rejected-<UTC time, ns>``) with a warning;
         the agent then starts learning afresh. Returns where it went (None if it could not move)."""
-        aside = self.path.with_name(f"{STATE_FILE}.rejected-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + f".{time.time_ns() % 10**9:09d}Z"
+        aside = self.path.with_name(f"{STATE_FILE}.rejected-{stamp}")
         try:
             os.replace(self.path, aside)
         except OSError as exc:

@@ -12,10 +12,13 @@ fail there is relearned alone (:meth:`edge_monitor.pipeline.agent.Agent`).
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
 from edge_monitor.errors import StateError
+
+log = logging.getLogger(__name__)
 
 #: Largest cycle number a state may hold (unwrapped 16-bit counter; 2⁴⁰ is 10⁷ years at 300 a day).
 MAX_CYCLE = 2 ** 40
@@ -46,6 +49,7 @@ def validate_state(state: Any, robot: str, joints: tuple[int, ...] | None = None
     saved_robot = state.get("robot")
     if saved_robot is not None and saved_robot != robot:
         raise StateError(f"it belongs to robot {saved_robot!r}, this agent monitors robot {robot!r}")
+    _drop_unconfigured(state, joints)
     for joint, cycle in state.get("last_emitted", {}).items():
         _check_joint(joint, joints, "last_emitted")
         if isinstance(cycle, bool) or not isinstance(cycle, int) or not 0 <= cycle <= MAX_CYCLE:
@@ -58,6 +62,22 @@ def validate_state(state: Any, robot: str, joints: tuple[int, ...] | None = None
         if not isinstance(section, dict):
             raise StateError(f"joints[{joint}] is a {type(section).__name__}, not an object")
     return state
+
+
+def _drop_unconfigured(state: dict[str, Any], joints: tuple[int, ...] | None) -> None:
+    """Forget saved joints the config no longer monitors (a warning names them); the others are kept."""
+    if joints is None:
+        return
+    dropped: set[str] = set()
+    for section in ("last_emitted", "joints"):
+        table = state.get(section, {})
+        for key in list(table):
+            if key.isdigit() and 0 <= int(key) < MAX_JOINT and int(key) not in joints:
+                dropped.add(key)
+                del table[key]
+    if dropped:
+        log.warning("saved state of joints %s dropped: not among the configured joints %s",
+                    sorted(dropped, key=int), list(joints))
 
 
 def _check_joint(key: str, joints: tuple[int, ...] | None, where: str) -> None:
