@@ -395,3 +395,14 @@ def test_wear_bounds_are_one_sided_where_wear_is_not_identifiable(tmp_path):
     assert max(np.ravel(values["/robot/r1/joint/0/wear/upper:Scalars:scalars"])) <= 100.0   # never ±400
     names = _static_values(path)["/robot/r1/joint/0/wear/upper:SeriesLines:names"]
     assert "95 % one-sided" in names[0][0]
+
+
+def test_one_bad_record_in_a_block_costs_only_itself(tmp_path):
+    """Records are drawn in blocks per (robot, joint); a record that cannot be drawn is isolated and
+    counted, the rest of its block is still drawn."""
+    sink = RerunSink.open(f"save:{tmp_path / 'block.rrd'}")
+    bad = symptom("r1", 0, 5)
+    bad["friction"] = [1]                                         # not a table: drawing it fails
+    sink.log_symptoms([symptom("r1", 0, c) for c in range(5)] + [bad] + [symptom("r1", 0, 6)])
+    sink.close()
+    assert sink.errors == 1 and sink.records_logged == 6

@@ -92,8 +92,8 @@ class Drawer:
     def _log_static_once(self, path: str, *archetypes: Any) -> None:
         if path in self._static:
             return
-        self._static.add(path)
         self.rec.log(path, *archetypes, static=True)
+        self._static.add(path)            # only once it was logged: a failure is retried next block
 
     def _style(self, path: str, name: str, color: list[int], width: float = 2.0) -> None:
         import rerun as rr

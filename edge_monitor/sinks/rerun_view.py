@@ -291,18 +291,10 @@ class RerunSink:
             self._send_blueprint()
             self._sent_layout = layout
         for (robot, joint), block in symptoms.items():
-            try:
-                block.sort(key=lambda r: int(r["cycle"]))
-                draw.symptoms(robot, joint, block)
-                self.records_logged += len(block)
-            except Exception as exc:  # drawing must never take the agent down
-                self._fail("symptom", exc)
+            block.sort(key=lambda r: int(r["cycle"]) if isinstance(r.get("cycle"), int) else -1)
+            self.records_logged += self._draw_block(draw.symptoms, "symptom", robot, joint, block)
         for (robot, joint), block in alarms.items():
-            try:
-                draw.alarms(robot, joint, block)
-                self.alarms_logged += len(block)
-            except Exception as exc:
-                self._fail("alarm", exc)
+            self.alarms_logged += self._draw_block(draw.alarms, "alarm", robot, joint, block)
         for robot, rows in health.items():
             try:
                 draw.health(robot, rows)
@@ -310,12 +302,28 @@ class RerunSink:
             except Exception as exc:
                 self._fail("health", exc)
 
+    def _draw_block(self, draw: Any, kind: str, robot: str, joint: int, block: list[dict[str, Any]]) -> int:
+        """Draw ``block`` at once; if that fails, record by record, so one bad record costs only itself
+        (each failure counted). Returns how many records were drawn."""
+        try:
+            draw(robot, joint, block)
+            return len(block)
+        except Exception:  # noqa: BLE001 — isolate the bad record below; drawing never takes the agent down
+            pass
+        drawn = 0
+        for record in block:
+            try:
+                draw(robot, joint, [record])
+                drawn += 1
+            except Exception as exc:  # noqa: BLE001
+                self._fail(kind, exc)
+        return drawn
+
     def _fail(self, what: str, exc: Exception) -> None:
         self.errors += 1
         if what not in self._failed:
             self._failed.add(what)
             log.warning("rerun: drawing %s failed (further failures only counted): %s", what, exc)
-
 
     def _send_blueprint(self) -> None:
         try:
