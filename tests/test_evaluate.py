@@ -4,16 +4,23 @@ baselines, the simulator's payload mass error, bad input refused, and one small 
 from __future__ import annotations
 
 import json
+import logging
 import math
+import os
+import signal
 import subprocess
 import sys
+import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from edge_monitor.cli import main
+from edge_monitor.cli import build_parser, main
+from edge_monitor.commands.evaluate import _settings
 from edge_monitor.offline.baselines import (
+    BaselineError,
     data_likelihood,
     distribution_peak,
     fit_speed_only_nominal,
@@ -30,6 +37,7 @@ from edge_monitor.offline.evaluation.design import (
     validation_design,
 )
 from edge_monitor.offline.evaluation.factors import FACTORS, select_factors, sim_settings
+from edge_monitor.offline.evaluation.runner import replication
 from edge_monitor.offline.evaluation.scope import scope_matrix, snr
 from edge_monitor.offline.evaluation.surrogate import Surrogate, fit_surrogate, validation_fit
 from sim_controller.config import SimConfig, SimConfigError
@@ -160,6 +168,24 @@ def test_a_dominant_disturbance_within_the_noise_is_flagged():
     assert weak.dominant()[1] is False
     assert strong.dominant() == ("a", True)
 
+
+def test_the_dominant_disturbance_is_tested_against_the_runner_up():
+    rng = np.random.default_rng(7)
+    design = np.vstack([central_composite(3)] * 4)             # replicated: enough residual dof
+    noise = rng.normal(0, 0.5, len(design))
+    names = ["f", "a", "b"]
+    tie = fit_surrogate(design, 5.0 * design[:, 0] + 3.0 * design[:, 1] + 2.9 * design[:, 2] + noise, names)
+    assert tie.dominant()[1] is False                          # both far from 0, not from each other
+    assert tie.runner_up() in ("a", "b") and tie.runner_up() != tie.dominant()[0]
+    clear = fit_surrogate(design, 5.0 * design[:, 0] + 3.0 * design[:, 1] + 0.5 * design[:, 2] + noise, names)
+    assert clear.dominant() == ("a", True) and clear.runner_up() == "b"
+
+
+def test_without_residual_dof_the_dominance_is_not_testable():
+    design = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1], [2, 0], [0, 2]], dtype=float)
+    model = fit_surrogate(design, 2.0 * design[:, 0] + 3.0 * design[:, 1] + 0.1 * design[:, 1] ** 2, ["f", "d"])
+    assert model.dominant() == ("d", None)
+
 # ---------------------------------------------------------------------------------------------- SNR and scope
 
 
@@ -183,7 +209,7 @@ def test_a_strong_fault_effect_has_scope_a_dominant_disturbance_does_not():
     assert strong.inside[:, -1].all()                         # the whole fault range, every spread
     assert strong.max_sigma() == pytest.approx(1.0)
     weak = scope_matrix(_linear(a=0.1, b=5.0, noise=0.05), 1, draws=5000, noise_std=0.05)
-    assert weak.max_sigma() is not None and weak.max_sigma() < 0.2
+    assert (weak_max := weak.max_sigma()) is not None and weak_max < 0.2
     assert not weak.inside[weak.sigmas >= 0.2].any()
     # linear model: the test needs a·Δ ≥ 2·z(0.99)·√(b²σ² + γ)
     sigma = strong.sigmas[10]
@@ -216,6 +242,16 @@ def test_parameter_change_baseline_on_synthetic_curves():
     assert 1.5 < np.mean(healthy) < 5.0                       # ≈ χ²₃: mean 3
     worn = nominal.chi2(v, _speed_only(v, truth[0] + 0.01, *truth[1:]) + rng.normal(0, 2e-3, v.size))
     assert worn > 50
+
+
+def test_baselines_refuse_or_skip_degenerate_input():
+    grid = np.linspace(-1, 1, 11)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                          # no RuntimeWarning from a division by 0
+        assert math.isnan(distribution_peak(grid, np.zeros_like(grid)))
+    v = np.linspace(1.0, 100.0, 5)
+    with pytest.raises(BaselineError, match="only 0 of 4 nominal friction curves could be fitted"):
+        fit_speed_only_nominal([(v, np.full_like(v, np.nan))] * 4)
 
 
 def test_distribution_peak_and_data_likelihood_of_normal_densities():
@@ -253,6 +289,13 @@ def test_payload_error_biases_the_controllers_load_estimate():
     (["--range", "temperature=70:30"], "need LOW < HIGH"),
     (["--factors", "wear"], "at least one disturbance"),
     (["--joint", "6"], "--joint must be 0 … 5"),
+    (["--test-cycles", "0"], "--test-cycles must be ≥ 2, got 0"),
+    (["--scope-draws", "0"], "--scope-draws must be 1000 … 100000, got 0"),
+    (["--scope-draws", "1000000"], "--scope-draws must be 1000 … 100000"),
+    (["--snr-draws", "10000000"], "--snr-draws must be 1000 … 1000000"),
+    (["--jobs", "65"], "--jobs must be 1 … 64"),
+    (["--validation", "-1"], "--validation must be ≥ 0"),
+    (["--seeds", "0"], "--seeds must be 1 … 20"),
 ])
 def test_bad_input_is_refused_with_the_reason(argv, message, capsys, tmp_path):
     assert main(["evaluate", "--quick", "--out", str(tmp_path / "out"), *argv]) == 2
@@ -268,6 +311,61 @@ def test_a_design_file_too_small_for_the_surrogate_is_refused(capsys, tmp_path):
     assert main(["evaluate", "--quick", "--design", str(design), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "4 runs but the second-order surrogate of 3 factors has 10 coefficients" in err
+
+
+def test_a_design_row_with_extra_cells_is_refused_naming_the_line(capsys, tmp_path):
+    design = tmp_path / "design.csv"
+    rows = [",".join(str(int(x)) for x in row) for row in central_composite(3)]
+    rows[2] += ",1,1,1"                                        # would have been reshaped into an extra run
+    design.write_text("wear,temperature,payload_error\n" + "\n".join(rows) + "\n")
+    assert main(["evaluate", "--quick", "--design", str(design), "--out", str(tmp_path / "out")]) == 2
+    assert "line 4 has 6 cells; every run needs exactly 3" in capsys.readouterr().err
+
+
+def _parsed(*argv: str):
+    return build_parser().parse_args(["evaluate", "--quick", *argv])
+
+
+def test_jobs_are_capped_and_the_design_is_named(caplog, tmp_path):
+    with caplog.at_level(logging.INFO):
+        settings = _settings(_parsed("--jobs", "64"))
+    assert settings.jobs <= min(os.cpu_count() or 1, len(settings.design) + len(settings.validation))
+    assert "--jobs 64 capped" in caplog.text
+    assert settings.describe()["design_name"] == "central composite"
+    design = tmp_path / "mine.csv"
+    design.write_text("wear,temperature,payload_error\n" + "\n".join(
+        ",".join(str(int(x)) for x in row) for row in central_composite(3)) + "\n")
+    assert _settings(_parsed("--design", str(design))).describe()["design_name"] == "own (mine.csv)"
+
+
+def test_a_validation_count_that_is_not_a_multiple_of_4_is_warned_about(caplog):
+    with caplog.at_level(logging.WARNING):
+        _settings(_parsed("--validation", "6"))
+    assert "not a multiple of 4" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        _settings(_parsed("--validation", "8"))
+    assert "not a multiple of 4" not in caplog.text
+
+
+def test_replication_summarises_snr_influence_and_dominance_across_seeds():
+    def run(seed, snr_value, temp, load):
+        return {"settings": {"seed": seed}, "ranking_by_snr": ["a"],
+                "detectors": {"a": {"snr": snr_value, "dominant_disturbance": "load" if load > temp else "temperature",
+                                    "surrogate": {"influence": {"temperature": temp, "load": load}}}}}
+    rep = replication([run(1, 2.42, 0.72, 0.53), run(2, 1.35, 1.18, 0.58)])
+    assert rep["seeds"] == [1, 2] and rep["best_snr"] == ["a", "a"]
+    a = rep["detectors"]["a"]
+    assert a["snr"]["mean"] == pytest.approx(1.885) and (a["snr"]["min"], a["snr"]["max"]) == (1.35, 2.42)
+    assert a["influence"]["load"]["per_seed"] == [0.53, 0.58]
+    assert a["dominant_disturbance"] == ["temperature", "temperature"]
+
+
+def test_an_output_path_that_is_a_file_is_refused(capsys, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert main(["evaluate", "--quick", "--out", str(blocker)]) == 1
+    assert f"--out: {blocker} is not a directory" in capsys.readouterr().err
 
 
 def test_an_output_folder_that_cannot_be_created_is_a_runtime_failure(capsys, tmp_path):
@@ -300,3 +398,56 @@ def test_quick_evaluation_end_to_end(tmp_path):
     assert result["ranking_by_snr"][0] in dets
     report = (out / "REPORT.md").read_text()
     assert "Best average performance (SNR)" in report and "moved most by" in report and "scope_wear.png" in report
+    assert "11-run central composite design" in report
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupt_stops_the_workers_at_once(sig, tmp_path):
+    log_path = tmp_path / "log"
+    with log_path.open("w") as log_file:
+        proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "-v", "evaluate", "--quick", "--jobs", "2",
+                                 "--test-cycles", "40", "--out", str(tmp_path / "out")],
+                                stdout=subprocess.DEVNULL, stderr=log_file, cwd=ROOT, start_new_session=True)
+    pgid = proc.pid                                            # its own session: process group = its pid
+    try:
+        deadline = time.monotonic() + 120
+        workers: list[int] = []
+        while time.monotonic() < deadline and proc.poll() is None and not (
+                workers and "design + " in log_path.read_text()):   # its log says the simulation is under way
+            workers = _children(proc.pid)                      # the pool's worker processes
+            time.sleep(0.1)
+        assert proc.poll() is None, log_path.read_text()
+        assert workers, "no worker processes started"
+        os.killpg(pgid, sig) if sig == signal.SIGINT else os.kill(proc.pid, sig)
+        assert proc.wait(timeout=60) == 130
+        err = log_path.read_text()
+        assert "edge-monitor evaluate: interrupted" in err and "Traceback" not in err
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                os.killpg(pgid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+        with pytest.raises(ProcessLookupError):                # nothing of the group survives
+            os.killpg(pgid, 0)
+    finally:
+        if proc.poll() is None:
+            os.killpg(pgid, signal.SIGKILL)
+            proc.wait()

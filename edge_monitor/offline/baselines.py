@@ -3,7 +3,9 @@ extracted per cycle: its friction curve (speeds rad/s, friction torque dimension
 feature's torque densities (the cycle's and the nominal one, on the same uniform grid).
 
 * **Parameter change** — the speed-only model ``τf = fc + fs·exp(−(v/vs)^α) + fv·v`` fitted per cycle,
-  compared with its nominal parameters: ``χ² = (θ̂ − θ0)ᵀ Σθ⁻¹ (θ̂ − θ0)`` (≈ χ²₃ when healthy).
+  compared with its nominal parameters: ``χ² = (θ̂ − θ0)ᵀ Σθ⁻¹ (θ̂ − θ0)``. With Σθ and θ0 estimated from
+  n nominal cycles this is Hotelling's T², not χ²: when healthy it follows
+  ``p(n+1)(n−1)/(n(n−p))·F(p, n−p)`` (p = 3), which tends to χ²₃ only for many nominal cycles.
   Choices (the spec leaves them open): α fixed at 1.36 (the best single value over many curves)
   and vs fixed at its nominal value (found by variable projection on the pooled nominal curves), so
   θ = [fc, fs, fv] enters linearly and each cycle's fit is ordinary least squares on ~12 data;
@@ -96,6 +98,9 @@ def fit_speed_only_nominal(curves: Sequence[tuple[ArrayLike, ArrayLike]],
     vs = float(VS_GRID[int(np.argmin(residuals))])
     thetas = np.array([speed_only_parameters(sv, st, vs, alpha) for sv, st in usable])
     thetas = thetas[np.all(np.isfinite(thetas), axis=1)]
+    if len(thetas) < 2:
+        raise BaselineError(f"parameter change: only {len(thetas)} of {len(usable)} nominal friction curves could be "
+                            "fitted (need ≥ 2 for the nominal covariance)")
     cov = np.atleast_2d(np.cov(thetas, rowvar=False))
     cov = cov + COV_RIDGE * np.diag(np.maximum(np.diag(cov), 1e-30))
     return SpeedOnlyNominal(vs=vs, alpha=alpha, theta0=thetas.mean(axis=0), cov=cov)
@@ -104,6 +109,8 @@ def fit_speed_only_nominal(curves: Sequence[tuple[ArrayLike, ArrayLike]],
 def _moments(grid: NDArray[np.float64], density: NDArray[np.float64]) -> tuple[float, float, float]:
     dx = float(grid[1] - grid[0])
     mass = float(np.sum(density) * dx)
+    if not mass > 0:                                  # no density on the grid: no moments
+        return mass, math.nan, math.nan
     mean = float(np.sum(grid * density) * dx / mass)
     var = float(np.sum((grid - mean) ** 2 * density) * dx / mass)
     return mass, mean, var

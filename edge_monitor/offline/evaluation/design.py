@@ -120,14 +120,19 @@ def load_design_csv(path: str | Path, names: Sequence[str]) -> NDArray[np.float6
         text = Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise DesignError(f"--design: cannot read {path}: {getattr(exc, 'strerror', None) or exc}") from None
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
+    reader = csv.reader(io.StringIO(text))
+    rows = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
     if not rows:
         raise DesignError(f"--design: {path} is empty; need a header naming the factors and one row per run")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in rows[0][1]]
     if sorted(header) != sorted(names):
         raise DesignError(f"--design: {path}: header {header} must name exactly the factors {list(names)}")
+    for line, r in rows[1:]:
+        if len(r) != len(header):
+            raise DesignError(f"--design: {path}: line {line} has {len(r)} cells; every run needs exactly "
+                              f"{len(header)} (one per header column)")
     try:
-        values = np.array([[float(c) for c in r] for r in rows[1:]], dtype=float).reshape(-1, len(header))
+        values = np.array([[float(c) for c in r] for _, r in rows[1:]], dtype=float).reshape(-1, len(header))
     except ValueError:
         raise DesignError(f"--design: {path}: every run needs {len(header)} numeric coded levels") from None
     if not np.all(np.isfinite(values)) or np.any(np.abs(values) > STAR):

@@ -119,6 +119,7 @@ def findings(result: dict[str, Any]) -> dict[str, Any]:
             "dominant_disturbance": e["dominant_disturbance"],
             "dominant_influence": e["surrogate"]["influence"].get(e["dominant_disturbance"] or "", None),
             "dominant_significant": e["dominant_significant"],
+            "runner_up": e.get("runner_up"),
             "scope_max_sigma": {x: s["max_sigma"] for x, s in scopes.items()},
             "min_fault_at_default_sigma": e["min_fault_at_default_sigma"],
             "min_fault_at_max_sigma": {x: (None if s["min_delta"][-1] is None else s["min_delta"][-1] * step)
@@ -160,7 +161,8 @@ def markdown(result: dict[str, Any], images: dict[str, str]) -> str:
              f"default robot of {st['joints']} joints (seed {st['seed']}), monitored joint {st['joint']}; "
              f"{st['nominal_cycles']} nominal cycles at no wear with the disturbances at their centre, then "
              f"{st['test_cycles']} test cycles per design point; the surrogate models the mean q over the test "
-             f"cycles. Design: {st['design_runs']}-run central composite design, {st['validation_runs']} validation "
+             f"cycles. Design: {st['design_runs']}-run {st.get('design_name', 'central composite')} design, "
+             f"{st['validation_runs']} validation "
              f"runs; simulation {result['seconds']['simulation']:.0f} s with {st['jobs']} process(es). SNR: "
              f"f0 = {snr_s['f0']}, Δ = {snr_s['delta']}, σ = {snr_s['sigma']} (coded), {snr_s['draws']} draws. "
              f"Scope: Pd ≥ {scope_s['pd']} at Pf = {scope_s['pf']}, from no wear (f0 = {scope_s['f0']}), "
@@ -179,13 +181,31 @@ def markdown(result: dict[str, Any], images: dict[str, str]) -> str:
         missed = [x for x, v in at.items() if v is None]
         detects = (f"no wear up to {fault['high']:g} reaches Pd ≥ {scope_s['pd']} against {', '.join(missed)}"
                    if missed else f"it detects wear ≥ {_fmt(max(at.values()), '.0f')} against every disturbance")
-        noise_note = "" if e["dominant_significant"] else ", within the noise of the fit: no disturbance matters"
+        runner_up = e.get("runner_up")
+        if e["dominant_significant"] is None:
+            noise_note = ", not testable against the noise: the fit has no residual degrees of freedom"
+        elif e["dominant_significant"]:
+            noise_note = ""
+        elif runner_up:
+            noise_note = f"; {e['dominant_disturbance']} ≈ {runner_up} (within noise)"
+        else:
+            noise_note = ", within the noise of the fit"
         lines.append(f"* `{d}`: moved most by **{e['dominant_disturbance']}** "
                      f"({_fmt(e['dominant_influence'], '.2g')} × the fault's main effect{noise_note}); "
                      f"at σ = {snr_s['sigma']} "
                      f"{detects}; scope ends: {_scope_sentence(e, sigma_max)}.")
     if result.get("left_out"):
         lines.append(f"* Left out (no value at some points): {', '.join(result['left_out'])}.")
+    rep = result.get("replication")
+    if rep:
+        lines.append(f"* **Across seeds {', '.join(str(x) for x in rep['seeds'])}** (another simulated robot and "
+                     f"other test cycles each; table below): best SNR per seed "
+                     + ", ".join(f"`{b}`" for b in rep["best_snr"]) + ". A finding that changes between seeds "
+                     "is a property of one robot, not of the detector.")
+    else:
+        lines.append(f"* **One seed only** (seed {st['seed']}): the SNR ranking and the dominant disturbances are "
+                     "those of one simulated robot and can change with the seed (docs/EVALUATION.md); "
+                     "`--seeds N` replicates the evaluation and reports the spread.")
     lines += ["", "## Per detector", "",
               "| detector | SNR | validation fit [%] | fault effect η0 | residual std | per-cycle std | dominant "
               f"disturbance | smallest wear in scope at σ = {snr_s['sigma']} |", "|---" * 8 + "|"]
@@ -199,11 +219,24 @@ def markdown(result: dict[str, Any], images: dict[str, str]) -> str:
               "| detector | " + " | ".join(dist) + " |", "|---|" + "---|" * len(dist)]
     for d, e in dets.items():
         lines.append(f"| `{d}` | " + " | ".join(_fmt(e["surrogate"]["influence"].get(x), ".2g") for x in dist) + " |")
+    if rep:
+        seeds = ", ".join(str(x) for x in rep["seeds"])
+        lines += ["", f"## Replication across seeds {seeds} (mean [min … max])", "",
+                  "| detector | SNR | dominant disturbance per seed | " + " | ".join(dist) + " |",
+                  "|---|---|---|" + "---|" * len(dist)]
+        for d, r in rep["detectors"].items():
+            infl = " | ".join(_spread_cell(r["influence"][x], ".2g") for x in dist if x in r["influence"])
+            dominant = ", ".join(map(str, r["dominant_disturbance"]))
+            lines.append(f"| `{d}` | {_spread_cell(r['snr'], '.3g')} | {dominant} | {infl} |")
     lines += ["", "## Plots", ""]
     lines += [f"![{name}]({file})" for name, file in images.items()]
     lines += ["", f"Fault axis: Δ in coded units × {fault['unit_step']:g} = wear; scope matrices start at no wear, "
               "σ in coded units of the disturbance.", ""]
     return "\n".join(lines)
+
+
+def _spread_cell(s: dict[str, Any], spec: str) -> str:
+    return f"{_fmt(s['mean'], spec)} [{_fmt(s['min'], spec)} … {_fmt(s['max'], spec)}]"
 
 
 def _rounded(value: Any) -> Any:

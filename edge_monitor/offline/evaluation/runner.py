@@ -17,13 +17,16 @@ writes it). Progress: a tqdm bar on a terminal, and an INFO status line at most 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
+import signal
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -65,6 +68,7 @@ class Settings:
     snr_draws: int = sc.SNR_DRAWS
     scope_draws: int = 20_000
     noise: str = "cycle"
+    design_name: str = "central composite"
 
     def specs(self) -> list[PointSpec]:
         rows = np.vstack([self.design, self.validation])
@@ -80,6 +84,7 @@ class Settings:
             "detectors": {d: DETECTORS[d] for d in self.detectors},
             "joint": self.joint, "joints": self.joints, "seed": self.seed, "test_cycles": self.test_cycles,
             "nominal_cycles": spec.nominal_cycles if spec else None, "design_runs": len(self.design),
+            "design_name": self.design_name,
             "validation_runs": len(self.validation), "jobs": self.jobs, "noise": self.noise,
             "snr": {"f0": sc.SNR_F0, "delta": sc.SNR_DELTA, "sigma": sc.SNR_SIGMA, "draws": self.snr_draws},
             "scope": {"f0": sc.SCOPE_F0, "pf": sc.SCOPE_PF, "pd": sc.SCOPE_PD, "draws": self.scope_draws,
@@ -102,14 +107,58 @@ def simulate_points(specs: list[PointSpec], jobs: int, progress: bool = True) ->
                 last = now
                 log.info("evaluate: %d/%d design points simulated, %.0f s", len(results), len(specs), now - started)
 
-        if jobs <= 1:
-            for spec in specs:
-                done(run_point(spec))
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                for future in as_completed([pool.submit(run_point, s) for s in specs]):
-                    done(future.result())
+        with _sigterm_as_interrupt():
+            if jobs <= 1:
+                for spec in specs:
+                    done(run_point(spec))
+            else:
+                pool = ProcessPoolExecutor(max_workers=jobs, initializer=_ignore_sigint)
+                try:
+                    for future in as_completed([pool.submit(run_point, s) for s in specs]):
+                        done(future.result())
+                except BaseException:
+                    _abandon(pool)
+                    raise
+                pool.shutdown(wait=True)
     return [results[i] for i in sorted(results)]
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises :class:`KeyboardInterrupt` while the simulation runs, so it takes Ctrl-C's path
+    (workers terminated, exit 130). Only in the main thread, where Python can install handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C (sent to the whole process group) to the parent, which terminates them."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _abandon(pool: ProcessPoolExecutor) -> None:
+    """On an interrupt or error: drop the queued points and terminate the workers now instead of
+    waiting for every queued point (what ``with ProcessPoolExecutor`` would do)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in processes:
+        proc.join(timeout=5.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(timeout=1.0)
 
 
 def _finite(x: float | None) -> float | None:
@@ -148,6 +197,7 @@ def analyse(settings: Settings, points: list[PointResult]) -> dict[str, Any]:
             "snr": _finite(sc.snr(model, draws=settings.snr_draws, noise_std=noise["used"], seed=seed)),
             "dominant_disturbance": dominant,
             "dominant_significant": significant,
+            "runner_up": model.runner_up(),
             "scope": {d: s.to_dict() for d, s in scopes.items()},
             "min_fault_at_default_sigma": {d: (None if (m := s.min_delta_at(sc.SNR_SIGMA)) is None else m * step)
                                            for d, s in scopes.items()},
@@ -173,3 +223,38 @@ def run_evaluation(settings: Settings, progress: bool = True) -> dict[str, Any]:
               "seconds": {"simulation": simulated, "total": time.monotonic() - started}}
     strict: dict[str, Any] = to_strict(result)
     return strict
+
+
+def run_replicated(settings: Settings, seeds: int, progress: bool = True) -> dict[str, Any]:
+    """:func:`run_evaluation` for ``seeds`` seeds (``settings.seed`` … ``settings.seed + seeds − 1``: another
+    simulated robot and other test cycles each). Every table is of the first seed; ``replication`` holds,
+    per detector, the SNR and the disturbance influences of every seed with their mean and range, and
+    the dominant disturbance per seed, so that single-seed findings can be told from robust ones."""
+    first = run_evaluation(settings, progress)
+    runs = [first] + [run_evaluation(Settings(**{**settings.__dict__, "seed": settings.seed + k}), progress)
+                      for k in range(1, seeds)]
+    first["replication"] = replication(runs)
+    first["seconds"]["total_replicated"] = sum(r["seconds"]["total"] for r in runs)
+    return first
+
+
+def _spread(values: list[float | None]) -> dict[str, Any]:
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return {"per_seed": values, "mean": float(np.mean(finite)) if finite else None,
+            "min": min(finite) if finite else None, "max": max(finite) if finite else None}
+
+
+def replication(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per detector (those of every run): SNR, influences and dominant disturbance across the runs' seeds."""
+    dets = [d for d in runs[0]["detectors"] if all(d in r["detectors"] for r in runs)]
+    out: dict[str, Any] = {"seeds": [r["settings"]["seed"] for r in runs], "detectors": {}}
+    for d in dets:
+        entries = [r["detectors"][d] for r in runs]
+        dists = list(entries[0]["surrogate"]["influence"])
+        out["detectors"][d] = {
+            "snr": _spread([e["snr"] for e in entries]),
+            "influence": {x: _spread([e["surrogate"]["influence"][x] for e in entries]) for x in dists},
+            "dominant_disturbance": [e["dominant_disturbance"] for e in entries],
+        }
+    out["best_snr"] = [r["ranking_by_snr"][0] if r["ranking_by_snr"] else None for r in runs]
+    return out

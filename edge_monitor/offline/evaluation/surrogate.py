@@ -62,17 +62,46 @@ class Surrogate:
     def standard_errors(self) -> NDArray[np.float64]:
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
 
-    def dominant(self) -> tuple[str | None, bool]:
-        """The disturbance of largest :meth:`influence`, and whether its larger term (main or square)
-        exceeds twice its standard error (False: the ranking is within the noise of the fit)."""
+    def ranked(self) -> list[str]:
+        """The disturbances, largest :meth:`influence` first."""
         influence = self.influence()
-        if not influence:
-            return None, False
-        d = max(influence, key=lambda x: influence[x])
+        return sorted(influence, key=lambda x: -influence[x])
+
+    def _larger_term(self, d: str) -> int:
         index = {t: i for i, t in enumerate(self.terms)}
-        term = max((d, f"{d}^2"), key=lambda t: abs(self.theta[index[t]]))
-        se = float(self.standard_errors()[index[term]])
-        return d, bool(abs(self.theta[index[term]]) > 2.0 * se) if se > 0 else True
+        return max(index[d], index[f"{d}^2"], key=lambda i: abs(self.theta[i]))
+
+    def dominant(self) -> tuple[str | None, bool | None]:
+        """The disturbance of largest :meth:`influence`, and whether it is significantly larger than the
+        runner-up's: |θ_a| − |θ_b| of their larger terms (main or square) exceeds twice the standard error
+        of that difference, from the coefficient covariance (with a single disturbance: |θ_a| > 2 SE).
+        False: the ranking is within the noise of the fit; None: not testable (no residual dof)."""
+        ranked = self.ranked()
+        if not ranked:
+            return None, False
+        d = ranked[0]
+        if not math.isfinite(self.gamma):
+            return d, None
+        a = self._larger_term(d)
+        ta = float(self.theta[a])
+        if len(ranked) == 1:
+            se = float(self.standard_errors()[a])
+            return d, abs(ta) > 2.0 * se
+        b = self._larger_term(ranked[1])
+        tb = float(self.theta[b])
+        sa, sb = math.copysign(1.0, ta), math.copysign(1.0, tb)
+        if self.cov.shape == (len(self.theta), len(self.theta)):
+            var = float(self.cov[a, a] + self.cov[b, b] - 2.0 * sa * sb * self.cov[a, b])
+            se_diff = math.sqrt(max(var, 0.0))
+        else:                                       # no covariance: the conservative sum of the SEs
+            ses = self.standard_errors()
+            se_diff = float(ses[a] + ses[b])
+        return d, abs(ta) - abs(tb) > 2.0 * se_diff
+
+    def runner_up(self) -> str | None:
+        """The disturbance of second-largest :meth:`influence` (None with fewer than two)."""
+        ranked = self.ranked()
+        return ranked[1] if len(ranked) > 1 else None
 
     def to_dict(self) -> dict[str, Any]:
         se = self.standard_errors()
