@@ -26,7 +26,7 @@ DETECTORS: dict[str, str] = {
     "wear_score": "wear score (signed root of the likelihood ratio against no wear; what the agent's detector watches)",
     "kl_raw": "KL distance of the cycle's torque density to nominal (kl.raw)",
     "kl_weighted": "KL distance with disturbance-rejecting speed weights (kl.weighted)",
-    "param_change": "parameter change χ² of the speed-only friction model (§7 baseline)",
+    "param_change": "parameter change (Hotelling T²) of the speed-only friction model (§7 baseline)",
     "dist_peak": "distribution peak 1 − 1/(√(2π)·σ̂) of the cycle's torque density (§7 baseline)",
     "data_likelihood": "mean negative log nominal density of the cycle's torque samples (§7 baseline)",
 }
