@@ -17,7 +17,9 @@ frames per simulated second). So:
   per-message writing; tests/test_protocol_log_writers.py checks the fallback.
 * ``.log`` (candump): :class:`BlockCanutilsWriter` formats all lines of a block in one join,
   exactly as ``CanutilsLogWriter`` does.
-* anything else ``can.Logger`` supports (``.asc``, ``.csv``, ``.trc``, …): per message.
+* ``.asc`` (Vector ASCII): :class:`BlockASCWriter` formats all lines of a block in one join, exactly as
+  ``ASCWriter`` does (tests/test_sim_frames.py compares the text, python-can's ``LogReader`` reads it).
+* anything else ``can.Logger`` supports (``.csv``, ``.trc``, …): per message.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from typing import Any, Protocol
 import can
 import numpy as np
 from can.io import blf
+from can.util import channel2int
 
 from protocol.links import LinkError, is_log_file
 from sim_controller.faults import FrameBlock
@@ -140,6 +143,95 @@ class BlockCanutilsWriter(can.CanutilsLogWriter):
         self.file.write("".join(lines))
 
 
+class BlockASCWriter(can.ASCWriter):
+    """Vector ``.asc`` writer with a vectorised :meth:`write_block` (same text as python-can's
+    ``ASCWriter`` for received 11-bit data frames, DLC 8). The first frame goes through python-can's
+    own path (it writes the ``Begin Triggerblock`` header with the start time); the rest of every block
+    is formatted in one pass: relative time stamps computed as ``ASCWriter.log_event`` does, the hex
+    data of the whole block in one ``bytes.hex`` call, one f-string per line, one ``write``."""
+
+    def write_block(self, block: FrameBlock) -> None:
+        n = len(block)
+        if n == 0:
+            return
+        start = 0
+        if not self.header_written:
+            self.on_message_received(block_messages(block.take(np.arange(1)))[0])
+            start = 1
+            if n == 1:
+                return
+        ts = block.timestamps[start:]
+        rel = np.where(ts >= self.started, ts - self.started, ts)
+        channel = channel2int(None) or self.channel         # block messages carry no channel
+        self.file.write(asc_lines(rel, block.ids[start:], block.data[start:], channel))
+
+
+_HEX = np.frombuffer(b"".join(f"{b:02X}".encode() for b in range(256)), dtype=np.uint8).reshape(256, 2)
+_STD_IDS = np.frombuffer(b"".join(f"{i:<15X}".encode() for i in range(0x800)), dtype=np.uint8).reshape(0x800, 15)
+_HEX_T = np.ascontiguousarray(_HEX.T)
+_STD_IDS_T = np.ascontiguousarray(_STD_IDS.T)
+
+
+def asc_lines(rel: np.ndarray, ids: np.ndarray, data: np.ndarray, channel: int) -> str:
+    """The ``ASCWriter`` lines of received 11-bit data frames (DLC 8) at relative times ``rel`` [s]:
+    ``f"{t: 9.6f} {channel}  {id:<15X} Rx   d 8 {data hex, spaced}"``, built as one byte matrix.
+
+    ``t`` is printed with 6 decimals as Python rounds it (the exact binary value, half to even): the
+    microseconds are ``rint(t × 1e6)`` except where that product lies within 1e-4 of a half, which are
+    formatted by Python; times of 1e9 s or more, negative times and ids ≥ 0x800 take Python's path."""
+    n = len(rel)
+    if n == 0:
+        return ""
+    if ids.min() < 0 or ids.max() >= 0x800 or rel.min() < 0 or rel.max() >= 1e9:
+        return _asc_lines_python(rel, ids, data, channel)
+    scaled = rel * 1e6
+    micro = np.rint(scaled).astype(np.int64)
+    near_half = np.abs(np.abs(scaled - np.floor(scaled)) - 0.5) < 1e-4
+    for k in np.flatnonzero(near_half).tolist():
+        whole, frac = f"{rel[k]:.6f}".split(".")
+        micro[k] = int(whole) * 1_000_000 + int(frac)
+    seconds, fraction = np.divmod(micro, 1_000_000)
+    digits = np.maximum(1, np.floor(np.log10(np.maximum(seconds, 1))).astype(np.int64) + 1)
+    digits[seconds >= 10 ** digits] += 1                 # log10 rounding at powers of ten
+    widest = int(digits.max())
+    tail = f" {channel}  ".encode(), b" Rx   d 8 "
+    width = 1 + widest + 1 + 6 + len(tail[0]) + 15 + len(tail[1]) + 23 + 1
+    t = np.full((width, n), ord(" "), dtype=np.uint8)   # one row per column of text: contiguous writes
+    col = 1 + widest                                     # the decimal point (rows with fewer digits start later)
+    rest = seconds.copy()
+    for d in range(widest):                              # integer digits, right to left
+        put = d < digits
+        t[col - 1 - d] = np.where(put, rest % 10 + ord("0"), ord(" "))
+        rest //= 10
+    t[col] = ord(".")
+    rest = fraction.copy()
+    for d in range(6, 0, -1):
+        t[col + d] = rest % 10 + ord("0")
+        rest //= 10
+    at = col + 7
+    t[at:at + len(tail[0])] = np.frombuffer(tail[0], dtype=np.uint8)[:, None]
+    at += len(tail[0])
+    t[at:at + 15] = _STD_IDS_T[:, ids]
+    at += 15
+    t[at:at + len(tail[1])] = np.frombuffer(tail[1], dtype=np.uint8)[:, None]
+    at += len(tail[1])
+    for b in range(8):
+        t[at + 3 * b:at + 3 * b + 2] = _HEX_T[:, data[:, b]]
+    t[-1] = ord("\n")
+    m = np.ascontiguousarray(t.T)
+    if widest == 1:
+        return m.tobytes().decode("ascii")
+    keep = np.ones((n, width), dtype=bool)
+    keep[:, :widest] = np.arange(widest)[None, :] >= (widest - digits)[:, None]   # cut the unused leading columns
+    return m[keep].tobytes().decode("ascii")
+
+
+def _asc_lines_python(rel: np.ndarray, ids: np.ndarray, data: np.ndarray, channel: int) -> str:
+    hexdata = data.tobytes().hex(" ").upper()
+    return "".join([f"{t: 9.6f} {channel}  {i:<15X} Rx   d 8 {hexdata[24 * k:24 * k + 23]}\n"
+                    for k, (t, i) in enumerate(zip(rel.tolist(), ids.tolist()))])
+
+
 class MessageWriter:
     """Any ``can.Logger`` format, one message at a time."""
 
@@ -174,6 +266,8 @@ def open_block_writer(path: str | Path, **kwargs: Any) -> BlockWriter:
             return BlockBLFWriter(path, **kwargs)
         if name.endswith(".log"):
             return BlockCanutilsWriter(path, **kwargs)
+        if name.endswith(".asc"):
+            return BlockASCWriter(path, **kwargs)
         return MessageWriter(path)
     except OSError as exc:
         raise LinkError(f"{path}: cannot write log ({exc.strerror or exc})") from exc

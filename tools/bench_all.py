@@ -3,8 +3,12 @@
 
     .venv/bin/python tools/bench_all.py            # run all, then assemble
     .venv/bin/python tools/bench_all.py --assemble # only assemble the existing sections
+    .venv/bin/python tools/bench_all.py --only agent sim   # run some, then assemble all
 
-Peers compared against (KDEpy, river) come with `pip install -e '.[bench]'`.
+Long ones: bench_live (10 min at bus saturation + 1 min), bench_detection (≈ 15 min the first time,
+simulated sequences cached in the temp dir), bench_latency (≈ 4 min).
+
+Peers compared against (KDEpy, river) and py-spy (profiles) come with `pip install -e '.[bench]'`.
 """
 
 from __future__ import annotations
@@ -12,10 +16,11 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-ORDER = ["protocol", "sim", "agent", "wear", "kde", "glr"]
+ORDER = ["protocol", "sim", "agent", "latency", "live", "detection", "wear", "kde", "glr", "calibration"]
 HEADER = """# Benchmarks
 
 Speed goals are measured here, never asserted in unit tests. Every figure is a ratio against a
@@ -40,13 +45,18 @@ def assemble() -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--assemble", action="store_true", help="only assemble docs/BENCHMARKS.md")
+    ap.add_argument("--only", nargs="+", metavar="TOPIC", help="run only these (e.g. agent sim latency live detection)")
     args = ap.parse_args()
     if not args.assemble:
-        for script in sorted((ROOT / "tools").glob("bench_*.py")):
-            if script.name == Path(__file__).name:
-                continue
-            print(f"== {script.name}", flush=True)
+        scripts = [s for s in sorted((ROOT / "tools").glob("bench_*.py"))
+                   if s.name != Path(__file__).name and (not args.only or s.stem.removeprefix("bench_") in args.only)]
+        started = time.monotonic()
+        for k, script in enumerate(scripts, 1):
+            print(f"== [{k}/{len(scripts)}] {script.name} (at {time.monotonic() - started:.0f} s)", flush=True)
+            t = time.monotonic()
             rc = subprocess.call([sys.executable, str(script)], cwd=ROOT)
+            print(f"== {script.name} done in {time.monotonic() - t:.0f} s" + (f", exit code {rc}" if rc else ""),
+                  flush=True)
             if rc != 0:
                 print(f"{script.name} failed with exit code {rc}", file=sys.stderr)
     assemble()

@@ -19,10 +19,12 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import can
+import numpy as np
 from can.io.asc import ASCReader
 from can.io.blf import BLFReader
 from can.io.canutils import CanutilsLogReader
 
+from edge_monitor.pipeline import blf_blocks
 from edge_monitor.pipeline.frame_source import FrameArrays
 from protocol.frames import messages_to_arrays
 
@@ -81,20 +83,61 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
         reader = can.LogReader(str(p))
     except (*_DAMAGE, OSError) as exc:
         raise LogReadError(f"cannot read {p} as a {p.suffix or 'CAN'} log: {exc or type(exc).__name__}") from exc
-    buf: list[can.Message] = []
     with reader:
-        for msg in _messages(reader, report):
-            buf.append(msg)
-            if len(buf) >= block_size:
-                yield messages_to_arrays(buf), _bytes_read(reader)
-                buf = []
-        if buf:
-            yield messages_to_arrays(buf), _bytes_read(reader)
+        if blf_blocks.supported(reader):
+            yield from _blf_blocks(reader, block_size, report)
+        else:
+            yield from _message_blocks(reader, block_size, report)
     report.truncated = report.truncated or _cut_short(p, reader)
     if report.skipped:
         log.warning("%s: %d unreadable record(s) skipped (first: %s)", p, report.skipped, report.examples[0])
     if report.truncated:
         log.warning("%s is truncated: %s", p, report.truncated)
+
+
+def _message_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tuple[FrameArrays, int]]:
+    """Any log python-can reads, one message at a time, in blocks of ``block_size``."""
+    buf: list[can.Message] = []
+    for msg in _messages(reader, report):
+        buf.append(msg)
+        if len(buf) >= block_size:
+            yield messages_to_arrays(buf), _bytes_read(reader)
+            buf = []
+    if buf:
+        yield messages_to_arrays(buf), _bytes_read(reader)
+
+
+def _blf_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tuple[FrameArrays, int]]:
+    """A .blf file's frames in blocks of ``block_size`` (as the per-message path cuts them), read a
+    container at a time (:mod:`edge_monitor.pipeline.blf_blocks`); damage ends the file as there."""
+    parts: list[FrameArrays] = []
+    held = 0
+    try:
+        for arrays in blf_blocks.container_arrays(reader):
+            report.frames += len(arrays[0])
+            parts.append(arrays)
+            held += len(arrays[0])
+            while held >= block_size:
+                joined = _join(parts)
+                yield _slice(joined, 0, block_size), _bytes_read(reader)
+                parts = [_slice(joined, block_size, held)] if held > block_size else []
+                held -= block_size
+    except _DAMAGE as exc:
+        report.truncated = f"unreadable data after frame {report.frames}: {exc or type(exc).__name__}"
+    if held:
+        yield _join(parts), _bytes_read(reader)
+
+
+def _join(parts: list[FrameArrays]) -> FrameArrays:
+    if len(parts) == 1:
+        return parts[0]
+    ids, data, dlc, ts = zip(*parts)
+    return np.concatenate(ids), np.concatenate(data), np.concatenate(dlc), np.concatenate(ts)
+
+
+def _slice(arrays: FrameArrays, start: int, stop: int) -> FrameArrays:
+    ids, data, dlc, ts = arrays
+    return ids[start:stop], data[start:stop], dlc[start:stop], ts[start:stop]
 
 
 def _messages(reader: Any, report: LogReport) -> Iterator[can.Message]:

@@ -1,0 +1,91 @@
+"""The vectorised .blf reader gives exactly the frames of python-can's per-message path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from edge_monitor.pipeline import log_source
+from edge_monitor.pipeline.log_source import LogReport, log_blocks_with_position
+from sim_controller.config import SimConfig
+from sim_controller.output import record
+
+
+def _read(path: Path, block_size: int, fast: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[list, dict]:
+    with monkeypatch.context() as m:
+        if not fast:
+            m.setattr(log_source.blf_blocks, "supported", lambda reader: False)
+        report = LogReport()
+        blocks = [block for block, _ in log_blocks_with_position(path, block_size, report)]
+    return blocks, report.to_dict()
+
+
+def _assert_same(path: Path, block_size: int, monkeypatch: pytest.MonkeyPatch) -> dict:
+    fast, fast_report = _read(path, block_size, True, monkeypatch)
+    slow, slow_report = _read(path, block_size, False, monkeypatch)
+    assert fast_report == slow_report
+    assert [len(b[0]) for b in fast] == [len(b[0]) for b in slow]
+    for a, b in zip(fast, slow):
+        for x, y in zip(a, b):
+            assert x.dtype == y.dtype and x.shape == y.shape
+            np.testing.assert_array_equal(x, y)
+    return fast_report
+
+
+def _mixed_log(path: Path) -> None:
+    """python-can's own writer: standard, extended, remote, short and error frames among plain ones,
+    10 µs and ns time stamps are both python-can's choice; an absolute start time."""
+    writer = can.BLFWriter(str(path), channel=1)
+    rng = np.random.default_rng(5)
+    t = 1_700_000_000.0
+    for k in range(9000):
+        t += float(rng.uniform(1e-5, 1e-3))
+        kind = k % 97
+        if kind == 3:
+            msg = can.Message(timestamp=t, arbitration_id=0x1ABCDE, is_extended_id=True, data=bytes(range(8)))
+        elif kind == 5:
+            msg = can.Message(timestamp=t, arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=4)
+        elif kind == 7:
+            msg = can.Message(timestamp=t, arbitration_id=0x321, is_extended_id=False, data=b"\x01\x02\x03")
+        elif kind == 11:
+            msg = can.Message(timestamp=t, is_error_frame=True, arbitration_id=0, is_extended_id=False)
+        else:
+            msg = can.Message(timestamp=t, arbitration_id=0x100 + k % 7, is_extended_id=False,
+                              data=rng.integers(0, 256, 8, dtype=np.uint8).tobytes())
+        writer.on_message_received(msg)
+    writer.stop()
+
+
+@pytest.mark.parametrize("block_size", [4096, 1000, 7])
+def test_simulator_log_same_frames(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, block_size: int) -> None:
+    path = tmp_path / "sim.blf"
+    record(SimConfig(joints=2, cycles=1, seed=2, speeds=(8.7, 41.7), plateau_time=0.3), path)
+    report = _assert_same(path, block_size, monkeypatch)
+    assert report["frames"] > 1000 and report["truncated"] is None
+
+
+def test_mixed_python_can_log_same_frames(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "mixed.blf"
+    _mixed_log(path)
+    report = _assert_same(path, 512, monkeypatch)
+    assert report["frames"] == 9000
+
+
+@pytest.mark.parametrize("cut", [0.5, 0.9])
+def test_cut_and_damaged_logs_same_frames_and_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                     cut: float) -> None:
+    whole = tmp_path / "mixed.blf"
+    _mixed_log(whole)
+    raw = whole.read_bytes()
+    short = tmp_path / "short.blf"
+    short.write_bytes(raw[:int(len(raw) * cut)])
+    report = _assert_same(short, 512, monkeypatch)
+    assert report["truncated"]
+    damaged = tmp_path / "damaged.blf"
+    middle = int(len(raw) * cut)
+    damaged.write_bytes(raw[:middle] + bytes(64) + raw[middle + 64:])
+    report = _assert_same(damaged, 512, monkeypatch)
+    assert report["truncated"]
