@@ -7,7 +7,9 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 import can
 import numpy as np
@@ -131,27 +133,35 @@ def test_unwritable_output_says_which_and_why(tmp_path, capsys):
     assert "not a CAN log file" in capsys.readouterr().err
 
 
-@pytest.mark.slow
-def test_cross_process_run_over_pty_slcan_reaches_a_python_can_receiver(tmp_path):
-    truth = tmp_path / "truth.jsonl"
+@contextmanager
+def _sim_run_over_pty(*args: str) -> Iterator[tuple[PtyPair, can.BusABC, subprocess.Popen]]:
+    """`sim-controller run` of one joint at 20 rad/s (plus ``args``) into one end of a pty pair, a
+    python-can slcan receiver on the other; the receiver is shut down on the way out."""
     with PtyPair() as pty:
         receiver = open_bus(f"slcan:{pty.b}")
         try:
-            proc = subprocess.Popen([*SIM, "run", "--link", f"slcan:{pty.a}", "--speedup", "20", "--joints", "1",
-                                     "--cycles", "1", "--speeds", "20", "--plateau-time", "0.3",
-                                     "--truth", str(truth), "--seed", "5"],
+            proc = subprocess.Popen([*SIM, "run", "--link", f"slcan:{pty.a}", "--joints", "1", "--speeds", "20",
+                                     "--plateau-time", "0.3", *args],
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-            messages = []
-            deadline = time.monotonic() + 120
-            while time.monotonic() < deadline:
-                msg = receiver.recv(timeout=0.5)
-                if msg is not None:
-                    messages.append(msg)
-                elif proc.poll() is not None:
-                    break
-            _, stderr = proc.communicate(timeout=30)
+            yield pty, receiver, proc
         finally:
             receiver.shutdown()
+
+
+@pytest.mark.slow
+def test_cross_process_run_over_pty_slcan_reaches_a_python_can_receiver(tmp_path):
+    truth = tmp_path / "truth.jsonl"
+    with _sim_run_over_pty("--speedup", "20", "--cycles", "1", "--truth", str(truth), "--seed", "5") \
+            as (pty, receiver, proc):
+        messages = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            msg = receiver.recv(timeout=0.5)
+            if msg is not None:
+                messages.append(msg)
+            elif proc.poll() is not None:
+                break
+        _, stderr = proc.communicate(timeout=30)
         assert proc.returncode == 0, stderr
         assert pty.dropped_bytes == 0
     _, last = read_truth(truth)
@@ -167,26 +177,19 @@ def test_cross_process_run_over_pty_slcan_reaches_a_python_can_receiver(tmp_path
 
 def test_sigterm_ends_a_run_in_order_with_every_sent_frame_in_the_truth_summary(tmp_path):
     truth = tmp_path / "truth.jsonl"
-    with PtyPair() as pty:
-        receiver = open_bus(f"slcan:{pty.b}")
-        try:
-            proc = subprocess.Popen([*SIM, "run", "--link", f"slcan:{pty.a}", "--speedup", "1", "--joints", "1",
-                                     "--cycles", "1000", "--speeds", "20", "--plateau-time", "0.3",
-                                     "--truth", str(truth), "--summary-json"],
-                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-            received = 0
-            deadline = time.monotonic() + 120
-            while received < 1000 and time.monotonic() < deadline:     # streaming: then stop it
-                received += receiver.recv(timeout=0.5) is not None
-            proc.send_signal(signal.SIGTERM)
-            while time.monotonic() < deadline:
-                if receiver.recv(timeout=0.5) is not None:
-                    received += 1
-                elif proc.poll() is not None:
-                    break
-            out, err = proc.communicate(timeout=30)
-        finally:
-            receiver.shutdown()
+    with _sim_run_over_pty("--speedup", "1", "--cycles", "1000", "--truth", str(truth), "--summary-json") \
+            as (_, receiver, proc):
+        received = 0
+        deadline = time.monotonic() + 120
+        while received < 1000 and time.monotonic() < deadline:     # streaming: then stop it
+            received += receiver.recv(timeout=0.5) is not None
+        proc.send_signal(signal.SIGTERM)
+        while time.monotonic() < deadline:
+            if receiver.recv(timeout=0.5) is not None:
+                received += 1
+            elif proc.poll() is not None:
+                break
+        out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     _, last = read_truth(truth)
     assert last["frames_sent"] == json.loads(out)["frames_sent"] == received >= 1000
