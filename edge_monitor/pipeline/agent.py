@@ -289,12 +289,12 @@ class Agent:
             return
         try:
             validate_state(state, self.config.robot, self.config.joints)
-            if state.get("ingest"):
-                self.ingest.load_state(state["ingest"])
-        except (StateError, KeyError, TypeError, ValueError) as exc:
+        except StateError as exc:
             if self.store is not None:
                 self.store.reject(str(exc))
             return
+        if state.get("ingest"):
+            self.ingest.load_state(state["ingest"])
         self._last_emitted = {int(j): c for j, c in state.get("last_emitted", {}).items()}
         self._restored_joint_states = {int(j): s for j, s in state.get("joints", {}).items()}
         log.info("restored state of joints %s (last cycles %s)", sorted(self._restored_joint_states),

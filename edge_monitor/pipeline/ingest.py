@@ -175,8 +175,7 @@ class Ingest:
         a controller tick that went backward (a restart near the counter's wrap, or into the same
         cycle number), is a controller restart: numbering goes on from the last cycle + 1, so
         published cycle numbers stay unique and increasing."""
-        tick_back = self._cycle_tick_raw is not None and \
-            (tick_raw - self._cycle_tick_raw) % STATUS_TICK_MODULUS >= STATUS_TICK_MODULUS // 2
+        tick_back = self._cycle_tick_raw is not None and _tick_step(self._cycle_tick_raw, tick_raw) is None
         self._cycle_tick_raw = tick_raw
         if self._cycle_raw is None or self._cycle is None:     # first status frame, no restored state
             cycle = raw
@@ -204,8 +203,8 @@ class Ingest:
         if self._status_tick is None or self._status_tick_raw is None:
             full = raw
         else:
-            step = (raw - self._status_tick_raw) % STATUS_TICK_MODULUS
-            full = self._status_tick + step if step < STATUS_TICK_MODULUS // 2 else raw
+            step = _tick_step(self._status_tick_raw, raw)
+            full = raw if step is None else self._status_tick + step
         self._status_tick_raw, self._status_tick = raw, full
         return full
 
@@ -273,6 +272,13 @@ class Ingest:
                                  starts_at_boundary=first_seen.get(cyc),
                                  previous_cut=cyc in self._restarted_into))
         return runs
+
+
+def _tick_step(previous_raw: int, raw: int) -> int | None:
+    """Forward step of the 24-bit controller tick from ``previous_raw`` to ``raw``, or None when it
+    went backward (more than half the counter's range: a controller restart)."""
+    step = (raw - previous_raw) % STATUS_TICK_MODULUS
+    return step if step < STATUS_TICK_MODULUS // 2 else None
 
 
 def _forward_index(n: int, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:

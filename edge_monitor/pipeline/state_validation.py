@@ -51,14 +51,14 @@ def validate_state(state: Any, robot: str, joints: tuple[int, ...] | None = None
         raise StateError(f"it belongs to robot {saved_robot!r}, this agent monitors robot {robot!r}")
     _drop_unconfigured(state, joints)
     for joint, cycle in state.get("last_emitted", {}).items():
-        _check_joint(joint, joints, "last_emitted")
+        _check_joint(joint, "last_emitted")
         if isinstance(cycle, bool) or not isinstance(cycle, int) or not 0 <= cycle <= MAX_CYCLE:
             raise StateError(f"last_emitted[{joint}] = {cycle!r} is not a cycle number 0 … {MAX_CYCLE}")
     for key, value in (state.get("ingest") or {}).items():
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or abs(value) > MAX_CYCLE):
             raise StateError(f"ingest.{key} = {value!r} is not a counter within ±{MAX_CYCLE}")
     for joint, section in state.get("joints", {}).items():
-        _check_joint(joint, joints, "joints")
+        _check_joint(joint, "joints")
         if not isinstance(section, dict):
             raise StateError(f"joints[{joint}] is a {type(section).__name__}, not an object")
     return state
@@ -72,7 +72,8 @@ def _drop_unconfigured(state: dict[str, Any], joints: tuple[int, ...] | None) ->
     for section in ("last_emitted", "joints"):
         table = state.get(section, {})
         for key in list(table):
-            if key.isdigit() and 0 <= int(key) < MAX_JOINT and int(key) not in joints:
+            joint = _joint_index(key)
+            if joint is not None and 0 <= joint < MAX_JOINT and joint not in joints:
                 dropped.add(key)
                 del table[key]
     if dropped:
@@ -80,14 +81,20 @@ def _drop_unconfigured(state: dict[str, Any], joints: tuple[int, ...] | None) ->
                     sorted(dropped, key=int), list(joints))
 
 
-def _check_joint(key: str, joints: tuple[int, ...] | None, where: str) -> None:
+def _joint_index(key: str) -> int | None:
     try:
-        joint = int(key)
+        return int(key)
     except ValueError:
-        raise StateError(f"{where}: {key!r} is not a joint index") from None
-    if not 0 <= joint < MAX_JOINT or (joints is not None and joint not in joints):
-        allowed = f"0 … {MAX_JOINT - 1}" if joints is None else f"the configured joints {list(joints)}"
-        raise StateError(f"{where}: joint {joint} is not one of {allowed}")
+        return None
+
+
+def _check_joint(key: str, where: str) -> None:
+    """A joint index 0 … MAX_JOINT − 1 (joints outside the config were dropped before)."""
+    joint = _joint_index(key)
+    if joint is None:
+        raise StateError(f"{where}: {key!r} is not a joint index")
+    if not 0 <= joint < MAX_JOINT:
+        raise StateError(f"{where}: joint {joint} is not one of 0 … {MAX_JOINT - 1}")
 
 
 def _check_tree(node: Any, path: str, depth: int) -> None:
