@@ -37,7 +37,7 @@ from edge_monitor.offline.evaluation.detectors import DETECTORS
 from edge_monitor.offline.evaluation.factors import Factor
 from edge_monitor.offline.evaluation.simulate import PointResult, PointSpec, run_point
 from edge_monitor.offline.evaluation.surrogate import fit_surrogate, validation_fit
-from edge_monitor.records import to_strict
+from edge_monitor.records import finite_or_none, to_strict
 from protocol.console import progress_bar
 
 log = logging.getLogger(__name__)
@@ -161,10 +161,6 @@ def _abandon(pool: ProcessPoolExecutor) -> None:
             proc.join(timeout=1.0)
 
 
-def _finite(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else float(x)
-
-
 def noise_std(settings: Settings, gamma: float, cycle_std: list[float]) -> dict[str, float]:
     """Spread of q per the ``noise`` choice (see the module docstring): the per-cycle, mean and used std."""
     s2 = np.asarray(cycle_std, dtype=float) ** 2
@@ -192,9 +188,9 @@ def analyse(settings: Settings, points: list[PointResult]) -> dict[str, Any]:
         step = settings.factors[0].unit_step
         out[det] = {
             "surrogate": model.to_dict(),
-            "validation_fit": _finite(fit),
+            "validation_fit": finite_or_none(fit),
             "noise": noise,
-            "snr": _finite(sc.snr(model, draws=settings.snr_draws, noise_std=noise["used"], seed=seed)),
+            "snr": finite_or_none(sc.snr(model, draws=settings.snr_draws, noise_std=noise["used"], seed=seed)),
             "dominant_disturbance": dominant,
             "dominant_significant": significant,
             "runner_up": model.runner_up(),

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from edge_monitor.offline.evaluation.design import DesignError, check_estimable, quadratic_matrix, quadratic_terms
+from edge_monitor.records import finite_or_none
 
 
 @dataclass(frozen=True)
@@ -106,13 +107,10 @@ class Surrogate:
     def to_dict(self) -> dict[str, Any]:
         se = self.standard_errors()
         return {"terms": list(self.terms), "coefficients": self.theta.tolist(), "std_errors": se.tolist(),
-                "gamma": _finite(self.gamma), "residual_std": _finite(self.residual_std), "runs": self.runs,
-                "fault_effect": self.fault_effect, "normalised": {k: _finite(v) for k, v in self.normalised().items()},
-                "influence": {k: _finite(v) for k, v in self.influence().items()}}
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
+                "gamma": finite_or_none(self.gamma), "residual_std": finite_or_none(self.residual_std),
+                "runs": self.runs, "fault_effect": self.fault_effect,
+                "normalised": {k: finite_or_none(v) for k, v in self.normalised().items()},
+                "influence": {k: finite_or_none(v) for k, v in self.influence().items()}}
 
 
 def fit_surrogate(design: ArrayLike, q: ArrayLike, factors: Sequence[str]) -> Surrogate:
