@@ -58,11 +58,12 @@ PROFILE_NOTE = (
 
 
 #: A measurement by hand (not reproduced by this script: ≈ 8 min), kept with the figures above.
-USER_RUN = """A user's whole run at the defaults (2026-11-23, this machine, 2 cores shared with another study):
+USER_RUN = """A user's whole run at the defaults (2026-11-23 14:33 UTC, this machine, 2 cores, a CI run beside it):
 `sim-controller record --cycles 200 --out big.blf` wrote 22,910,626 frames (6 joints, 6,839 s
-simulated) in 16.0 s, 427× real time; `edge-monitor replay big.blf --json` took 431.7 s wall,
-53,074 frames/s, including the inline threshold calibration of 24 detectors at the end of learning
-(the bench above leaves that out); 1,200 symptoms, no alarm."""
+simulated) in 14.8 s, 462× real time; `edge-monitor replay big.blf --json` took 286.6 s wall,
+79,953 frames/s, including the inline threshold calibration of 24 detectors at the end of learning
+(the bench above leaves that out); 200 cycles, 1,200 symptoms, none partial, no alarm. (Earlier the
+same day, before the vectorised `.blf` reader: 427× and 53,074 frames/s.)"""
 
 CALIBRATION_GAP = (
     "**Gap: the inline threshold calibration.** The files above (10 cycles) end before the detectors' "
