@@ -142,8 +142,11 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 
 
 def _ignore_sigint() -> None:
-    """Workers leave Ctrl-C (sent to the whole process group) to the parent, which terminates them."""
+    """Workers leave Ctrl-C (sent to the whole process group) to the parent, which terminates them;
+    that SIGTERM ends a worker silently (the default action), not through the parent's handler that a
+    forked worker would otherwise inherit from :func:`_sigterm_as_interrupt` (a traceback per worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _abandon(pool: ProcessPoolExecutor) -> None:
