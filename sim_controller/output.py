@@ -7,7 +7,8 @@ frames to wall time (``speedup`` × real time, ``None`` = as fast as the link ta
 them on a bus opened with ``protocol.links.open_bus``; timestamps are wall time.
 
 Ground truth (``truth_path``, JSONL): one record per joint per cycle, written as cycles complete,
-then a last line ``{"faults": {...}, "frames_sent": N}``. The per-joint parameters actually used go
+then a last line ``{"faults": {...}, "frames_sent": N, "send_errors": E}`` (E: sends that raised; a
+serial write that timed out may still have put its frame on the link). The per-joint parameters actually used go
 to a sidecar ``<truth stem>.params.json``.
 """
 
@@ -79,11 +80,12 @@ class _TruthWriter:
         if self.file is not None and records:
             self.file.write("".join(json.dumps(r) + "\n" for r in records))
 
-    def close(self, frames_sent: int) -> None:
+    def close(self, frames_sent: int, send_errors: int = 0) -> None:
         self.drain()
         if self.file is not None:
             summary = self.controller.summary()
             summary["frames_sent"] = frames_sent
+            summary["send_errors"] = send_errors      # sends that raised: the frame may still be on the link
             self.file.write(json.dumps(summary) + "\n")
             self.file.close()
 
@@ -172,7 +174,7 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
             if stop is not None and stop():
                 break
     finally:
-        truth.close(sent)
+        truth.close(sent, errors)
         bus.shutdown()
     wall = time.perf_counter() - start
     return RunSummary(sent, errors, controller.cycles_done, controller.simulated_seconds, wall,

@@ -193,6 +193,7 @@ def test_sigterm_ends_a_run_in_order_with_every_sent_frame_in_the_truth_summary(
     assert proc.returncode == 0, err
     _, last = read_truth(truth)
     assert last["frames_sent"] == json.loads(out)["frames_sent"] == received >= 1000
+    assert last["send_errors"] == json.loads(out)["send_errors"] == 0
 
 
 def test_run_on_virtual_bus_in_process_paced_by_speedup():

@@ -86,3 +86,19 @@ def test_the_ledger_splits_a_kill_into_read_unread_and_downtime_frames_and_finds
     # had life 0 reported only the frames before cycle 2 began, cycle 1's close was not yet processed
     assert (0, 1) not in ledger.complete_cycles([first[2], life1.read])
     assert ledger.numbering() == {0: 0}
+
+
+@pytest.mark.parametrize("on_link, send_errors, unaccounted", [(100, 0, 0), (101, 0, 1), (101, 1, 0), (101, 3, 0),
+                                                               (103, 1, 2), (99, 1, 1)])
+def test_a_failed_send_may_explain_an_extra_frame_on_the_link_but_no_more(on_link: int, send_errors: int,
+                                                                         unaccounted: int) -> None:
+    """A send that raised (serial write timeout) may still have put its frame on the link: up to
+    ``send_errors`` extra frames are accounted, never a missing frame and never more than that."""
+    from soak_link import SimRun
+    from soak_report import SimRecord, frame_report
+
+    ledger = LinkLedger()
+    ledger.runs.append(SimRun(0, frames=on_link))
+    report = frame_report(ledger, [], [SimRecord(0, frames_sent=100, send_errors=send_errors, complete=True)])
+    assert report["frames_unaccounted_by_rule"]["sent_vs_link"] == unaccounted, report
+    assert report["send_errors_on_link"] == min(max(on_link - 100, 0), send_errors)

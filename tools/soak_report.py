@@ -52,6 +52,7 @@ class SimRecord:
 
     index: int
     frames_sent: int = 0
+    send_errors: int = 0            # sends that raised (the frame may have reached the link anyway)
     faults: dict[str, int] = field(default_factory=dict)
     t_end: dict[tuple[int, int], float] = field(default_factory=dict)
     complete: bool = False          # its summary line was written (stopped in order)
@@ -65,6 +66,7 @@ class SimRecord:
             row = json.loads(line)
             if "frames_sent" in row:
                 rec.frames_sent, rec.faults, rec.complete = int(row["frames_sent"]), row["faults"], True
+                rec.send_errors = int(row.get("send_errors", 0))
             elif "cycle" in row:
                 rec.t_end[(int(row["joint"]), int(row["cycle"]))] = float(row["t_end"])
         return rec
@@ -74,6 +76,8 @@ def frame_report(ledger: LinkLedger, lives: list[LifeRecord], sims: list[SimReco
     """Frames sent, received and where the others went; ``frames_unaccounted`` sums every violation."""
     sent = sum(s.frames_sent for s in sims)
     on_link = sum(r.frames for r in ledger.runs)
+    # a send that raised (serial write timeout) may still have put its frame on the link: accounted
+    failed_on_link = sum(min(max(r.frames - s.frames_sent, 0), s.send_errors) for s, r in zip(sims, ledger.runs))
     lost_in_kill = overcounted = final_residual = 0
     for life, rec in zip(ledger.lives, lives):
         residual = life.read + life.unread - rec.accounted
@@ -82,12 +86,13 @@ def frame_report(ledger: LinkLedger, lives: list[LifeRecord], sims: list[SimReco
             overcounted += max(-residual, 0)
         else:
             final_residual += abs(residual)
-    violations = {"sent_vs_link": abs(sent - on_link), "link_overflow": ledger.frames_overflow,
+    violations = {"sent_vs_link": abs(sent + failed_on_link - on_link), "link_overflow": ledger.frames_overflow,
                   "unattributed": ledger.frames_unattributed, "lost_midlife": ledger.undelivered_midlife,
                   "stopped_agent_residual": final_residual, "killed_agent_overcount": overcounted}
     return {"frames_sent": sent, "frames_received": sum(r.get("frames_total") for r in lives),
             "frames_unaccounted": sum(violations.values()), "frames_during_downtime": ledger.frames_downtime,
             "frames_lost_in_kill": lost_in_kill, "frames_on_link": on_link,
+            "send_errors": sum(s.send_errors for s in sims), "send_errors_on_link": failed_on_link,
             "frames_queue_dropped": sum(r.get("queue_dropped") for r in lives),
             "frames_by_simulator_run": [[s.frames_sent, r.frames] for s, r in zip(sims, ledger.runs)],
             "frames_by_agent_life": [{"read": life.read, "unread": life.unread, "reported": rec.accounted,
