@@ -61,7 +61,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -72,6 +72,9 @@ from scipy import stats  # noqa: E402
 from edge_monitor.stats.densities import fit_density  # noqa: E402
 from edge_monitor.stats.glr import bootstrap_statistics, glr_known_change, threshold_from_pf  # noqa: E402
 from edge_monitor.stats.sequential_detector import SequentialDetector  # noqa: E402
+
+if TYPE_CHECKING:
+    from edge_monitor.pipeline.detectors import DetectorBank
 
 log = logging.getLogger("arl_study")
 
@@ -456,17 +459,18 @@ class _BoundaryShift:
     the std of the values it learned, per input, in the units it watches (log for the KL distances),
     which is the least favourable healthy drift its threshold is calibrated for."""
 
-    def __init__(self, inputs: tuple[str, ...], allowance: float, n_nominal: int) -> None:
+    def __init__(self, bank: DetectorBank, inputs: tuple[str, ...]) -> None:
         from edge_monitor.features.registry import LOG_SCALE
 
-        self.inputs, self.allowance, self.n_nominal = inputs, allowance, n_nominal
-        self.log = {q: q in LOG_SCALE for q in inputs}
+        self.bank, self.inputs = bank, inputs
+        self.allowance, self.n_nominal = bank.config.allowance, bank.config.n_nominal
+        self.log = {q: bank.config.log_scale and q in LOG_SCALE for q in inputs}
         self.learned: list[list[float]] = []
         self.shift: dict[str, float] | None = None
 
     def watched(self, values: dict[str, float]) -> list[float]:
-        return [math.log(values[q]) if self.log[q] and values[q] > 0 else
-                (math.nan if self.log[q] else values[q]) for q in self.inputs]
+        watched = self.bank.watched(values)
+        return [watched[q] for q in self.inputs]
 
     def __call__(self, values: dict[str, float], learning: bool) -> dict[str, float]:
         if learning:
@@ -498,7 +502,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
             for q in DecisionConfig().quantities:
                 config = DecisionConfig(arl0_cycles=target, calibration_draws=draws, quantities=(q,), **extra)
                 bank = DetectorBank(config, {})
-                shift = _BoundaryShift(QUANTITIES[q].inputs, config.allowance, config.n_nominal) if boundary else None
+                shift = _BoundaryShift(bank, QUANTITIES[q].inputs) if boundary else None
                 runs[q] = runs.get(q, 0) + 1
                 learning = True
                 for cycle, values in enumerate(rows):

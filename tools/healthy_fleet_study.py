@@ -109,6 +109,12 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
 
 
+def earliest_alarm(run: dict[str, Any], joint: int, quantity: str | None = None) -> dict[str, Any] | None:
+    """The first alarm of ``joint`` in ``run`` (of ``quantity`` only, if given), or None."""
+    mine = [a for a in run["alarms"] if a["joint"] == joint and quantity in (None, a["quantity"])]
+    return min(mine, key=lambda a: a["cycle"]) if mine else None
+
+
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Pooled over robots: false alarms and exposure per quantity on unworn joints, first alarms of worn ones."""
     exposure: dict[str, int] = {}
@@ -126,9 +132,7 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
                 continue
             false_alarms[alarm["quantity"]] = false_alarms.get(alarm["quantity"], 0) + 1
         for joint in worn:
-            mine = [a for a in run["alarms"] if a["joint"] == joint]
-            first = min(mine, key=lambda a: a["cycle"]) if mine else None
-            detections.append({"seed": run["seed"], "joint": joint, "first_alarm": first})
+            detections.append({"seed": run["seed"], "joint": joint, "first_alarm": earliest_alarm(run, joint)})
     per_quantity = {}
     for q, n in sorted(exposure.items()):
         k = false_alarms.get(q, 0)
@@ -150,8 +154,7 @@ def miss_forecast(runs: list[dict[str, Any]], every: int = 5) -> dict[str, list[
     cycles = len(next(iter(worn[0][0]["wear_truth"].values())))
     quantities = sorted({a["quantity"] for run, _ in worn for a in run["alarms"]})
     for q in quantities:
-        first = [min((a["cycle"] for a in run["alarms"] if a["joint"] == j and a["quantity"] == q),
-                     default=math.inf) for run, j in worn]
+        first = [alarm["cycle"] if (alarm := earliest_alarm(run, j, q)) else math.inf for run, j in worn]
         rows = []
         for cycle in range(0, cycles, every):
             missed, reported, wear = 0, 0.0, 0.0

@@ -125,13 +125,15 @@ class DetectorBank:
         self.detectors = {q: SequentialDetector(config.detector_config(q), calibrator)
                           for q in config.quantities} if config.enabled else {}
 
-    def _transform(self, values: dict[str, float]) -> dict[str, float]:
+    def watched(self, values: dict[str, float]) -> dict[str, float]:
+        """Feature values in the units the detectors watch (log of the log-scale quantities; NaN for a
+        log-scale value that is not positive and finite)."""
         return {q: _log_or_nan(v) if self.config.log_scale and q in LOG_SCALE else v for q, v in values.items()}
 
     def update(self, values: dict[str, float], robot: str, joint: int, cycle: int
                ) -> tuple[dict[str, Decision], list[Alarm]]:
         """Feed one cycle's feature values (NaN when missing); decisions and raised alarms."""
-        watched = self._transform(values)
+        watched = self.watched(values)
         decisions: dict[str, Decision] = {}
         alarms: list[Alarm] = []
         for quantity, detector in self.detectors.items():
