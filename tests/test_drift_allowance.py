@@ -183,3 +183,22 @@ def test_calibration_at_the_allowance_boundary_holds_the_run_length_there_and_ex
     assert 0.5 * arl0 <= measured[0.5] <= 2.5 * arl0, measured
     assert measured[0.0] >= 2.0 * arl0, measured
     assert detected >= 36, detected
+
+
+def test_calibrating_on_the_learned_nominal_gives_a_lower_threshold_than_at_the_boundary() -> None:
+    """Studies may calibrate on the learned nominal (``at="nominal"``): with an allowance the
+    threshold is lower than the agent's boundary calibration; without one both are the same
+    simulation; an unknown ``at`` is a clear error."""
+    from edge_monitor.stats.calibration import CalibrationBudget, calibrate
+
+    nominal = np.random.default_rng(5).normal(size=(60, 1))
+    budget = CalibrationBudget(draws=16, max_steps=600)
+
+    def h(at: str, allowance: float) -> float:
+        return calibrate(nominal, "gauss", 50, 200.0, budget=budget, direction="increase", allowance=allowance,
+                         clip_sigma=3.0, at=at).threshold
+
+    assert h("nominal", 0.75) < h("boundary", 0.75)
+    assert h("nominal", 0.0) == h("boundary", 0.0)
+    with pytest.raises(ValueError, match="at ="):
+        h("middle", 0.75)

@@ -48,6 +48,12 @@ Parts (all with fixed seeds; select with --part, default all):
   measured ARL0 should match the target; without the shift, healthy joints sit inside the allowance and
   run longer.
 
+* ``--agent --curves`` — why a calibration alone cannot match healthy drifting data: for each
+  quantity, the threshold h that gives each target (``--targets``) on the simulated healthy joints
+  themselves (every joint's detector run with h as a free parameter: renewal after a crossing, as
+  above), next to the median over joints of the thresholds the calibration finds for the same learned
+  nominals, simulated on the learned nominal and at the allowance boundary (``threshold_curves``).
+
 Usage: ``python tools/arl_study.py [--part NAME ...] [--agent] [--quick] [--json OUT.json]``;
 ``--part agent`` alone takes about 5 minutes on this machine.
 """
@@ -75,6 +81,7 @@ from edge_monitor.stats.sequential_detector import SequentialDetector  # noqa: E
 
 if TYPE_CHECKING:
     from edge_monitor.pipeline.detectors import DetectorBank
+    from edge_monitor.stats.sequential_detector import DetectorConfig
 
 log = logging.getLogger("arl_study")
 
@@ -522,6 +529,92 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
             for q in sorted(exposure)]
 
 
+def _watched_series(bank: DetectorBank, rows: list[dict[str, float]], quantity: str) -> np.ndarray:
+    """One joint's values of ``quantity`` (cycles × d) in the units its detector watches."""
+    from edge_monitor.features.registry import QUANTITIES
+
+    inputs = QUANTITIES[quantity].inputs
+    return np.array([[w[q] for q in inputs] for w in map(bank.watched, rows)])
+
+
+def _statistic_trace(values: np.ndarray, nominal: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    """Running maximum of the detector's statistic on ``values`` after learning ``nominal`` (no threshold)."""
+    from edge_monitor.stats.glr_batch import BatchWindowedGLR, MixtureBatch, clip_range, null_box, stack_bounds
+
+    glr = BatchWindowedGLR(MixtureBatch([fit_density(nominal, config.density)]), config.window, config.gamma0,
+                           config.rho, "exact" if config.mode == "exact" else "recursive",
+                           null_box=stack_bounds([null_box(nominal, config.direction, config.allowance)]),
+                           clip=stack_bounds([clip_range(nominal, config.clip_sigma)]))
+    return np.maximum.accumulate(np.array([glr.update(v[None, :])[0] for v in values]))
+
+
+def real_run_lengths(series: list[np.ndarray], config: DetectorConfig, grid: np.ndarray) -> np.ndarray:
+    """Measured mean run length at each threshold of ``grid`` on real series (one per joint): learn on
+    ``n_nominal`` values, monitor to the first crossing, relearn after it; cycles / crossings."""
+    exposure, alarms = np.zeros(grid.size), np.zeros(grid.size)
+    for x in series:
+        traces: dict[int, np.ndarray] = {}
+        for i, h in enumerate(grid):
+            start = 0
+            while start + config.n_nominal < len(x):
+                if start not in traces:
+                    learn = start + config.n_nominal
+                    traces[start] = _statistic_trace(x[learn:], x[start:learn], config)
+                k = int(np.searchsorted(traces[start], h, side="left"))
+                if k == len(traces[start]):
+                    exposure[i] += k
+                    break
+                exposure[i] += k + 1
+                alarms[i] += 1
+                start += config.n_nominal + k + 1
+    return np.where(alarms > 0, exposure / np.maximum(alarms, 1), np.inf)
+
+
+def threshold_curves(series: list[dict[int, list[dict[str, float]]]], targets: tuple[float, ...],
+                     draws: int = 32) -> list[dict[str, object]]:
+    """Per quantity: thresholds for ``targets`` read off the healthy series themselves, and the median
+    calibrated thresholds (learned nominal; allowance boundary) for the joints' first learned nominals."""
+    from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
+
+    decision = DecisionConfig()
+    bank = DetectorBank(decision, {})
+    grid = np.arange(0.05, 30.0, 0.05)
+    out = []
+    for quantity in decision.quantities:
+        config = decision.detector_config(quantity)
+        joints = [_watched_series(bank, rows, quantity) for robot in series for rows in robot.values()]
+        joints = [x[np.all(np.isfinite(x), axis=1)] for x in joints]
+        real = real_run_lengths(joints, config, grid)
+        row: dict[str, object] = {"quantity": quantity, "joints": len(joints),
+                                  "real": {str(t): _first_reaching(grid, real, t) for t in targets}}
+        for at in ("nominal", "boundary"):
+            hs = np.array([[_calibrated(x[:config.n_nominal], config, t, draws, at) for t in targets] for x in joints])
+            row[at] = {str(t): float(np.median(ok)) if (ok := hs[np.isfinite(hs[:, i]), i]).size else None
+                       for i, t in enumerate(targets)}
+            row[f"{at}_failed"] = int(np.isnan(hs).sum())     # calibrations that found too few alarms
+        log.info("curves: %s done", quantity)
+        out.append(row)
+    return out
+
+
+def _first_reaching(grid: np.ndarray, run_lengths: np.ndarray, target: float) -> float | None:
+    reached = np.flatnonzero(run_lengths >= target)
+    return float(grid[reached[0]]) if reached.size else None
+
+
+def _calibrated(nominal: np.ndarray, config: DetectorConfig, target: float, draws: int, at: str) -> float:
+    """The calibrated threshold for ``target`` of a detector that learned ``nominal``, simulated ``at``
+    (NaN when the simulation found too few alarms; the agent then falls back to the asymptotic one)."""
+    from edge_monitor.stats.calibration import CalibrationBudget, CalibrationError, calibrate
+
+    try:
+        return calibrate(nominal, config.density, config.window, target, config.gamma0, config.rho, "recursive",
+                         CalibrationBudget(draws=draws), direction=config.direction, allowance=config.allowance,
+                         clip_sigma=config.clip_sigma, at=at).threshold
+    except CalibrationError:
+        return math.nan
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--part", action="append", choices=("calibration", "power", "gce", "sequential", "agent",
@@ -534,6 +627,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cycles", type=int, default=None, help="--agent: cycles per robot")
     parser.add_argument("--allowance", type=float, default=None,
                         help="--agent: drift allowance [σ] instead of the shipped 0.75 (0: calibrated at Δ = 0)")
+    parser.add_argument("--curves", action="store_true",
+                        help="--agent: thresholds for the targets on the healthy series themselves against the "
+                        "calibrated ones (learned nominal; allowance boundary); see the module docstring")
     parser.add_argument("--at-boundary", action="store_true",
                         help="--agent: also measure with each detector's values moved to the edge of its null")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
@@ -587,17 +683,25 @@ def _agent_main(args: argparse.Namespace) -> int:
     joints, draws = (3, 16) if args.quick else (6, 48)
     started = time.monotonic()
     series = [simulated_quantities(seed, cycles, joints) for seed in range(1, robots + 1)]
+    if args.curves:
+        targets = tuple(float(t) for t in args.targets.split(","))
+        return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": 32,
+                            "rows": threshold_curves(series, targets)}, args.json)
     rows = []
     for target in (float(t) for t in args.targets.split(",")):
         rows += agent_arl(series, target, draws, args.allowance)
         if args.at_boundary:
             rows += agent_arl(series, target, draws, args.allowance, boundary=True)
         log.info("target %.0f done, %.0f s", target, time.monotonic() - started)
-    text = json.dumps({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": draws,
-                       "allowance": args.allowance, "rows": rows}, indent=1)
+    return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": draws,
+                        "allowance": args.allowance, "rows": rows}, args.json)
+
+
+def _print_json(result: dict[str, object], path: Path | None) -> int:
+    text = json.dumps(result, indent=1)
     print(text)
-    if args.json:
-        args.json.write_text(text)
+    if path:
+        path.write_text(text)
     return 0
 
 

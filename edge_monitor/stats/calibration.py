@@ -108,12 +108,16 @@ def seed_from(values: ArrayLike) -> int:
 def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: float = 0.6, rho: float = 1.0,
               mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
-              clip_sigma: float = 0.0) -> Calibration:
+              clip_sigma: float = 0.0, at: str = "boundary") -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
     ``clip_sigma`` its winsorisation (:func:`~edge_monitor.stats.glr_batch.clip_range`), each
-    bootstrap detector from its own nominal set."""
+    bootstrap detector from its own nominal set. ``at``: the simulated streams sit at the edge of
+    the drift allowance on the watched side (``"boundary"``, the agent's choice) or on the learned
+    nominal itself (``"nominal"``, for studies: docs/DETECTION.md shows why the agent does not)."""
+    if at not in ("boundary", "nominal"):
+        raise ValueError(f"at = {at!r}; choose 'boundary' or 'nominal'")
     started = time.process_time()
     values = as_observations(nominal, name="nominal data")
     rng = np.random.default_rng(seed_from(values) if seed is None else seed)
@@ -124,7 +128,7 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     steps = budget.steps(arl0)
     # the least favourable nominal: the largest shift H0 allows (the drift allowance), on the side
     # the detector watches; with no allowance, the learned nominal itself
-    drift = allowance * values.std(axis=0, ddof=1)
+    drift = (allowance if at == "boundary" else 0.0) * values.std(axis=0, ddof=1)
     statistics = _simulate(truth, mixtures, boxes, clips, window, gamma0, rho, mode, steps, rng, drift)
     threshold, method, events, slope = _threshold_for(statistics, arl0)
     return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(mixtures), steps=steps,
