@@ -1,5 +1,5 @@
 """Correctness of the benchmark tools' own logic (no speed assertions): the River tuning bisection
-of tools/bench_detection.py."""
+of tools/bench_detection.py, and how every tool writes its report."""
 
 from __future__ import annotations
 
@@ -97,3 +97,15 @@ def test_percentile_is_nearest_rank() -> None:
     assert bench_live.percentile(values, 99) == 99.0
     assert bench_live.percentile([3.0], 99) == 3.0
     assert math.isnan(bench_live.percentile([], 50))
+
+
+def test_a_benchmark_report_goes_to_stdout_its_doc_file_and_optionally_json(tmp_path: Path, capsys) -> None:
+    from bench_report import write_report
+
+    out = tmp_path / "docs" / "bench.md"
+    write_report("| a | b |\n", out)
+    assert out.read_text() == "| a | b |\n" and "| a | b |" in capsys.readouterr().out
+    write_report("x", out, tmp_path / "raw.json", {"v": np.float64(1.5)}, default=float)
+    assert '"v": 1.5' in (tmp_path / "raw.json").read_text()
+    write_report("x", out, tmp_path / "raw.json", {"p": tmp_path / "w"})      # default str: paths readable
+    assert str(tmp_path / "w") in (tmp_path / "raw.json").read_text()

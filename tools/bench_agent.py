@@ -34,6 +34,7 @@ from pathlib import Path
 
 import can
 import numpy as np
+from bench_report import write_report
 
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, WearConfig
 from edge_monitor.features.wear_estimation import WearEstimator
@@ -240,10 +241,7 @@ def main() -> int:
         lines += [f"| {name} | {share:.0%} |" for name, share in shares]
         lines += ["", "Hottest functions by own time: " + "; ".join(f"{f} {share:.0%}" for f, share in hottest) + "."]
     lines += ["", PROFILE_NOTE, "", USER_RUN, "", CALIBRATION_GAP]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(text)
+    write_report("\n".join(lines) + "\n", args.out)
     return 0
 
 

@@ -49,6 +49,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench_report import write_report  # noqa: E402
+
 log = logging.getLogger("bench_detection")
 
 QUANTITIES = ("wear", "kl_raw", "kl_weighted")       # decision-layer quantities (each watches one input)
@@ -507,12 +509,7 @@ def main(argv: list[str] | None = None) -> int:
         args.argv = [a for a in args.argv if not a.startswith("--from-json") and a != args.from_json]
     else:
         results = run(args)
-    text = markdown(results, args)
-    print(text)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(text)
-    if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1, default=float))
+    write_report(markdown(results, args), args.out, args.json, results, default=float)
     return 0
 
 

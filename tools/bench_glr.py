@@ -21,6 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench_report import write_report  # noqa: E402
+
 from edge_monitor.stats.densities import GaussianMixture  # noqa: E402
 from edge_monitor.stats.glr import WindowedGLR, glr_unknown_change  # noqa: E402
 
@@ -91,10 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     lines += ["", "Recursive mode is O(W·K) per observation; exact mode re-evaluates each candidate's numerator "
               "over the ring buffer, O(W²·K). Times are CPU time of this process (`time.process_time`), "
               "because the 2-core machine is shared with other jobs; ratios are from the same process and run.", ""]
-    text = "\n".join(lines)
-    print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    write_report("\n".join(lines), args.out)
     return 0
 
 

@@ -12,7 +12,6 @@ docs/benchmarks/latency.md. Definition, clock and method: see :mod:`bench_live` 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import sys
@@ -21,6 +20,7 @@ from pathlib import Path
 sys.path[:0] = [str(Path(__file__).resolve().parent.parent), str(Path(__file__).resolve().parent)]
 
 import bench_live  # noqa: E402
+from bench_report import write_report  # noqa: E402
 
 log = logging.getLogger("bench_latency")
 
@@ -89,12 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     result = bench_live.run_phase(args.fps, duration, warmup=10.0, keep=args.keep)
     result["cycle_s"] = cycle_s
     cmd = ".venv/bin/python tools/bench_latency.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    text = markdown(result, args.cycles, cmd.strip())
-    print(text)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(text)
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1, default=str))
+    write_report(markdown(result, args.cycles, cmd.strip()), args.out, args.json, result)
     return 0
 
 

@@ -54,6 +54,8 @@ from typing import Any
 TOOLS = Path(__file__).resolve().parent
 sys.path[:0] = [str(TOOLS.parent), str(TOOLS)]
 
+from bench_report import write_report  # noqa: E402
+
 log = logging.getLogger("bench_live")
 
 SATURATION_FPS = 9009.0          # 1 Mbit/s, 8-byte frames, 11-bit ids, no stuffing
@@ -491,12 +493,7 @@ def main(argv: list[str] | None = None) -> int:
         sat = run_phase(SATURATION_FPS, args.duration, args.warmup, args.keep)
     shown = [a for k, a in enumerate(args.argv) if a != "--json" and (k == 0 or args.argv[k - 1] != "--json")]
     cmd = ".venv/bin/python tools/bench_live.py " + " ".join(shown)
-    text = markdown(sat, rate, cmd.strip())
-    print(text)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(text)
-    if args.json:
-        Path(args.json).write_text(json.dumps({"saturation": sat, "rate": rate}, indent=1, default=str))
+    write_report(markdown(sat, rate, cmd.strip()), args.out, args.json, {"saturation": sat, "rate": rate})
     return 0
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import can
 import numpy as np
+from bench_report import write_report
 
 from protocol import frames as F
 from protocol.e2e import E2EReceiver
@@ -169,10 +170,7 @@ def main() -> None:
         f"(target <= 0.33: {verdict}); the per-message path costs {per_message / baseline:.2f}x.",
         "",
     ]
-    text = "\n".join(lines)
-    print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    write_report("\n".join(lines), args.out)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import can
+from bench_report import write_report
 
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
@@ -76,10 +77,7 @@ def main() -> None:
                          f"{frames / wall:,.0f}"))
         wall = best(lambda: timed(lambda: [block_messages(b) for b in blocks]), 1)
         rows.append(("baseline: creating the `can.Message` objects only", sim_s / wall, f"{frames / wall:,.0f}"))
-    text = _markdown(rows, config, sim_s, frames, args)
-    print(text)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(text)
+    write_report(_markdown(rows, config, sim_s, frames, args), args.out)
 
 
 def _per_message(blocks: list[FrameBlock], path: Path) -> None:
