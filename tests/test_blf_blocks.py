@@ -89,3 +89,15 @@ def test_cut_and_damaged_logs_same_frames_and_report(tmp_path: Path, monkeypatch
     damaged.write_bytes(raw[:middle] + bytes(64) + raw[middle + 64:])
     report = _assert_same(damaged, 512, monkeypatch)
     assert report["truncated"]
+
+
+def test_object_timestamps_in_10_microsecond_ticks_or_nanoseconds_by_their_flag() -> None:
+    """As python-can: object flag 1 counts 10 µs ticks, any other flag nanoseconds."""
+    from edge_monitor.pipeline.blf_blocks import CAN_OBJECT, TIME_TEN_MICS, objects_to_arrays
+
+    objects = np.zeros(2, dtype=CAN_OBJECT)
+    objects["flags"] = [TIME_TEN_MICS, 2]
+    objects["timestamp"] = [123_456, 123_456_789]
+    objects["dlc"] = 8
+    ts = objects_to_arrays(objects.tobytes(), 0, 2, 100.0)[3]
+    assert ts.tolist() == [100.0 + 123_456 / 1e5, 100.0 + 123_456_789 / 1e9]

@@ -40,7 +40,7 @@ CAN_OBJECT = np.dtype([
     ("channel", "<u2"), ("msg_flags", "u1"), ("dlc", "u1"), ("arbitration_id", "<u4"), ("data", "u1", (8,)),
 ])
 _SIZE = CAN_OBJECT.itemsize          # 48
-_TICKS_PER_S = {1: 1e5}              # object flag 1: 10 µs ticks; anything else: ns (as python-can)
+TIME_TEN_MICS = 1                    # object flag: 10 µs ticks; any other flag: ns (as python-can)
 
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -82,13 +82,8 @@ def objects_to_arrays(data: bytes, pos: int, count: int, start_timestamp: float)
     short = dlc < FRAME_LENGTH
     if short.any():
         payload[short] *= (np.arange(FRAME_LENGTH) < dlc[short, None]).astype(np.uint8)
-    ticks = objects["timestamp"].astype(np.float64)
-    flags = objects["flags"]
-    if (flags == 1).any():
-        ticks = np.where(flags == 1, ticks / 1e5, ticks / 1e9)
-    else:
-        ticks = ticks / 1e9
-    return ids, payload, dlc, ticks + start_timestamp
+    ticks_per_s = np.where(objects["flags"] == TIME_TEN_MICS, 1e5, 1e9)
+    return ids, payload, dlc, objects["timestamp"].astype(np.float64) / ticks_per_s + start_timestamp
 
 
 def _parse_rest(reader: Any, data: bytes, out: Callable[[list[can.Message]], None]) -> bytes:

@@ -61,7 +61,8 @@ class StateStore:
     def reject(self, reason: str) -> Path | None:
         """Move an unusable state file aside (``agent_state.json.rejected-<UTC time, ns>``) with a warning;
         the agent then starts learning afresh. Returns where it went (None if it could not move)."""
-        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + f".{time.time_ns() % 10**9:09d}Z"
+        now_ns = time.time_ns()        # one reading: the seconds and the nanoseconds of the same instant
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(now_ns // 10**9)) + f".{now_ns % 10**9:09d}Z"
         aside = self.path.with_name(f"{STATE_FILE}.rejected-{stamp}")
         try:
             os.replace(self.path, aside)

@@ -126,8 +126,8 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     boxes = stack_bounds([null_box(x, direction, allowance) for x in samples])
     clips = stack_bounds([clip_range(x, clip_sigma) for x in samples])
     steps = budget.steps(arl0)
-    # the least favourable nominal: the largest shift H0 allows (the drift allowance), on the side
-    # the detector watches; with no allowance, the learned nominal itself
+    # "boundary": the least favourable nominal, the largest shift H0 allows (the drift allowance) on
+    # the side the detector watches; "nominal" (or no allowance): the learned nominal itself
     drift = (allowance if at == "boundary" else 0.0) * values.std(axis=0, ddof=1)
     statistics = _simulate(truth, mixtures, boxes, clips, window, gamma0, rho, mode, steps, rng, drift)
     threshold, method, events, slope = _threshold_for(statistics, arl0)
