@@ -25,7 +25,7 @@ import signal
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Iterator
 
 import numpy as np
@@ -230,8 +230,7 @@ def run_replicated(settings: Settings, seeds: int, progress: bool = True) -> dic
     per detector, the SNR and the disturbance influences of every seed with their mean and range, and
     the dominant disturbance per seed, so that single-seed findings can be told from robust ones."""
     first = run_evaluation(settings, progress)
-    runs = [first] + [run_evaluation(Settings(**{**settings.__dict__, "seed": settings.seed + k}), progress)
-                      for k in range(1, seeds)]
+    runs = [first] + [run_evaluation(replace(settings, seed=settings.seed + k), progress) for k in range(1, seeds)]
     first["replication"] = replication(runs)
     first["seconds"]["total_replicated"] = sum(r["seconds"]["total"] for r in runs)
     return first
