@@ -100,7 +100,7 @@ def test_percentile_is_nearest_rank() -> None:
 
 
 def test_a_benchmark_report_goes_to_stdout_its_doc_file_and_optionally_json(tmp_path: Path, capsys) -> None:
-    from bench_report import write_report
+    from benchmark_report import write_report
 
     out = tmp_path / "docs" / "bench.md"
     write_report("| a | b |\n", out)

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import can
 import numpy as np
-from bench_report import write_report
+from benchmark_report import write_report
 
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, WearConfig
 from edge_monitor.features.wear_estimation import WearEstimator

@@ -49,7 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_report import write_report  # noqa: E402
+from benchmark_report import write_report  # noqa: E402
 
 log = logging.getLogger("bench_detection")
 

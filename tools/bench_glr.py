@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_report import write_report  # noqa: E402
+from benchmark_report import write_report  # noqa: E402
 
 from edge_monitor.stats.densities import GaussianMixture  # noqa: E402
 from edge_monitor.stats.glr import WindowedGLR, glr_unknown_change  # noqa: E402

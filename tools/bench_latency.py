@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path[:0] = [str(Path(__file__).resolve().parent.parent), str(Path(__file__).resolve().parent)]
 
 import bench_live  # noqa: E402
-from bench_report import write_report  # noqa: E402
+from benchmark_report import write_report  # noqa: E402
 
 log = logging.getLogger("bench_latency")
 

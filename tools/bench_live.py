@@ -54,7 +54,7 @@ from typing import Any
 TOOLS = Path(__file__).resolve().parent
 sys.path[:0] = [str(TOOLS.parent), str(TOOLS)]
 
-from bench_report import write_report  # noqa: E402
+from benchmark_report import write_report  # noqa: E402
 
 log = logging.getLogger("bench_live")
 

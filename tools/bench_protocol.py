@@ -26,7 +26,7 @@ from pathlib import Path
 
 import can
 import numpy as np
-from bench_report import write_report
+from benchmark_report import write_report
 
 from protocol import frames as F
 from protocol.e2e import E2EReceiver

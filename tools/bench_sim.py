@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import can
-from bench_report import write_report
+from benchmark_report import write_report
 
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
