@@ -40,11 +40,9 @@ import logging
 import math
 import os
 import platform
-import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from bisect import bisect_right
 from dataclasses import dataclass, field
@@ -68,37 +66,11 @@ PLATEAU_TIME = 0.4
 # -- the independent subscriber (a separate process) ------------------------------------------------------
 
 def subscriber_main(args: argparse.Namespace) -> int:
-    """Write ``{"robot", "joint", "cycle", "partial", "t", "recv"}`` per received symptom, ``recv`` =
-    time.monotonic() on arrival (the soak subscriber's lines plus the arrival time)."""
-    from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
-    from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
+    """The soak's subscriber (:func:`soak_subscriber.serve`) with two more fields per symptom: ``recv``,
+    time.monotonic() on arrival, and the joint's ``stage``."""
+    from soak_subscriber import serve
 
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    lock = threading.Lock()
-    session = open_session(ZenohOptions(mode="client", connect=[args.connect]))
-    with open(args.out, "a", encoding="utf-8") as out:
-        def on_record(received: ReceivedRecord) -> None:
-            recv = time.monotonic()
-            if received.kind != "symptom":
-                return
-            r = received.record
-            line = json.dumps({"robot": r.get("robot"), "joint": r.get("joint"), "cycle": r.get("cycle"),
-                               "partial": bool(r.get("partial")), "t": r.get("t"), "recv": recv,
-                               "stage": stage(r)})
-            with lock:
-                out.write(line + "\n")
-                out.flush()
-
-        subscriber = SymptomSubscriber(session, args.key, history=True, callback=on_record, keep=False)
-        print("subscriber ready", flush=True)
-        stop.wait()
-        subscriber.close()
-        with lock:
-            out.write(json.dumps({"misses": subscriber.misses}) + "\n")
-    session.close()
-    return 0
+    return serve(args.connect, args.key, args.out, extra=lambda r, arrived: {"recv": arrived, "stage": stage(r)})
 
 
 def stage(record: dict[str, Any]) -> str:
