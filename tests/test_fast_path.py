@@ -60,3 +60,20 @@ def test_cycle_mode_gives_the_frame_path_quantities(tmp_path: Path):
             assert a["decisions"][quantity]["state"] == decision["state"]
             if decision["statistic"] is not None:
                 assert a["decisions"][quantity]["statistic"] == pytest.approx(decision["statistic"], rel=1e-6)
+
+
+def test_detector_inputs_are_the_symptoms_values_once_each_joint_has_learned() -> None:
+    """The studies' input: every (joint, cycle) whose symptom carries the wear score and both KL
+    distances, with exactly those values, and none of the learning cycles before."""
+    from edge_monitor.offline.fast_path import DETECTOR_INPUTS, detector_inputs
+
+    sim = SimConfig(joints=2, cycles=45, seed=5)
+    rows = list(detector_inputs(sim))
+    symptoms = [s.to_dict() for s in run_cycles(Agent(config_from_mapping({"decision": {"enabled": False}})),
+                                                 cycle_signals(sim))]
+    complete = [(s["joint"], s["cycle"], {"wear_score": s["wear"]["score"], "kl_raw": s["kl"]["raw"],
+                                          "kl_weighted": s["kl"]["weighted"]})
+                for s in symptoms if "score" in (s.get("wear") or {}) and (s.get("kl") or {}).get("raw") is not None
+                and s["kl"].get("weighted") is not None]
+    assert rows == complete and 0 < len(rows) < len(symptoms)
+    assert all(tuple(values) == DETECTOR_INPUTS for _, _, values in rows)

@@ -441,23 +441,14 @@ def allowance_study(allowance: float, target: float = 1e4, detectors: int = 32, 
 
 def simulated_quantities(seed: int, cycles: int, joints: int = 6) -> dict[int, list[dict[str, float]]]:
     """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults)."""
-    from edge_monitor.config import config_from_mapping
-    from edge_monitor.offline.fast_path import run_cycles
-    from edge_monitor.pipeline.agent import Agent
+    from edge_monitor.offline.fast_path import detector_inputs
     from sim_controller.config import SimConfig
-    from sim_controller.cycle_mode import cycle_signals
 
-    agent = Agent(config_from_mapping({"decision": {"enabled": False}}))
     out: dict[int, list[dict[str, float]]] = {}
-    for symptom in run_cycles(agent, cycle_signals(SimConfig(joints=joints, cycles=cycles, seed=seed))):
-        record = symptom.to_dict()
-        wear, kl = record.get("wear") or {}, record.get("kl") or {}
-        values = {"wear_score": wear.get("score"), "kl_raw": kl.get("raw"), "kl_weighted": kl.get("weighted")}
-        if any(v is None for v in values.values()):
-            continue                                   # model learning or KL nominal still learning
-        out.setdefault(int(record["joint"]), []).append({k: float(v) for k, v in values.items()})
-        if symptom.cycle % 100 == 99 and symptom.joint == 0:
-            log.info("seed %d: simulated cycle %d/%d", seed, symptom.cycle + 1, cycles)
+    for joint, cycle, values in detector_inputs(SimConfig(joints=joints, cycles=cycles, seed=seed)):
+        out.setdefault(joint, []).append(values)
+        if cycle % 100 == 99 and joint == 0:
+            log.info("seed %d: simulated cycle %d/%d", seed, cycle + 1, cycles)
     return out
 
 

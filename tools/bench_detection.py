@@ -63,26 +63,17 @@ NOT_DETECTED = math.inf
 
 def simulate(seed: int, cycles: int, joints: int, ramp: str | None) -> dict[str, np.ndarray]:
     """Per-cycle detector inputs of every joint (rows after model learning) with the true wear."""
-    from edge_monitor.config import config_from_mapping
-    from edge_monitor.offline.fast_path import run_cycles
-    from edge_monitor.pipeline.agent import Agent
+    from edge_monitor.offline.fast_path import DETECTOR_INPUTS, detector_inputs
     from sim_controller.config import SimConfig, wear_profiles_from_ramps
-    from sim_controller.cycle_mode import cycle_signals
 
     wear = wear_profiles_from_ramps([ramp], joints) if ramp else ()
     config = SimConfig(joints=joints, cycles=cycles, seed=seed, wear=wear)
-    agent = Agent(config_from_mapping({"decision": {"enabled": False}}))
-    rows: dict[str, list[float]] = {k: [] for k in ("joint", "cycle", "wear_score", "kl_raw", "kl_weighted")}
-    for symptom in run_cycles(agent, cycle_signals(config)):
-        record = symptom.to_dict()
-        w, kl = record.get("wear") or {}, record.get("kl") or {}
-        values = {"wear_score": w.get("score"), "kl_raw": kl.get("raw"), "kl_weighted": kl.get("weighted")}
-        if any(v is None for v in values.values()):
-            continue                                   # model learning or KL nominal still learning
-        rows["joint"].append(int(record["joint"]))
-        rows["cycle"].append(int(record["cycle"]))
+    rows: dict[str, list[float]] = {k: [] for k in ("joint", "cycle", *DETECTOR_INPUTS)}
+    for joint, cycle, values in detector_inputs(config):
+        rows["joint"].append(joint)
+        rows["cycle"].append(cycle)
         for k, v in values.items():
-            rows[k].append(float(v))  # type: ignore[arg-type]  # None filtered above
+            rows[k].append(v)
     out = {k: np.asarray(v) for k, v in rows.items()}
     out["true_wear"] = np.array([config.wear_profile(int(j)).wear(int(c)) if config.wear else 0.0
                                  for j, c in zip(out["joint"], out["cycle"])])

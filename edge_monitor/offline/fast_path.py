@@ -15,10 +15,15 @@ from typing import Iterable, Iterator
 import numpy as np
 from numpy.typing import NDArray
 
+from edge_monitor.config import config_from_mapping
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.ingest import CycleRun, IngestBlock, JointSamples, JointStatusBlock
 from edge_monitor.records import Symptom
-from sim_controller.cycle_mode import CycleSignals
+from sim_controller.config import SimConfig
+from sim_controller.cycle_mode import CycleSignals, cycle_signals
+
+#: The per-cycle values the agent's detectors watch (before their log transform).
+DETECTOR_INPUTS = ("wear_score", "kl_raw", "kl_weighted")
 
 
 class CycleFeeder:
@@ -61,3 +66,18 @@ def run_cycles(agent: Agent, cycles: Iterable[CycleSignals]) -> Iterator[Symptom
     for cycle in cycles:
         yield from feeder.update(cycle)
     yield from feeder.finish()
+
+
+def detector_inputs(config: SimConfig) -> Iterator[tuple[int, int, dict[str, float]]]:
+    """``(joint, cycle, {wear_score, kl_raw, kl_weighted})`` of every cycle of the simulated robot once its
+    joint has learned its model and KL nominal; the agent at its shipped defaults with the detectors off
+    (studies run the detectors themselves on these values)."""
+    agent = Agent(config_from_mapping({"decision": {"enabled": False}}))
+    for symptom in run_cycles(agent, cycle_signals(config)):
+        record = symptom.to_dict()
+        wear, kl = record.get("wear") or {}, record.get("kl") or {}
+        score, raw, weighted = wear.get("score"), kl.get("raw"), kl.get("weighted")
+        if score is None or raw is None or weighted is None:      # model learning or KL nominal still learning
+            continue
+        yield (int(record["joint"]), int(record["cycle"]),
+               {"wear_score": float(score), "kl_raw": float(raw), "kl_weighted": float(weighted)})
