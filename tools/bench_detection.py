@@ -51,11 +51,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmark_report import write_report  # noqa: E402
 
+from edge_monitor.features.registry import LOG_SCALE  # noqa: E402
+from edge_monitor.features.registry import QUANTITIES as REGISTERED  # noqa: E402
+
 log = logging.getLogger("bench_detection")
 
 QUANTITIES = ("wear", "kl_raw", "kl_weighted")       # decision-layer quantities (each watches one input)
-INPUT = {"wear": "wear_score", "kl_raw": "kl_raw", "kl_weighted": "kl_weighted"}
-LOG_INPUTS = {"kl_raw", "kl_weighted"}
+INPUT = {q: REGISTERED[q].inputs[0] for q in QUANTITIES}    # the value each watches
 NOT_DETECTED = math.inf
 
 
@@ -146,7 +148,7 @@ class Sequence:
 
     def watched(self, quantity: str) -> np.ndarray:
         x = self.values[quantity]
-        return np.log(np.maximum(x, 1e-300)) if INPUT[quantity] in LOG_INPUTS else x
+        return np.log(np.maximum(x, 1e-300)) if INPUT[quantity] in LOG_SCALE else x
 
 
 def sequences(data: dict[str, dict[str, np.ndarray]], prefix: str) -> list[Sequence]:
