@@ -20,11 +20,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import multiprocessing
 import os
 import signal
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from typing import Any, Iterator
 
@@ -112,14 +112,16 @@ def simulate_points(specs: list[PointSpec], jobs: int, progress: bool = True) ->
                 for spec in specs:
                     done(run_point(spec))
             else:
-                pool = ProcessPoolExecutor(max_workers=jobs, initializer=_ignore_sigint)
+                pool = multiprocessing.get_context().Pool(jobs, initializer=_ignore_sigint)
                 try:
-                    for future in as_completed([pool.submit(run_point, s) for s in specs]):
-                        done(future.result())
+                    for result in pool.imap_unordered(run_point, specs):
+                        done(result)
                 except BaseException:
-                    _abandon(pool)
+                    pool.terminate()        # drop the queued points, end the workers now
+                    pool.join()
                     raise
-                pool.shutdown(wait=True)
+                pool.close()
+                pool.join()
     return [results[i] for i in sorted(results)]
 
 
@@ -147,21 +149,6 @@ def _ignore_sigint() -> None:
     forked worker would otherwise inherit from :func:`_sigterm_as_interrupt` (a traceback per worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
-def _abandon(pool: ProcessPoolExecutor) -> None:
-    """On an interrupt or error: drop the queued points and terminate the workers now instead of
-    waiting for every queued point (what ``with ProcessPoolExecutor`` would do)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in processes:
-        if proc.is_alive():
-            proc.terminate()
-    for proc in processes:
-        proc.join(timeout=5.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(timeout=1.0)
 
 
 def noise_std(settings: Settings, gamma: float, cycle_std: list[float]) -> dict[str, float]:
