@@ -77,3 +77,18 @@ def test_detector_inputs_are_the_symptoms_values_once_each_joint_has_learned() -
                 and s["kl"].get("weighted") is not None]
     assert rows == complete and 0 < len(rows) < len(symptoms)
     assert all(tuple(values) == DETECTOR_INPUTS for _, _, values in rows)
+
+
+def test_detector_inputs_carry_each_joint_cycles_truth_and_honour_agent_settings() -> None:
+    """The truth paired with a row is the simulator's record of that joint and cycle; agent settings
+    reach the agent (a KL sample selection changes the KL values, not the wear score)."""
+    from edge_monitor.offline.fast_path import detector_inputs_with_truth
+
+    sim = SimConfig(joints=2, cycles=40, seed=5)
+    rows = list(detector_inputs_with_truth(sim))
+    assert rows and all(truth["joint"] == joint and truth["cycle"] == cycle for joint, cycle, _, truth in rows)
+    assert all(25.0 < truth["temperature"] < 60.0 for *_, truth in rows)
+    other = list(detector_inputs_with_truth(sim, {"kl": {"min_speed": 1.0}}))
+    assert [r[:2] for r in other] == [r[:2] for r in rows]
+    assert [r[2]["wear_score"] for r in other] == [r[2]["wear_score"] for r in rows]
+    assert all(a[2]["kl_raw"] != b[2]["kl_raw"] for a, b in zip(other, rows))

@@ -127,13 +127,14 @@ def test_bad_cycles_get_a_reason_and_no_numeric_error(torque: np.ndarray, speed:
         assert mon.learned is learned        # a bad cycle does not count as a learning cycle
 
 
-def test_standstill_samples_are_left_out_and_counted() -> None:
-    """Below ``min_speed`` the friction is static, of a sign the speed cannot tell: those samples are
-    left out of both densities, counted in the section, and NaN speeds still count as non-finite."""
+def test_slow_samples_are_left_out_and_counted() -> None:
+    """Below ``min_speed`` (default 10 rad/s: standstill and the Stribeck region) the samples are left
+    out of both densities, counted in the section, and NaN speeds still count as non-finite."""
     rng = np.random.default_rng(5)
     mon = kl(n_nominal_cycles=2)
+    assert mon.min_speed == 10.0
     torque, speed, _ = simulate_cycles(3, 0.0, CONSTANT_TEMPERATURE, rng)
-    still = np.abs(speed) < 1.0
+    still = np.abs(speed) < 10.0
     assert 0 < still.sum() < speed.size
     results = _feed(mon, torque, speed)
     assert all(r.standstill == still.sum() for r in results)
@@ -146,7 +147,7 @@ def test_standstill_samples_are_left_out_and_counted() -> None:
     result = mon.end_cycle(3)
     assert result.standstill == still.sum() and result.outside["weighted"]["nonfinite"] == 10
     mon.update_samples(np.full(2000, 0.3), np.zeros(2000))
-    assert mon.end_cycle(4).reason == "joint stood still: all 2000 samples slower than 1 rad/s"
+    assert mon.end_cycle(4).reason == "joint too slow: all 2000 samples slower than kl.min_speed = 10 rad/s"
 
 
 def test_nan_samples_are_counted_and_the_rest_is_used() -> None:

@@ -55,7 +55,7 @@ class RunSpec:
     progress: int = 50
 
 
-def _mapping(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
+def settings_from(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
     doc: dict[str, Any] = {}
     for dotted, value in overrides:
         table, _, key = dotted.rpartition(".")
@@ -70,7 +70,7 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
     """Simulate one robot through the agent; per joint the monitored cycles and alarms per quantity."""
     sim = SimConfig(joints=spec.joints, cycles=spec.cycles, seed=spec.seed,
                     wear=wear_profiles_from_ramps(spec.wear_ramps, spec.joints))
-    agent = Agent(config_from_mapping(_mapping(spec.overrides)))
+    agent = Agent(config_from_mapping(settings_from(spec.overrides)))
     monitored: dict[int, dict[str, int]] = {}
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[tuple[int, int], float] = {}
@@ -169,7 +169,7 @@ def miss_forecast(runs: list[dict[str, Any]], every: int = 5) -> dict[str, list[
     return out
 
 
-def _parse_set(text: str) -> tuple[str, Any]:
+def parse_set(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     if not sep:
         raise argparse.ArgumentTypeError(f"--set expects TABLE.KEY=VALUE, got {text!r}")
@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--joints", type=int, default=6)
     ap.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO")
-    ap.add_argument("--set", action="append", default=[], type=_parse_set, metavar="TABLE.KEY=VALUE",
+    ap.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
                     help="agent setting (value as JSON), e.g. decision.allowance=0")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--progress", type=int, default=50, help="status line every N cycles (0: off)")

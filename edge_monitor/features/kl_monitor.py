@@ -35,6 +35,16 @@ cycle's torque; wear changes the shape. Both channels are made exactly invariant
 
 ``center=False`` reproduces the uncentred detector (densities of τ and w·τ themselves).
 
+Slow samples (``min_speed``, default 10 rad/s) are left out of both channels. At standstill the
+friction is static, of a sign the speed cannot tell. Below ≈ 10 rad/s (the Stribeck region) the
+lubricant temperature moves the torque in a way the temperature compensation cannot undo: there the
+speed loop's response to the temperature-dependent Stribeck friction changes the samples themselves,
+and the compensated torque of a 55 °C cycle differs from the same cycle at 35 °C by as much as without
+compensation (1–5 rad/s) or a third of it (5–10 rad/s), against ≤ 13 % above 10 rad/s
+(``tools/warmup_drift_study.py --part residual``). With 1 rad/s the raw KL distance of a healthy joint
+rose by +0.5 … +1.2 σ over a warm-up from 35 to 55 °C; the wear's Stribeck term reaches speeds of
+ϖ·vsϖ (≈ 40 rad/s at wear 20), so the wear stays visible above 10 rad/s (docs/KL_DETECTOR.md).
+
 Nominal model: the average of the densities of the first K valid cycles (``n_nominal_cycles``),
 relearned (grid included) after :meth:`KLMonitor.reset` (declared gearbox replacement). The simple
 threshold ``μ0 + 3σ0`` uses leave-one-out KL values of the K learning cycles (each against the
@@ -86,7 +96,7 @@ class KLConfig:
     window: str = "cycle"
     center: bool = True
     temperature_compensation: bool = True   # move samples to the reference temperature (needs the wear feature)
-    min_speed: float = 1.0                  # samples slower than this [rad/s] (standstill) are left out
+    min_speed: float = 10.0                 # [rad/s] slower samples are left out (module docstring)
     alpha: float = DEFAULT_ALPHA
     beta: float = DEFAULT_BETA
     min_samples: int = 1000
@@ -125,7 +135,7 @@ class KLResult:
     weighted: float | None = None
     reason: str | None = None
     n_samples: int = 0
-    #: samples left out because the joint stood (|v| < ``kl.min_speed``)
+    #: samples left out as too slow (|v| < ``kl.min_speed``: standstill and the Stribeck region)
     standstill: int = 0
     #: per channel: {"below", "above", "nonfinite"} sample counts of this cycle
     outside: dict[str, dict[str, int]] = field(default_factory=dict)
@@ -299,7 +309,7 @@ class KLMonitor:
         if self.n_window == 0:
             return "empty window: no samples" + (" in the production segment" if self.window == "production" else "")
         if self.n_standstill == self.n_window:
-            return f"joint stood still: all {self.n_window} samples slower than {self.min_speed:g} rad/s"
+            return f"joint too slow: all {self.n_window} samples slower than kl.min_speed = {self.min_speed:g} rad/s"
         counts = [ch.kde.n_samples for ch in self.channels.values()]
         if min(counts) < self.min_samples:
             nonfinite = max(ch.kde.n_nonfinite for ch in self.channels.values())

@@ -10,7 +10,7 @@ them to :meth:`Agent.update_ingested`. With the same seed the per-cycle quantiti
 
 from __future__ import annotations
 
-from typing import Iterable, Iterator
+from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -68,16 +68,38 @@ def run_cycles(agent: Agent, cycles: Iterable[CycleSignals]) -> Iterator[Symptom
     yield from feeder.finish()
 
 
-def detector_inputs(config: SimConfig) -> Iterator[tuple[int, int, dict[str, float]]]:
+def detector_inputs(config: SimConfig, settings: Mapping[str, Any] | None = None
+                    ) -> Iterator[tuple[int, int, dict[str, float]]]:
     """``(joint, cycle, {wear_score, kl_raw, kl_weighted})`` of every cycle of the simulated robot once its
-    joint has learned its model and KL nominal; the agent at its shipped defaults with the detectors off
-    (studies run the detectors themselves on these values)."""
-    agent = Agent(config_from_mapping({"decision": {"enabled": False}}))
-    for symptom in run_cycles(agent, cycle_signals(config)):
-        record = symptom.to_dict()
-        wear, kl = record.get("wear") or {}, record.get("kl") or {}
-        score, raw, weighted = wear.get("score"), kl.get("raw"), kl.get("weighted")
-        if score is None or raw is None or weighted is None:      # model learning or KL nominal still learning
-            continue
-        yield (int(record["joint"]), int(record["cycle"]),
-               {"wear_score": float(score), "kl_raw": float(raw), "kl_weighted": float(weighted)})
+    joint has learned its model and KL nominal; the agent at its shipped defaults (or with ``settings``,
+    agent config tables merged over them) with the detectors off (studies run the detectors themselves
+    on these values)."""
+    for joint, cycle, values, _truth in detector_inputs_with_truth(config, settings):
+        yield joint, cycle, values
+
+
+def detector_inputs_with_truth(config: SimConfig, settings: Mapping[str, Any] | None = None
+                               ) -> Iterator[tuple[int, int, dict[str, float], dict[str, Any]]]:
+    """:func:`detector_inputs` with the simulator's ground truth of each joint-cycle (lubricant
+    temperature [°C], load, wear, …: ``CycleSignals.truth``)."""
+    tables: dict[str, Any] = {key: dict(value) for key, value in (settings or {}).items()}
+    tables["decision"] = {**tables.get("decision", {}), "enabled": False}
+    feeder = CycleFeeder(Agent(config_from_mapping(tables)))
+    truth: dict[tuple[int, int], dict[str, Any]] = {}
+
+    def rows(symptoms: list[Symptom]) -> Iterator[tuple[int, int, dict[str, float], dict[str, Any]]]:
+        for symptom in symptoms:
+            record = symptom.to_dict()
+            joint, cycle = int(record["joint"]), int(record["cycle"])
+            known = truth.pop((cycle, joint), {})
+            wear, kl = record.get("wear") or {}, record.get("kl") or {}
+            score, raw, weighted = wear.get("score"), kl.get("raw"), kl.get("weighted")
+            if score is None or raw is None or weighted is None:   # model learning or KL nominal still learning
+                continue
+            values = {"wear_score": float(score), "kl_raw": float(raw), "kl_weighted": float(weighted)}
+            yield joint, cycle, values, known
+
+    for signals in cycle_signals(config):
+        truth.update({(signals.cycle, j): t for j, t in enumerate(signals.truth)})
+        yield from rows(feeder.update(signals))
+    yield from rows(feeder.finish())

@@ -1,0 +1,46 @@
+"""tools/warmup_drift_study.py: the drift measure, and the physics that sets kl.min_speed."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+
+from warmup_drift_study import drift_rows, residual  # noqa: E402
+
+
+def test_shift_and_spread_are_in_units_of_the_learned_nominal() -> None:
+    """A quantity learned as N(0, 1) over 60 cycles, then moved by +0.5 with half the spread, reads
+    shift ≈ +0.5 (within 4 standard errors of the window and learning means) and spread ≈ 0.5."""
+    rng = np.random.default_rng(3)
+    n = 60 + 2 * 100
+    values = np.concatenate([rng.normal(0.0, 1.0, 60), rng.normal(0.5, 0.5, 200)])
+    series = {"cycle": np.arange(n, dtype=float), "temperature": np.linspace(30, 50, n),
+              "wear_score": values, "kl_raw": values.copy(), "kl_weighted": -values}
+    rows = drift_rows(series, window=100, n_nominal=60)
+    assert [r["first_cycle"] for r in rows] == [60, 160]
+    learned = values[:60]
+    for row in rows:
+        scale = learned.std(ddof=1)
+        tolerance = 4 * np.hypot(1 / np.sqrt(60), 0.5 / np.sqrt(100)) / scale
+        shift = (0.5 - learned.mean()) / scale
+        assert abs(row["kl_raw"]["shift"] - shift) < tolerance
+        assert abs(row["kl_weighted"]["shift"] + shift) < tolerance
+        assert 0.35 < row["wear_score"]["spread"] < 0.7
+        assert row["learned_temperature"][0] == 30.0
+
+
+def test_temperature_compensation_is_exact_above_10_rad_s_and_not_below_5() -> None:
+    """The same simulated cycle at 35 and 55 °C, the warm one moved to 35 °C with the exact model: the
+    residual is a small fraction of the uncompensated difference above 10 rad/s (the KL keeps those
+    samples) and no smaller than half of it below 5 rad/s (it leaves them out)."""
+    bands = {(r["speed_from"], r["speed_to"]): r for r in residual()}
+    for (lo, _), row in bands.items():
+        ratio = row["residual_rms"] / row["uncompensated_rms"]
+        if lo >= 10.0:
+            assert ratio < 0.15, (lo, ratio)
+        elif lo < 5.0:
+            assert ratio > 0.5, (lo, ratio)

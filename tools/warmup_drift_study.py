@@ -1,0 +1,183 @@
+#!/usr/bin/env python3
+"""Warm-up drift study: how far each monitored quantity of a HEALTHY joint moves from what its detector
+learned while the lubricant warms beyond the learning range.
+
+Part ``drift`` (default): the agent on the simulator's fast path (edge_monitor.offline.fast_path) at
+the simulator's defaults (6 joints, ±8 % individual variation, the lubricant warming from 30 °C towards
+its steady state, load spread), detectors off. For every joint and quantity the detector's nominal is
+its first ``decision.n_nominal`` values in the units it watches (log for the KL distances); every later
+window of ``--window`` cycles is reported as
+
+* shift  = (window mean − learned mean) / learned std  [σ]
+* spread = window std / learned std
+
+with the window's mean true lubricant temperature [°C]. A stationary quantity keeps shift ≈ 0 and
+spread ≈ 1; the detectors' drift allowance is 0.75 σ (docs/DETECTION.md). ``--set kl.min_speed=1``
+reproduces the former KL sample selection.
+
+Part ``residual``: where the KL temperature compensation is inexact. One joint (no individual
+variation, fixed load) simulates the same cycle, with the same noise, at two lubricant temperatures;
+the warm cycle's torque is moved to the cold temperature with the exact friction model and the true
+temperatures (temperature_compensation's formula), and the residual against the cold cycle is
+reported per speed band (rms, torque as a fraction of the joint's maximum). Whatever remains is not
+static friction: the speed loop's response to the temperature-dependent Stribeck friction.
+
+Usage: .venv/bin/python tools/warmup_drift_study.py [--seeds 1 2] [--cycles 600] [--set kl.min_speed=1]
+       .venv/bin/python tools/warmup_drift_study.py --part residual
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from healthy_fleet_study import parse_set, settings_from  # noqa: E402
+
+from edge_monitor.features.registry import LOG_SCALE  # noqa: E402
+from edge_monitor.offline.fast_path import DETECTOR_INPUTS, detector_inputs_with_truth  # noqa: E402
+from edge_monitor.pipeline.detectors import DEFAULT_NOMINAL  # noqa: E402
+from joint_model import FrictionParams, nominal_friction  # noqa: E402
+from sim_controller.config import SimConfig  # noqa: E402
+from sim_controller.cycle_mode import cycle_signals  # noqa: E402
+
+log = logging.getLogger("warmup_drift_study")
+
+#: Speed bands of the residual part [rad/s].
+SPEED_BANDS = ((1.0, 5.0), (5.0, 10.0), (10.0, 50.0), (50.0, 120.0), (120.0, 200.0), (200.0, 300.0))
+
+
+def joint_series(seed: int, cycles: int, joints: int, settings: dict[str, Any]
+                 ) -> dict[int, dict[str, np.ndarray]]:
+    """Per joint: cycle, true lubricant temperature [°C] and each detector input in watched units."""
+    rows: dict[int, list[tuple[float, ...]]] = {}
+    for joint, cycle, values, truth in detector_inputs_with_truth(
+            SimConfig(joints=joints, cycles=cycles, seed=seed), settings):
+        watched = [np.log(values[q]) if q in LOG_SCALE else values[q] for q in DETECTOR_INPUTS]
+        rows.setdefault(joint, []).append((cycle, float(truth.get("temperature", np.nan)), *watched))
+        if joint == 0 and cycle % 100 == 99:
+            log.info("seed %d: cycle %d/%d", seed, cycle + 1, cycles)
+    out = {}
+    for joint, data in rows.items():
+        table = np.asarray(data, dtype=float)
+        out[joint] = {"cycle": table[:, 0], "temperature": table[:, 1],
+                      **{q: table[:, 2 + i] for i, q in enumerate(DETECTOR_INPUTS)}}
+    return out
+
+
+def drift_rows(series: dict[str, np.ndarray], window: int, n_nominal: int = DEFAULT_NOMINAL) -> list[dict[str, Any]]:
+    """Shift and spread of every later window of one joint, per quantity (see the module docstring)."""
+    learn = slice(0, n_nominal)
+    temperature = series["temperature"]
+    rows = []
+    for start in range(n_nominal, len(temperature) - window // 2, window):
+        part = slice(start, start + window)
+        row: dict[str, Any] = {"first_cycle": int(series["cycle"][start]),
+                               "temperature": round(float(np.nanmean(temperature[part])), 1),
+                               "learned_temperature": [round(float(np.nanmin(temperature[learn])), 1),
+                                                       round(float(np.nanmax(temperature[learn])), 1)]}
+        for q in DETECTOR_INPUTS:
+            mu, sd = float(np.nanmean(series[q][learn])), float(np.nanstd(series[q][learn], ddof=1))
+            values = series[q][part]
+            row[q] = {"shift": round((float(np.nanmean(values)) - mu) / sd, 2),
+                      "spread": round(float(np.nanstd(values, ddof=1)) / sd, 2)}
+        rows.append(row)
+    return rows
+
+
+def drift(seeds: list[int], cycles: int, joints: int, window: int, settings: dict[str, Any]) -> dict[str, Any]:
+    joints_out = []
+    for seed in seeds:
+        for joint, series in sorted(joint_series(seed, cycles, joints, settings).items()):
+            joints_out.append({"seed": seed, "joint": joint, "windows": drift_rows(series, window)})
+    return {"seeds": seeds, "cycles": cycles, "joints": joints, "window": window, "settings": settings,
+            "per_joint": joints_out, "summary": summarise(joints_out)}
+
+
+def summarise(per_joint: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per window position: over all joints, the median and largest shift and the median spread."""
+    out = []
+    for k in range(min(len(j["windows"]) for j in per_joint)):
+        windows = [j["windows"][k] for j in per_joint]
+        row: dict[str, Any] = {"first_cycle": windows[0]["first_cycle"],
+                               "temperature": round(float(np.mean([w["temperature"] for w in windows])), 1)}
+        for q in DETECTOR_INPUTS:
+            shifts = np.array([w[q]["shift"] for w in windows])
+            row[q] = {"median_shift": round(float(np.median(shifts)), 2), "max_shift": round(float(shifts.max()), 2),
+                      "min_shift": round(float(shifts.min()), 2),
+                      "median_spread": round(float(np.median([w[q]["spread"] for w in windows])), 2)}
+        out.append(row)
+    return out
+
+
+def markdown(result: dict[str, Any]) -> str:
+    lines = ["| from cycle | lubricant [°C] | " + " | ".join(f"{q}: shift median (min … max) / spread"
+                                                            for q in DETECTOR_INPUTS) + " |",
+             "|---|---|" + "---|" * len(DETECTOR_INPUTS)]
+    for row in result["summary"]:
+        cells = [f"{row[q]['median_shift']:+.2f} ({row[q]['min_shift']:+.2f} … {row[q]['max_shift']:+.2f}) / "
+                 f"{row[q]['median_spread']:.2f}" for q in DETECTOR_INPUTS]
+        lines.append(f"| {row['first_cycle']} | {row['temperature']:.1f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def residual(cold: float = 35.0, warm: float = 55.0, seed: int = 5, load: float = 0.5) -> list[dict[str, float]]:
+    """Rms compensation residual per speed band (see the module docstring)."""
+    def one_cycle(temperature: float) -> tuple[np.ndarray, np.ndarray]:
+        config = SimConfig(joints=1, cycles=1, seed=seed, variation=0.0, temperature_range=(temperature, temperature),
+                           load_range=(load, load))
+        signals = next(iter(cycle_signals(config))).joints[0]
+        return signals.torque, signals.speed
+
+    (tau_cold, v_cold), (tau_warm, v_warm) = one_cycle(cold), one_cycle(warm)
+    speed = np.abs(v_warm)
+    params = FrictionParams()
+    moved = tau_warm - np.sign(v_warm) * (nominal_friction(speed, 0.0, warm, params)
+                                          - nominal_friction(speed, 0.0, cold, params))
+    rows = []
+    for lo, hi in SPEED_BANDS:
+        band = (np.abs(v_cold) >= lo) & (np.abs(v_cold) < hi)
+        if band.any():
+            rows.append({"speed_from": lo, "speed_to": hi, "samples": int(band.sum()),
+                         "uncompensated_rms": float(np.sqrt(np.mean((tau_warm - tau_cold)[band] ** 2))),
+                         "residual_rms": float(np.sqrt(np.mean((moved - tau_cold)[band] ** 2)))})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--part", choices=("drift", "residual"), default="drift")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1])
+    ap.add_argument("--cycles", type=int, default=600)
+    ap.add_argument("--joints", type=int, default=6)
+    ap.add_argument("--window", type=int, default=150, help="cycles per reported window")
+    ap.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
+                    help="agent setting (value as JSON), e.g. kl.min_speed=1")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    for name in ("edge_monitor", "sim_controller"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    if args.part == "residual":
+        result: dict[str, Any] = {"residual": residual()}
+        print("| speed band [rad/s] | samples | uncompensated rms | residual rms |\n|---|---|---|---|")
+        for r in result["residual"]:
+            print(f"| {r['speed_from']:g} … {r['speed_to']:g} | {r['samples']} | {r['uncompensated_rms']:.5f} | "
+                  f"{r['residual_rms']:.5f} |")
+    else:
+        result = drift(args.seeds, args.cycles, args.joints, args.window, settings_from(tuple(args.set)))
+        print(markdown(result))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
