@@ -109,3 +109,26 @@ def test_a_benchmark_report_goes_to_stdout_its_doc_file_and_optionally_json(tmp_
     assert '"v": 1.5' in (tmp_path / "raw.json").read_text()
     write_report("x", out, tmp_path / "raw.json", {"p": tmp_path / "w"})      # default str: paths readable
     assert str(tmp_path / "w") in (tmp_path / "raw.json").read_text()
+
+
+def test_kl_study_tools_run_on_the_agents_kl_monitor() -> None:
+    """eval_kl_weights and bench_kde drive the agent's KLMonitor (they broke silently once when its
+    constructor changed): wear 35 at a constant temperature is found in every cycle (Pd at 1 % false
+    alarms = 1), and the per-cycle cost table has its two rows."""
+    import bench_kde
+    import eval_kl_weights as ekw
+
+    rng = np.random.default_rng(2)
+    pd = ekw.study(ekw.model_cycles, [0.0], n_cycles=12, replicates=1, k=3, wear=35.0,
+                   weights={"published": ekw.PUBLISHED}, rng=rng)
+    assert pd == {"raw": {0.0: [1.0]}, "published": {0.0: [1.0]}}
+    rows = [line for line in bench_kde.monitor_rows(rng) if line.startswith("| 1e")]
+    assert len(rows) == 2 and all(float(cell) > 0 for row in rows for cell in row.strip("|").split("|")[1:3])
+
+
+def test_the_sequential_study_traces_the_agents_detector() -> None:
+    """arl_study's sequential part: one statistic per monitored cycle, never negative."""
+    import arl_study
+
+    trace = arl_study.h0_trace("gaussian", 40, np.random.default_rng(1), density="gauss", n_nominal=20)
+    assert trace.shape == (40,) and (trace >= 0).all()

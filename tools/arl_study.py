@@ -67,7 +67,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -77,7 +77,7 @@ from scipy import stats  # noqa: E402
 
 from edge_monitor.stats.densities import fit_density  # noqa: E402
 from edge_monitor.stats.glr import bootstrap_statistics, glr_known_change, threshold_from_pf  # noqa: E402
-from edge_monitor.stats.sequential_detector import SequentialDetector  # noqa: E402
+from edge_monitor.stats.sequential_detector import DetectorConfig, SequentialDetector  # noqa: E402
 
 if TYPE_CHECKING:
     from edge_monitor.pipeline.detectors import DetectorBank
@@ -150,7 +150,8 @@ def power(n0: int, sets: int, tests: int, seed: int, shifts: tuple[float, ...] =
         draw = SHAPES[shape]
         for kind in ("gauss", "kde", "gce"):
             rng = np.random.default_rng(seed)
-            h0_hits, hits = [], {k: [] for k in shifts}
+            h0_hits: list[bool] = []
+            hits: dict[float, list[bool]] = {k: [] for k in shifts}
             for _ in range(sets):
                 density = fit_density(draw(rng, n0)[:, None], kind)
                 h = threshold_from_pf(pf, 1)
@@ -184,6 +185,12 @@ def gce_quality(seed: int) -> list[dict]:
     return rows
 
 
+def tracing_detector(dim: int = 1, **settings: Any) -> SequentialDetector:
+    """A detector whose statistic the studies trace and threshold themselves: the asymptotic threshold
+    of Pf = 1e-9 (no calibration run), two-sided, no allowance (the detector these studies measured)."""
+    return SequentialDetector(DetectorConfig(dim=dim, pf=1e-9, **settings))
+
+
 def _trace(detector: SequentialDetector, values: np.ndarray) -> np.ndarray:
     out = []
     for cycle, v in enumerate(values):
@@ -201,7 +208,7 @@ def _upcrossings(trace: np.ndarray, h: float) -> int:
 def h0_trace(shape: str, steps: int, rng: np.random.Generator, density: str = "gce", window: int = 100,
              n_nominal: int = 60, mode: str = "recursive") -> np.ndarray:
     """Statistic of one detector over ``steps`` monitored cycles of nominal data (fresh nominal set)."""
-    return _trace(SequentialDetector(n_nominal=n_nominal, density=density, window=window, mode=mode),
+    return _trace(tracing_detector(n_nominal=n_nominal, density=density, window=window, mode=mode),
                   SHAPES[shape](rng, n_nominal + steps))
 
 
@@ -210,7 +217,7 @@ def h1_trace(shape: str, shift_sd: float, pre: int, post: int, rng: np.random.Ge
     """Statistic over ``pre`` nominal then ``post`` shifted monitored cycles (shift in nominal σ)."""
     values = SHAPES[shape](rng, n_nominal + pre + post)
     values[n_nominal + pre:] += shift_sd * SHAPE_SD[shape]
-    return _trace(SequentialDetector(n_nominal=n_nominal, density=density, window=window, mode=mode), values)
+    return _trace(tracing_detector(n_nominal=n_nominal, density=density, window=window, mode=mode), values)
 
 
 def _first_alarm_arl0(h0_traces: list[np.ndarray], h: float) -> dict:
@@ -353,7 +360,7 @@ def surrogate_draw(rng: np.random.Generator, n: int, surrogate: dict[str, list],
 
 def _agent_trace(columns: list[int], density: str, values: np.ndarray, window: int, n_nominal: int) -> np.ndarray:
     dim = len(columns)
-    detector = SequentialDetector(dim=dim, n_nominal=n_nominal, density=density, window=window, mode="recursive")
+    detector = tracing_detector(dim, n_nominal=n_nominal, density=density, window=window, mode="recursive")
     out = []
     for cycle, v in enumerate(values[:, columns]):
         d = detector.update(v if dim > 1 else float(v[0]), cycle)
@@ -396,7 +403,7 @@ def agent_quantity(name: str, surrogate: dict[str, list], runs_h0: int = 40, ste
 def agent(surrogate: dict[str, list], quick: bool = False,
           names: tuple[str, ...] = tuple(AGENT_QUANTITIES)) -> list[dict]:
     """The ``agent`` part: every quantity of :data:`AGENT_QUANTITIES` with fixed seeds."""
-    kwargs = {"runs_h0": 2, "steps_h0": 300, "runs_h1": 3} if quick else {}
+    kwargs: dict[str, Any] = {"runs_h0": 2, "steps_h0": 300, "runs_h1": 3} if quick else {}
     return [agent_quantity(name, surrogate, seed=31 + 10 * i, **kwargs) for i, name in enumerate(names)]
 
 
@@ -494,7 +501,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
     exposure: dict[str, int] = {}
     alarms: dict[str, int] = {}
     runs: dict[str, int] = {}
-    extra = {} if allowance is None else {"allowance": allowance}
+    extra: dict[str, Any] = {} if allowance is None else {"allowance": allowance}
     for robot in series:
         for joint, rows in robot.items():
             for q in DecisionConfig().quantities:

@@ -25,6 +25,7 @@ from benchmark_report import write_report  # noqa: E402
 
 from edge_monitor.stats.densities import GaussianMixture  # noqa: E402
 from edge_monitor.stats.glr import WindowedGLR, glr_unknown_change  # noqa: E402
+from edge_monitor.stats.glr_batch import GLRMode  # noqa: E402
 
 WINDOW = 100
 
@@ -51,7 +52,7 @@ def time_naive(density: GaussianMixture, values: np.ndarray, steps: int) -> floa
     return (time.process_time() - t0) / steps
 
 
-def state_bytes(density: GaussianMixture, mode: str, n: int, seed: int) -> int:
+def state_bytes(density: GaussianMixture, mode: GLRMode, n: int, seed: int) -> int:
     glr = WindowedGLR(density, WINDOW, mode=mode)
     for v in np.random.default_rng(seed).normal(size=n):
         glr.update(v)

@@ -54,7 +54,7 @@ def best_time(fn: Callable[[], object], repeats: int) -> float:
 def monitor_rows(rng: np.random.Generator) -> list[str]:
     """Per-cycle cost of the whole KLMonitor (raw + weighted channel, learned), uncentred vs
     centred (raw: capture grid of 16384 points + shift onto the working grid; weighted: causal mean)."""
-    from edge_monitor.features.kl_monitor import KLMonitor
+    from edge_monitor.features.kl_monitor import KLConfig, KLMonitor
 
     lines = ["### KLMonitor per cycle: centring (load invariance) vs uncentred", "",
              f"Learned monitor (K = 2), both channels, one cycle of n samples fed in {BLOCKS} blocks, then "
@@ -65,14 +65,14 @@ def monitor_rows(rng: np.random.Generator) -> list[str]:
         speed = np.tile(np.linspace(-60.0, 60.0, 50), n // 50 + 1)[:n]
         times = {}
         for center in (False, True):
-            mon = KLMonitor(n_nominal_cycles=2, center=center)
+            mon = KLMonitor(KLConfig(n_nominal_cycles=2, center=center, min_speed=0.0))   # all n samples
             for c in range(2):
-                mon.add(torque[c], speed)
+                mon.update_samples(torque[c], speed)
                 mon.end_cycle(c)
 
             def one_cycle(mon: KLMonitor = mon) -> object:
                 for tau, v in zip(np.array_split(torque[2], BLOCKS), np.array_split(speed, BLOCKS)):
-                    mon.add(tau, v)
+                    mon.update_samples(tau, v)
                 return mon.end_cycle(9)
 
             times[center] = best_time(one_cycle, 20)
@@ -88,7 +88,7 @@ def run(out: str | None) -> str:
     nominal_data = cycle_samples(100_000, rng)
     lo, hi = choose_grid(float(nominal_data.min()), float(nominal_data.max()), margin=0.25)
     reference = StreamingKDE(lo, hi, N_GRID)
-    reference.add(nominal_data)
+    reference.update(nominal_data)
     p0 = reference.density()
     grid, dx = reference.grid, reference.dx
 
@@ -103,13 +103,13 @@ def run(out: str | None) -> str:
         y = cycle_samples(n, rng)
         blocks = np.array_split(y, BLOCKS)
         probe = StreamingKDE(lo, hi, N_GRID)
-        probe.add(y)
+        probe.update(y)
         h = probe.bandwidth
 
         def ours() -> float:
             kde = StreamingKDE(lo, hi, N_GRID)
             for b in blocks:
-                kde.add(b)
+                kde.update(b)
             return symmetric_kl(p0, kde.density(), dx)
 
         def kdepy() -> float:

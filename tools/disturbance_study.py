@@ -365,7 +365,7 @@ def analyse(out: Path, default_dir: Path, table_out: Path | None, plot_dir: Path
                 learn = "(3-vector)"
             else:
                 ms = [learn_stats(s.quantity(q)) for s in r.values()]
-                learn = f"{fmt(np.mean([m for m, _ in ms]))} ± {fmt(np.mean([sd for _, sd in ms]))}"
+                learn = f"{fmt(float(np.mean([m for m, _ in ms])))} ± {fmt(float(np.mean([sd for _, sd in ms])))}"
             alarms = ", ".join("–" if s.first_alarm[q] is None else str(s.first_alarm[q]) for s in r.values())
             w(f"| {name} | {q} | {learn} | " + " | ".join(zs) + f" | {alarms} |")
     w("")
@@ -421,10 +421,11 @@ def analyse(out: Path, default_dir: Path, table_out: Path | None, plot_dir: Path
         w("| T °C | ϖ̂ mean ± std | ξ̂ mean ± std | log kl.raw mean ± std | log kl.weighted mean ± std |")
         w("|---|---|---|---|---|")
         for t, r in fixed.items():
-            def ms(q):
+            def mean_std(q: str) -> str:
                 v = np.concatenate([s.quantity(q)[np.isfinite(s.quantity(q))] for s in r.values()])
                 return f"{fmt(v.mean())} ± {fmt(v.std(ddof=1))}"
-            w(f"| {t} | {ms('wear')} | {ms('wear_temperature')} | {ms('kl_raw')} | {ms('kl_weighted')} |")
+            w(f"| {t} | {mean_std('wear')} | {mean_std('wear_temperature')} | {mean_std('kl_raw')} | "
+              f"{mean_std('kl_weighted')} |")
         w("")
 
     if "temp_wide" in runs:

@@ -34,7 +34,7 @@ import numpy as np
 
 from edge_monitor.commands.fit_weights import causally_centred, simulate_cycles
 from edge_monitor.features.disturbance_weights import WeightFunction, fit_index_weights, fit_weight_function
-from edge_monitor.features.kl_monitor import KLMonitor
+from edge_monitor.features.kl_monitor import KLConfig, KLMonitor
 
 Source = Callable[[int, float, tuple[float, float], np.random.Generator], tuple[np.ndarray, np.ndarray]]
 
@@ -67,22 +67,29 @@ def sim_cycles(n: int, wear: float, temperature: tuple[float, float], rng: np.ra
                        wear=(WearProfile(initial=wear),))
     if SIM_LOAD is not None:
         config = config.with_(load_range=SIM_LOAD)
-    ctrl = Controller(config)
     torques, speeds = [], []
-    for cycle in range(n):
-        cond = ctrl._draw_conditions(cycle)          # noqa: SLF001 (evaluation tool, same package family)
-        ref, _ = ctrl._reference(cond)               # noqa: SLF001
-        out = ctrl._simulate(ref, cond)              # noqa: SLF001
-        torques.append(out["torque"][0])
-        speeds.append(out["speed"][0])
+    for cycle in Controller(config).simulated_cycles():
+        torques.append(cycle.sim["torque"][0])
+        speeds.append(cycle.sim["speed"][0])
     size = min(t.size for t in torques)               # production delay varies the cycle length
     return np.array([t[:size] for t in torques]), np.array([s[:size] for s in speeds])
+
+
+#: The published weights (the agent's defaults).
+PUBLISHED = WeightFunction()
+
+
+def new_monitor(k: int, weights: WeightFunction = PUBLISHED) -> KLMonitor:
+    """The agent's KL monitor (its defaults, sample selection included) learning from ``k`` cycles, with
+    ``weights`` for the weighted channel and the centring of :data:`CENTER`. Without a friction model
+    it has no temperature compensation (these runs draw a new temperature per cycle anyway)."""
+    return KLMonitor(KLConfig(n_nominal_cycles=k, alpha=weights.alpha, beta=weights.beta, center=CENTER))
 
 
 def kl_values(monitor: KLMonitor, torque: np.ndarray, speed: np.ndarray) -> np.ndarray:
     out = []
     for c in range(torque.shape[0]):
-        monitor.add(torque[c], speed[c])
+        monitor.update_samples(torque[c], speed[c])
         r = monitor.end_cycle(c)
         out.append((np.nan, np.nan) if r.raw is None else (r.raw, r.weighted))
     return np.array(out)
@@ -112,7 +119,7 @@ def study(source: Source, spreads: list[float], n_cycles: int, replicates: int, 
     for s in spreads:
         temperature = (30.0, 30.0 + s)
         for _ in range(replicates):
-            monitors = {name: KLMonitor(n_nominal_cycles=k, weights=w, center=CENTER) for name, w in weights.items()}
+            monitors = {name: new_monitor(k, w) for name, w in weights.items()}
             data = {label: source(n, wr, temperature, rng)
                     for label, n, wr in (("nominal", k, 0.0), ("h0", n_cycles, 0.0), ("h1", n_cycles, wear))}
             values = {}
@@ -129,14 +136,18 @@ def study(source: Source, spreads: list[float], n_cycles: int, replicates: int, 
 
 
 def example_densities(source: Source, rng: np.random.Generator, k: int) -> dict[str, np.ndarray]:
-    mon = KLMonitor(n_nominal_cycles=k, center=CENTER)
+    mon = new_monitor(k)
     kl_values(mon, *source(k, 0.0, (40.0, 40.0), rng))
-    out = {}
+    out: dict[str, np.ndarray] = {}
     for label, wear in (("wear 0", 0.0), ("wear 35", 35.0)):
         torque, speed = source(1, wear, (40.0, 40.0), rng)
-        mon.add(torque[0], speed[0])
-        r = mon.end_cycle(99)
-        out["grid"], out["nominal"], out[label] = r.density["grid"], r.density["nominal"], r.density["cycle"]
+        mon.update_samples(torque[0], speed[0])
+        density = mon.end_cycle(99).density
+        assert density is not None
+        for key, name in (("grid", "grid"), ("nominal", "nominal"), (label, "cycle")):
+            values = density[name]
+            assert values is not None
+            out[key] = values
     return out
 
 

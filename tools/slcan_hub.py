@@ -42,6 +42,7 @@ class SlcanHub:
                 if sock is self._server:
                     self._accept()
                     continue
+                assert isinstance(sock, socket.socket)    # the server and accepted connections only
                 if events & selectors.EVENT_READ:
                     self._relay_from(sock)
                 if events & selectors.EVENT_WRITE and sock in self._pending:

@@ -34,6 +34,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger("vcan_qemu")
 
@@ -282,7 +283,10 @@ def extract_kernel(deb: Path, target: Path) -> None:
                     out = target / "modules" / Path(name).name.removesuffix(".xz")
                 else:
                     continue
-                data = tar.extractfile(member).read()
+                extracted = tar.extractfile(member)
+                if extracted is None:
+                    continue
+                data = extracted.read()
                 out.write_bytes(lzma.decompress(data) if name.endswith(".xz") else data)
     finally:
         proc.wait()
@@ -412,7 +416,7 @@ def parse_results(results: Path, console: Path) -> GuestResult:
         raise GuestFailure(f"the guest run failed: {reason}\nconsole:\n{_tail(console)}\n"
                            + "".join(f"--- {k} (tail)\n{v[-3000:]}\n" for k, v in logs.items()))
     truth = read_jsonl(results / "truth.jsonl")
-    summary = next((r for r in reversed(truth) if "frames_sent" in r), {})
+    summary: dict[str, Any] = next((r for r in reversed(truth) if "frames_sent" in r), {})
     statuses = list(STATUS_LINE.finditer(logs.get("agent.log", "")))
     agent = {k: int(v) for k, v in statuses[-1].groupdict().items()} if statuses else {}
     return GuestResult(status=status, frames_sent=summary.get("frames_sent"), faults=summary.get("faults", {}),
