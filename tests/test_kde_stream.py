@@ -88,6 +88,18 @@ def test_linear_binning_conserves_mass_and_first_moment() -> None:
     assert kde.n_outside == 0
 
 
+def test_a_small_block_touches_only_the_bins_it_occupies_and_the_top_edge_folds_back() -> None:
+    """Binning works on the block's own span: bins outside it stay untouched, and a sample at the top
+    grid point (whose upper neighbour is past the end) keeps all its mass on the grid."""
+    kde = StreamingKDE(-1.0, 1.0, 16384)
+    kde.update(np.array([0.1, 0.10001, 0.1002]))
+    occupied = np.flatnonzero(kde.mass)
+    assert kde.mass.sum() == pytest.approx(3.0, rel=1e-12) and occupied.max() - occupied.min() <= 3
+    top = StreamingKDE(-1.0, 1.0, 8)
+    top.update(np.array([1.0, 1.0 - 1e-15, 0.9999]))
+    assert top.mass.sum() == pytest.approx(3.0, rel=1e-12) and top.mass[-1] > 2.9
+
+
 def test_samples_outside_the_grid_are_counted_and_lower_the_density_mass() -> None:
     rng = np.random.default_rng(6)
     kde = StreamingKDE(-1.0, 1.0, 512)

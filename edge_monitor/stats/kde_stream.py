@@ -176,16 +176,26 @@ class StreamingKDE:
     def _bin(self, y: NDArray[np.float64], w: NDArray[np.float64] | None) -> None:
         """Linear binning of in-grid samples: a sample at ``t = (y − lo)/dx`` gives ``1 − frac`` of
         its mass to point ``floor(t)`` and ``frac`` to the next point."""
+        if y.size == 0:
+            return
         t = (y - self.lo) * (1.0 / self.dx)
         idx = t.astype(np.int64)                     # t >= 0, so truncation == floor
         frac = t - idx
         upper = frac if w is None else w * frac
-        total = np.bincount(idx, weights=w, minlength=self.n_grid + 1)
-        to_next = np.bincount(idx, weights=upper, minlength=self.n_grid + 1)
+        # only the span the block occupies: O(samples + span), not O(grid), per block (live blocks
+        # hold a few dozen samples, the raw channel's capture grid 16384 points)
+        first = int(idx.min())
+        rel = idx - first
+        span = int(rel.max()) + 2
+        total = np.bincount(rel, weights=w, minlength=span)
+        to_next = np.bincount(rel, weights=upper, minlength=span)
         counts = total - to_next
         counts[1:] += to_next[:-1]
-        counts[self.n_grid - 1] += counts[self.n_grid:].sum()   # round-off at y == hi lands past the end
-        self.mass += counts[: self.n_grid]
+        inside = self.n_grid - first
+        if counts.size > inside:                     # round-off at y == hi lands past the end
+            counts[inside - 1] += counts[inside:].sum()
+            counts = counts[:inside]
+        self.mass[first:first + counts.size] += counts
 
     def _update_moments(self, y: NDArray[np.float64], w: NDArray[np.float64] | None) -> None:
         """Chan et al. parallel combination of (Σw, mean, M2) with the block's own moments."""
