@@ -17,8 +17,8 @@ reproduces the former KL sample selection.
 
 Part ``residual``: where the KL temperature compensation is inexact. One joint (no individual
 variation, fixed load) simulates the same cycle, with the same noise, at two lubricant temperatures;
-the warm cycle's torque is moved to the cold temperature with the exact friction model and the true
-temperatures (temperature_compensation's formula), and the residual against the cold cycle is
+the warm cycle's torque is moved to the cold temperature by the agent's TemperatureCompensation with the
+exact friction model and the true temperatures, and the residual against the cold cycle is
 reported per speed band (rms, torque as a fraction of the joint's maximum). Whatever remains is not
 static friction: the speed loop's response to the temperature-dependent Stribeck friction.
 
@@ -42,9 +42,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from healthy_fleet_study import parse_set, settings_from  # noqa: E402
 
 from edge_monitor.features.registry import LOG_SCALE  # noqa: E402
+from edge_monitor.features.temperature_compensation import TemperatureCompensation  # noqa: E402
 from edge_monitor.offline.fast_path import DETECTOR_INPUTS, detector_inputs_with_truth  # noqa: E402
 from edge_monitor.pipeline.detectors import DEFAULT_NOMINAL  # noqa: E402
-from joint_model import FrictionParams, nominal_friction  # noqa: E402
+from joint_model import FrictionParams  # noqa: E402
 from sim_controller.config import SimConfig  # noqa: E402
 from sim_controller.cycle_mode import cycle_signals  # noqa: E402
 
@@ -137,10 +138,10 @@ def residual(cold: float = 35.0, warm: float = 55.0, seed: int = 5, load: float 
         return signals.torque, signals.speed
 
     (tau_cold, v_cold), (tau_warm, v_warm) = one_cycle(cold), one_cycle(warm)
-    speed = np.abs(v_warm)
-    params = FrictionParams()
-    moved = tau_warm - np.sign(v_warm) * (nominal_friction(speed, 0.0, warm, params)
-                                          - nominal_friction(speed, 0.0, cold, params))
+    compensation = TemperatureCompensation(FrictionParams(), smoothing=1.0)
+    compensation.observe(cold)                       # the reference: where the nominal was learned
+    compensation.observe(warm)                       # the current temperature, taken as is
+    moved = compensation.apply(tau_warm, v_warm)
     rows = []
     for lo, hi in SPEED_BANDS:
         band = (np.abs(v_cold) >= lo) & (np.abs(v_cold) < hi)
