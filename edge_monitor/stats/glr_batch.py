@@ -107,6 +107,9 @@ class MixtureBatch:
             self.gain[i] = step_matrix(m, step)
         self.means_w = np.einsum("bkd,bed->bke", self.means, self.whiten)      # L⁻¹μk
         self.means_w_sq = np.einsum("bkd,bkd->bk", self.means_w, self.means_w)
+        self.whiten_t = np.ascontiguousarray(self.whiten.transpose(0, 2, 1))     # x @ whiten_t = (L⁻¹x)ᵀ
+        self.means_w_t = np.ascontiguousarray(self.means_w.transpose(0, 2, 1))   # (B, d, K)
+        self.gain_t = np.ascontiguousarray(self.gain.transpose(0, 2, 1))
         self._scalar = d == 1                                                   # the common case: plain broadcasting
 
     def _component_logpdf(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -114,9 +117,8 @@ class MixtureBatch:
         if self._scalar:
             z = x * self.whiten[:, :, 0][:, :, None] - self.means_w[:, None, :, 0]     # (B, n, K)
             return self.log_coef[:, None, :] - 0.5 * (z * z)
-        xw = np.einsum("bnd,bed->bne", x, self.whiten)
-        quad = (np.einsum("bnd,bnd->bn", xw, xw)[:, :, None] - 2.0 * np.einsum("bnd,bkd->bnk", xw, self.means_w)
-                + self.means_w_sq[:, None, :])
+        xw = x @ self.whiten_t                                                   # batched BLAS, not einsum
+        quad = ((xw * xw).sum(axis=2)[:, :, None] - 2.0 * (xw @ self.means_w_t) + self.means_w_sq[:, None, :])
         return self.log_coef[:, None, :] - 0.5 * np.maximum(quad, 0.0)
 
     def logpdf(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -125,6 +127,19 @@ class MixtureBatch:
         top = lc.max(axis=2)
         return top + np.log(np.exp(lc - top[:, :, None]).sum(axis=2))
 
+    def logpdf_rows(self, rows: NDArray[np.int64], x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """log p0 of mixture ``rows[m]`` at ``x[m]``, x of shape (M, d): (M,) — for scattered points."""
+        if self._scalar:
+            z = x * self.whiten[rows, 0, :] - self.means_w[rows, :, 0]                 # (M, K)
+            lc = self.log_coef[rows] - 0.5 * (z * z)
+        else:
+            xw = (x[:, None, :] @ self.whiten_t[rows])[:, 0, :]
+            quad = ((xw * xw).sum(axis=1)[:, None] - 2.0 * (xw[:, None, :] @ self.means_w_t[rows])[:, 0, :]
+                    + self.means_w_sq[rows])
+            lc = self.log_coef[rows] - 0.5 * np.maximum(quad, 0.0)
+        top = lc.max(axis=1)
+        return top + np.log(np.exp(lc - top[:, None]).sum(axis=1))
+
     def posterior_mean(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Σk ζk(x) μk for x of shape (B, n, d): (B, n, d)."""
         lc = self._component_logpdf(x)
@@ -132,7 +147,7 @@ class MixtureBatch:
         if self._scalar:
             return ((z * self.means[:, None, :, 0]).sum(axis=2) / z.sum(axis=2))[:, :, None]
         z /= z.sum(axis=2, keepdims=True)
-        return np.einsum("bnk,bkd->bnd", z, self.means)
+        return z @ self.means
 
 
 class BatchWindowedGLR:
@@ -185,7 +200,7 @@ class BatchWindowedGLR:
         if self.mix.dim == 1:
             step = step * self.mix.gain[:, None, :, 0]
         else:
-            step = np.einsum("bad,bed->bae", step, self.mix.gain)
+            step = step @ self.mix.gain_t
         delta = delta + gain[None, :, None] * step
         self.delta[:, active] = delta
         stats = self._statistics(obs, slot, active, delta)
@@ -200,11 +215,10 @@ class BatchWindowedGLR:
     def _statistics(self, obs: NDArray[np.float64], slot: int, active: NDArray[np.int64],
                     delta: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.mode == "recursive":
-            numerator = self.mix.logpdf(obs[:, None, :] - delta)
             if self.simple_null:
-                self.sums[:, active] += numerator - self.base[:, slot][:, None]
+                self.sums[:, active] += self.mix.logpdf(obs[:, None, :] - delta) - self.base[:, slot][:, None]
             else:
-                self.sums[:, active] += numerator - self.mix.logpdf(obs[:, None, :] - self.null_shift(delta))
+                self.sums[:, active] += self._log_ratio_beyond_null(obs, delta)
             return self.sums[:, active]
         times = self.times[active]
         inside = times[None, :] >= times[:, None]                                      # (candidate, observation)
@@ -217,6 +231,19 @@ class BatchWindowedGLR:
             shifted = window_obs - self.null_shift(delta)[:, :, None, :]
             null = self.mix.logpdf(shifted.reshape(b, a * a, d)).reshape(b, a, a)
         return np.sum(np.where(inside[None], loglik - null, 0.0), axis=2)
+
+    def _log_ratio_beyond_null(self, obs: NDArray[np.float64], delta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """log p0(y − Δ̂) − log p0(y − clip(Δ̂)) per candidate, (B, A): exactly 0 where Δ̂ lies inside
+        H0's box (both terms are the same point), so the density is evaluated only for the others."""
+        allowed = self.null_shift(delta)
+        rows, cols = np.nonzero(np.any(allowed != delta, axis=2))
+        out = np.zeros(delta.shape[:2])
+        if rows.size:
+            y = obs[rows]
+            points = np.concatenate([y - delta[rows, cols], y - allowed[rows, cols]])
+            both = self.mix.logpdf_rows(np.concatenate([rows, rows]), points)
+            out[rows, cols] = both[: rows.size] - both[rows.size:]
+        return out
 
     def segment_length(self) -> NDArray[np.int64]:
         """ñ of the maximising candidate of each detector after the last update."""
