@@ -26,3 +26,21 @@ def test_run_lengths_renew_after_each_crossing_and_count_only_monitored_cycles()
     run_lengths = real_run_lengths([x], config, np.array([5.0, 1e6]))
     assert run_lengths[0] == 280.0
     assert np.isinf(run_lengths[1])
+
+
+def test_agent_arl_runs_the_agents_detectors_with_the_chosen_calibration() -> None:
+    """``agent_arl`` feeds per-cycle detector inputs to the agent's DetectorBank: 90 healthy cycles of
+    one joint leave at most 90 − 60 learning + 1 = 31 monitored cycles per quantity (the cycle that
+    completes the learning is monitored), a detector that alarms
+    starts a new run, and each row names the calibration used."""
+    from arl_study import agent_arl
+
+    rng = np.random.default_rng(3)
+    rows = [{"wear_score": float(w), "kl_raw": float(a), "kl_weighted": float(b)}
+            for w, a, b in zip(rng.normal(size=90), rng.lognormal(-3, 0.3, 90), rng.lognormal(-4, 0.3, 90))]
+    out = agent_arl([{0: rows}], 50.0, draws=16, calibrate_at="healthy_drift")
+    assert {r["quantity"] for r in out} == {"wear", "kl_raw", "kl_weighted", "joint"}
+    for r in out:
+        assert r["calibrate_at"] == "healthy_drift" and r["runs"] >= 1
+        assert r["runs"] == 1 + r["false_alarms"] and 0 < r["monitored_cycles"] <= 31
+    assert all(r["calibrate_at"] == "boundary" for r in agent_arl([{0: rows}], 50.0, draws=16, boundary=True))

@@ -202,3 +202,106 @@ def test_calibrating_on_the_learned_nominal_gives_a_lower_threshold_than_at_the_
     assert h("nominal", 0.0) == h("boundary", 0.0)
     with pytest.raises(ValueError, match="at ="):
         h("middle", 0.75)
+
+
+def test_healthy_drift_shifts_are_a_stratified_fleet_around_the_stated_drift() -> None:
+    """``at="healthy_drift"``: draw b sits at (mean + sd·z_b)·spread with z_b the normal quantiles at
+    (b + ½)/B (their mean is 0 by symmetry, their std → 1), one z_b for every dimension; "boundary" puts
+    every draw at the allowance, "nominal" at 0."""
+    from edge_monitor.stats.calibration import stream_shifts
+
+    spread = np.array([2.0, 0.5])
+    shifts = stream_shifts(spread, 64, "healthy_drift", drift_mean=(0.3, 0.1), drift_sd=(0.4, 0.2),
+                           rng=np.random.default_rng(1))
+    assert shifts.shape == (64, 2)
+    np.testing.assert_allclose(shifts.mean(axis=0), [0.6, 0.05], atol=1e-12)
+    np.testing.assert_allclose(shifts.std(axis=0), [0.8, 0.1], rtol=0.05)
+    z = (shifts / spread - [0.3, 0.1]) / [0.4, 0.2]
+    np.testing.assert_allclose(z[:, 0], z[:, 1], atol=1e-12)           # the joint's quantities drift together
+    np.testing.assert_array_equal(stream_shifts(spread, 4, "boundary", allowance=0.75), np.tile([1.5, 0.375], (4, 1)))
+    np.testing.assert_array_equal(stream_shifts(spread, 4, "nominal", allowance=0.75), np.zeros((4, 2)))
+
+
+def test_healthy_drift_calibration_reduces_to_the_nominal_and_boundary_ones_and_sits_between() -> None:
+    """The drift stream has its own random numbers, so a healthy drift of exactly 0 is the nominal
+    calibration and one of exactly the allowance (sd 0) the boundary one, bit for bit; a drift spread
+    around a mean inside the allowance gives a threshold between the two; its record says where."""
+    from edge_monitor.stats.calibration import CalibrationBudget, calibrate
+
+    nominal = np.random.default_rng(5).normal(size=(60, 1))
+    budget = CalibrationBudget(draws=16, max_steps=600)
+
+    def cal(at: str, mean: float = 0.0, sd: float = 0.0):  # type: ignore[no-untyped-def]
+        return calibrate(nominal, "gauss", 50, 200.0, budget=budget, direction="increase", allowance=0.75,
+                         clip_sigma=3.0, at=at, drift_mean=(mean,), drift_sd=(sd,))
+
+    assert cal("healthy_drift").threshold == cal("nominal").threshold
+    assert cal("healthy_drift", 0.75).threshold == cal("boundary").threshold
+    between = cal("healthy_drift", 0.3, 0.3)
+    assert cal("nominal").threshold < between.threshold < cal("boundary").threshold
+    assert between.at == "healthy_drift"
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"calibrate_at": "middle"}, "calibrate_at"),
+    ({"calibrate_at": "healthy_drift"}, "drift_mean"),
+    ({"calibrate_at": "healthy_drift", "drift_mean": (0.1,), "drift_sd": (-1.0,)}, "drift_sd"),
+])
+def test_bad_calibration_placement_is_a_clear_error(kwargs: dict, match: str) -> None:
+    with pytest.raises(DetectorConfigError, match=match):
+        DetectorConfig(**kwargs)
+
+
+def test_healthy_drift_settings_reach_each_detector_and_survive_the_state_round_trip() -> None:
+    """``decision.healthy_drift`` (input → [mean, sd]) is merged over the defaults, validated with the
+    key named, handed to each detector per input, and a detector saved with it restores with it."""
+    from edge_monitor.config import ConfigError, config_from_mapping
+    from edge_monitor.pipeline.detectors import HEALTHY_DRIFT
+
+    cfg = config_from_mapping({"decision": {"calibrate_at": "healthy_drift",
+                                            "healthy_drift": {"kl_raw": [0.5, 0.25]}}}).decision
+    assert cfg.healthy_drift == {**HEALTHY_DRIFT, "kl_raw": (0.5, 0.25)}
+    joint = cfg.detector_config("joint")
+    assert joint.drift_mean == (HEALTHY_DRIFT["wear_score"][0], 0.5, HEALTHY_DRIFT["kl_weighted"][0])
+    assert joint.drift_sd[1] == 0.25
+    for bad, key in (({"kl_raw": [0.1]}, "decision.healthy_drift.kl_raw"), ({"torque": [0, 1]}, "torque"),
+                     ({"wear_score": [0.1, -0.2]}, "wear_score"), ([1, 2], "expected a table")):
+        with pytest.raises(ConfigError, match=key):
+            config_from_mapping({"decision": {"healthy_drift": bad}})
+    config = DetectorConfig(arl0=100.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
+                            drift_mean=(0.3,), drift_sd=(0.3,), calibration_draws=16, calibration_steps=600)
+    det = SequentialDetector(config)
+    for i, v in enumerate(np.random.default_rng(2).normal(size=60)):
+        decision = det.update(v, i)
+    assert decision.calibration is not None and decision.calibration["at"] == "healthy_drift"
+    state = json.loads(json.dumps(det.state_dict()))
+    restored = SequentialDetector.from_state(config, state)
+    assert restored.threshold == det.threshold and math.isfinite(det.threshold)
+
+
+def test_a_drifting_fleet_counts_the_rate_of_each_drift_group_not_the_pooled_first_passages() -> None:
+    """Half the detectors (the high-drift group) alarm at cycle 10, the others never within 1000:
+    the fleet's false-alarm rate is the mean of the groups' rates, ½·(1/10 + 0), so its mean run
+    length is 20 cycles; pooling first passages would say (4·10 + 4·1000) / 4 = 1010."""
+    from edge_monitor.stats.calibration import fleet_run_lengths, mean_run_lengths
+
+    statistics = np.zeros((8, 1000))
+    statistics[4:, 9:] = 5.0
+    fleet, events = fleet_run_lengths(statistics, np.array([1.0, 6.0]), strata=2)
+    assert fleet[0] == 20.0 and events[0] == 4
+    assert np.isinf(fleet[1]) and events[1] == 0
+    assert mean_run_lengths(statistics, np.array([1.0]))[0][0] == 1010.0
+
+
+def test_the_default_calibration_keeps_the_fingerprints_of_states_saved_before_it_existed() -> None:
+    """At the default ``calibrate_at = "boundary"`` neither the decision nor a detector fingerprint
+    names the new settings, so an upgraded agent keeps what it learned; with ``healthy_drift`` both do
+    (changing the drift is then a config change)."""
+    from edge_monitor.pipeline.detectors import HEALTHY_DRIFT, DecisionConfig
+
+    default = DecisionConfig()
+    assert not {"calibrate_at", "healthy_drift"} & set(default.fingerprint())
+    assert not {"calibrate_at", "drift_mean", "drift_sd"} & set(default.detector_config("joint").fingerprint())
+    drifting = DecisionConfig(calibrate_at="healthy_drift")
+    assert drifting.fingerprint()["healthy_drift"]["kl_raw"] == list(HEALTHY_DRIFT["kl_raw"])
+    assert drifting.detector_config("kl_raw").fingerprint()["drift_mean"] == [HEALTHY_DRIFT["kl_raw"][0]]

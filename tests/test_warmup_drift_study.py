@@ -44,3 +44,26 @@ def test_temperature_compensation_is_exact_above_10_rad_s_and_not_below_5() -> N
             assert ratio < 0.15, (lo, ratio)
         elif lo < 5.0:
             assert ratio > 0.5, (lo, ratio)
+
+
+def test_causes_recover_a_drift_made_of_one_parameter_and_see_none_in_noise() -> None:
+    """Joints whose late kl_raw shift is 10 × their fvξ deviation give correlation 1 with fvξ and R² 1
+    on (fsξ, fvξ); a wear score made of noise gives a small R²; the joints' variation comes from the
+    simulator (the same factors every time for a seed, within its ±8 %)."""
+    from warmup_drift_study import VARIED_PARAMS, causes, joint_variation
+
+    from sim_controller.config import SimConfig
+
+    variation = joint_variation(SimConfig(joints=6, seed=5)) + joint_variation(SimConfig(joints=6, seed=6))
+    assert variation[:6] == joint_variation(SimConfig(joints=6, seed=5))
+    assert all(abs(v) <= 0.08 + 1e-9 for joint in variation for v in joint.values())
+    noise = np.random.default_rng(1).normal(size=len(variation))
+    per_joint = [{"variation": v, "windows": [
+        {q: {"shift": 0.0} for q in ("wear_score", "kl_raw", "kl_weighted")},
+        {"kl_raw": {"shift": 10 * v["fvxi"]}, "kl_weighted": {"shift": 0.0}, "wear_score": {"shift": float(e)}}]}
+        for v, e in zip(variation, noise)]
+    out = causes(per_joint)
+    assert out["kl_raw"]["corr"]["fvxi"] == 1.0 and out["kl_raw"]["r2_temperature_coefficients"] == 1.0
+    assert out["wear_score"]["r2_temperature_coefficients"] < 0.5
+    assert out["kl_weighted"]["r2_temperature_coefficients"] is None       # no spread to explain
+    assert set(out["kl_raw"]["corr"]) == set(VARIED_PARAMS)

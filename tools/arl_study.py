@@ -46,7 +46,8 @@ Parts (all with fixed seeds; select with --part, default all):
   monitored values are moved up by ``allowance`` × the std of the values it learned (in the units it
   watches): the least favourable healthy drift, the one its threshold is calibrated for, so there the
   measured ARL0 should match the target; without the shift, healthy joints sit inside the allowance and
-  run longer.
+  run longer. ``--calibrate-at healthy_drift|boundary|nominal`` measures with that calibration instead
+  of the shipped ``decision.calibrate_at`` (docs/DETECTION.md).
 
 * ``--agent --curves`` — why a calibration alone cannot match healthy drifting data: for each
   quantity, the threshold h that gives each target (``--targets``) on the simulated healthy joints
@@ -492,9 +493,11 @@ class _BoundaryShift:
 
 
 def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
-              draws: int = 48, allowance: float | None = None, boundary: bool = False) -> list[dict[str, object]]:
+              draws: int = 48, allowance: float | None = None, boundary: bool = False,
+              calibrate_at: str | None = None) -> list[dict[str, object]]:
     """Measured ARL0 of the agent's detectors (shipped defaults, ``arl0_cycles = target``) with renewal;
-    ``boundary``: each detector's monitored values moved to the edge of its null (:class:`_BoundaryShift`)."""
+    ``boundary``: each detector's monitored values moved to the edge of its null (:class:`_BoundaryShift`)
+    and its threshold calibrated there; ``calibrate_at`` overrides ``decision.calibrate_at``."""
     from edge_monitor.features.registry import QUANTITIES
     from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
 
@@ -502,6 +505,8 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
     alarms: dict[str, int] = {}
     runs: dict[str, int] = {}
     extra: dict[str, Any] = {} if allowance is None else {"allowance": allowance}
+    if boundary or calibrate_at:
+        extra["calibrate_at"] = "boundary" if boundary else calibrate_at
     for robot in series:
         for joint, rows in robot.items():
             for q in DecisionConfig().quantities:
@@ -523,7 +528,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
     return [{"quantity": q, "target_arl0": target,
              "measured_arl0": exposure[q] / alarms[q] if alarms.get(q) else None,
              "monitored_cycles": exposure[q], "runs": runs[q], "false_alarms": alarms.get(q, 0),
-             "at_boundary": boundary}
+             "at_boundary": boundary, "calibrate_at": extra.get("calibrate_at", DecisionConfig().calibrate_at)}
             for q in sorted(exposure)]
 
 
@@ -628,6 +633,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--curves", action="store_true",
                         help="--agent: thresholds for the targets on the healthy series themselves against the "
                         "calibrated ones (learned nominal; allowance boundary); see the module docstring")
+    parser.add_argument("--calibrate-at", choices=("healthy_drift", "boundary", "nominal"), default=None,
+                        help="--agent: where the thresholds are calibrated instead of the shipped "
+                        "decision.calibrate_at")
     parser.add_argument("--at-boundary", action="store_true",
                         help="--agent: also measure with each detector's values moved to the edge of its null")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
@@ -687,12 +695,12 @@ def _agent_main(args: argparse.Namespace) -> int:
                             "rows": threshold_curves(series, targets)}, args.json)
     rows = []
     for target in (float(t) for t in args.targets.split(",")):
-        rows += agent_arl(series, target, draws, args.allowance)
+        rows += agent_arl(series, target, draws, args.allowance, calibrate_at=args.calibrate_at)
         if args.at_boundary:
             rows += agent_arl(series, target, draws, args.allowance, boundary=True)
         log.info("target %.0f done, %.0f s", target, time.monotonic() - started)
     return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": draws,
-                        "allowance": args.allowance, "rows": rows}, args.json)
+                        "allowance": args.allowance, "calibrate_at": args.calibrate_at, "rows": rows}, args.json)
 
 
 def _print_json(result: dict[str, object], path: Path | None) -> int:

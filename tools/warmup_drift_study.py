@@ -13,7 +13,8 @@ window of ``--window`` cycles is reported as
 
 with the window's mean true lubricant temperature [°C]. A stationary quantity keeps shift ≈ 0 and
 spread ≈ 1; the detectors' drift allowance is 0.75 σ (docs/DETECTION.md). ``--set kl.min_speed=1``
-reproduces the former KL sample selection.
+reproduces the former KL sample selection. Then, per quantity, how each joint's late shift (mean of
+the windows after the first) goes with its individual friction parameters (``causes``).
 
 Part ``residual``: where the KL temperature compensation is inexact. One joint (no individual
 variation, fixed load) simulates the same cycle, with the same noise, at two lubricant temperatures;
@@ -47,6 +48,7 @@ from edge_monitor.offline.fast_path import DETECTOR_INPUTS, detector_inputs_with
 from edge_monitor.pipeline.detectors import DEFAULT_NOMINAL  # noqa: E402
 from joint_model import FrictionParams  # noqa: E402
 from sim_controller.config import SimConfig  # noqa: E402
+from sim_controller.controller import VARIED_PARAMS, Controller  # noqa: E402
 from sim_controller.cycle_mode import cycle_signals  # noqa: E402
 
 log = logging.getLogger("warmup_drift_study")
@@ -96,10 +98,39 @@ def drift_rows(series: dict[str, np.ndarray], window: int, n_nominal: int = DEFA
 def drift(seeds: list[int], cycles: int, joints: int, window: int, settings: dict[str, Any]) -> dict[str, Any]:
     joints_out = []
     for seed in seeds:
+        variation = joint_variation(SimConfig(joints=joints, seed=seed))
         for joint, series in sorted(joint_series(seed, cycles, joints, settings).items()):
-            joints_out.append({"seed": seed, "joint": joint, "windows": drift_rows(series, window)})
+            joints_out.append({"seed": seed, "joint": joint, "variation": variation[joint],
+                               "windows": drift_rows(series, window)})
     return {"seeds": seeds, "cycles": cycles, "joints": joints, "window": window, "settings": settings,
-            "per_joint": joints_out, "summary": summarise(joints_out)}
+            "per_joint": joints_out, "summary": summarise(joints_out), "causes": causes(joints_out)}
+
+
+def joint_variation(config: SimConfig) -> list[dict[str, float]]:
+    """Per joint, each individually varied friction parameter relative to the base table (0.05 = +5 %)."""
+    base = config.friction
+    return [{name: round(getattr(setup.friction, name) / getattr(base, name) - 1.0, 4) for name in VARIED_PARAMS}
+            for setup in Controller(config).joints]
+
+
+def causes(per_joint: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per quantity: how each joint's late shift (mean over all windows after the first) goes with its
+    individual parameters — the correlation with each, and the R² of a fit on fsξ and fvξ alone."""
+    out: dict[str, dict[str, Any]] = {}
+    params = np.array([[j["variation"][n] for n in VARIED_PARAMS] for j in per_joint])
+    for q in DETECTOR_INPUTS:
+        late = np.array([np.mean([w[q]["shift"] for w in j["windows"][1:] or j["windows"]]) for j in per_joint])
+        design = np.column_stack([np.ones(len(late)), params[:, VARIED_PARAMS.index("fsxi")],
+                                  params[:, VARIED_PARAMS.index("fvxi")]])
+        fitted = design @ np.linalg.lstsq(design, late, rcond=None)[0]
+        total = float(np.sum((late - late.mean()) ** 2))
+        if total == 0:                         # nothing moves: nothing to explain
+            out[q] = {"corr": dict.fromkeys(VARIED_PARAMS), "r2_temperature_coefficients": None}
+            continue
+        out[q] = {"corr": {n: round(float(np.corrcoef(params[:, i], late)[0, 1]), 2)
+                           for i, n in enumerate(VARIED_PARAMS)},
+                  "r2_temperature_coefficients": round(1.0 - float(np.sum((late - fitted) ** 2)) / total, 2)}
+    return out
 
 
 def summarise(per_joint: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -175,6 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     else:
         result = drift(args.seeds, args.cycles, args.joints, args.window, settings_from(tuple(args.set)))
         print(markdown(result))
+        print("\n| quantity | R² on fsξ, fvξ | correlation of the late shift with each varied parameter |\n|---|---|---|")
+        for q, c in result["causes"].items():
+            print(f"| {q} | {c['r2_temperature_coefficients']} | "
+                  + ", ".join(f"{n} {v:+.2f}" for n, v in c["corr"].items() if v is not None) + " |")
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
     return 0

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.calibration import DEFAULT_ARL0, CalibrationBudget
+from edge_monitor.stats.calibration import CALIBRATE_AT, DEFAULT_ARL0, CalibrationBudget
 from edge_monitor.stats.sequential_detector import (
     DEFAULT_NOMINAL,
     DEFAULT_WINDOW,
@@ -32,6 +33,12 @@ log = logging.getLogger(__name__)
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
 
+#: Healthy drift of each detector input after warm-up: (mean, sd) over joints of the shift from what
+#: its detector learned, in standard deviations of the learned values, in the units it watches
+#: (docs/DETECTION.md, ``tools/warmup_drift_study.py``; simulator defaults).
+HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.08, 0.27), "kl_raw": (0.35, 0.34),
+                                                  "kl_weighted": (0.33, 0.32)}
+
 
 @dataclass(frozen=True)
 class DecisionConfig:
@@ -43,6 +50,8 @@ class DecisionConfig:
     (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
     the scalar / vector quantities. ``density`` applies to scalar quantities, ``density_joint`` to the
     vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
+    ``calibrate_at``: where the calibration simulates each detector (default at the drift allowance);
+    ``"healthy_drift"`` (a study option) uses ``healthy_drift`` (input → (mean, sd) [σ]) instead.
     """
 
     enabled: bool = True
@@ -64,6 +73,8 @@ class DecisionConfig:
     clip_sigma: float = 3.0
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
+    calibrate_at: str = "boundary"
+    healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
 
     @property
     def arl0(self) -> float:
@@ -73,6 +84,9 @@ class DecisionConfig:
         return float(self.arl0_cycles)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "healthy_drift", _healthy_drift(self.healthy_drift))
+        require(self.calibrate_at in CALIBRATE_AT, "decision.calibrate_at",
+                f"{self.calibrate_at!r}; choose one of {CALIBRATE_AT}")
         require((self.false_alarms_per_year is None) == (self.cycles_per_day is None),
                 "decision.false_alarms_per_year",
                 "give it together with decision.cycles_per_day (or use decision.arl0_cycles)")
@@ -96,16 +110,38 @@ class DecisionConfig:
     def detector_config(self, quantity: str) -> DetectorConfig:
         spec = QUANTITIES[quantity]
         vector = spec.dim > 1
+        drifting = self.calibrate_at == "healthy_drift"
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
                               gamma0=self.gamma0, rho=self.rho, arl0=self.arl0, direction=self.direction,
                               allowance=self.allowance, clip_sigma=self.clip_sigma,
                               calibration_draws=self.calibration_draws,
-                              calibration_steps=self.calibration_steps)
+                              calibration_steps=self.calibration_steps, calibrate_at=self.calibrate_at,
+                              drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
+                              drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting))
 
     def fingerprint(self) -> dict[str, Any]:
-        return {**asdict(self), "quantities": list(self.quantities)}
+        out = {**asdict(self), "quantities": list(self.quantities),
+               "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())}}
+        if self.calibrate_at == "boundary":      # the default: states saved before these settings still match
+            del out["calibrate_at"], out["healthy_drift"]
+        return out
+
+
+def _healthy_drift(given: Any) -> dict[str, tuple[float, float]]:
+    """``decision.healthy_drift``: the defaults, overridden per input by ``given`` (input → [mean, sd])."""
+    require(isinstance(given, Mapping), "decision.healthy_drift", f"expected a table, got {given!r}")
+    out = dict(HEALTHY_DRIFT)
+    for name, pair in given.items():
+        require(name in HEALTHY_DRIFT, f"decision.healthy_drift.{name}",
+                f"unknown input; known: {sorted(HEALTHY_DRIFT)}")
+        ok = (isinstance(pair, (list, tuple)) and len(pair) == 2
+              and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair))
+        require(ok and -5 <= pair[0] <= 5 and 0 <= pair[1] <= 5, f"decision.healthy_drift.{name}",
+                f"expected [mean, sd] in standard deviations (mean −5 … 5, sd 0 … 5), got {pair!r}")
+        out[name] = (float(pair[0]), float(pair[1]))
+    return out
 
 
 def _log_or_nan(x: float) -> float:

@@ -8,9 +8,13 @@ including the error of learning the nominal from N0 values — a parametric boot
 
 1. draw B nominal sets of N0 values from p̂0 and fit each with the detector's density family;
 2. run B detectors (one per refitted density) on independent streams drawn from p̂0, ``steps``
-   cycles long, recording each detector's statistic;
+   cycles long, each stream shifted by a constant that says what healthy data the target is for
+   (:func:`stream_shifts`: none, the drift allowance, or a fleet of healthy drifts), recording each
+   detector's statistic;
 3. for every candidate h, each detector's first-passage time T_b(h) gives the censored exponential
    estimate of the mean run length E[T](h) = Σ min(T_b, L) / #{T_b ≤ L};
+   (with a spread of healthy drifts, the fleet's: the mean false-alarm rate over groups of detectors
+   of neighbouring drift, :func:`fleet_run_lengths`);
 4. h is where E[T](h) = ARL0: interpolated where the simulation reaches ARL0 with little censoring,
    else extrapolated along the straight line log E[T] = a + c·h fitted to the upper part of the
    reliable range (``method="extrapolated"``).
@@ -31,6 +35,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.stats import norm
 
 from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
 from edge_monitor.stats.glr_batch import (
@@ -54,6 +59,10 @@ MAX_CENSORED = 0.10
 MIN_EVENTS = 10
 #: Threshold grid step [nats].
 H_STEP = 0.05
+#: ``"healthy_drift"``: simulated detectors of neighbouring drift pooled into one rate estimate.
+DRAWS_PER_STRATUM = 4
+#: Where the simulated streams of a calibration sit (:func:`stream_shifts`).
+CALIBRATE_AT = ("healthy_drift", "boundary", "nominal")
 
 
 class CalibrationError(ValueError):
@@ -87,6 +96,7 @@ class Calibration:
     events: int                   # simulated detectors that alarmed within ``steps`` at the threshold
     slope: float | None           # fitted d log E[T] / dh [1/nat] when extrapolated
     cpu_s: float
+    at: str = "boundary"          # where the simulated streams sat (:func:`stream_shifts`)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -96,7 +106,7 @@ class Calibration:
         return cls(threshold=float(state["threshold"]), arl0=float(state["arl0"]), method=str(state["method"]),
                    draws=int(state["draws"]), steps=int(state["steps"]), events=int(state["events"]),
                    slope=None if state.get("slope") is None else float(state["slope"]),
-                   cpu_s=float(state.get("cpu_s", 0.0)))
+                   cpu_s=float(state.get("cpu_s", 0.0)), at=str(state.get("at", "boundary")))
 
 
 def seed_from(values: ArrayLike) -> int:
@@ -108,31 +118,66 @@ def seed_from(values: ArrayLike) -> int:
 def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: float = 0.6, rho: float = 1.0,
               mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
-              clip_sigma: float = 0.0, at: str = "boundary") -> Calibration:
+              clip_sigma: float = 0.0, at: str = "boundary", drift_mean: ArrayLike = (),
+              drift_sd: ArrayLike = ()) -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
     ``clip_sigma`` its winsorisation (:func:`~edge_monitor.stats.glr_batch.clip_range`), each
-    bootstrap detector from its own nominal set. ``at``: the simulated streams sit at the edge of
-    the drift allowance on the watched side (``"boundary"``, the agent's choice) or on the learned
-    nominal itself (``"nominal"``, for studies: docs/DETECTION.md shows why the agent does not)."""
-    if at not in ("boundary", "nominal"):
-        raise ValueError(f"at = {at!r}; choose 'boundary' or 'nominal'")
+    bootstrap detector from its own nominal set. ``at`` says where the simulated streams sit
+    (:func:`stream_shifts`): ``"boundary"`` (the agent's default), ``"healthy_drift"`` or ``"nominal"``;
+    ``drift_mean``/``drift_sd`` (one per dimension, in standard deviations of the nominal values)
+    describe the healthy drift for ``"healthy_drift"``."""
+    if at not in CALIBRATE_AT:
+        raise ValueError(f"at = {at!r}; choose one of {CALIBRATE_AT}")
     started = time.process_time()
     values = as_observations(nominal, name="nominal data")
-    rng = np.random.default_rng(seed_from(values) if seed is None else seed)
+    seed = seed_from(values) if seed is None else seed
+    rng = np.random.default_rng(seed)
     truth = fit_density(values, kind)
     mixtures, samples = _bootstrap_densities(truth, len(values), kind, budget.draws, rng)
     boxes = stack_bounds([null_box(x, direction, allowance) for x in samples])
     clips = stack_bounds([clip_range(x, clip_sigma) for x in samples])
     steps = budget.steps(arl0)
-    # "boundary": the least favourable nominal, the largest shift H0 allows (the drift allowance) on
-    # the side the detector watches; "nominal" (or no allowance): the learned nominal itself
-    drift = (allowance if at == "boundary" else 0.0) * values.std(axis=0, ddof=1)
-    statistics = _simulate(truth, mixtures, boxes, clips, window, gamma0, rho, mode, steps, rng, drift)
-    threshold, method, events, slope = _threshold_for(statistics, arl0)
+    shifts = stream_shifts(values.std(axis=0, ddof=1), len(mixtures), at, allowance, drift_mean, drift_sd,
+                           np.random.default_rng([seed, 1]))      # its own stream: the draws stay the same
+    statistics = _simulate(truth, mixtures, boxes, clips, window, gamma0, rho, mode, steps, rng, shifts)
+    strata = 1
+    if at == "healthy_drift" and np.any(np.asarray(drift_sd, dtype=float) > 0):   # each joint keeps its drift
+        statistics = statistics[np.argsort(shifts.sum(axis=1), kind="stable")]
+        strata = max(len(mixtures) // DRAWS_PER_STRATUM, 1)
+    threshold, method, events, slope = _threshold_for(statistics, arl0, strata)
     return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(mixtures), steps=steps,
-                       events=events, slope=slope, cpu_s=time.process_time() - started)
+                       events=events, slope=slope, cpu_s=time.process_time() - started, at=at)
+
+
+def stream_shifts(spread: NDArray[np.float64], draws: int, at: str, allowance: float = 0.0,
+                  drift_mean: ArrayLike = (), drift_sd: ArrayLike = (),
+                  rng: np.random.Generator | None = None) -> NDArray[np.float64]:
+    """The constant shift (draws × d) added to each simulated stream, in the units of the values;
+    ``spread`` (d,) is the std of the nominal values.
+
+    * ``"nominal"``: none — the learned nominal itself (a stationary healthy joint);
+    * ``"boundary"``: ``allowance``·spread for every draw — the least favourable nominal, the largest
+      shift H0 allows on the watched side; the target then holds for the worst tolerated drift and a
+      healthy fleet runs longer;
+    * ``"healthy_drift"``: draw b is shifted by (``drift_mean`` + ``drift_sd``·z_b)·spread with z_b
+      the stratified normal quantiles Φ⁻¹((b + ½)/B) in random order, one z_b for all dimensions
+      (the two KL distances of a joint drift together; the wear score does not, so this overstates
+      the joint vector's drift). The simulated detectors are then a healthy fleet whose joints each
+      sit at their own drift after warm-up, and the threshold holds that fleet's false-alarm rate
+      (:func:`fleet_run_lengths`).
+    """
+    d = spread.size
+    if at == "nominal":
+        return np.zeros((draws, d))
+    if at == "boundary":
+        return np.tile(float(allowance) * spread, (draws, 1))
+    mean = np.broadcast_to(np.asarray(drift_mean, dtype=float), (d,))
+    sd = np.broadcast_to(np.asarray(drift_sd, dtype=float), (d,))
+    z = norm.ppf((np.arange(draws) + 0.5) / draws)
+    z = (rng or np.random.default_rng(0)).permutation(z)
+    return (mean[None, :] + sd[None, :] * z[:, None]) * spread[None, :]
 
 
 def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int, rng: np.random.Generator
@@ -157,10 +202,10 @@ def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int,
 def _simulate(truth: GaussianMixture, mixtures: list[GaussianMixture],
               boxes: tuple[NDArray[np.float64], NDArray[np.float64]],
               clips: tuple[NDArray[np.float64], NDArray[np.float64]], window: int, gamma0: float, rho: float,
-              mode: GLRMode, steps: int, rng: np.random.Generator, drift: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Statistics (B, steps) of B detectors on streams drawn from ``truth`` shifted by ``drift`` (d,)."""
+              mode: GLRMode, steps: int, rng: np.random.Generator, shifts: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Statistics (B, steps) of B detectors on streams drawn from ``truth``, stream b shifted by ``shifts[b]``."""
     glr = BatchWindowedGLR(MixtureBatch(mixtures), window, gamma0, rho, mode, null_box=boxes, clip=clips)
-    stream = truth.sample(len(mixtures) * steps, rng).reshape(len(mixtures), steps, truth.dim) + drift
+    stream = truth.sample(len(mixtures) * steps, rng).reshape(len(mixtures), steps, truth.dim) + shifts[:, None, :]
     out = np.empty((len(mixtures), steps))
     for t in range(steps):
         out[:, t] = glr.update(stream[:, t])
@@ -182,13 +227,34 @@ def mean_run_lengths(statistics: NDArray[np.float64], thresholds: NDArray[np.flo
     return mean, events, 1.0 - events / b
 
 
-def _threshold_for(statistics: NDArray[np.float64], arl0: float) -> tuple[float, str, int, float | None]:
+def fleet_run_lengths(statistics: NDArray[np.float64], thresholds: NDArray[np.float64], strata: int
+                      ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """A fleet of detectors that keep their own drift: ``statistics`` (B, L) ordered by drift, cut into
+    ``strata`` groups of neighbours. Within a group the detectors are alike and
+    :func:`mean_run_lengths` estimates its false-alarm rate; the fleet's rate is the mean of the groups'
+    rates (what a fleet that renews each detector after a false alarm sees). Returns 1 / that rate and
+    the number of detectors that alarmed, per threshold."""
+    rates = []
+    for group in np.array_split(statistics, strata):
+        mean, _, _ = mean_run_lengths(group, thresholds)
+        rates.append(1.0 / mean)                       # 0 where the group never alarmed
+    rate = np.mean(rates, axis=0)
+    _, events, _ = mean_run_lengths(statistics, thresholds)
+    return np.divide(1.0, rate, out=np.full_like(rate, np.inf), where=rate > 0), events
+
+
+def _threshold_for(statistics: NDArray[np.float64], arl0: float, strata: int = 1
+                   ) -> tuple[float, str, int, float | None]:
     top = float(np.max(statistics))
     if not math.isfinite(top) or top <= 0:
         raise CalibrationError("the simulated statistics are degenerate (no spread in the nominal data?)")
     grid = np.arange(H_STEP, top + H_STEP, H_STEP)
-    mean, events, censored = mean_run_lengths(statistics, grid)
-    reliable = (censored <= MAX_CENSORED) & (events >= MIN_EVENTS)
+    if strata > 1:           # a drifting fleet: slowly alarming groups are censored by nature, not by budget
+        mean, events = fleet_run_lengths(statistics, grid, strata)
+        reliable = events >= MIN_EVENTS
+    else:
+        mean, events, censored = mean_run_lengths(statistics, grid)
+        reliable = (censored <= MAX_CENSORED) & (events >= MIN_EVENTS)
     if not reliable.any():
         raise CalibrationError("too few simulated alarms to calibrate; give a larger calibration budget")
     last = int(np.flatnonzero(reliable)[-1])
@@ -224,14 +290,19 @@ class CalibrationJob:
     direction: str = "both"
     allowance: float = 0.0
     clip_sigma: float = 0.0
+    at: str = "boundary"
+    drift_mean: tuple[float, ...] = ()
+    drift_sd: tuple[float, ...] = ()
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
                          "exact" if self.mode == "exact" else "recursive", self.budget,
-                         direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma)
+                         direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma,
+                         at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd)
 
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget)}
+        return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget),
+                "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd)}
 
     @classmethod
     def from_dict(cls, state: dict[str, Any]) -> "CalibrationJob":
@@ -239,7 +310,9 @@ class CalibrationJob:
                    window=int(state["window"]), arl0=float(state["arl0"]), gamma0=float(state["gamma0"]),
                    rho=float(state["rho"]), mode=str(state["mode"]), budget=CalibrationBudget(**state["budget"]),
                    direction=str(state.get("direction", "both")), allowance=float(state.get("allowance", 0.0)),
-                   clip_sigma=float(state.get("clip_sigma", 0.0)))
+                   clip_sigma=float(state.get("clip_sigma", 0.0)), at=str(state.get("at", "boundary")),
+                   drift_mean=tuple(float(x) for x in state.get("drift_mean", ())),
+                   drift_sd=tuple(float(x) for x in state.get("drift_sd", ())))
 
 
 class Pending:

@@ -29,8 +29,10 @@ from edge_monitor.errors import ConfigError, check_learned_with, require
 from edge_monitor.records import Decision
 from edge_monitor.stats.bias_em import BiasEMError, check_gain
 from edge_monitor.stats.calibration import (
+    CALIBRATE_AT,
     DEFAULT_ARL0,
     MAX_ARL0,
+    MIN_EVENTS,
     Calibration,
     CalibrationBudget,
     CalibrationError,
@@ -71,7 +73,9 @@ class DetectorConfig:
 
     ``arl0``: mean run length to false alarm [cycles] the threshold is calibrated for; ``pf``: instead,
     the per-test false-alarm probability of the asymptotic threshold (expert option; then ``arl0`` is
-    not used). ``calibration_draws``/``calibration_steps``: simulation budget of the calibration.
+    not used). ``calibration_draws``/``calibration_steps``: simulation budget of the calibration;
+    ``calibrate_at``, ``drift_mean``/``drift_sd`` [σ of the nominal values, one per dimension]: which
+    healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`).
     """
 
     dim: int = 1
@@ -88,6 +92,9 @@ class DetectorConfig:
     clip_sigma: float = 0.0
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
+    calibrate_at: str = "boundary"
+    drift_mean: tuple[float, ...] = ()
+    drift_sd: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         try:
@@ -107,10 +114,18 @@ class DetectorConfig:
                     f"must be 0 … 5 standard deviations of the nominal values, got {self.allowance!r}")
             require(isinstance(self.clip_sigma, (int, float)) and (self.clip_sigma == 0 or 1 <= self.clip_sigma <= 20),
                     "clip_sigma", f"must be 0 (off) or 1 … 20 standard deviations, got {self.clip_sigma!r}")
-            require(isinstance(self.calibration_draws, int) and 8 <= self.calibration_draws <= 4096,
-                    "calibration_draws", f"must be 8 … 4096, got {self.calibration_draws!r}")
+            require(isinstance(self.calibration_draws, int) and MIN_EVENTS <= self.calibration_draws <= 4096,
+                    "calibration_draws", f"must be {MIN_EVENTS} … 4096 (a threshold needs {MIN_EVENTS} simulated "
+                    f"alarms), got {self.calibration_draws!r}")
             require(isinstance(self.calibration_steps, int) and 200 <= self.calibration_steps <= 1_000_000,
                     "calibration_steps", f"must be 200 … 1000000, got {self.calibration_steps!r}")
+            require(self.calibrate_at in CALIBRATE_AT, "calibrate_at",
+                    f"{self.calibrate_at!r}; choose one of {CALIBRATE_AT}")
+            if self.calibrate_at == "healthy_drift":
+                for name, values, low in (("drift_mean", self.drift_mean, -5.0), ("drift_sd", self.drift_sd, 0.0)):
+                    require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= 5
+                                                            for v in values), name,
+                            f"needs {self.dim} value(s) in {low:g} … 5 standard deviations, got {values!r}")
         except ConfigError as exc:
             raise DetectorConfigError(str(exc)) from None
         for name, gamma0, rho in (("gamma0", self.gamma0, 0.75), ("rho", 0.5, self.rho)):
@@ -125,7 +140,11 @@ class DetectorConfig:
                 raise DetectorConfigError(f"pf: {exc}") from None
 
     def fingerprint(self) -> dict[str, Any]:
-        return asdict(self)
+        out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd)}
+        if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
+            for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
+                del out[key]                                           # these settings existed still match
+        return out
 
     @property
     def budget(self) -> CalibrationBudget:
@@ -187,7 +206,7 @@ class SequentialDetector:
         """How the threshold is set, for every decision: the ARL0 target and the method, or the Pf."""
         if self.config.pf is not None:
             return {"method": "asymptotic", "pf": self.config.pf}
-        out: dict[str, Any] = {"arl0": self.config.arl0}
+        out: dict[str, Any] = {"arl0": self.config.arl0, "at": self.config.calibrate_at}
         if self.calibration is not None:
             out["method"] = self.calibration.method
         elif self._glr is not None:
@@ -249,7 +268,8 @@ class SequentialDetector:
             self._job = CalibrationJob(tuple(tuple(v) for v in self._nominal), self.density_kind, self.window,
                                        float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
-                                       float(self.config.clip_sigma))
+                                       float(self.config.clip_sigma), self.config.calibrate_at,
+                                       tuple(self.config.drift_mean), tuple(self.config.drift_sd))
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""
