@@ -67,3 +67,22 @@ def test_causes_recover_a_drift_made_of_one_parameter_and_see_none_in_noise() ->
     assert out["wear_score"]["r2_temperature_coefficients"] < 0.5
     assert out["kl_weighted"]["r2_temperature_coefficients"] is None       # no spread to explain
     assert set(out["kl_raw"]["corr"]) == set(VARIED_PARAMS)
+
+
+def test_variant_friction_sets_one_parameter_at_a_time() -> None:
+    """``fvxi``: the base table with only fvξ as drawn; ``all_but_fvxi``: as drawn except fvξ; a name
+    that is not varied is a clear error."""
+    import pytest
+    from warmup_drift_study import variant_friction
+
+    from sim_controller.config import SimConfig
+
+    config = SimConfig(joints=3, seed=7)
+    drawn, base = variant_friction(config, 2, "drawn"), variant_friction(config, 2, "base")
+    assert base == config.friction and drawn != base
+    one = variant_friction(config, 2, "fvxi")
+    assert one.fvxi == drawn.fvxi and one.fv0 == base.fv0
+    others = variant_friction(config, 2, "all_but_fvxi")
+    assert others.fvxi == base.fvxi and others.fv0 == drawn.fv0
+    with pytest.raises(ValueError, match="variant 'tau'"):
+        variant_friction(config, 2, "tau")

@@ -23,7 +23,14 @@ exact friction model and the true temperatures, and the residual against the col
 reported per speed band (rms, torque as a fraction of the joint's maximum). Whatever remains is not
 static friction: the speed loop's response to the temperature-dependent Stribeck friction.
 
+Part ``variant``: what sets one joint's late drift. The joint (``--joint``, first of ``--seeds``) runs
+with its friction as drawn, as the base table, or with one parameter drawn and the rest base
+(``--variants``), the other joints as drawn; with ``--set`` the agent's settings change too (e.g.
+``model.max_relative_std=1e-4`` keeps every parameter at its base value instead of identifying it).
+Prints the joint's mean shift over its windows from the third on.
+
 Usage: .venv/bin/python tools/warmup_drift_study.py [--seeds 1 2] [--cycles 600] [--set kl.min_speed=1]
+       .venv/bin/python tools/warmup_drift_study.py --part variant --seeds 7 --joint 2 --variants drawn,base
        .venv/bin/python tools/warmup_drift_study.py --part residual
 """
 
@@ -33,6 +40,7 @@ import argparse
 import json
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +55,7 @@ from edge_monitor.features.temperature_compensation import TemperatureCompensati
 from edge_monitor.offline.fast_path import DETECTOR_INPUTS, detector_inputs_with_truth  # noqa: E402
 from edge_monitor.pipeline.detectors import DEFAULT_NOMINAL  # noqa: E402
 from joint_model import FrictionParams  # noqa: E402
-from sim_controller.config import SimConfig  # noqa: E402
+from sim_controller.config import JointOverride, SimConfig  # noqa: E402
 from sim_controller.controller import VARIED_PARAMS, Controller  # noqa: E402
 from sim_controller.cycle_mode import cycle_signals  # noqa: E402
 
@@ -149,6 +157,41 @@ def summarise(per_joint: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def variant_friction(config: SimConfig, joint: int, variant: str) -> FrictionParams:
+    """The friction of ``joint`` for one variant: ``drawn`` (its individual parameters), ``base`` (the
+    base table), a parameter name (the base table with only that one drawn), ``all_but_<name>`` (drawn
+    with that one at its base value)."""
+    drawn, base = Controller(config).joints[joint].friction, config.friction
+    if variant in ("drawn", "base"):
+        return drawn if variant == "drawn" else base
+    name = variant.removeprefix("all_but_")
+    if name not in VARIED_PARAMS:
+        raise ValueError(f"variant {variant!r}: use drawn, base, one of {VARIED_PARAMS} or all_but_<one of them>")
+    if variant.startswith("all_but_"):
+        return replace(drawn, **{name: getattr(base, name)})
+    return replace(base, **{name: getattr(drawn, name)})
+
+
+def variant_drift(seed: int, joint: int, joints: int, cycles: int, variant: str, settings: dict[str, Any],
+                  window: int = 150) -> dict[str, Any]:
+    """One joint's late shift (mean of its windows from the third on) with its friction set by
+    :func:`variant_friction`, the other joints as drawn."""
+    config = SimConfig(joints=joints, seed=seed, cycles=cycles)
+    friction = variant_friction(config, joint, variant)
+    config = replace(config, joint_overrides=tuple(JointOverride(friction=friction) if j == joint else None
+                                                   for j in range(joints)))
+    rows = [(cycle, float(truth.get("temperature", np.nan)),
+             *[np.log(values[q]) if q in LOG_SCALE else values[q] for q in DETECTOR_INPUTS])
+            for j, cycle, values, truth in detector_inputs_with_truth(config, settings) if j == joint]
+    table = np.asarray(rows, dtype=float)
+    series = {"cycle": table[:, 0], "temperature": table[:, 1],
+              **{q: table[:, 2 + i] for i, q in enumerate(DETECTOR_INPUTS)}}
+    windows = drift_rows(series, window)
+    late = windows[2:] or windows
+    return {"variant": variant, "temperature": late[-1]["temperature"],
+            **{q: round(float(np.mean([w[q]["shift"] for w in late])), 2) for q in DETECTOR_INPUTS}}
+
+
 def markdown(result: dict[str, Any]) -> str:
     lines = ["| from cycle | lubricant [°C] | " + " | ".join(f"{q}: shift median (min … max) / spread"
                                                             for q in DETECTOR_INPUTS) + " |",
@@ -185,7 +228,10 @@ def residual(cold: float = 35.0, warm: float = 55.0, seed: int = 5, load: float 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--part", choices=("drift", "residual"), default="drift")
+    ap.add_argument("--part", choices=("drift", "residual", "variant"), default="drift")
+    ap.add_argument("--joint", type=int, default=2, help="variant part: the joint whose friction is varied")
+    ap.add_argument("--variants", default="drawn,base", help="variant part: drawn, base, a parameter name "
+                    "(only that one drawn) or all_but_<name>, comma-separated")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--cycles", type=int, default=600)
     ap.add_argument("--joints", type=int, default=6)
@@ -197,8 +243,19 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     for name in ("edge_monitor", "sim_controller"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    if args.part == "residual":
-        result: dict[str, Any] = {"residual": residual()}
+    result: dict[str, Any]
+    if args.part == "variant":
+        settings = settings_from(tuple(args.set))
+        result = {"seed": args.seeds[0], "joint": args.joint, "cycles": args.cycles, "settings": settings,
+                  "variants": [variant_drift(args.seeds[0], args.joint, args.joints, args.cycles, v, settings)
+                               for v in args.variants.split(",")]}
+        print("| variant | late lubricant [°C] | " + " | ".join(DETECTOR_INPUTS) + " |\n|---|---|"
+              + "---|" * len(DETECTOR_INPUTS))
+        for r in result["variants"]:
+            print(f"| {r['variant']} | {r['temperature']:.1f} | " + " | ".join(f"{r[q]:+.2f}" for q in DETECTOR_INPUTS)
+                  + " |")
+    elif args.part == "residual":
+        result = {"residual": residual()}
         print("| speed band [rad/s] | samples | uncompensated rms | residual rms |\n|---|---|---|---|")
         for r in result["residual"]:
             print(f"| {r['speed_from']:g} … {r['speed_to']:g} | {r['samples']} | {r['uncompensated_rms']:.5f} | "
