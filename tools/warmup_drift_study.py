@@ -65,16 +65,14 @@ log = logging.getLogger("warmup_drift_study")
 SPEED_BANDS = ((1.0, 5.0), (5.0, 10.0), (10.0, 50.0), (50.0, 120.0), (120.0, 200.0), (200.0, 300.0))
 
 
-def joint_series(seed: int, cycles: int, joints: int, settings: dict[str, Any]
-                 ) -> dict[int, dict[str, np.ndarray]]:
+def joint_series(config: SimConfig, settings: dict[str, Any]) -> dict[int, dict[str, np.ndarray]]:
     """Per joint: cycle, true lubricant temperature [°C] and each detector input in watched units."""
     rows: dict[int, list[tuple[float, ...]]] = {}
-    for joint, cycle, values, truth in detector_inputs_with_truth(
-            SimConfig(joints=joints, cycles=cycles, seed=seed), settings):
+    for joint, cycle, values, truth in detector_inputs_with_truth(config, settings):
         watched = [np.log(values[q]) if q in LOG_SCALE else values[q] for q in DETECTOR_INPUTS]
         rows.setdefault(joint, []).append((cycle, float(truth.get("temperature", np.nan)), *watched))
         if joint == 0 and cycle % 100 == 99:
-            log.info("seed %d: cycle %d/%d", seed, cycle + 1, cycles)
+            log.info("seed %d: cycle %d/%d", config.seed, cycle + 1, config.cycles)
     out = {}
     for joint, data in rows.items():
         table = np.asarray(data, dtype=float)
@@ -107,7 +105,7 @@ def drift(seeds: list[int], cycles: int, joints: int, window: int, settings: dic
     joints_out = []
     for seed in seeds:
         variation = joint_variation(SimConfig(joints=joints, seed=seed))
-        for joint, series in sorted(joint_series(seed, cycles, joints, settings).items()):
+        for joint, series in sorted(joint_series(SimConfig(joints=joints, cycles=cycles, seed=seed), settings).items()):
             joints_out.append({"seed": seed, "joint": joint, "variation": variation[joint],
                                "windows": drift_rows(series, window)})
     return {"seeds": seeds, "cycles": cycles, "joints": joints, "window": window, "settings": settings,
@@ -180,13 +178,7 @@ def variant_drift(seed: int, joint: int, joints: int, cycles: int, variant: str,
     friction = variant_friction(config, joint, variant)
     config = replace(config, joint_overrides=tuple(JointOverride(friction=friction) if j == joint else None
                                                    for j in range(joints)))
-    rows = [(cycle, float(truth.get("temperature", np.nan)),
-             *[np.log(values[q]) if q in LOG_SCALE else values[q] for q in DETECTOR_INPUTS])
-            for j, cycle, values, truth in detector_inputs_with_truth(config, settings) if j == joint]
-    table = np.asarray(rows, dtype=float)
-    series = {"cycle": table[:, 0], "temperature": table[:, 1],
-              **{q: table[:, 2 + i] for i, q in enumerate(DETECTOR_INPUTS)}}
-    windows = drift_rows(series, window)
+    windows = drift_rows(joint_series(config, settings)[joint], window)
     late = windows[2:] or windows
     return {"variant": variant, "temperature": late[-1]["temperature"],
             **{q: round(float(np.mean([w[q]["shift"] for w in late])), 2) for q in DETECTOR_INPUTS}}

@@ -33,7 +33,7 @@ many values and is still detected by accumulation.
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -112,33 +112,26 @@ class MixtureBatch:
         self.gain_t = np.ascontiguousarray(self.gain.transpose(0, 2, 1))
         self._scalar = d == 1                                                   # the common case: plain broadcasting
 
-    def _component_logpdf(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """log(πk·N(x; μk, S)) for x of shape (B, n, d): (B, n, K)."""
+    def _component_logpdf(self, x: NDArray[np.float64], rows: Any = slice(None)) -> NDArray[np.float64]:
+        """log(πk·N(x; μk, S)) for x of shape (B', n, d), the b-th with mixture ``rows[b]`` (default:
+        all B in order): (B', n, K)."""
         if self._scalar:
-            z = x * self.whiten[:, :, 0][:, :, None] - self.means_w[:, None, :, 0]     # (B, n, K)
-            return self.log_coef[:, None, :] - 0.5 * (z * z)
-        xw = x @ self.whiten_t                                                   # batched BLAS, not einsum
-        quad = ((xw * xw).sum(axis=2)[:, :, None] - 2.0 * (xw @ self.means_w_t) + self.means_w_sq[:, None, :])
-        return self.log_coef[:, None, :] - 0.5 * np.maximum(quad, 0.0)
+            z = x * self.whiten[rows, :, 0][:, :, None] - self.means_w[rows][:, None, :, 0]    # (B', n, K)
+            return self.log_coef[rows][:, None, :] - 0.5 * (z * z)
+        xw = x @ self.whiten_t[rows]                                             # batched BLAS, not einsum
+        quad = ((xw * xw).sum(axis=2)[:, :, None] - 2.0 * (xw @ self.means_w_t[rows])
+                + self.means_w_sq[rows][:, None, :])
+        return self.log_coef[rows][:, None, :] - 0.5 * np.maximum(quad, 0.0)
 
-    def logpdf(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """log p0(x) for x of shape (B, n, d): (B, n)."""
-        lc = self._component_logpdf(x)
+    def logpdf(self, x: NDArray[np.float64], rows: Any = slice(None)) -> NDArray[np.float64]:
+        """log p0(x) for x of shape (B', n, d), mixtures as in :meth:`_component_logpdf`: (B', n)."""
+        lc = self._component_logpdf(x, rows)
         top = lc.max(axis=2)
         return top + np.log(np.exp(lc - top[:, :, None]).sum(axis=2))
 
     def logpdf_rows(self, rows: NDArray[np.int64], x: NDArray[np.float64]) -> NDArray[np.float64]:
         """log p0 of mixture ``rows[m]`` at ``x[m]``, x of shape (M, d): (M,) — for scattered points."""
-        if self._scalar:
-            z = x * self.whiten[rows, 0, :] - self.means_w[rows, :, 0]                 # (M, K)
-            lc = self.log_coef[rows] - 0.5 * (z * z)
-        else:
-            xw = (x[:, None, :] @ self.whiten_t[rows])[:, 0, :]
-            quad = ((xw * xw).sum(axis=1)[:, None] - 2.0 * (xw[:, None, :] @ self.means_w_t[rows])[:, 0, :]
-                    + self.means_w_sq[rows])
-            lc = self.log_coef[rows] - 0.5 * np.maximum(quad, 0.0)
-        top = lc.max(axis=1)
-        return top + np.log(np.exp(lc - top[:, None]).sum(axis=1))
+        return self.logpdf(x[:, None, :], rows)[:, 0]
 
     def posterior_mean(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Σk ζk(x) μk for x of shape (B, n, d): (B, n, d)."""
