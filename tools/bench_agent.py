@@ -66,7 +66,7 @@ simulated) in 14.8 s, 462× real time; `edge-monitor replay big.blf --json` took
 (the bench above leaves that out); 200 cycles, 1,200 symptoms, none partial, no alarm. (Earlier the
 same day, before the vectorised `.blf` reader: 427× and 53,074 frames/s.) Re-run at 17:34 UTC on the
 final code, again beside a CI run: record 17.7 s (386× real time, peak RSS 135 MB); replay 312.1 s,
-73,404 frames/s, peak RSS 159 MB; 200 cycles, 1,200 symptoms, **no alarm**. Again at 20:47 UTC on the code of bf10d33 (`kl.min_speed` = 10, span-only KDE binning), beside a full CI run: record 25.1 s (272× real time, peak RSS 134 MB); replay 559.1 s, 40,977 frames/s, peak RSS 159 MB; 200 cycles, 1,200 symptoms, **no alarm**. The slower figures follow the machine, which also ran the test suite 1.5× slower today than last session."""
+73,404 frames/s, peak RSS 159 MB; 200 cycles, 1,200 symptoms, **no alarm**. Again at 20:47 UTC on the code of bf10d33 (`kl.min_speed` = 10, span-only KDE binning), beside a full CI run: record 25.1 s (272× real time, peak RSS 134 MB); replay 559.1 s, 40,977 frames/s, peak RSS 159 MB; 200 cycles, 1,200 symptoms, **no alarm**. The slower figures follow the machine, which also ran the test suite 1.5× slower today than last session. Again at 23:57 UTC on the code of 08d572b (the faster calibration), beside test runs and, at its end, a CI run: record 22.0 s (311× real time); replay 333.5 s, 68,696 frames/s; 22,910,626 frames all OK, 200 cycles, 1,200 symptoms, **no alarm**."""
 
 CALIBRATION_GAP = (
     "**Gap: the inline threshold calibration.** The files above (10 cycles) end before the detectors' "
