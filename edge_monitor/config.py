@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping
 
-from edge_monitor.errors import ConfigError
+from edge_monitor.errors import ConfigError, key_name
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
@@ -27,6 +28,7 @@ from protocol.frames import MAX_JOINTS
 
 __all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "ModelConfig", "PlateauConfig", "WearConfig",
            "config_from_mapping", "load_config", "with_overrides"]
+
 
 def _coerce(where: str, value: Any, default: Any) -> Any:
     """Convert a TOML value to the type of the dataclass default, with a message naming ``where``."""
@@ -65,7 +67,7 @@ def _coerce_fields(cls: type, values: Mapping[str, Any], where: str,
     known = known if known is not None else frozenset(f.name for f in dataclasses.fields(cls))
     unknown = sorted(set(values) - known)
     if unknown:
-        names = ", ".join(f"{where}.{k}" for k in unknown)
+        names = ", ".join(f"{where}.{key_name(k)}" for k in unknown)
         raise ConfigError(f"{names}: unknown key; known keys of [{where}]: {sorted(known)}")
     defaults = cls()
     return {key: _coerce(f"{where}.{key}", raw, getattr(defaults, key)) for key, raw in values.items()}
@@ -100,8 +102,8 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
         if not isinstance(tables, Mapping):
             raise ConfigError("joint: expected tables [joint.N.friction]")
         for key, table in tables.items():
-            if not str(key).isdigit() or not 0 <= int(key) < MAX_JOINTS:
-                raise ConfigError(f"joint.{key}: joint index must be 0 … {MAX_JOINTS - 1}")
+            if not re.fullmatch(r"[0-9]{1,3}", str(key)) or not 0 <= int(key) < MAX_JOINTS:
+                raise ConfigError(f"joint.{key_name(key)}: joint index must be 0 … {MAX_JOINTS - 1}")
             if not isinstance(table, Mapping) or set(table) - {"friction"}:
                 raise ConfigError(f"joint.{key}: expected only a [joint.{key}.friction] table")
             try:

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import re
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_/.-]+")
+
 
 class ConfigError(ValueError):
     """A configuration value is missing, of the wrong type or out of range; the message names the
@@ -44,3 +49,10 @@ def config_changes(saved: dict[str, object], current: dict[str, object]) -> dict
     """Fields whose values differ between a saved and the current config fingerprint."""
     keys = set(saved) | set(current)
     return {k: (saved.get(k), current.get(k)) for k in keys if saved.get(k) != current.get(k)}
+
+
+def key_name(key: object) -> str:
+    """``key`` for a message: as is when it is a plain name or path, else quoted with escapes, so that a
+    hostile key (newlines, control characters) cannot forge or split a log line."""
+    text = str(key)
+    return text if _BARE_KEY.fullmatch(text) else json.dumps(text)

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from edge_monitor.errors import key_name
+
 log = logging.getLogger(__name__)
 
 TLS_KEY = "transport/link/tls"
@@ -112,7 +114,7 @@ def apply_settings(config: Any, settings: Mapping[str, Any]) -> Any:
             try:
                 config.insert_json5(key, json.dumps(item))
             except Exception as exc:  # zenoh raises ZError on schema violations
-                raise ZenohSecurityError(f"zenoh setting {key}={item!r} rejected: {exc}") from exc
+                raise ZenohSecurityError(f"zenoh setting {key_name(key)}={item!r} rejected: {exc}") from exc
     return config
 
 

@@ -18,6 +18,8 @@ from typing import Any
 
 import zenoh
 
+from edge_monitor.errors import key_name
+
 log = logging.getLogger(__name__)
 
 MODES = ("peer", "client", "router")
@@ -92,7 +94,7 @@ def _insert(config: zenoh.Config, key: str, value: Any) -> None:
     try:
         config.insert_json5(key, json.dumps(value))
     except Exception as exc:
-        raise ZenohSetupError(f"zenoh setting {key}={value!r} rejected: {exc}") from exc
+        raise ZenohSetupError(f"zenoh setting {key_name(key)}={value!r} rejected: {exc}") from exc
 
 
 def _warn_if_multicast(config: zenoh.Config, path: str) -> None:
