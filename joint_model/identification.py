@@ -188,10 +188,16 @@ def prediction_gradient(data: CommissioningData, params: FrictionParams) -> NDAr
     return np.hstack(columns)
 
 
-def identify_linear(data: CommissioningData, base: FrictionParams, free: tuple[str, ...]) -> CommissioningResult:
-    """Least-squares estimate of the linear parameters ``free`` (a subset of :data:`LINEAR_NAMES`) with
-    every other parameter fixed at ``base`` — the nonlinear ones included, so no search is needed.
-    For little data: what the free parameters are is the caller's judgement of what the data can tell."""
+def identify_linear(data: CommissioningData, base: FrictionParams, free: tuple[str, ...],
+                    prior_relative_std: float | None = None) -> CommissioningResult:
+    """Estimate of the linear parameters ``free`` (a subset of :data:`LINEAR_NAMES`) with every other
+    parameter fixed at ``base`` — the nonlinear ones included, so no search is needed.
+
+    Without ``prior_relative_std``: least squares. With it: the maximum a posteriori estimate under a
+    Gaussian prior centred on ``base`` with standard deviation ``prior_relative_std · |base|`` per
+    parameter — ridge regression towards the base table (a base value of 0 stays 0), the noise variance
+    taken from the least-squares residual — and the posterior covariance. For little data: the prior
+    keeps what the data cannot tell at the base value instead of fitting noise (docs/ALGORITHMS.md §1)."""
     unknown = [name for name in free if name not in LINEAR_NAMES]
     if unknown or not free:
         raise IdentificationDataError(f"free parameters must be some of {LINEAR_NAMES}, got {list(free)}")
@@ -201,10 +207,17 @@ def identify_linear(data: CommissioningData, base: FrictionParams, free: tuple[s
     columns = [LINEAR_NAMES.index(name) for name in free]
     fixed = [j for j in range(len(LINEAR_NAMES)) if j not in columns]
     target = data.friction - phi[:, fixed] @ eta[fixed]
-    estimate, *_ = np.linalg.lstsq(phi[:, columns], target, rcond=None)
+    design = phi[:, columns]
+    estimate, *_ = np.linalg.lstsq(design, target, rcond=None)
+    gamma = float(np.mean((target - design @ estimate) ** 2))
+    information = design.T @ design
+    if prior_relative_std is not None:
+        prior_mean = eta[columns]
+        precision = np.diag(gamma / np.maximum(prior_relative_std * np.abs(prior_mean), 1e-300) ** 2)
+        information = information + precision
+        estimate = np.linalg.solve(information, design.T @ target + precision @ prior_mean)
     eta[columns] = estimate
-    resid = target - phi[:, columns] @ estimate
-    gamma = float(np.mean(resid ** 2))
-    covariance = np.asarray(gamma * np.linalg.pinv(phi[:, columns].T @ phi[:, columns]), dtype=np.float64)
+    covariance = np.asarray(gamma * np.linalg.pinv(information), dtype=np.float64)
+    rms = math.sqrt(float(np.mean((target - design @ estimate) ** 2)))
     return CommissioningResult(params=_with(base, eta, rho), names=tuple(free), covariance=covariance,
-                               noise_variance=gamma, n_points=data.n, rms_residual=math.sqrt(gamma))
+                               noise_variance=gamma, n_points=data.n, rms_residual=rms)

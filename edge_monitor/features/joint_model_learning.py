@@ -6,8 +6,11 @@ controller's load estimates and motor temperatures; then it identifies (docs/ALG
 
 * the lubricant temperature of each learning cycle, ξk, which is not measured: the best fit of the
   nominal model to that cycle's friction curve (wear 0), alternating with
-* the parameters the data can tell, by least squares with the others fixed at the base table
-  (:func:`joint_model.identification.identify_linear`): always the speed-level terms fc0 (Coulomb), fs0
+* the parameters the data can tell, with the others fixed at the base table, by regression towards
+  the base table: the maximum a posteriori estimate under a Gaussian prior of ``prior_relative_std``
+  (:func:`joint_model.identification.identify_linear`; plain least squares fitted the load estimate's
+  noise at the lowest speeds into fs0 and extrapolated it badly to warm lubricant,
+  docs/WEAR_ESTIMATION.md §5): always the speed-level terms fc0 (Coulomb), fs0
   (Stribeck) and fv0 (viscous); the temperature coefficients fsξ, fvξ only when the ξk span at least
   ``temperature_span`` °C (a cold start warms a joint by a few °C in 20 cycles: not enough); the load
   coefficients fcl, fsl only when the spread of the load estimates exceeds twice their own noise
@@ -54,6 +57,7 @@ class ModelConfig:
     learning_cycles: int = 20
     temperature_span: float = 15.0       # °C of ξk spread needed to identify fsξ and fvξ
     max_relative_std: float = 0.5        # a parameter less certain than this keeps its base value
+    prior_relative_std: float = 0.05     # 1 σ of a joint's parameters around the base table (relative)
 
     def __post_init__(self) -> None:
         require(isinstance(self.learning_cycles, int) and 5 <= self.learning_cycles <= 10_000,
@@ -62,6 +66,8 @@ class ModelConfig:
                 f"must be > 0 °C, got {self.temperature_span}")
         require(math.isfinite(self.max_relative_std) and self.max_relative_std > 0, "model.max_relative_std",
                 f"must be > 0, got {self.max_relative_std}")
+        require(math.isfinite(self.prior_relative_std) and self.prior_relative_std > 0, "model.prior_relative_std",
+                f"must be > 0 (1e6: practically no prior, least squares), got {self.prior_relative_std}")
 
     def fingerprint(self) -> dict[str, Any]:
         return asdict(self)
@@ -137,16 +143,16 @@ class JointModelLearner:
         return free
 
     def _identify(self) -> None:
-        params, free = self.base, ALWAYS_FREE
+        params, free, prior = self.base, ALWAYS_FREE, self.config.prior_relative_std
         temperatures = self._temperatures(params)
         try:
             for _ in range(ALTERNATIONS):
                 free = self._free(temperatures)
-                result = identify_linear(self._data(temperatures), self.base, free)
+                result = identify_linear(self._data(temperatures), self.base, free, prior)
                 certain = tuple(n for n, sd in result.std_errors.items()
                                 if sd <= self.config.max_relative_std * max(abs(getattr(result.params, n)), 1e-12))
                 if certain != free and certain:
-                    result = identify_linear(self._data(temperatures), self.base, certain)
+                    result = identify_linear(self._data(temperatures), self.base, certain, prior)
                 free = certain
                 params = result.params if certain else self.base
                 temperatures = self._temperatures(params)
