@@ -125,4 +125,7 @@ def test_the_learner_reports_what_it_identified():
     assert learner.learned
     assert set(learner.report["identified"]) == set(ALWAYS_FREE)
     assert learner.report["cycles"] == 20 and 0 < learner.report["temperature_span"] < 15.0
+    share = learner.report["data_share"]         # how much the data decided against the prior
+    assert set(share) == set(ALWAYS_FREE) and all(0.0 <= v <= 1.0 for v in share.values())
+    assert share["fc0"] > share["fs0"]           # fc0 shows at every speed, fs0 at the two lowest
     assert abs(learner.relation[0] - 5.0) < 1.0      # motor − lubricant offset, from the fitted ξk

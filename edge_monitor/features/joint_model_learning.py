@@ -145,6 +145,7 @@ class JointModelLearner:
     def _identify(self) -> None:
         params, free, prior = self.base, ALWAYS_FREE, self.config.prior_relative_std
         temperatures = self._temperatures(params)
+        told: dict[str, float] = {}
         try:
             for _ in range(ALTERNATIONS):
                 free = self._free(temperatures)
@@ -155,20 +156,23 @@ class JointModelLearner:
                     result = identify_linear(self._data(temperatures), self.base, certain, prior)
                 free = certain
                 params = result.params if certain else self.base
+                told = {n: _data_share(result.std_errors[n], prior * abs(getattr(self.base, n))) for n in certain}
                 temperatures = self._temperatures(params)
         except (IdentificationDataError, np.linalg.LinAlgError, ValueError) as exc:
             log.warning("joint model identification failed (%s); keeping the base parameters", exc)
-            params, free = self.base, ()
+            params, free, told = self.base, (), {}
         self.params = params
         self.relation = self._motor_relation(temperatures)
         self.learned = True
         self.report = {"identified": list(free), "cycles": len(self._cycles),
                        "temperature_span": float(np.ptp(temperatures)),
                        "parameters": {n: getattr(params, n) for n in free},
+                       "data_share": told,
                        "motor_offset": None if self.relation is None else self.relation[0]}
         self._cycles = []
-        log.info("joint model learned: %s identified over %.1f °C, motor offset %s", list(free),
-                 self.report["temperature_span"], self.report["motor_offset"])
+        log.info("joint model learned: %s identified over %.1f °C (share of the data against the prior %s), "
+                 "motor offset %s", list(free), self.report["temperature_span"],
+                 {n: round(v, 2) for n, v in told.items()}, self.report["motor_offset"])
 
     def _motor_relation(self, temperatures: np.ndarray) -> tuple[float, float] | None:
         pairs = [(c.motor, t) for c, t in zip(self._cycles, temperatures) if c.motor is not None]
@@ -200,3 +204,11 @@ class JointModelLearner:
         motor = state.get("motor")
         self._motor = float(motor) if isinstance(motor, (int, float)) else None
         self._cycles = [_Cycle(**c) for c in state.get("cycles", [])]
+
+
+def _data_share(posterior_std: float, prior_std: float) -> float:
+    """How much of a parameter's estimate the data decided: 1 − posterior variance / prior variance
+    (0: the prior alone, the base value; 1: the data alone)."""
+    if prior_std <= 0:
+        return 0.0
+    return float(min(1.0, max(0.0, 1.0 - (posterior_std / prior_std) ** 2)))
