@@ -10,12 +10,14 @@ controller's load estimates and motor temperatures; then it identifies (docs/ALG
   the base table: the maximum a posteriori estimate under a Gaussian prior of ``prior_relative_std``
   (:func:`joint_model.identification.identify_linear`; plain least squares fitted the load estimate's
   noise at the lowest speeds into fs0 and extrapolated it badly to warm lubricant,
-  docs/WEAR_ESTIMATION.md §5): always the speed-level terms fc0 (Coulomb), fs0
-  (Stribeck) and fv0 (viscous); the temperature coefficients fsξ, fvξ only when the ξk span at least
-  ``temperature_span`` °C (a cold start warms a joint by a few °C in 20 cycles: not enough); the load
-  coefficients fcl, fsl only when the spread of the load estimates exceeds twice their own noise
-  (otherwise the noise of the regressor biases them). A parameter whose standard error exceeds
-  ``max_relative_std`` of its value keeps the base value. Nonlinear parameters keep the base values.
+  docs/WEAR_ESTIMATION.md §5): always the speed-level terms fc0 (Coulomb), fs0 (Stribeck) and fv0
+  (viscous); the temperature coefficients fsξ, fvξ only when the ξk (and the motor temperatures'
+  10–90 % range, where known) span at least ``temperature_span`` °C (a cold start warms a joint by a
+  few °C in 20 cycles: not enough); the load coefficients fcl, fsl only when the spread of the load
+  estimates exceeds twice their own noise (otherwise the noise of the regressor biases them). A
+  parameter whose least-squares standard error exceeds ``max_relative_std`` of its value keeps the
+  base value (judged by the data alone: the prior would make every one look certain). Nonlinear
+  parameters keep the base values.
 * how the motor temperature of JointStatus relates to ξk (offset and spread of ξ ≈ motor
   temperature − offset; :mod:`edge_monitor.features.temperature_prior`).
 
@@ -133,14 +135,33 @@ class JointModelLearner:
         speed, temperature, load, friction = (np.array(col, dtype=float) for col in zip(*rows))
         return CommissioningData(speed=speed, temperature=temperature, load=load, friction=friction)
 
+    def _span(self, temperatures: np.ndarray) -> float:
+        """The learning cycles' spread of lubricant temperature [°C]: the fitted ξk's range, and where
+        motor temperatures are known no more than their 10–90 % range (with few speeds per cycle the ξk
+        are noisy and their range is mostly noise; a real warm-up moves the motor too)."""
+        span = float(np.ptp(temperatures))
+        motor = [c.motor for c in self._cycles if c.motor is not None]
+        if len(motor) >= max(5, len(self._cycles) // 2):
+            span = min(span, float(np.subtract(*np.percentile(motor, [90, 10]))))
+        return span
+
     def _free(self, temperatures: np.ndarray) -> tuple[str, ...]:
         free = ALWAYS_FREE
-        if float(np.ptp(temperatures)) >= self.config.temperature_span:
+        if self._span(temperatures) >= self.config.temperature_span:
             free += TEMPERATURE_TERMS
         loads = np.array([c.load for c in self._cycles])
         if loads.var() > 4 * 0.1 ** 2:         # the controller's σl is ~0.1: the regressor noise
             free += LOAD_TERMS
         return free
+
+    def _certain(self, data: CommissioningData, free: tuple[str, ...]) -> tuple[str, ...]:
+        """The parameters of ``free`` that the data alone (least squares, no prior) pin down to within
+        ``max_relative_std`` of their value; the others keep the base value. Judged without the prior,
+        which would make every parameter look certain: with 2–4 speeds per cycle (a designed
+        experiment) nothing is, and the joint keeps the base table."""
+        plain = identify_linear(data, self.base, free)
+        return tuple(n for n, sd in plain.std_errors.items()
+                     if sd <= self.config.max_relative_std * max(abs(getattr(plain.params, n)), 1e-12))
 
     def _identify(self) -> None:
         params, free, prior = self.base, ALWAYS_FREE, self.config.prior_relative_std
@@ -148,15 +169,14 @@ class JointModelLearner:
         told: dict[str, float] = {}
         try:
             for _ in range(ALTERNATIONS):
-                free = self._free(temperatures)
-                result = identify_linear(self._data(temperatures), self.base, free, prior)
-                certain = tuple(n for n, sd in result.std_errors.items()
-                                if sd <= self.config.max_relative_std * max(abs(getattr(result.params, n)), 1e-12))
-                if certain != free and certain:
-                    result = identify_linear(self._data(temperatures), self.base, certain, prior)
-                free = certain
-                params = result.params if certain else self.base
-                told = {n: _data_share(result.std_errors[n], prior * abs(getattr(self.base, n))) for n in certain}
+                data = self._data(temperatures)
+                free = self._certain(data, self._free(temperatures))
+                told = {}
+                params = self.base
+                if free:
+                    result = identify_linear(data, self.base, free, prior)
+                    params = result.params
+                    told = {n: _data_share(result.std_errors[n], prior * abs(getattr(self.base, n))) for n in free}
                 temperatures = self._temperatures(params)
         except (IdentificationDataError, np.linalg.LinAlgError, ValueError) as exc:
             log.warning("joint model identification failed (%s); keeping the base parameters", exc)
