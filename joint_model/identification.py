@@ -210,14 +210,20 @@ def identify_linear(data: CommissioningData, base: FrictionParams, free: tuple[s
     design = phi[:, columns]
     estimate, *_ = np.linalg.lstsq(design, target, rcond=None)
     gamma = float(np.mean((target - design @ estimate) ** 2))
-    information = design.T @ design
-    if prior_relative_std is not None:
+    covariance: NDArray[np.float64]
+    if prior_relative_std is None:
+        covariance = np.asarray(gamma * np.linalg.pinv(design.T @ design), dtype=np.float64)
+    else:
         prior_mean = eta[columns]
-        precision = np.diag(gamma / np.maximum(prior_relative_std * np.abs(prior_mean), 1e-300) ** 2)
-        information = information + precision
-        estimate = np.linalg.solve(information, design.T @ target + precision @ prior_mean)
+        prior_var = (prior_relative_std * prior_mean) ** 2
+        keep = prior_var > 0                 # a base value of 0: a prior of zero width holds it at 0
+        sub, precision = design[:, keep], np.diag(gamma / prior_var[keep])
+        posterior = sub.T @ sub + precision
+        estimate = np.zeros(len(columns))
+        estimate[keep] = np.linalg.solve(posterior, sub.T @ target + precision @ prior_mean[keep])
+        covariance = np.zeros((len(columns), len(columns)))
+        covariance[np.ix_(keep, keep)] = gamma * np.linalg.pinv(posterior)
     eta[columns] = estimate
-    covariance = np.asarray(gamma * np.linalg.pinv(information), dtype=np.float64)
     rms = math.sqrt(float(np.mean((target - design @ estimate) ** 2)))
     return CommissioningResult(params=_with(base, eta, rho), names=tuple(free), covariance=covariance,
                                noise_variance=gamma, n_points=data.n, rms_residual=rms)

@@ -153,3 +153,15 @@ def test_which_parameters_are_identified_is_judged_by_the_data_alone():
             learner.update(_cycle(k, designed, tau, load + float(rng.normal(0.0, 0.1)), 45.0))
         identified[prior] = learner.report["identified"]
     assert set(identified[PRIOR]) < set(ALWAYS_FREE) and set(identified[1e6]) < set(ALWAYS_FREE)
+
+
+def test_a_base_value_of_zero_stays_zero_and_the_others_are_still_estimated():
+    """A zero-width prior (base value 0, e.g. a [friction] table without viscous friction) holds that
+    parameter at 0; it must not turn the whole estimate into NaN (it did: 0² underflowed to 0 → 1/0)."""
+    data = cold_start(np.random.default_rng(7), DEFAULT_PARAMS)
+    base = replace(DEFAULT_PARAMS, fv0=0.0)
+    result = identify_linear(data, base, ALWAYS_FREE, PRIOR)
+    assert result.params.fv0 == 0.0 and result.std_errors["fv0"] == 0.0
+    for name in ("fc0", "fs0"):
+        assert np.isfinite(getattr(result.params, name)) and getattr(result.params, name) != getattr(base, name)
+        assert np.isfinite(result.std_errors[name]) and 0 < result.std_errors[name] < PRIOR * abs(getattr(base, name))
