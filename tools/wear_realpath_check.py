@@ -5,10 +5,11 @@ For N = 2, 3, 4 designed speeds: ``edge-monitor design --points N --json``, ``si
 --joints 1 --cycles C --speeds-from design.json --temperature-range 40:40 --wear-ramp all:0:1:35:35``,
 ``edge-monitor replay`` with an agent config whose ``[segmentation] speeds`` are the designed speeds and
 whose per-joint model learning is off (the joint is the base table, worn from its first cycle; a second
-row keeps the learning on, which learns the wear as part of the joint's temperature relation), then bias, variance (against the design CRLB) and the mean reported std of ``wear.estimate`` over
-cycles ≥ 2. With ``--also-default-config`` the replay is repeated with the agent's default config
-(the 12 default speed levels), which is what the issue ran: the designed plateaus then do not match
-the configured levels, only one datum per cycle survives, and the estimate is an N = 1 estimate.
+row keeps the learning on, which learns the wear as part of the joint's temperature relation), then
+bias, variance (against the design CRLB) and the mean reported std of ``wear.estimate`` over cycles
+≥ 2. With ``--also-default-config`` the replay is repeated with the agent's default config (the 12
+default speed levels and the learning on), which is what the issue ran; the table's "data per cycle"
+says how many designed plateaus the default levels kept (once only one; docs/WEAR_ESTIMATION.md §4.1).
 
 Usage: .venv/bin/python tools/wear_realpath_check.py [--cycles 150] [--points 2 3 4]
        [--also-default-config] [--work-dir DIR] [--out docs/wear_estimation/realpath.md]

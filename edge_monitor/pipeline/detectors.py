@@ -19,7 +19,7 @@ from typing import Any
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.calibration import CALIBRATE_AT, DEFAULT_ARL0, CalibrationBudget
+from edge_monitor.stats.calibration import CALIBRATE_AT, DEFAULT_ARL0, MAX_DRIFT, CalibrationBudget
 from edge_monitor.stats.sequential_detector import (
     DEFAULT_NOMINAL,
     DEFAULT_WINDOW,
@@ -138,8 +138,9 @@ def _healthy_drift(given: Any) -> dict[str, tuple[float, float]]:
                 f"unknown input; known: {sorted(HEALTHY_DRIFT)}")
         ok = (isinstance(pair, (list, tuple)) and len(pair) == 2
               and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair))
-        require(ok and -5 <= pair[0] <= 5 and 0 <= pair[1] <= 5, f"decision.healthy_drift.{name}",
-                f"expected [mean, sd] in standard deviations (mean −5 … 5, sd 0 … 5), got {pair!r}")
+        require(ok and -MAX_DRIFT <= pair[0] <= MAX_DRIFT and 0 <= pair[1] <= MAX_DRIFT,
+                f"decision.healthy_drift.{name}", f"expected [mean, sd] in standard deviations (mean "
+                f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g}), got {pair!r}")
         out[name] = (float(pair[0]), float(pair[1]))
     return out
 

@@ -63,6 +63,8 @@ H_STEP = 0.05
 DRAWS_PER_STRATUM = 4
 #: Where the simulated streams of a calibration sit (:func:`stream_shifts`).
 CALIBRATE_AT = ("healthy_drift", "boundary", "nominal")
+#: Largest healthy drift a calibration accepts, mean or sd [standard deviations of the nominal values].
+MAX_DRIFT = 5.0
 
 
 class CalibrationError(ValueError):

@@ -32,6 +32,7 @@ from edge_monitor.stats.calibration import (
     CALIBRATE_AT,
     DEFAULT_ARL0,
     MAX_ARL0,
+    MAX_DRIFT,
     MIN_EVENTS,
     Calibration,
     CalibrationBudget,
@@ -122,10 +123,12 @@ class DetectorConfig:
             require(self.calibrate_at in CALIBRATE_AT, "calibrate_at",
                     f"{self.calibrate_at!r}; choose one of {CALIBRATE_AT}")
             if self.calibrate_at == "healthy_drift":
-                for name, values, low in (("drift_mean", self.drift_mean, -5.0), ("drift_sd", self.drift_sd, 0.0)):
-                    require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= 5
+                bounds = (("drift_mean", self.drift_mean, -MAX_DRIFT), ("drift_sd", self.drift_sd, 0.0))
+                for name, values, low in bounds:
+                    require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
                                                             for v in values), name,
-                            f"needs {self.dim} value(s) in {low:g} … 5 standard deviations, got {values!r}")
+                            f"needs {self.dim} value(s) in {low:g} … {MAX_DRIFT:g} standard deviations, "
+                            f"got {values!r}")
         except ConfigError as exc:
             raise DetectorConfigError(str(exc)) from None
         for name, gamma0, rho in (("gamma0", self.gamma0, 0.75), ("rho", 0.5, self.rho)):
