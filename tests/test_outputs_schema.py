@@ -13,6 +13,7 @@ import pytest
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
+from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import DecisionConfig
@@ -65,7 +66,7 @@ def agent_records(pf: float | None = None) -> list[dict]:
     """Published symptom records (strict JSON, as on Zenoh and in JSONL) of a short synthetic run:
     learning cycles, then monitoring ones."""
     config = AgentConfig(segmentation=PlateauConfig(speeds=SPEEDS), kl=KLConfig(n_nominal_cycles=2),
-                         model=ModelConfig(enabled=False),
+                         model=ModelConfig(enabled=False), wear=WearConfig(prior_cycles=3),
                          decision=DecisionConfig(n_nominal=3, density="gauss", calibration_draws=16,
                                                  calibration_steps=400, pf=pf,
                                                  quantities=("wear", "kl_raw", "kl_weighted")))

@@ -7,7 +7,8 @@ For N = 2, 3, 4 designed speeds: ``edge-monitor design --points N --json``, ``si
 whose per-joint model learning is off (the joint is the base table, worn from its first cycle; a second
 row keeps the learning on, which learns the wear as part of the joint's temperature relation), then
 bias, variance (against the design CRLB) and the mean reported std of ``wear.estimate`` over cycles
-≥ 2. With ``--also-default-config`` the replay is repeated with the agent's default config (the 12
+≥ 2: all of them, then separately those estimated with the motor-temperature prior on ξ (the steady
+state) and those before it (the first ``wear.prior_cycles`` cycles, ξ flat over the site range). With ``--also-default-config`` the replay is repeated with the agent's default config (the 12
 default speed levels and the learning on), which is what the issue ran; the table's "data per cycle"
 says how many designed plateaus the default levels kept (once only one; docs/WEAR_ESTIMATION.md §4.1).
 
@@ -40,10 +41,27 @@ def run(cmd: list[str], stdout: Path | None = None) -> None:
         subprocess.run(cmd, check=True, stdout=out, stderr=subprocess.DEVNULL)
 
 
-def summarise(symptoms: Path, design: dict, label: str) -> dict:
-    """Statistics of ``wear`` over cycles ≥ 2 of a replay's symptom records."""
+#: Subsets of a replay's cycles ≥ 2 the statistics are given for: all of them, those whose estimate used
+#: the motor-temperature prior on ξ, and those before it (the relation still being learned: ξ flat over
+#: the site range, a wider posterior; docs/WEAR_ESTIMATION.md §4.1).
+SUBSETS = {"all": lambda r: True,
+           "motor-temperature prior": lambda r: r["wear"].get("temperature_prior") is not None,
+           "flat ξ (relation being learned)": lambda r: r["wear"].get("temperature_prior") is None}
+
+
+def summarise(symptoms: Path, design: dict, label: str) -> list[dict]:
+    """Statistics of ``wear`` over cycles ≥ 2 of a replay's symptom records, one row per non-empty subset."""
     records = [json.loads(line) for line in symptoms.read_text(encoding="utf-8").splitlines() if line.strip()]
-    used = [r for r in records if r["cycle"] >= 2 and r["wear"]["estimate"] is not None]
+    valid = [r for r in records if r["cycle"] >= 2 and r["wear"]["estimate"] is not None]
+    rows = []
+    for subset, keep in SUBSETS.items():
+        used = [r for r in valid if keep(r)]
+        if len(used) >= 2:
+            rows.append({"label": label, "cycles": subset, **_statistics(used, design)})
+    return rows
+
+
+def _statistics(used: list[dict], design: dict) -> dict:
     est = np.array([r["wear"]["estimate"] for r in used])
     std = np.array([r["wear"]["std"] for r in used])
     upper = np.array([r["wear"].get("upper_95") if r["wear"].get("upper_95") is not None else math.nan
@@ -51,7 +69,7 @@ def summarise(symptoms: Path, design: dict, label: str) -> dict:
     n_data = sorted({len(r["friction"]["speeds"]) for r in used})
     spread = float(est.std(ddof=1))
     crlb = design["wear_crlb"]
-    return {"label": label, "n_points_design": len(design["speeds"]), "data_per_cycle": n_data,
+    return {"n_points_design": len(design["speeds"]), "data_per_cycle": n_data,
             "cycles_used": int(est.size), "mean": float(est.mean()), "bias": float(est.mean() - TRUE_WEAR),
             "bias_se": spread / math.sqrt(est.size), "variance": spread ** 2, "design_crlb": crlb,
             "variance_ratio": spread ** 2 / crlb, "mean_reported_std": float(std.mean()),
@@ -82,18 +100,19 @@ def check(points: int, cycles: int, work: Path, also_default: bool) -> list[dict
         symptoms = work / f"s{points}_{k}.jsonl"
         symptoms.unlink(missing_ok=True)
         run([str(BIN / "edge-monitor"), "replay", str(log_file), *extra, "--jsonl", str(symptoms)])
-        rows.append(summarise(symptoms, design, label))
+        rows += summarise(symptoms, design, label)
     return rows
 
 
 def markdown(rows: list[dict], cycles: int) -> str:
     lines = [f"Real path, {cycles} cycles at ξ = 40 °C, ϖ = 35 (statistics over cycles ≥ 2):", "",
-             "| design N | agent config | data per cycle | cycles | bias ± SE | variance | design CRLB | "
+             "| design N | agent config | cycles | data per cycle | n | bias ± SE | variance | design CRLB | "
              "var/CRLB | mean reported std / observed sd | coverage of upper_95 | identifiable |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cov = "—" if r["coverage_upper_95"] is None else f"{r['coverage_upper_95']:.3f}"
-        lines.append(f"| {r['n_points_design']} | {r['label']} | {r['data_per_cycle']} | {r['cycles_used']} | "
+        lines.append(f"| {r['n_points_design']} | {r['label']} | {r['cycles']} | {r['data_per_cycle']} | "
+                     f"{r['cycles_used']} | "
                      f"{r['bias']:+.2f} ± {r['bias_se']:.2f} | {r['variance']:.1f} | {r['design_crlb']:.2f} | "
                      f"{r['variance_ratio']:.2f} | {r['mean_reported_std']:.2f} / {r['observed_sd']:.2f} = "
                      f"{r['std_ratio']:.2f} | {cov} | {100 * r['identifiable']:.0f} % |")

@@ -36,7 +36,7 @@ import numpy as np
 
 from edge_monitor.errors import require
 from edge_monitor.features.base import CycleInput
-from edge_monitor.features.temperature_prior import MIN_SPREAD
+from edge_monitor.features.temperature_prior import MIN_SPREAD, implausible_offset
 from joint_model import FrictionParams, nominal_friction
 from joint_model.identification import CommissioningData, IdentificationDataError, identify_linear
 
@@ -188,7 +188,8 @@ class JointModelLearner:
                        "temperature_span": float(np.ptp(temperatures)),
                        "parameters": {n: getattr(params, n) for n in free},
                        "data_share": told,
-                       "motor_offset": None if self.relation is None else self.relation[0]}
+                       "motor_offset": None if self.relation is None else self.relation[0],
+                       "warning": None if self.relation is None else implausible_offset(*self.relation)}
         self._cycles = []
         log.info("joint model learned: %s identified over %.1f °C (share of the data against the prior %s), "
                  "motor offset %s", list(free), self.report["temperature_span"],

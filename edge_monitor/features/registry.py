@@ -78,9 +78,9 @@ class QuantitySpec:
 FEATURES: tuple[FeatureSpec, ...] = (
     FeatureSpec("wear", WearFeature.quantities, WEAR_EMPTY,
                 enabled=lambda s: s.wear.enabled,
-                build=lambda joint, s: WearFeature(s.wear, s.friction_for(joint), s.temperature_relation(joint)),
+                build=lambda joint, s: WearFeature(s.wear, s.friction_for(joint), s.temperature_relation(joint), joint),
                 restore=lambda joint, s, state: WearFeature.from_state(s.wear, s.friction_for(joint), state,
-                                                                       s.temperature_relation(joint))),
+                                                                       s.temperature_relation(joint), joint)),
     FeatureSpec("kl", KLMonitor.quantities, KL_EMPTY,
                 enabled=lambda s: s.kl.enabled,
                 build=lambda joint, s: KLMonitor(s.kl, s.friction_for(joint)),

@@ -18,20 +18,40 @@ cycles (docs/DETECTION.md), so the prior trades some precision for independence.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
 import numpy as np
 
+log = logging.getLogger(__name__)
+
 #: Smallest prior spread [°C]: the motor winding is not the lubricant.
 MIN_SPREAD = 1.0
+#: Lowest plausible learned offset motor − lubricant [°C]. The motor is the heat source and warms the
+#: gearbox, so its winding reads warmer than the lubricant (the simulator: +5 °C; healthy joints learn
+#: +3.2 … +7.3, docs/WEAR_ESTIMATION.md §5). Friction above the nominal model is read as warm lubricant
+#: by a fit with wear 0: a joint already worn to 35 when it is learned gives −5.9 … −1.5, one worn to
+#: 20 gives −1.2 … +2.1 (seeds 0–1, 12 joints each).
+MIN_PLAUSIBLE_OFFSET = 0.0
+
+
+def implausible_offset(offset: float, spread: float) -> str | None:
+    """Why a learned relation ξ ≈ motor − ``offset`` [°C] is suspect, or None when it is plausible."""
+    if offset >= MIN_PLAUSIBLE_OFFSET:
+        return None
+    return (f"the friction it learned from reads as lubricant {-offset:.1f} °C (± {spread:.1f}) warmer than the "
+            f"motor, which heats it: the joint's friction is above its nominal model. It may already be worn "
+            f"(it is now learned as nominal, and wear is reported relative to it) or [friction] may not fit "
+            f"this joint. Declare maintenance after servicing it, or check [friction]/[joint.N.friction]")
 
 
 class MotorTemperaturePrior:
     """Learns ξ ≈ motor temperature − offset; ``prior()`` is (mean, std) or None while learning."""
 
-    def __init__(self, learning_cycles: int = 20) -> None:
+    def __init__(self, learning_cycles: int = 20, label: str = "motor-temperature relation") -> None:
         self.learning_cycles = int(learning_cycles)
+        self.label = label          # who learns it, for the log (e.g. "joint 2")
         self.motor: float | None = None
         self.offset: float | None = None
         self.spread: float | None = None
@@ -64,6 +84,9 @@ class MotorTemperaturePrior:
             self.offset = float(np.median(residual))
             self.spread = max(MIN_SPREAD, 1.4826 * float(np.median(np.abs(residual - self.offset))))
             self._pairs = []
+            warning = implausible_offset(self.offset, self.spread)
+            if warning:
+                log.warning("%s: %s", self.label, warning)
 
     @property
     def learned(self) -> bool:

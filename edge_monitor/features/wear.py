@@ -80,13 +80,14 @@ class WearFeature:
     quantities = ("wear", "wear_evidence", "wear_score", "temperature")
 
     def __init__(self, config: WearConfig, params: FrictionParams,
-                 relation: tuple[float, float] | None = None) -> None:
+                 relation: tuple[float, float] | None = None, joint: int | None = None) -> None:
         self.config = config
         self.params = params
         self.estimator = WearEstimator(params=params, noise_std=config.noise_std,
                                        temperature_range=(config.temperature_min, config.temperature_max),
                                        method=config.method)
-        self.prior = MotorTemperaturePrior(config.prior_cycles)
+        self.prior = MotorTemperaturePrior(config.prior_cycles, "motor-temperature relation" if joint is None
+                                           else f"joint {joint}: motor-temperature relation")
         if relation is not None:     # learned with the joint's model (features/joint_model_learning.py)
             self.prior.set_relation(*relation)
 
@@ -102,14 +103,16 @@ class WearFeature:
         use_prior = c.motor_temperature_prior
         if use_prior:
             self.prior.observe_motor(cycle.motor_temperature)
+        prior = self.prior.prior() if use_prior else None
         estimate = self.estimator.estimate(np.asarray(curve.speeds), np.asarray(curve.torque), load_mean, load_std,
                                            friction_stderr=np.asarray(curve.stderr) if curve.stderr else None,
-                                           temperature_prior=self.prior.prior() if use_prior else None)
+                                           temperature_prior=prior)
         if use_prior and not self.prior.learned:
             self.prior.learn(estimate.temperature)
         values = {"wear": estimate.posterior_mean, "wear_evidence": estimate.evidence, "wear_score": estimate.score,
                   "temperature": math.nan if estimate.temperature is None else estimate.temperature}
-        return FeatureOutput(section=estimate.to_record(), values=values, reason=estimate.reason)
+        section = {**estimate.to_record(), "temperature_prior": _prior_record(prior)}
+        return FeatureOutput(section=section, values=values, reason=estimate.reason)
 
     def discard_cycle(self) -> None:
         """Nothing is accumulated during the cycle."""
@@ -127,9 +130,18 @@ class WearFeature:
 
     @classmethod
     def from_state(cls, config: WearConfig, params: FrictionParams, state: dict[str, Any],
-                   relation: tuple[float, float] | None = None) -> "WearFeature":
-        feature = cls(config, params, relation)
+                   relation: tuple[float, float] | None = None, joint: int | None = None) -> "WearFeature":
+        feature = cls(config, params, relation, joint)
         check_learned_with("wear", state, feature.fingerprint())
         if isinstance(state.get("prior"), dict):
             feature.prior.load_state(state["prior"])
         return feature
+
+
+def _prior_record(prior: tuple[float, float] | None) -> dict[str, float] | None:
+    """The ``wear.temperature_prior`` field: the motor-temperature prior on ξ this cycle's estimate
+    used, ``{"mean", "std"}`` [°C], or ``None`` (flat over the site range: relation still being
+    learned, no motor temperature this cycle, or the prior switched off)."""
+    if prior is None:
+        return None
+    return {"mean": round(prior[0], 3), "std": round(prior[1], 3)}

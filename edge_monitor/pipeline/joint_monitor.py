@@ -144,6 +144,8 @@ class JointMonitor:
         if learning_model and self.model is not None:
             decisions = self.detectors.idle(self.model.progress)
             if self.model.update(cycle):                    # this cycle completed the model: rebuild
+                if self.model.report.get("warning"):
+                    log.warning("%s joint %d: joint model: %s", robot, self.joint, self.model.report["warning"])
                 self._build()
         elif cycle.partial:
             decisions = self.detectors.idle()
