@@ -112,8 +112,10 @@ class Calibration:
 
 
 def seed_from(values: ArrayLike) -> int:
-    """A reproducible seed from nominal values (the same learning gives the same threshold)."""
-    data = np.ascontiguousarray(np.asarray(values, dtype=np.float64))
+    """A reproducible seed from nominal values (the same learning gives the same threshold). Hashed
+    at single precision: nominal values that differ by floating-point rounding (the same stream read
+    in other blocks sums in another order) give the same seed, hence the same threshold."""
+    data = np.ascontiguousarray(np.asarray(values, dtype=np.float64).astype(np.float32))
     return int(np.frombuffer(data.tobytes(), dtype=np.uint8).astype(np.uint64).sum() * 2654435761 % (2 ** 32))
 
 
