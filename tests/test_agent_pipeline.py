@@ -255,3 +255,30 @@ def test_a_controller_restart_is_seen_by_its_tick_even_when_the_cycle_number_loo
     ingest = Ingest()                                  # ordinary progress: no restart
     ingest._update_cycle(7, 5, {}, tick_raw=1000)
     assert ingest._update_cycle(8, 0, {}, tick_raw=9000) == 8 and not ingest._restarted_into
+
+
+def _numbers_close(a, b, rel: float = 1e-7) -> bool:
+    """Equal records, floats to within ``rel`` (the summation order differs with the block size)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_numbers_close(a[k], b[k], rel) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_numbers_close(x, y, rel) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or abs(a - b) <= rel * max(abs(a), abs(b))
+    return a == b
+
+
+@pytest.mark.parametrize("block", [7, 90, 2500])
+def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, block):
+    """Live, a block is whatever arrived in ``LiveSource.batch_s``; a joint gathers samples into
+    batches before its sample-level work (joint_monitor.SAMPLE_BATCH). The symptoms, learning and
+    monitoring cycles alike, equal those of one block per 100 000 frames."""
+    def symptoms(size):
+        agent = Agent(small_config())
+        return [s.to_dict() for s in feed(agent, frames, block=size) + agent.finish()]
+
+    reference, grouped = symptoms(100_000), symptoms(block)
+    assert len(reference) == len(grouped) == 8
+    assert {s["decisions"]["wear"]["state"] for s in reference} == {"learning", "monitoring"}
+    for a, b in zip(reference, grouped):
+        assert _numbers_close(a, b), (a["joint"], a["cycle"])

@@ -69,8 +69,9 @@ class LiveSource:
     #: After a block's first frame, wait up to this long for more before handing the block over: one
     #: block per ``batch_s`` instead of one per frame or two. The agent's per-block cost is mostly fixed:
     #: at 3,000 frames/s its processing thread used ≈ 48 % of a core with blocks of a few frames, 11 %
-    #: with 20 ms, 5.5 % with 50 ms batches (docs/benchmarks/live.md). Adds at most ``batch_s`` to the
-    #: latency of a symptom (goal p99 ≤ 100 ms), hence 30 ms.
+    #: with 20 ms, 5.5 % with 50 ms batches (docs/benchmarks/live.md; since then each joint gathers its
+    #: samples itself, ``joint_monitor.SAMPLE_BATCH``, and only the ingest's cost is per block). Adds at
+    #: most ``batch_s`` to the latency of a symptom (goal p99 ≤ 100 ms), hence 30 ms.
     batch_s: float = 0.03
 
     def __post_init__(self) -> None:

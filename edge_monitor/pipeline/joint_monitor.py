@@ -4,6 +4,12 @@ Two entry points share the per-cycle pipeline: the streaming path (:meth:`JointM
 sample blocks, :meth:`JointMonitor.end_cycle` on the controller's cycle boundary) and the cycle-level
 path (:meth:`JointMonitor.update_cycle` with a ready :class:`CycleInput`, e.g. the simulator's fast
 mode). Per-joint memory is bounded: O(speed levels) + O(KDE grid) + O(GLR window · components).
+
+Sample blocks with the controller's segment codes are gathered up to :data:`SAMPLE_BATCH` samples
+before the sample-level work runs: live, a block holds what arrived in ``LiveSource.batch_s`` (tens of
+samples per joint), and that work costs mostly per call, not per sample. Every other entry point
+processes what is gathered first, so the order of events, and the symptoms, are those of unbatched
+processing (the streaming algorithms are block-size invariant up to floating-point rounding).
 """
 
 from __future__ import annotations
@@ -26,6 +32,9 @@ from edge_monitor.stats.sequential_detector import Calibrator
 from joint_model import FrictionParams
 
 log = logging.getLogger(__name__)
+
+#: Samples per joint gathered before the sample-level work runs (≈ 1 s at the simulator's rate).
+SAMPLE_BATCH = 512
 
 
 class _JointSettings:
@@ -52,6 +61,8 @@ class JointMonitor:
         self.config = config
         self.calibrator = calibrator
         self.assembler = CycleAssembler(joint, config.segmentation, config.rate_hz)
+        self._pending: list[tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]] = []
+        self._pending_samples = 0
         self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean) \
             if config.model.enabled else None
         self._build()
@@ -87,6 +98,25 @@ class JointMonitor:
         """
         if tick.size == 0:
             return []
+        if segment is None:         # cycles are inferred from the samples: no gathering
+            self._process_pending()
+            return self._process(tick, speed, torque, None)
+        self._pending.append((tick, speed, torque, segment))
+        self._pending_samples += int(tick.size)
+        if self._pending_samples >= SAMPLE_BATCH:
+            self._process_pending()
+        return []
+
+    def _process_pending(self) -> None:
+        """Run the sample-level work on the gathered blocks (see the module docstring)."""
+        if not self._pending:
+            return
+        parts, self._pending, self._pending_samples = self._pending, [], 0
+        tick, speed, torque, segment = (np.concatenate(arrays) for arrays in zip(*parts))
+        self._process(tick, speed, torque, segment)
+
+    def _process(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
+                 segment: NDArray[np.int64] | None) -> list[Symptom]:
         symptoms = [self.update_cycle(cycle) for cycle in self.assembler.update(tick, speed, torque, segment)]
         for feature in self.features.values():
             feature.update_samples(torque, speed, segment)
@@ -100,14 +130,17 @@ class JointMonitor:
 
     def has_cycle_data(self) -> bool:
         """Whether the open cycle holds any friction data."""
+        self._process_pending()
         return self.assembler.has_data()
 
     def flush(self) -> None:
         """End of stream: close a plateau still in progress."""
+        self._process_pending()
         self.assembler.flush()
 
     def discard_cycle(self) -> None:
         """Drop the open cycle's data (a cycle already published before a restart)."""
+        self._process_pending()
         self.assembler.discard_cycle()
         for feature in self.features.values():
             feature.discard_cycle()
@@ -115,6 +148,7 @@ class JointMonitor:
     def end_cycle(self, cycle: int, partial: bool = False) -> Symptom:
         """Close the open cycle ``cycle``. A ``partial`` cycle (its beginning or its end was not seen) is published
         with its friction data and wear estimate but feeds neither learning nor the detectors."""
+        self._process_pending()
         return self.update_cycle(self.assembler.end_cycle(cycle, partial))
 
     # ------------------------------------------------------------------ per-cycle pipeline
@@ -161,6 +195,7 @@ class JointMonitor:
         """Gearbox replaced or serviced: relearn the nominal models; one "cleared" alarm per raised one.
         With ``config`` (the agent's current one) the relearned models use it, e.g. after models learned
         with a previous config were kept."""
+        self._process_pending()
         cleared = self.detectors.reset(self.config.robot, self.joint, cycle)
         if config is not None and config != self.config:
             counters = self.assembler.state_dict()
@@ -174,10 +209,12 @@ class JointMonitor:
         return cleared
 
     def counters(self) -> dict[str, Any]:
+        self._process_pending()
         return self.assembler.counters()
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
+        self._process_pending()
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
