@@ -108,7 +108,8 @@ class JointMonitor:
         return []
 
     def _process_pending(self) -> None:
-        """Run the sample-level work on the gathered blocks (see the module docstring)."""
+        """Run the sample-level work on the gathered blocks (see the module docstring). They all carry
+        segment codes, so the controller closes their cycles and no symptom can come out of here."""
         if not self._pending:
             return
         parts, self._pending, self._pending_samples = self._pending, [], 0
