@@ -18,9 +18,9 @@ from synthetic_frames import make_frames
 SPEEDS = (8.7, 41.7, 133.5)
 
 
-def small_config(**kw) -> AgentConfig:
+def small_config(speeds=SPEEDS, **kw) -> AgentConfig:
     # short synthetic runs: no per-joint model learning (its own tests cover it), a small calibration
-    return AgentConfig(segmentation=PlateauConfig(speeds=SPEEDS), kl=KLConfig(n_nominal_cycles=2),
+    return AgentConfig(segmentation=PlateauConfig(speeds=speeds), kl=KLConfig(n_nominal_cycles=2),
                        model=ModelConfig(enabled=False),
                        decision=DecisionConfig(n_nominal=3, density="gauss", calibration_draws=16,
                                                calibration_steps=400,
@@ -268,16 +268,26 @@ def _numbers_close(a, b, rel: float = 1e-7) -> bool:
     return a == b
 
 
-@pytest.mark.parametrize("block", [7, 90, 2500])
-def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, block):
+_SAMPLE_LEVEL: dict[tuple, list[dict]] = {}     # the reference runs, once per segmentation mode
+
+
+@pytest.mark.parametrize("speeds", [SPEEDS, ()], ids=["configured speeds", "levels from segment codes"])
+@pytest.mark.parametrize("block", [7, 90, 2500, 100_000])
+def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, block, speeds, monkeypatch):
     """Live, a block is whatever arrived in ``LiveSource.batch_s``; a joint gathers samples into
     batches before its sample-level work (joint_monitor.SAMPLE_BATCH). The symptoms, learning and
-    monitoring cycles alike, equal those of one block per 100 000 frames."""
-    def symptoms(size):
-        agent = Agent(small_config())
+    monitoring cycles alike, equal those of a sample-level pass over blocks of 7 frames without that
+    gathering, in both segmentation modes (the shipped default is levels from segment codes)."""
+    import edge_monitor.pipeline.joint_monitor as joint_monitor
+
+    def symptoms(size, batch):
+        monkeypatch.setattr(joint_monitor, "SAMPLE_BATCH", batch)
+        agent = Agent(small_config(speeds))
         return [s.to_dict() for s in feed(agent, frames, block=size) + agent.finish()]
 
-    reference, grouped = symptoms(100_000), symptoms(block)
+    if speeds not in _SAMPLE_LEVEL:
+        _SAMPLE_LEVEL[speeds] = symptoms(7, 1)
+    reference, grouped = _SAMPLE_LEVEL[speeds], symptoms(block, 512)
     assert len(reference) == len(grouped) == 8
     assert {s["decisions"]["wear"]["state"] for s in reference} == {"learning", "monitoring"}
     for a, b in zip(reference, grouped):

@@ -97,6 +97,41 @@ def test_config_rejects_bad_speeds():
         PlateauConfig(speeds=(3.0, 3.0))
 
 
+def _plateaus(speed, torque, segment, block):
+    det = PlateauDetector(PlateauConfig())
+    tick = np.arange(speed.size)
+    out = []
+    for s in range(0, speed.size, block):
+        seg = None if segment is None else segment[s:s + block]
+        out += det.update(tick[s:s + block], speed[s:s + block], torque[s:s + block], seg)
+    return [(p.level, p.direction, p.n, p.tick_start, p.tick_end) for p in out + det.flush()], det.level_speeds
+
+
+def _two_automatic_cycles(codes: bool):
+    speed, segment = cycle_profile(SPEEDS[:4], production=codes)
+    torque = cycle_torque(speed, np.random.default_rng(6))
+    return np.tile(speed, 2), np.tile(torque, 2), np.tile(segment, 2) if codes else None
+
+
+_SAMPLE_BY_SAMPLE: dict[bool, tuple] = {}
+
+
+@settings(max_examples=12, deadline=None)
+@given(block=st.integers(min_value=2, max_value=3000), codes=st.booleans())
+def test_automatic_levels_do_not_depend_on_block_size(block, codes):
+    """Without configured speeds a finished plateau changes how later samples are labelled (the level's
+    measured speed; a discovered level). The samples after it in the same block are labelled again, so
+    any cutting into blocks gives the plateaus of a sample-by-sample stream (the agent gathers 512
+    samples per joint live and thousands in a replay)."""
+    speed, torque, segment = _two_automatic_cycles(codes)
+    if codes not in _SAMPLE_BY_SAMPLE:
+        _SAMPLE_BY_SAMPLE[codes] = _plateaus(speed, torque, segment, 1)
+    plateaus, levels = _plateaus(speed, torque, segment, block)
+    assert plateaus == _SAMPLE_BY_SAMPLE[codes][0]
+    np.testing.assert_allclose(levels, _SAMPLE_BY_SAMPLE[codes][1], rtol=1e-12)
+    assert len(plateaus) >= 2 * 4     # the second cycle, both directions (the first finds the levels)
+
+
 def test_levels_from_the_segment_codes_need_no_configured_speeds():
     """Speed level k is segment k + 1: the datum's speed is the measured plateau speed (the speeds
     of an experiment design, say, reach the agent without any configuration)."""

@@ -161,6 +161,7 @@ class PlateauDetector:
     _last_speed: float = 0.0
     _unmatched_sum: float = 0.0
     _unmatched_n: int = 0
+    _classification_version: int = 0      # bumped whenever a finished run changes how samples are labelled
 
     def __post_init__(self) -> None:
         self.auto = len(self.config.speeds) == 0
@@ -218,16 +219,30 @@ class PlateauDetector:
         inner = dist <= band
         outer = dist <= band * self.config.hysteresis
         labels = np.where(inner, level_label, 0)
-        # Hysteresis: an outer-band sample keeps the label of the last inner sample if it is the same level.
-        idx = np.where(inner, np.arange(a.size), -1)
-        np.maximum.accumulate(idx, out=idx)
-        carried = np.where(idx >= 0, labels[np.maximum(idx, 0)], self._label)
-        labels = np.where(~inner & outer & (carried == level_label), carried, labels)
+        labels = np.where(self._stays(inner, outer, level_label), level_label, labels)
         # Steady but unmatched: small sample-to-sample change at a speed well above standstill.
         labels = np.where((labels == 0) & self._steady(speed), UNMATCHED, labels)
         if exclude is not None:
             labels = np.where(exclude, 0, labels)
         return labels
+
+    def _stays(self, inner: NDArray[np.bool_], outer: NDArray[np.bool_],
+               level_label: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Hysteresis: the samples that stay on their level while only in its outer band, i.e. whose
+        previous sample is on the same level (inner, or staying itself; before the block: the label in
+        force). Evaluated sample by sample this is a recurrence; here each chain of consecutive
+        outer-only samples of one level stays iff the sample just before the chain is an inner sample
+        of that level."""
+        n = inner.size
+        between = outer & ~inner
+        first = between.copy()              # the first sample of each chain
+        first[1:] &= ~between[:-1] | (level_label[1:] != level_label[:-1])
+        start = np.where(first, np.arange(n), 0)
+        np.maximum.accumulate(start, out=start)
+        before = start - 1                  # the sample before the chain (−1: the previous block)
+        prev = np.maximum(before, 0)
+        entered = np.where(before >= 0, inner[prev] & (level_label[prev] == level_label), self._label == level_label)
+        return between & entered
 
     # ------------------------------------------------------------------ streaming
     def update(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
@@ -243,24 +258,44 @@ class PlateauDetector:
         if not finite.all():
             self.counters.nonfinite_samples += int((~finite).sum())
             speed = np.where(finite, speed, 0.0)
-        if self.auto and segment is not None:
-            labels = np.where(finite, self.classify_segments(speed, segment), 0)
-        else:
-            exclude = ~finite if segment is None else (~finite | (segment == SEGMENT_PRODUCTION))
-            labels = self.classify(speed, exclude)
         out: list[PlateauStat] = []
+        start = 0
+        while start < tick.size:
+            part = slice(start, None)
+            labels = self._labels(speed[part], finite[part], None if segment is None else segment[part])
+            done = self._consume(tick[part], speed[part], torque[part], labels, out)
+            self._last_speed = float(speed[start + done - 1])
+            start += done
+        self._last_tick = int(tick[-1])
+        return out
+
+    def _labels(self, speed: NDArray[np.float64], finite: NDArray[np.bool_],
+                segment: NDArray[np.int64] | None) -> NDArray[np.int64]:
+        if self.auto and segment is not None:
+            return np.where(finite, self.classify_segments(speed, segment), 0)
+        exclude = ~finite if segment is None else (~finite | (segment == SEGMENT_PRODUCTION))
+        return self.classify(speed, exclude)
+
+    def _consume(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
+                 labels: NDArray[np.int64], out: list[PlateauStat]) -> int:
+        """Runs of ``labels`` into plateaus; returns how many samples were consumed. It stops after the
+        first sample of a new run when ending the previous run changed how samples are classified
+        (a level's measured speed, a discovered level): the rest is classified again, as it would be
+        in a later block, so the plateaus do not depend on how the stream is cut into blocks."""
         change = np.flatnonzero(np.diff(labels, prepend=self._label) != 0)
         starts = np.unique(np.concatenate([[0], change]))
         ends = np.append(starts[1:], labels.size)
         for s, e in zip(starts, ends):
             label = int(labels[s])
             if label != self._label:
+                version = self._classification_version
                 out.extend(self._end_run())
                 self._start_run(label, int(tick[s]))
+                if self._classification_version != version and e - s > 1:
+                    self._extend_run(tick[s:s + 1], speed[s:s + 1], torque[s:s + 1])
+                    return int(s) + 1
             self._extend_run(tick[s:e], speed[s:e], torque[s:e])
-        self._last_tick = int(tick[-1])
-        self._last_speed = float(speed[-1])
-        return out
+        return int(labels.size)
 
     def flush(self) -> list[PlateauStat]:
         """End the current run (end of stream)."""
@@ -316,6 +351,7 @@ class PlateauDetector:
         if self.auto and abs(label) <= MAX_SPEED_LEVELS:   # learn the level's speed (segment-code labels)
             known = self._segment_speed[abs(label)]
             self._segment_speed[abs(label)] = measured if np.isnan(known) else 0.8 * known + 0.2 * measured
+            self._classification_version += 1
         return [PlateauStat(level=abs(label) - 1, direction=1 if label > 0 else -1, n=self._acc.n, mean=mean,
                             m2=m2, lag1=lag1, tick_start=self._run_tick_start, tick_end=self._last_tick,
                             speed_mean=self._acc.speed_total / self._acc.n)]
@@ -326,6 +362,7 @@ class PlateauDetector:
             self._levels.append(round(speed, 3))
             self._set_levels(self._levels)
             self.counters.levels_discovered += 1
+            self._classification_version += 1
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict:
