@@ -10,6 +10,7 @@ are used: the friction predicted at 55 °C.
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -176,16 +177,25 @@ def _learn_on_simulated_robot(caplog, wear: float, model: bool = True) -> list[s
     from edge_monitor.offline.fast_path import CycleFeeder
     from edge_monitor.pipeline.agent import Agent
     from edge_monitor.pipeline.agent_config import AgentConfig
+    from edge_monitor.pipeline.joint_monitor import JointMonitor
     from sim_controller.config import SimConfig
     from sim_controller.cycle_mode import cycle_signals
     from sim_controller.wear_scenarios import WearProfile
 
     sim = SimConfig(joints=2, cycles=23, seed=0, wear=(WearProfile(), WearProfile(initial=wear)))
-    feeder = CycleFeeder(Agent(AgentConfig(model=ModelConfig(enabled=model), wear=WearConfig(prior_cycles=20))))
+    config = AgentConfig(model=ModelConfig(enabled=model), wear=WearConfig(prior_cycles=20))
+    agent = Agent(config)
+    feeder = CycleFeeder(agent)
     with caplog.at_level(logging.WARNING):
         for cycle in cycle_signals(sim):
             feeder.update(cycle)
-    return [r.getMessage() for r in caplog.records if "warmer than the motor" in r.getMessage()]
+        learned = [r.getMessage() for r in caplog.records if "warmer than the motor" in r.getMessage()]
+        caplog.clear()
+        for joint, monitor in agent.joints.items():        # a restart from the saved state says it again
+            JointMonitor.from_state(joint, config, json.loads(json.dumps(monitor.state_dict())))
+    restored = [r.getMessage() for r in caplog.records if "warmer than the motor" in r.getMessage()]
+    assert len(restored) == len(learned) and all("before the restart" in m for m in restored), restored
+    return learned
 
 
 def test_learning_on_an_already_worn_joint_is_reported_for_that_joint_only(caplog):
@@ -223,3 +233,29 @@ def test_the_temperature_prior_reports_a_lubricant_warmer_than_the_motor(caplog)
         assert prior.learned and abs(prior.offset - offset) < 0.2
         found = [r.getMessage() for r in caplog.records if "warmer than the motor" in r.getMessage()]
         assert len(found) == expected and all(m.startswith("joint 4:") for m in found), found
+
+
+def test_an_implausible_relation_is_reported_once_whether_the_model_or_the_prior_learns_it(caplog):
+    """The motor reads 15 °C cooler than the simulator's (offset −10 °C on every joint): with model
+    learning the joint model reports it, and the wear feature's provisional prior of the same cycles
+    stays quiet; without it the prior reports it. Once per joint either way."""
+    import logging
+
+    from edge_monitor.features.wear import WearConfig
+    from edge_monitor.offline.fast_path import CycleFeeder
+    from edge_monitor.pipeline.agent import Agent
+    from edge_monitor.pipeline.agent_config import AgentConfig
+    from sim_controller.config import SimConfig
+    from sim_controller.cycle_mode import cycle_signals
+
+    for model in (True, False):
+        caplog.clear()
+        feeder = CycleFeeder(Agent(AgentConfig(model=ModelConfig(enabled=model), wear=WearConfig(prior_cycles=20))))
+        with caplog.at_level(logging.WARNING):
+            for cycle in cycle_signals(SimConfig(joints=2, cycles=23, seed=0)):
+                for signals in cycle.joints:
+                    signals.motor_temperature[:] -= 15.0
+                feeder.update(cycle)
+        warnings = sorted(r.getMessage()[:40] for r in caplog.records if "warmer than the motor" in r.getMessage())
+        kind = "joint model" if model else "motor-temperature relation"
+        assert len(warnings) == 2 and all(kind in m for m in warnings), (model, warnings)

@@ -32,6 +32,10 @@ class FeatureSettings(Protocol):
 
     def temperature_relation(self, joint: int) -> tuple[float, float] | None: ...
 
+    def model_pending(self) -> bool:
+        """Whether the joint's model is still being learned (features built now are rebuilt with it)."""
+        ...
+
 
 @dataclass(frozen=True)
 class FeatureSpec:
@@ -78,9 +82,11 @@ class QuantitySpec:
 FEATURES: tuple[FeatureSpec, ...] = (
     FeatureSpec("wear", WearFeature.quantities, WEAR_EMPTY,
                 enabled=lambda s: s.wear.enabled,
-                build=lambda joint, s: WearFeature(s.wear, s.friction_for(joint), s.temperature_relation(joint), joint),
+                build=lambda joint, s: WearFeature(s.wear, s.friction_for(joint), s.temperature_relation(joint),
+                                                   _reporting(joint, s)),
                 restore=lambda joint, s, state: WearFeature.from_state(s.wear, s.friction_for(joint), state,
-                                                                       s.temperature_relation(joint), joint)),
+                                                                       s.temperature_relation(joint),
+                                                                       _reporting(joint, s))),
     FeatureSpec("kl", KLMonitor.quantities, KL_EMPTY,
                 enabled=lambda s: s.kl.enabled,
                 build=lambda joint, s: KLMonitor(s.kl, s.friction_for(joint)),
@@ -102,3 +108,10 @@ def feature_of(quantity: str) -> str:
         if quantity in spec.quantities:
             return spec.name
     raise KeyError(quantity)
+
+
+def _reporting(joint: int, settings: FeatureSettings) -> int | None:
+    """The joint a wear feature names when its own motor-temperature relation looks implausible; None
+    (quiet) while the joint's model is learning: the model learns the relation, says so itself, and the
+    feature is rebuilt with it."""
+    return None if settings.model_pending() else joint

@@ -49,9 +49,9 @@ def implausible_offset(offset: float, spread: float) -> str | None:
 class MotorTemperaturePrior:
     """Learns ξ ≈ motor temperature − offset; ``prior()`` is (mean, std) or None while learning."""
 
-    def __init__(self, learning_cycles: int = 20, label: str = "motor-temperature relation") -> None:
+    def __init__(self, learning_cycles: int = 20, label: str | None = None) -> None:
         self.learning_cycles = int(learning_cycles)
-        self.label = label          # who learns it, for the log (e.g. "joint 2")
+        self.label = label          # who learns it, for the log (e.g. "joint 2: …"); None: no warning
         self.motor: float | None = None
         self.offset: float | None = None
         self.spread: float | None = None
@@ -63,8 +63,9 @@ class MotorTemperaturePrior:
         self.motor = float(motor_temperature) if ok else None    # type: ignore[arg-type]
 
     def set_relation(self, offset: float, spread: float) -> None:
-        """Adopt a relation learned elsewhere (the joint's model learning)."""
+        """Adopt a relation learned elsewhere (the joint's model learning, which reports on it itself)."""
         self.offset, self.spread, self._pairs = float(offset), max(MIN_SPREAD, float(spread)), []
+        self.label = None
 
     def prior(self) -> tuple[float, float] | None:
         """(mean, std) of ξ [°C] once learned and a motor temperature is known, else None."""
@@ -84,9 +85,14 @@ class MotorTemperaturePrior:
             self.offset = float(np.median(residual))
             self.spread = max(MIN_SPREAD, 1.4826 * float(np.median(np.abs(residual - self.offset))))
             self._pairs = []
+            self._check("")
+
+    def _check(self, when: str) -> None:
+        """Log the relation once it is learned (or restored) if it is implausible and someone is named."""
+        if self.label is not None and self.offset is not None and self.spread is not None:
             warning = implausible_offset(self.offset, self.spread)
             if warning:
-                log.warning("%s: %s", self.label, warning)
+                log.warning("%s%s: %s", self.label, when, warning)
 
     @property
     def learned(self) -> bool:
@@ -108,6 +114,7 @@ class MotorTemperaturePrior:
         self.motor, self.offset, self.spread = number("motor"), number("offset"), number("spread")
         if (self.offset is None) != (self.spread is None):
             self.offset = self.spread = None
+        self._check(" (learned before the restart)")
         pairs = state.get("pairs", [])
         self._pairs = [(float(a), float(b)) for a, b in pairs if math.isfinite(a) and math.isfinite(b)] \
             if isinstance(pairs, list) else []

@@ -86,7 +86,7 @@ class WearFeature:
         self.estimator = WearEstimator(params=params, noise_std=config.noise_std,
                                        temperature_range=(config.temperature_min, config.temperature_max),
                                        method=config.method)
-        self.prior = MotorTemperaturePrior(config.prior_cycles, "motor-temperature relation" if joint is None
+        self.prior = MotorTemperaturePrior(config.prior_cycles, None if joint is None
                                            else f"joint {joint}: motor-temperature relation")
         if relation is not None:     # learned with the joint's model (features/joint_model_learning.py)
             self.prior.set_relation(*relation)

@@ -7,9 +7,11 @@ mode). Per-joint memory is bounded: O(speed levels) + O(KDE grid) + O(GLR window
 
 Sample blocks with the controller's segment codes are gathered up to :data:`SAMPLE_BATCH` samples
 before the sample-level work runs: live, a block holds what arrived in ``LiveSource.batch_s`` (tens of
-samples per joint), and that work costs mostly per call, not per sample. Every other entry point
+samples per joint), and that work costs mostly per call, not per sample. Every entry point that
+changes the joint's state (a cycle's end, a discarded cycle, the end of the stream, a maintenance)
 processes what is gathered first, so the order of events, and the symptoms, are those of unbatched
-processing (the streaming algorithms are block-size invariant up to floating-point rounding).
+processing (the streaming algorithms are block-size invariant up to floating-point rounding). Reads
+(counters, state snapshots) do not: they may lag by up to :data:`SAMPLE_BATCH` samples.
 """
 
 from __future__ import annotations
@@ -49,6 +51,9 @@ class _JointSettings:
 
     def temperature_relation(self, joint: int) -> tuple[float, float] | None:
         return self._model.relation if self._model is not None and self._model.learned else None
+
+    def model_pending(self) -> bool:
+        return self._model is not None and not self._model.learned
 
 
 class JointMonitor:
@@ -210,12 +215,13 @@ class JointMonitor:
         return cleared
 
     def counters(self) -> dict[str, Any]:
-        self._process_pending()
+        """Segmentation counters of the samples processed so far (≤ SAMPLE_BATCH may still wait)."""
         return self.assembler.counters()
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        self._process_pending()
+        """Learned models and counters. A read without side effects (status ticks, state queries call it):
+        gathered samples are not processed here; a saved state holds no cycle in progress anyway."""
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
@@ -250,6 +256,9 @@ class JointMonitor:
         monitor.detectors = DetectorBank(config.decision, monitor._sources(), calibrator)
         for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
             log.warning("%s", message)
+        if monitor.model is not None and monitor.model.learned and monitor.model.report.get("warning"):
+            log.warning("%s joint %d: joint model (learned before the restart): %s", config.robot, joint,
+                        monitor.model.report["warning"])
         return monitor
 
     def _restore_feature(self, spec: FeatureSpec, state: dict[str, Any]) -> None:
