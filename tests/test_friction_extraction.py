@@ -155,3 +155,34 @@ def test_without_segments_or_speeds_levels_are_discovered_from_steady_runs():
     assert np.all(np.abs(np.sort(det.level_speeds) - SPEEDS[:4]) <= band)
     assert det.counters.levels_discovered == 4
     assert np.all(np.abs(np.array(curve.speeds) - SPEEDS[:4]) <= band)     # the second cycle's data
+
+
+def _cut_into(speed, segment, config, blocks):
+    """Plateaus, counters and discovered levels of a stream fed in blocks of ``blocks`` samples (100 Hz)."""
+    det = PlateauDetector(config, rate_hz=100.0)
+    speed = np.asarray(speed, dtype=float)
+    torque = 0.1 * np.sign(speed)
+    tick = np.arange(speed.size)
+    out = []
+    for s in range(0, speed.size, blocks):
+        seg = None if segment is None else np.asarray(segment[s:s + blocks])
+        out += det.update(tick[s:s + blocks], speed[s:s + blocks], torque[s:s + blocks], seg)
+    out += det.flush()
+    return [(p.level, p.direction, p.n, p.tick_start) for p in out], det.counters.as_dict(), det.level_speeds
+
+
+SHORT = dict(settle_s=0.03, guard_s=0.02, min_steady_s=0.03)
+
+
+@pytest.mark.parametrize("speeds, speed, segment", [
+    # a one-sample run right after the level's speed was measured: the samples after it are labelled anew
+    ((), [10.0] * 10 + [12.0] * 11 + [0.0] * 2, [1] * 21 + [0] * 2),
+    # the same after a discovered level (no segment codes)
+    ((), [40.0] * 10 + [40.5] * 10 + [0.0, 0.0], None),
+    # a production sample inside the outer band is on no level, and the hysteresis cannot carry across it
+    ((10.0,), [10.0] * 3 + [10.6] * 12 + [0.0] * 3, [200] * 3 + [1] * 12 + [0] * 3),
+], ids=["measured speed", "discovered level", "production sample"])
+def test_block_boundaries_found_by_review_give_the_sample_by_sample_result(speeds, speed, segment):
+    """Counterexamples a brute-force comparison with one-sample blocks found (2026-11-24)."""
+    config = PlateauConfig(speeds=speeds, tolerance_rel=1e-6 if not speeds and segment else 0.02, **SHORT)
+    assert _cut_into(speed, segment, config, len(speed)) == _cut_into(speed, segment, config, 1)

@@ -218,6 +218,8 @@ class PlateauDetector:
         level_label = np.sign(speed).astype(np.int64) * (self._sorted_index[nearest] + 1)
         inner = dist <= band
         outer = dist <= band * self.config.hysteresis
+        if exclude is not None:             # an excluded sample is on no level, and a chain cannot pass it
+            inner, outer = inner & ~exclude, outer & ~exclude
         labels = np.where(inner, level_label, 0)
         labels = np.where(self._stays(inner, outer, level_label), level_label, labels)
         # Steady but unmatched: small sample-to-sample change at a speed well above standstill.
@@ -291,7 +293,7 @@ class PlateauDetector:
                 version = self._classification_version
                 out.extend(self._end_run())
                 self._start_run(label, int(tick[s]))
-                if self._classification_version != version and e - s > 1:
+                if self._classification_version != version and s + 1 < labels.size:
                     self._extend_run(tick[s:s + 1], speed[s:s + 1], torque[s:s + 1])
                     return int(s) + 1
             self._extend_run(tick[s:e], speed[s:e], torque[s:e])
