@@ -192,6 +192,8 @@ class Agent:
     def _finish(self, close_open_cycle: bool) -> list[Symptom]:
         outputs: list[Symptom] = []
         if not close_open_cycle:
+            for monitor in self.joints.values():
+                monitor.catch_up()             # the gathered samples count, even in a cycle left open
             return outputs
         for monitor in self.joints.values():
             monitor.flush()

@@ -9,7 +9,8 @@ Sample blocks with the controller's segment codes are gathered up to :data:`SAMP
 before the sample-level work runs: live, a block holds what arrived in ``LiveSource.batch_s`` (tens of
 samples per joint), and that work costs mostly per call, not per sample. Every entry point that
 changes the joint's state (a cycle's end, a discarded cycle, the end of the stream, a maintenance)
-processes what is gathered first, so the order of events, and the symptoms, are those of unbatched
+processes what is gathered first (so does the end of a stream that leaves its cycle open, via
+:meth:`JointMonitor.catch_up`), so the order of events, and the symptoms, are those of unbatched
 processing (the streaming algorithms are block-size invariant up to floating-point rounding). Reads
 (counters, state snapshots) do not: they may lag by up to :data:`SAMPLE_BATCH` samples.
 """
@@ -111,6 +112,10 @@ class JointMonitor:
         if self._pending_samples >= SAMPLE_BATCH:
             self._process_pending()
         return []
+
+    def catch_up(self) -> None:
+        """Process the gathered samples now (the stream stops with its last cycle left open)."""
+        self._process_pending()
 
     def _process_pending(self) -> None:
         """Run the sample-level work on the gathered blocks (see the module docstring). They all carry
@@ -220,8 +225,9 @@ class JointMonitor:
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        """Learned models and counters. A read without side effects (status ticks, state queries call it):
-        gathered samples are not processed here; a saved state holds no cycle in progress anyway."""
+        """Learned models, counters and the open cycle's KL window. A read without side effects (status
+        ticks and state queries call it): samples still gathered are not in it, as samples after the
+        snapshot are not; a cycle resumed from a saved state is published partial anyway."""
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
