@@ -8,9 +8,10 @@ whose per-joint model learning is off (the joint is the base table, worn from it
 row keeps the learning on, which learns the wear as part of the joint's temperature relation), then
 bias, variance (against the design CRLB) and the mean reported std of ``wear.estimate`` over cycles
 ≥ 2: all of them, then separately those estimated with the motor-temperature prior on ξ (the steady
-state) and those before it (the first ``wear.prior_cycles`` cycles, ξ flat over the site range). With ``--also-default-config`` the replay is repeated with the agent's default config (the 12
-default speed levels and the learning on), which is what the issue ran; the table's "data per cycle"
-says how many designed plateaus the default levels kept (once only one; docs/WEAR_ESTIMATION.md §4.1).
+state) and those before it (the first ``wear.prior_cycles`` cycles, ξ flat over the site range). With
+``--also-default-config`` the replay is repeated with the agent's default config (the 12 default speed
+levels and the learning on), which is what the issue ran; the table's "data per cycle" says how many
+designed plateaus the default levels kept (once only one; docs/WEAR_ESTIMATION.md §4.1).
 
 Usage: .venv/bin/python tools/wear_realpath_check.py [--cycles 150] [--points 2 3 4]
        [--also-default-config] [--work-dir DIR] [--out docs/wear_estimation/realpath.md]

@@ -189,8 +189,7 @@ class JointMonitor:
         if learning_model and self.model is not None:
             decisions = self.detectors.idle(self.model.progress)
             if self.model.update(cycle):                    # this cycle completed the model: rebuild
-                if self.model.report.get("warning"):
-                    log.warning("%s joint %d: joint model: %s", robot, self.joint, self.model.report["warning"])
+                self._report_model("")
                 self._build()
         elif cycle.partial:
             decisions = self.detectors.idle()
@@ -262,10 +261,14 @@ class JointMonitor:
         monitor.detectors = DetectorBank(config.decision, monitor._sources(), calibrator)
         for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
             log.warning("%s", message)
-        if monitor.model is not None and monitor.model.learned and monitor.model.report.get("warning"):
-            log.warning("%s joint %d: joint model (learned before the restart): %s", config.robot, joint,
-                        monitor.model.report["warning"])
+        monitor._report_model(" (learned before the restart)")
         return monitor
+
+    def _report_model(self, when: str) -> None:
+        """Log the learned joint model's warning, if it has one (see ``temperature_prior.implausible_offset``)."""
+        warning = self.model.report.get("warning") if self.model is not None and self.model.learned else None
+        if warning:
+            log.warning("%s joint %d: joint model%s: %s", self.config.robot, self.joint, when, warning)
 
     def _restore_feature(self, spec: FeatureSpec, state: dict[str, Any]) -> None:
         try:
