@@ -30,9 +30,9 @@ def test_run_lengths_renew_after_each_crossing_and_count_only_monitored_cycles()
 
 def test_agent_arl_runs_the_agents_detectors_with_the_chosen_calibration() -> None:
     """``agent_arl`` feeds per-cycle detector inputs to the agent's DetectorBank: 90 healthy cycles of
-    one joint leave at most 90 − 60 learning + 1 = 31 monitored cycles per quantity (the cycle that
-    completes the learning is monitored), a detector that alarms
-    starts a new run, and each row names the calibration used."""
+    one joint leave at most 90 − 60 learning = 30 monitored cycles per quantity (cycles whose value the
+    statistic tested), a detector that alarms starts a new run, and each row names the calibration
+    used."""
     from arl_study import agent_arl
 
     rng = np.random.default_rng(3)
@@ -42,5 +42,27 @@ def test_agent_arl_runs_the_agents_detectors_with_the_chosen_calibration() -> No
     assert {r["quantity"] for r in out} == {"wear", "kl_raw", "kl_weighted", "joint"}
     for r in out:
         assert r["calibrate_at"] == "healthy_drift" and r["runs"] >= 1
-        assert r["runs"] == 1 + r["false_alarms"] and 0 < r["monitored_cycles"] <= 31
+        assert r["runs"] == 1 + r["false_alarms"] and 0 < r["monitored_cycles"] <= 30
     assert all(r["calibrate_at"] == "boundary" for r in agent_arl([{0: rows}], 50.0, draws=16, boundary=True))
+
+
+def test_agent_arl_reports_the_steady_stage_once_the_motor_temperature_settles() -> None:
+    """With a flat motor temperature the joint settles once the test's 120-cycle window is full; every
+    detector then learns its steady nominal (240 cycles) and the rows split into the two stages. A
+    steady-stage alarm is acknowledged (the statistic restarts on the same nominal), so there every
+    run but the first starts with a false alarm."""
+    from arl_study import agent_arl
+
+    rng = np.random.default_rng(5)
+    n = 700
+    rows = [{"wear_score": float(w), "kl_raw": float(a), "kl_weighted": float(b), "motor_temperature": float(t)}
+            for w, a, b, t in zip(rng.normal(size=n), rng.lognormal(-3, 0.3, n), rng.lognormal(-4, 0.3, n),
+                                  rng.normal(45.0, 3.0, n))]
+    out = agent_arl([{0: rows}], 200.0, draws=16)
+    steady = [r for r in out if r["stage"] == "steady"]
+    assert {r["quantity"] for r in steady} == {"wear", "kl_raw", "kl_weighted", "joint"}
+    for r in steady:
+        assert r["calibrate_at"] == "nominal" and r["runs"] == 1 + r["false_alarms"]
+        assert 0 < r["monitored_cycles"] <= n - 119 - 240
+    warm = {r["quantity"]: r for r in out if r["stage"] == "warm-up"}
+    assert all(warm[q]["monitored_cycles"] > 0 for q in warm)

@@ -27,7 +27,7 @@ def test_learning_then_monitoring_with_the_decision_record_fields() -> None:
     record = decisions[-1].to_dict()
     assert set(record) == RECORD_FIELDS and record["state"] == "monitoring"
     assert record["threshold"] == pytest.approx(det.calibration.threshold)
-    assert record["calibration"] == {"arl0": DEFAULT_ARL0, "at": "boundary", "method": det.calibration.method}
+    assert record["calibration"] == {"arl0": DEFAULT_ARL0, "at": "boundary", "stage": "warm-up", "method": det.calibration.method}
     assert json.loads(json.dumps(record)) == record
     assert record["change_cycle"] >= 119
 

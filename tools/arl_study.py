@@ -37,17 +37,25 @@ Parts (all with fixed seeds; select with --part, default all):
 * ``--agent`` — the agent's own detectors (``DetectorBank`` at the shipped defaults) fed by the
   simulator's fast path: healthy joints with the default individual variation, thermal drift and
   load spread. The per-cycle quantities of each joint are computed once; then for each target ARL0
-  (50 and 200; ``--targets``) the detectors run over them, a detector that alarms is reset and
-  relearns (as after a declared maintenance), and measured ARL0 = monitored cycles / false alarms.
-  Prints ``{"rows": [{"quantity", "target_arl0", "measured_arl0", "runs", "false_alarms"}, ...]}``
-  (``runs``: detector runs, i.e. learning phases, over all joints). ``--quick``: 1 robot of 3 joints
-  × 400 cycles, 16 bootstrap detectors per calibration instead of 48 (≈ 5 min); default 4 robots of
-  6 joints × 2000 cycles. ``--at-boundary`` adds rows (``"at_boundary": true``) where each detector's
+  (50 and 200; ``--targets``) the detectors run over them, with each cycle's motor temperature for
+  their thermal settling test, a detector that alarms is reset and relearns (as after a declared
+  maintenance), and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
+  "stage", "target_arl0", "measured_arl0", "runs", "false_alarms", ...}, ...], "other_rows": [...]}``:
+  ``rows`` are the steady stage (the nominal learned again once the joint's temperature settled, the
+  stage ``arl0_cycles`` is stated for), ``other_rows`` the warm-up stage (threshold at the drift
+  allowance: healthy joints run longer there) and any ``--at-boundary`` rows (``runs``: detector
+  runs over all joints, each started by a learning phase or, in the steady stage, an acknowledged
+  false alarm; monitored cycles are those whose value the statistic tested). ``--quick``: 2 robots (seeds 1, 2) of 2 joints ×
+  1 000 cycles, 16 bootstrap detectors per calibration instead of 48, in parallel processes (≈ 5 min
+  on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--at-boundary`` adds warm-up rows
+  (``"at_boundary": true``) where each detector's
   monitored values are moved up by ``allowance`` × the std of the values it learned (in the units it
   watches): the least favourable healthy drift, the one its threshold is calibrated for, so there the
   measured ARL0 should match the target; without the shift, healthy joints sit inside the allowance and
   run longer. ``--calibrate-at healthy_drift|boundary|nominal`` measures with that calibration instead
-  of the shipped ``decision.calibrate_at`` (docs/DETECTION.md).
+  of the shipped ``decision.calibrate_at`` (docs/DETECTION.md); ``--steady-at`` and
+  ``--steady-density`` do the same for the steady nominal (``decision.steady_calibrate_at``,
+  ``decision.steady_density``).
 
 * ``--agent --curves`` — why a calibration alone cannot match healthy drifting data: for each
   quantity, the threshold h that gives each target (``--targets``) on the simulated healthy joints
@@ -65,6 +73,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -448,13 +457,15 @@ def allowance_study(allowance: float, target: float = 1e4, detectors: int = 32, 
 
 
 def simulated_quantities(seed: int, cycles: int, joints: int = 6) -> dict[int, list[dict[str, float]]]:
-    """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults)."""
-    from edge_monitor.offline.fast_path import detector_inputs
+    """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults),
+    with the cycle's motor temperature [°C] as the controller reports it (``"motor_temperature"``; the
+    detectors' thermal settling test watches it)."""
+    from edge_monitor.offline.fast_path import detector_inputs_with_truth
     from sim_controller.config import SimConfig
 
     out: dict[int, list[dict[str, float]]] = {}
-    for joint, cycle, values in detector_inputs(SimConfig(joints=joints, cycles=cycles, seed=seed)):
-        out.setdefault(joint, []).append(values)
+    for joint, cycle, values, truth in detector_inputs_with_truth(SimConfig(joints=joints, cycles=cycles, seed=seed)):
+        out.setdefault(joint, []).append({**values, "motor_temperature": float(truth["motor_temperature"])})
         if cycle % 100 == 99 and joint == 0:
             log.info("seed %d: simulated cycle %d/%d", seed, cycle + 1, cycles)
     return out
@@ -492,44 +503,85 @@ class _BoundaryShift:
                 for q, v in values.items()}
 
 
-def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float,
+def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | tuple[float, ...],
               draws: int = 48, allowance: float | None = None, boundary: bool = False,
-              calibrate_at: str | None = None) -> list[dict[str, object]]:
-    """Measured ARL0 of the agent's detectors (shipped defaults, ``arl0_cycles = target``) with renewal;
-    ``boundary``: each detector's monitored values moved to the edge of its null (:class:`_BoundaryShift`)
-    and its threshold calibrated there; ``calibrate_at`` overrides ``decision.calibrate_at``."""
-    from edge_monitor.features.registry import QUANTITIES
-    from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
+              calibrate_at: str | None = None, workers: int = 1, steady_at: str | None = None,
+              steady_density: str | None = None) -> list[dict[str, object]]:
+    """Measured ARL0 of the agent's detectors (shipped defaults, ``arl0_cycles = target``; several
+    targets: rows for each) with renewal, one row per quantity and stage (``"warm-up"``: the nominal
+    learned after commissioning; ``"steady"``: the one learned again once the motor temperature
+    settled, what ``arl0_cycles`` is stated for); ``boundary``: each detector's monitored values moved
+    to the edge of its null (:class:`_BoundaryShift`) and its threshold calibrated there;
+    ``calibrate_at`` overrides ``decision.calibrate_at``, ``steady_at`` ``decision.steady_calibrate_at``. ``workers`` > 1: joints and targets run in
+    that many processes."""
+    from edge_monitor.pipeline.detectors import DecisionConfig
 
-    exposure: dict[str, int] = {}
-    alarms: dict[str, int] = {}
-    runs: dict[str, int] = {}
+    targets = (target,) if isinstance(target, (int, float)) else tuple(target)
     extra: dict[str, Any] = {} if allowance is None else {"allowance": allowance}
     if boundary or calibrate_at:
         extra["calibrate_at"] = "boundary" if boundary else calibrate_at
-    for robot in series:
-        for joint, rows in robot.items():
-            for q in DecisionConfig().quantities:
-                config = DecisionConfig(arl0_cycles=target, calibration_draws=draws, quantities=(q,), **extra)
-                bank = DetectorBank(config, {})
-                shift = _BoundaryShift(bank, QUANTITIES[q].inputs) if boundary else None
-                runs[q] = runs.get(q, 0) + 1
-                learning = True
-                for cycle, values in enumerate(rows):
-                    decision = bank.update(shift(values, learning) if shift else values, "r", joint, cycle)[0][q]
-                    learning = decision.state != "monitoring"
-                    if not learning and decision.threshold is not None:
-                        exposure[q] = exposure.get(q, 0) + 1
-                    if decision.alarm:
-                        alarms[q] = alarms.get(q, 0) + 1
-                        bank.detectors[q].reset()      # as after a declared maintenance
-                        runs[q] += 1
-                        learning = True
-    return [{"quantity": q, "target_arl0": target,
-             "measured_arl0": exposure[q] / alarms[q] if alarms.get(q) else None,
-             "monitored_cycles": exposure[q], "runs": runs[q], "false_alarms": alarms.get(q, 0),
-             "at_boundary": boundary, "calibrate_at": extra.get("calibrate_at", DecisionConfig().calibrate_at)}
-            for q in sorted(exposure)]
+    if boundary:               # the shift is defined for the first nominal only
+        extra["steady_relearn"] = False
+    if steady_at:
+        extra["steady_calibrate_at"] = steady_at
+    if steady_density:
+        extra["steady_density"] = steady_density
+    tasks = [(rows, joint, t, draws, extra, boundary) for t in targets for robot in series
+             for joint, rows in robot.items()]
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers) as pool:
+            counts = list(pool.map(_joint_arl, *zip(*tasks)))
+    else:
+        counts = [_joint_arl(*task) for task in tasks]
+    total: dict[tuple[float, str, str], list[int]] = {}
+    for task, joint_counts in zip(tasks, counts):
+        for (q, stage), numbers in joint_counts.items():
+            acc = total.setdefault((task[2], q, stage), [0, 0, 0])
+            acc[:] = [a + n for a, n in zip(acc, numbers)]
+    calibrated_at = extra.get("calibrate_at", DecisionConfig().calibrate_at)
+    steady_calibrated_at = extra.get("steady_calibrate_at", DecisionConfig().steady_calibrate_at)
+    return [{"quantity": q, "stage": stage, "target_arl0": t,
+             "measured_arl0": exposure / alarms if alarms else None, "monitored_cycles": exposure,
+             "runs": runs, "false_alarms": alarms, "at_boundary": boundary,
+             "calibrate_at": calibrated_at if stage == "warm-up" else steady_calibrated_at}
+            for (t, q, stage), (exposure, alarms, runs) in sorted(total.items()) if exposure or runs]
+
+
+def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: int, extra: dict[str, Any],
+               boundary: bool) -> dict[tuple[str, str], tuple[int, int, int]]:
+    """One joint's ``(quantity, stage) → (monitored cycles, false alarms, runs)`` (see :func:`agent_arl`)."""
+    from edge_monitor.features.registry import QUANTITIES
+    from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
+
+    out: dict[tuple[str, str], tuple[int, int, int]] = {}
+    for q in DecisionConfig().quantities:
+        config = DecisionConfig(arl0_cycles=target, calibration_draws=draws, quantities=(q,), **extra)
+        bank = DetectorBank(config, {})
+        shift = _BoundaryShift(bank, QUANTITIES[q].inputs) if boundary else None
+        counts = {"warm-up": [0, 0, 0], "steady": [0, 0, 0]}
+        learning, stage = True, None
+        for cycle, values in enumerate(rows):
+            bank.observe_temperature(values.get("motor_temperature"))
+            decision = bank.update(shift(values, learning) if shift else values, "r", joint, cycle)[0][q]
+            now = (decision.calibration or {}).get("stage", "warm-up")
+            if now != stage:                              # a new run: learning (again) or the steady nominal
+                stage = now
+                counts[stage][2] += 1
+            learning = decision.state != "monitoring"
+            if decision.statistic is not None and decision.threshold is not None:    # a value was tested
+                counts[stage][0] += 1
+            if decision.alarm:
+                counts[stage][1] += 1
+                if stage == "steady":                     # judged false: the statistic restarts on the
+                    bank.detectors[q].acknowledge()       # same nominal (a relearning would cost 240 cycles)
+                    counts[stage][2] += 1
+                else:                                     # as after a declared maintenance
+                    bank.detectors[q].reset()
+                    learning, stage = True, None
+        out.update({(q, s): (c[0], c[1], c[2]) for s, c in counts.items()})
+    return out
 
 
 def _watched_series(bank: DetectorBank, rows: list[dict[str, float]], quantity: str) -> np.ndarray:
@@ -636,6 +688,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--calibrate-at", choices=("healthy_drift", "boundary", "nominal"), default=None,
                         help="--agent: where the thresholds are calibrated instead of the shipped "
                         "decision.calibrate_at")
+    parser.add_argument("--steady-at", choices=("boundary", "nominal"), default=None,
+                        help="--agent: calibrate the steady nominal there instead of the shipped "
+                             "decision.steady_calibrate_at")
+    parser.add_argument("--steady-density", choices=("gauss", "kde", "gce"), default=None,
+                        help="--agent: the steady nominal's density instead of decision.steady_density")
     parser.add_argument("--at-boundary", action="store_true",
                         help="--agent: also measure with each detector's values moved to the edge of its null")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
@@ -684,23 +741,40 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _agent_main(args: argparse.Namespace) -> int:
-    robots = args.robots or (1 if args.quick else 4)
-    cycles = args.cycles or (400 if args.quick else 2000)
-    joints, draws = (3, 16) if args.quick else (6, 48)
+    robots = args.robots or (2 if args.quick else 4)
+    cycles = args.cycles or (1000 if args.quick else 2000)
+    joints, draws = (2, 16) if args.quick else (6, 48)
+    workers = max(1, min(os.cpu_count() or 1, 8))
     started = time.monotonic()
-    series = [simulated_quantities(seed, cycles, joints) for seed in range(1, robots + 1)]
+    series = _simulate_robots(robots, cycles, joints, workers)
     if args.curves:
         targets = tuple(float(t) for t in args.targets.split(","))
         return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": 32,
                             "rows": threshold_curves(series, targets)}, args.json)
-    rows = []
-    for target in (float(t) for t in args.targets.split(",")):
-        rows += agent_arl(series, target, draws, args.allowance, calibrate_at=args.calibrate_at)
-        if args.at_boundary:
-            rows += agent_arl(series, target, draws, args.allowance, boundary=True)
-        log.info("target %.0f done, %.0f s", target, time.monotonic() - started)
+    targets = tuple(float(t) for t in args.targets.split(","))
+    log.info("simulated %d robots × %d joints × %d cycles in %.0f s; running the detectors", robots, joints,
+             cycles, time.monotonic() - started)
+    rows = agent_arl(series, targets, draws, args.allowance, calibrate_at=args.calibrate_at, workers=workers,
+                     steady_at=args.steady_at, steady_density=args.steady_density)
+    if args.at_boundary:
+        rows += agent_arl(series, targets, draws, args.allowance, boundary=True, workers=workers)
+    log.info("detectors done, %.0f s", time.monotonic() - started)
+    steady = [r for r in rows if r["stage"] == "steady" and not r["at_boundary"]]
     return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": draws,
-                        "allowance": args.allowance, "calibrate_at": args.calibrate_at, "rows": rows}, args.json)
+                        "allowance": args.allowance, "calibrate_at": args.calibrate_at,
+                        "steady_at": args.steady_at, "steady_density": args.steady_density, "rows": steady,
+                        "other_rows": [r for r in rows if r not in steady]}, args.json)
+
+
+def _simulate_robots(robots: int, cycles: int, joints: int, workers: int) -> list[dict[int, list[dict[str, float]]]]:
+    """:func:`simulated_quantities` of seeds 1 … ``robots``, in up to ``workers`` processes."""
+    seeds = list(range(1, robots + 1))
+    if workers < 2 or robots < 2:
+        return [simulated_quantities(seed, cycles, joints) for seed in seeds]
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(min(workers, robots)) as pool:
+        return list(pool.map(simulated_quantities, seeds, [cycles] * robots, [joints] * robots))
 
 
 def _print_json(result: dict[str, object], path: Path | None) -> int:

@@ -89,8 +89,11 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             yield signals
 
     miss: dict[int, dict[str, dict[int, float]]] = {}    # joint → quantity → cycle → reported Pm
+    steady_from: dict[int, dict[str, int]] = {}          # joint → quantity → first cycle of the steady stage
     for symptom in run_cycles(agent, cycles()):
         for q, decision in symptom.decisions.items():
+            if (decision.calibration or {}).get("stage") == "steady":
+                steady_from.setdefault(symptom.joint, {}).setdefault(q, symptom.cycle)
             if decision.state == "monitoring" and decision.threshold is not None:
                 counts = monitored.setdefault(symptom.joint, {})
                 counts[q] = counts.get(q, 0) + 1
@@ -102,6 +105,7 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
                        "wear": wear_truth.get((joint, cycle), math.nan)})
     worn = sorted({j for (j, _), w in wear_truth.items() if w > 0})
     return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
+            "steady_from": {str(j): c for j, c in steady_from.items()},
             "worn": worn, "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()}
                                                          for q, per in miss.get(j, {}).items()} for j in worn},
             "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(spec.cycles) if (j, c) in wear_truth]

@@ -95,11 +95,13 @@ def wear_text(wear: dict[str, Any]) -> str:
 
 def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: Any) -> str:
     """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
-    estimated lubricant temperature, alarms (quantity@cycle), the false-alarm setting and the smallest
-    estimated miss probability over the joint's detectors."""
+    estimated lubricant temperature, the detectors' stage (warm-up or steady, docs/DETECTION.md), alarms
+    (quantity@cycle), the false-alarm setting and the smallest estimated miss probability over the
+    joint's detectors."""
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
-               else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector")
-    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'alarms':<44} {'Pm':>7}"]
+               else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, "
+               f"for drifts up to the allowance during the warm-up")
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'alarms':<44} {'Pm':>7}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
@@ -109,8 +111,10 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
               if d.get("miss_probability") is not None]
         alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
+        stages = {(d.get("calibration") or {}).get("stage") for d in rec.get("decisions", {}).values()} - {None}
+        stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {alarms[:44]:<44} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms[:44]:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)

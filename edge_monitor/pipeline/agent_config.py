@@ -18,7 +18,7 @@ from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
-from edge_monitor.pipeline.detectors import DecisionConfig
+from edge_monitor.pipeline.detectors import SCHEDULE_KEYS, DecisionConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import DEFAULT_PARAMS, FrictionParams
 from protocol.frames import MAX_JOINTS
@@ -100,7 +100,8 @@ class AgentConfig:
             "segmentation": lambda d: PlateauConfig(**{**d, "speeds": tuple(d["speeds"])}),
             "wear": lambda d: WearConfig(**d, enabled=self.wear.enabled, critical=self.wear.critical),
             "kl": lambda d: KLConfig(**d, enabled=self.kl.enabled),
-            "decision": lambda d: DecisionConfig(**{**d, "quantities": tuple(d["quantities"])}),
+            "decision": lambda d: DecisionConfig(**{**{k: getattr(self.decision, k) for k in SCHEDULE_KEYS}, **d,
+                                                   "quantities": tuple(d["quantities"])}),
         }
         changes: dict[str, Any] = {}
         for name, build in builders.items():

@@ -18,17 +18,26 @@ from typing import Any
 
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
+from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.records import Alarm, Decision
 from edge_monitor.stats.calibration import CALIBRATE_AT, DEFAULT_ARL0, MAX_DRIFT, CalibrationBudget
-from edge_monitor.stats.sequential_detector import (
+from edge_monitor.stats.detector_config import (
     DEFAULT_NOMINAL,
+    DEFAULT_STEADY_NOMINAL,
     DEFAULT_WINDOW,
-    Calibrator,
+    STEADY_DEFAULTS,
     DetectorConfig,
-    SequentialDetector,
 )
+from edge_monitor.stats.sequential_detector import Calibrator, SequentialDetector
 
 log = logging.getLogger(__name__)
+
+#: Settings that say when the steady stage starts, not what a detector learned: not in the fingerprint
+#: (a saved state stays valid when they change), and kept from the current config on "keep".
+SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate")
+
+#: Key of the thermal settling tracker in the detectors' state (not a quantity name).
+SETTLING_KEY = "_thermal_settling"
 
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
@@ -52,6 +61,10 @@ class DecisionConfig:
     vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
     ``calibrate_at``: where the calibration simulates each detector (default at the drift allowance);
     ``"healthy_drift"`` (a study option) uses ``healthy_drift`` (input → (mean, sd) [σ]) instead.
+    ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
+    ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
+    learns its nominal again, from ``steady_nominal`` cycles with the ``steady_density`` family, and
+    calibrates it at ``steady_calibrate_at`` (docs/DETECTION.md, "Two stages").
     """
 
     enabled: bool = True
@@ -75,6 +88,16 @@ class DecisionConfig:
     calibration_steps: int = CalibrationBudget().max_steps
     calibrate_at: str = "boundary"
     healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
+    steady_relearn: bool = True
+    steady_calibrate_at: str = "nominal"
+    steady_nominal: int = DEFAULT_STEADY_NOMINAL
+    steady_density: str = "gauss"
+    settling_window: int = SettlingConfig().window
+    settling_max_rate: float = SettlingConfig().max_rate
+
+    @property
+    def settling(self) -> SettlingConfig:
+        return SettlingConfig(window=self.settling_window, max_rate=self.settling_max_rate)
 
     @property
     def arl0(self) -> float:
@@ -85,8 +108,12 @@ class DecisionConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", _healthy_drift(self.healthy_drift))
-        require(self.calibrate_at in CALIBRATE_AT, "decision.calibrate_at",
-                f"{self.calibrate_at!r}; choose one of {CALIBRATE_AT}")
+        for name in ("calibrate_at", "steady_calibrate_at"):
+            require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
+                    f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
+        require(isinstance(self.steady_relearn, bool), "decision.steady_relearn",
+                f"must be true or false, got {self.steady_relearn!r}")
+        SettlingConfig(window=self.settling_window, max_rate=self.settling_max_rate)   # validates them
         require((self.false_alarms_per_year is None) == (self.cycles_per_day is None),
                 "decision.false_alarms_per_year",
                 "give it together with decision.cycles_per_day (or use decision.arl0_cycles)")
@@ -110,7 +137,7 @@ class DecisionConfig:
     def detector_config(self, quantity: str) -> DetectorConfig:
         spec = QUANTITIES[quantity]
         vector = spec.dim > 1
-        drifting = self.calibrate_at == "healthy_drift"
+        drifting = "healthy_drift" in (self.calibrate_at, self.steady_calibrate_at)
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
@@ -118,14 +145,20 @@ class DecisionConfig:
                               allowance=self.allowance, clip_sigma=self.clip_sigma,
                               calibration_draws=self.calibration_draws,
                               calibration_steps=self.calibration_steps, calibrate_at=self.calibrate_at,
+                              steady_at=self.steady_calibrate_at, steady_nominal=self.steady_nominal,
+                              steady_density=self.steady_density,
                               drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
                               drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting))
 
     def fingerprint(self) -> dict[str, Any]:
         out = {**asdict(self), "quantities": list(self.quantities),
                "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())}}
-        if self.calibrate_at == "boundary":      # the default: states saved before these settings still match
-            del out["calibrate_at"], out["healthy_drift"]
+        if self.calibrate_at == "boundary" and self.steady_calibrate_at != "healthy_drift":
+            del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
+        if (self.steady_calibrate_at, self.steady_nominal, self.steady_density) == STEADY_DEFAULTS:
+            del out["steady_calibrate_at"], out["steady_nominal"], out["steady_density"]   # still match
+        for key in SCHEDULE_KEYS:
+            del out[key]
         return out
 
 
@@ -161,6 +194,22 @@ class DetectorBank:
         self.calibrator = calibrator
         self.detectors = {q: SequentialDetector(config.detector_config(q), calibrator)
                           for q in config.quantities} if config.enabled else {}
+        self.settling = ThermalSettling(config.settling)
+
+    def observe_temperature(self, motor_temperature: float | None) -> None:
+        """A cycle's mean motor temperature [°C] (None: unknown). Once the joint's temperature has
+        settled, every detector still on its warm-up nominal learns its steady one; if it warms again
+        before a detector has collected its steady values, that collection is dropped."""
+        settled = self.settling.update(motor_temperature)
+        for detector in self.detectors.values():
+            if settled and self.config.steady_relearn:
+                detector.begin_steady()
+            elif not settled:
+                detector.cancel_steady()      # warming again: the values collected are not steady
+
+    def keep_settling(self, previous: "DetectorBank") -> None:
+        """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled)."""
+        self.settling = ThermalSettling.from_state(self.config.settling, previous.settling.state_dict())
 
     def watched(self, values: dict[str, float]) -> dict[str, float]:
         """Feature values in the units the detectors watch (log of the log-scale quantities; NaN for a
@@ -203,7 +252,8 @@ class DetectorBank:
                 "sources": {f: self.sources.get(f, {}) for f in features}}
 
     def state_dict(self) -> dict[str, Any]:
-        return {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
+        out = {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
+        return {**out, SETTLING_KEY: self.settling.state_dict()}
 
     def _check_inputs(self, quantity: str, saved: Any) -> None:
         """:class:`StateMismatch` naming what changed if ``quantity``'s detector learned on other values."""
@@ -225,6 +275,8 @@ class DetectorBank:
         """Restore detectors from ``state``; a detector whose settings or inputs changed since it was
         learned starts learning again. Returns one message per relearned detector."""
         messages: list[str] = []
+        if isinstance(state.get(SETTLING_KEY), dict):
+            self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:

@@ -30,6 +30,7 @@ from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import DetectorBank
+from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Alarm, Symptom, finite_or_none
 from edge_monitor.stats.sequential_detector import Calibrator
 from joint_model import FrictionParams
@@ -75,11 +76,15 @@ class JointMonitor:
         self.maintenances = 0
 
     def _build(self) -> None:
-        """Features with the joint's current model, and fresh detectors."""
+        """Features with the joint's current model, and fresh detectors (which keep the temperature
+        history: a new model does not cool the joint)."""
         settings = _JointSettings(self.config, self.model)
         self.features: dict[str, Feature] = {spec.name: spec.build(self.joint, settings)
                                              for spec in FEATURES if spec.enabled(settings)}
+        previous = self.__dict__.get("detectors")
         self.detectors = DetectorBank(self.config.decision, self._sources(), self.calibrator)
+        if previous is not None:
+            self.detectors.keep_settling(previous)
 
     @property
     def model_ready(self) -> bool:
@@ -171,6 +176,7 @@ class JointMonitor:
         reasons: dict[str, str] = {}
         extras: dict[str, Any] = {}
         learning_model = not self.model_ready
+        self.detectors.observe_temperature(cycle.motor_temperature)
         for spec in FEATURES:
             feature = self.features.get(spec.name)
             if feature is None or (learning_model and spec.waits_for_model):
@@ -215,6 +221,7 @@ class JointMonitor:
         self.model = JointModelLearner(self.config.model, self.config.friction_for(self.joint),
                                        self.config.wear.default_load_mean) if self.config.model.enabled else None
         self._build()
+        self.detectors.settling = ThermalSettling(self.config.decision.settling)   # it may have cooled meanwhile
         self.maintenances += 1
         return cleared
 

@@ -224,6 +224,13 @@ class WindowedGLR:
     def count(self) -> int:
         return self._glr.count
 
+    def restart(self) -> None:
+        """Forget every observation (the statistic starts from 0); density, threshold, null box and
+        winsorisation are kept."""
+        g = self._glr
+        self._glr = BatchWindowedGLR(g.mix, self.window, self.gamma0, self.rho, self.mode,
+                                     null_box=(g.lower, g.upper), clip=(g.clip_lo, g.clip_hi))
+
     def update(self, y: ArrayLike) -> GLRDecision:
         """Process one finite observation (d,) and return the decision at this step."""
         obs = as_observations(y, self.density.dim, name="observation")[0]

@@ -14,144 +14,46 @@ values are skipped and counted and never touch the state.
 A calibration may run in another process (live agent): until its threshold arrives the detector
 monitors without deciding ("calibrating"); the first decision with the threshold also accounts for the
 statistics of those cycles.
+
+Two stages: the nominal learned right after commissioning is the *warm-up* nominal, calibrated at
+``calibrate_at``. When the joint's temperature has settled (:meth:`SequentialDetector.begin_steady`,
+called by the decision layer) the detector learns its nominal again from the next ``steady_nominal``
+values, still deciding with the warm-up threshold meanwhile, and calibrates that *steady* nominal at
+``steady_at`` (docs/DETECTION.md, "Two stages").
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from typing import Any, Protocol, Sequence
 
 import numpy as np
 
-from edge_monitor.errors import ConfigError, check_learned_with, require
+from edge_monitor.errors import check_learned_with
 from edge_monitor.records import Decision
-from edge_monitor.stats.bias_em import BiasEMError, check_gain
-from edge_monitor.stats.calibration import (
-    CALIBRATE_AT,
-    DEFAULT_ARL0,
-    MAX_ARL0,
-    MAX_DRIFT,
-    MIN_EVENTS,
-    Calibration,
-    CalibrationBudget,
-    CalibrationError,
-    CalibrationJob,
-    InlineCalibrator,
-    Pending,
+from edge_monitor.stats.calibration import Calibration, CalibrationError, CalibrationJob, InlineCalibrator, Pending
+from edge_monitor.stats.densities import DensityError, GaussianMixture, fit_density
+from edge_monitor.stats.detector_config import (  # noqa: F401  (re-exported: the detector's settings live there)
+    DEFAULT_MODE,
+    DEFAULT_NOMINAL,
+    DEFAULT_STEADY_NOMINAL,
+    DEFAULT_WINDOW,
+    MAX_NOMINAL,
+    DetectorConfig,
+    DetectorConfigError,
 )
-from edge_monitor.stats.densities import DENSITY_KINDS, DensityError, GaussianMixture, fit_density, min_points
-from edge_monitor.stats.glr import MAX_WINDOW, GLRError, WindowedGLR, check_pf, threshold_from_pf
-from edge_monitor.stats.glr_batch import DIRECTIONS, clip_range, null_box
+from edge_monitor.stats.glr import GLRError, WindowedGLR, threshold_from_pf
+from edge_monitor.stats.glr_batch import clip_range, null_box
 
 log = logging.getLogger(__name__)
-
-#: Candidate change times kept by the agent's detectors [cycles].
-DEFAULT_WINDOW = 100
-#: Learning phase length [cycles] (docs/ALGORITHMS.md §6: 50 … 70).
-DEFAULT_NOMINAL = 60
-#: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
-MAX_NOMINAL = 10_000
-#: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
-#: "exact" is O(W²·K). The calibration simulates whichever the detector runs.
-DEFAULT_MODE = "recursive"
 
 
 class Calibrator(Protocol):
     """Runs calibrations (:class:`~edge_monitor.stats.calibration.InlineCalibrator` or a process pool)."""
 
     def submit(self, job: CalibrationJob) -> Pending: ...
-
-
-class DetectorConfigError(ConfigError):
-    """Invalid detector setting (names the parameter and the valid range)."""
-
-
-@dataclass(frozen=True)
-class DetectorConfig:
-    """Settings of one sequential detector, validated once, here.
-
-    ``arl0``: mean run length to false alarm [cycles] the threshold is calibrated for; ``pf``: instead,
-    the per-test false-alarm probability of the asymptotic threshold (expert option; then ``arl0`` is
-    not used). ``calibration_draws``/``calibration_steps``: simulation budget of the calibration;
-    ``calibrate_at``, ``drift_mean``/``drift_sd`` [σ of the nominal values, one per dimension]: which
-    healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`).
-    """
-
-    dim: int = 1
-    n_nominal: int = DEFAULT_NOMINAL
-    density: str = "gce"
-    window: int = DEFAULT_WINDOW
-    gamma0: float = 0.6
-    rho: float = 1.0
-    mode: str = DEFAULT_MODE
-    arl0: float = DEFAULT_ARL0
-    pf: float | None = None
-    direction: str = "both"
-    allowance: float = 0.0
-    clip_sigma: float = 0.0
-    calibration_draws: int = CalibrationBudget().draws
-    calibration_steps: int = CalibrationBudget().max_steps
-    calibrate_at: str = "boundary"
-    drift_mean: tuple[float, ...] = ()
-    drift_sd: tuple[float, ...] = ()
-
-    def __post_init__(self) -> None:
-        try:
-            require(isinstance(self.dim, int) and 1 <= self.dim <= 16, "dim", f"must be 1 … 16, got {self.dim!r}")
-            require(self.density in DENSITY_KINDS, "density", f"{self.density!r}; choose one of {DENSITY_KINDS}")
-            need = min_points(self.density, self.dim)
-            require(isinstance(self.n_nominal, int) and need <= self.n_nominal <= MAX_NOMINAL, "n_nominal",
-                    f"{self.n_nominal!r} cycles: the {self.density!r} density in dimension {self.dim} needs "
-                    f"{need} … {MAX_NOMINAL} (default {DEFAULT_NOMINAL})")
-            require(isinstance(self.window, int) and 1 <= self.window <= MAX_WINDOW, "window",
-                    f"must be 1 … {MAX_WINDOW} cycles, got {self.window!r} (default {DEFAULT_WINDOW})")
-            require(self.mode in ("exact", "recursive"), "mode", f"must be 'exact' or 'recursive', got {self.mode!r}")
-            require(isinstance(self.arl0, (int, float)) and 10 <= self.arl0 <= MAX_ARL0, "arl0",
-                    f"mean run length to false alarm must be 10 … {MAX_ARL0:g} cycles, got {self.arl0!r}")
-            require(self.direction in DIRECTIONS, "direction", f"{self.direction!r}; choose one of {DIRECTIONS}")
-            require(isinstance(self.allowance, (int, float)) and 0 <= self.allowance <= 5, "allowance",
-                    f"must be 0 … 5 standard deviations of the nominal values, got {self.allowance!r}")
-            require(isinstance(self.clip_sigma, (int, float)) and (self.clip_sigma == 0 or 1 <= self.clip_sigma <= 20),
-                    "clip_sigma", f"must be 0 (off) or 1 … 20 standard deviations, got {self.clip_sigma!r}")
-            require(isinstance(self.calibration_draws, int) and MIN_EVENTS <= self.calibration_draws <= 4096,
-                    "calibration_draws", f"must be {MIN_EVENTS} … 4096 (a threshold needs {MIN_EVENTS} simulated "
-                    f"alarms), got {self.calibration_draws!r}")
-            require(isinstance(self.calibration_steps, int) and 200 <= self.calibration_steps <= 1_000_000,
-                    "calibration_steps", f"must be 200 … 1000000, got {self.calibration_steps!r}")
-            require(self.calibrate_at in CALIBRATE_AT, "calibrate_at",
-                    f"{self.calibrate_at!r}; choose one of {CALIBRATE_AT}")
-            if self.calibrate_at == "healthy_drift":
-                bounds = (("drift_mean", self.drift_mean, -MAX_DRIFT), ("drift_sd", self.drift_sd, 0.0))
-                for name, values, low in bounds:
-                    require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
-                                                            for v in values), name,
-                            f"needs {self.dim} value(s) in {low:g} … {MAX_DRIFT:g} standard deviations, "
-                            f"got {values!r}")
-        except ConfigError as exc:
-            raise DetectorConfigError(str(exc)) from None
-        for name, gamma0, rho in (("gamma0", self.gamma0, 0.75), ("rho", 0.5, self.rho)):
-            try:
-                check_gain(gamma0, rho)
-            except BiasEMError as exc:
-                raise DetectorConfigError(f"{name}: {exc}") from None
-        if self.pf is not None:
-            try:
-                check_pf(self.pf)
-            except GLRError as exc:
-                raise DetectorConfigError(f"pf: {exc}") from None
-
-    def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd)}
-        if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
-            for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
-                del out[key]                                           # these settings existed still match
-        return out
-
-    @property
-    def budget(self) -> CalibrationBudget:
-        return CalibrationBudget(draws=self.calibration_draws, max_steps=self.calibration_steps)
 
 
 class SequentialDetector:
@@ -164,10 +66,10 @@ class SequentialDetector:
     says so in ``reason``; it starts as soon as the window shows any spread.
     """
 
-    def __init__(self, config: DetectorConfig = DetectorConfig(), calibrator: Calibrator | None = None) -> None:
-        self.config = config
+    def __init__(self, config: DetectorConfig | None = None, calibrator: Calibrator | None = None) -> None:
+        self.config = config = config or DetectorConfig()
         self.calibrator: Calibrator = calibrator or InlineCalibrator()
-        self.dim, self.n_nominal, self.density_kind = config.dim, config.n_nominal, config.density
+        self.dim, self.n_nominal = config.dim, config.n_nominal
         self.window, self.gamma0, self.rho, self.mode = config.window, config.gamma0, config.rho, config.mode
         self.skipped_nonfinite = 0
         self.skipped_bad_shape = 0
@@ -184,6 +86,8 @@ class SequentialDetector:
         self._job: CalibrationJob | None = None
         self._pending: Pending | None = None
         self._waiting_max = 0.0            # largest statistic while the calibration was under way
+        self.stage = "warm-up"             # "warm-up" | "steady" (see the module docstring)
+        self._steady_values: list[list[float]] | None = None    # the steady nominal being learned
 
     @property
     def state(self) -> str:
@@ -209,12 +113,39 @@ class SequentialDetector:
         """How the threshold is set, for every decision: the ARL0 target and the method, or the Pf."""
         if self.config.pf is not None:
             return {"method": "asymptotic", "pf": self.config.pf}
-        out: dict[str, Any] = {"arl0": self.config.arl0, "at": self.config.calibrate_at}
+        out: dict[str, Any] = {"arl0": self.config.arl0, "at": self._calibrate_at, "stage": self.stage}
         if self.calibration is not None:
             out["method"] = self.calibration.method
         elif self._glr is not None:
             out["method"] = "pending"
         return out
+
+    @property
+    def _density_kind(self) -> str:
+        return self.config.steady_density if self.stage == "steady" else self.config.density
+
+    @property
+    def _n_learn(self) -> int:
+        return self.config.steady_nominal if self.stage == "steady" else self.n_nominal
+
+    @property
+    def _calibrate_at(self) -> str:
+        return self.config.steady_at if self.stage == "steady" else self.config.calibrate_at
+
+    def begin_steady(self) -> None:
+        """The joint's temperature has settled: learn the nominal again from the next ``steady_nominal``
+        values and calibrate it at ``steady_at``. No-op once steady, while relearning, or with an alarm."""
+        if self.stage == "steady" or self._steady_values is not None or self._latched is not None:
+            return
+        if self._glr is None:                  # still learning: start over with settled values only
+            self._nominal.clear()
+            self.stage, self._learning_note = "steady", ""
+        else:
+            self._steady_values = []
+
+    def cancel_steady(self) -> None:
+        """The joint warms again: drop the steady values collected so far (a steady nominal stays)."""
+        self._steady_values = None
 
     def update(self, value: float | Sequence[float], cycle: int) -> Decision:
         """Fold in one per-cycle value (scalar or ``dim``-vector) and return the decision."""
@@ -230,6 +161,14 @@ class SequentialDetector:
         """Declared maintenance: clear the alarm and the nominal model, learn again."""
         self._clear()
         self.resets += 1
+
+    def acknowledge(self) -> None:
+        """The latched alarm was judged false: clear it and restart the statistic on the same nominal
+        and threshold (no relearning, unlike :meth:`reset`)."""
+        if self._glr is not None:
+            self._glr.restart()
+        self._latched, self._steady_values = None, None
+        self._cycles = [None] * self.window
 
     def counters(self) -> dict[str, int]:
         return {"skipped_nonfinite": self.skipped_nonfinite, "skipped_bad_shape": self.skipped_bad_shape,
@@ -251,13 +190,17 @@ class SequentialDetector:
     # ------------------------------------------------------------------ learning and calibration
     def _learn(self, vec: np.ndarray, cycle: int) -> Decision:
         self._nominal.append(vec.tolist())
-        if len(self._nominal) > self.n_nominal:
+        if len(self._nominal) > self._n_learn:
             del self._nominal[0]
-        if len(self._nominal) < self.n_nominal:
+        if len(self._nominal) < self._n_learn:
             return Decision("learning", reason=self._learning_reason(), calibration=self.calibration_record())
+        return self._fit(cycle)
+
+    def _fit(self, cycle: int) -> Decision:
+        """Fit the nominal density of ``self._nominal``, start the GLR and its calibration."""
         try:
             nominal = np.asarray(self._nominal)
-            density = fit_density(nominal, self.density_kind)
+            density = fit_density(nominal, self._density_kind)
             threshold = threshold_from_pf(self.config.pf, self.dim) if self.config.pf is not None else math.inf
             self._glr = WindowedGLR(density, self.window, 0.5, self.gamma0, self.rho,
                                     "exact" if self.mode == "exact" else "recursive", threshold=threshold,
@@ -268,17 +211,17 @@ class SequentialDetector:
             log.info("detector stays in learning: %s", exc)
             return Decision("learning", reason=self._learning_note, calibration=self.calibration_record())
         if self.config.pf is None:
-            self._job = CalibrationJob(tuple(tuple(v) for v in self._nominal), self.density_kind, self.window,
+            self._job = CalibrationJob(tuple(tuple(v) for v in self._nominal), self._density_kind, self.window,
                                        float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
-                                       float(self.config.clip_sigma), self.config.calibrate_at,
+                                       float(self.config.clip_sigma), self._calibrate_at,
                                        tuple(self.config.drift_mean), tuple(self.config.drift_sd))
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""
         self._collect_calibration(cycle)
-        log.info("nominal %s density learned (%d components); monitoring from cycle %s",
-                 self.density_kind, density.n_components, cycle)
+        log.info("%s nominal %s density learned (%d components); monitoring from cycle %s",
+                 self.stage, self._density_kind, density.n_components, cycle)
         return Decision("monitoring", threshold=self.threshold, alarm=self.alarmed,
                         reason=f"nominal density learned ({density.n_components} components)",
                         calibration=self.calibration_record())
@@ -304,11 +247,15 @@ class SequentialDetector:
             self._latched = {"cycle": int(cycle), "change_cycle": None, "statistic": self._waiting_max}
 
     def _learning_reason(self) -> str:
-        return self._learning_note or f"learning {len(self._nominal)}/{self.n_nominal}"
+        return self._learning_note or f"learning {len(self._nominal)}/{self._n_learn}"
 
     # ------------------------------------------------------------------ monitoring
     def _monitor(self, vec: np.ndarray, cycle: int) -> Decision:
         assert self._glr is not None
+        if self._steady_values is not None and self._latched is None:
+            self._steady_values.append(vec.tolist())
+            if len(self._steady_values) >= self.config.steady_nominal:
+                return self._start_steady(cycle)
         result = self._glr.update(vec)
         self._cycles[result.index % self.window] = int(cycle)
         change_cycle = self._cycles[result.change_index % self.window]
@@ -324,6 +271,13 @@ class SequentialDetector:
         return Decision("monitoring", result.statistic, result.threshold, self._latched is not None,
                         change_cycle, tuple(result.delta), result.miss_probability, reason,
                         self.calibration_record())
+
+    def _start_steady(self, cycle: int) -> Decision:
+        """Replace the warm-up nominal and threshold by the steady nominal just learned."""
+        nominal = self._steady_values or []
+        self._clear()
+        self._nominal, self.stage = nominal, "steady"
+        return self._fit(cycle)
 
     def _current(self) -> Decision:
         """The decision of a cycle whose value did not enter the detector (state unchanged)."""
@@ -346,7 +300,8 @@ class SequentialDetector:
                 "calibration_job": None if self._job is None else self._job.to_dict(),
                 "waiting_max": self._waiting_max,
                 "cycles": list(self._cycles), "latched": None if self._latched is None else dict(self._latched),
-                "learning_note": self._learning_note, "counters": self.counters()}
+                "learning_note": self._learning_note, "counters": self.counters(), "stage": self.stage,
+                "steady_values": None if self._steady_values is None else [list(v) for v in self._steady_values]}
 
     @classmethod
     def from_state(cls, config: DetectorConfig, state: dict[str, Any],
@@ -366,8 +321,24 @@ class SequentialDetector:
         det._cycles = [None if c is None else int(c) for c in state["cycles"]]
         det._latched = None if state["latched"] is None else dict(state["latched"])
         det._learning_note = state.get("learning_note", "")
+        det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
+        det._steady_values = _steady_values(state.get("steady_values"), det)
         counters = state.get("counters", {})
         det.skipped_nonfinite = int(counters.get("skipped_nonfinite", 0))
         det.skipped_bad_shape = int(counters.get("skipped_bad_shape", 0))
         det.resets = int(counters.get("resets", 0))
         return det
+
+
+def _steady_values(saved: Any, det: SequentialDetector) -> list[list[float]] | None:
+    """A saved steady collection, checked: only a monitoring warm-up detector collects, fewer than
+    ``steady_nominal`` values of ``dim`` finite numbers each; anything else is a damaged state."""
+    if saved is None:
+        return None
+    values = [list(map(float, v)) for v in saved]
+    ok = (det.stage == "warm-up" and det._glr is not None and len(values) < det.config.steady_nominal
+          and all(len(v) == det.dim and all(map(math.isfinite, v)) for v in values))
+    if not ok:
+        raise ValueError("saved detector state: steady values that no detector could have collected")
+    return values
+

@@ -1,0 +1,142 @@
+"""Settings of one sequential detector (:mod:`edge_monitor.stats.sequential_detector`), validated once,
+here, with the defaults the agent ships (docs/ALGORITHMS.md §6, docs/DETECTION.md)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from edge_monitor.errors import ConfigError, require
+from edge_monitor.stats.bias_em import BiasEMError, check_gain
+from edge_monitor.stats.calibration import (
+    CALIBRATE_AT,
+    DEFAULT_ARL0,
+    MAX_ARL0,
+    MAX_DRIFT,
+    MIN_EVENTS,
+    CalibrationBudget,
+)
+from edge_monitor.stats.densities import DENSITY_KINDS, min_points
+from edge_monitor.stats.glr import MAX_WINDOW, GLRError, check_pf
+from edge_monitor.stats.glr_batch import DIRECTIONS
+
+#: Candidate change times kept by the agent's detectors [cycles].
+DEFAULT_WINDOW = 100
+#: Learning phase length [cycles] (docs/ALGORITHMS.md §6: 50 … 70).
+DEFAULT_NOMINAL = 60
+#: Learning phase of the steady nominal [cycles]: 4 × the first, so that at a target of 10⁴ cycles
+#: the learning error does not bring most false alarms into the first few hundred cycles.
+DEFAULT_STEADY_NOMINAL = 240
+#: (steady_at, steady_nominal, steady_density) of the agent: left out of the fingerprint, so that states
+#: saved before the steady stage existed still match.
+STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss")
+#: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
+MAX_NOMINAL = 10_000
+#: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
+#: "exact" is O(W²·K). The calibration simulates whichever the detector runs.
+DEFAULT_MODE = "recursive"
+
+
+class DetectorConfigError(ConfigError):
+    """Invalid detector setting (names the parameter and the valid range)."""
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Settings of one sequential detector, validated once, here.
+
+    ``arl0``: mean run length to false alarm [cycles] the threshold is calibrated for; ``pf``: instead,
+    the per-test false-alarm probability of the asymptotic threshold (expert option; then ``arl0`` is
+    not used). ``calibration_draws``/``calibration_steps``: simulation budget of the calibration;
+    ``calibrate_at``, ``drift_mean``/``drift_sd`` [σ of the nominal values, one per dimension]: which
+    healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`);
+    ``steady_at``, ``steady_nominal`` [cycles]: how the nominal learned once the temperature has settled
+    is calibrated, and from how many values (more than ``n_nominal``: its learning error would otherwise
+    bring false alarms early in the run, docs/DETECTION.md).
+    """
+
+    dim: int = 1
+    n_nominal: int = DEFAULT_NOMINAL
+    density: str = "gce"
+    window: int = DEFAULT_WINDOW
+    gamma0: float = 0.6
+    rho: float = 1.0
+    mode: str = DEFAULT_MODE
+    arl0: float = DEFAULT_ARL0
+    pf: float | None = None
+    direction: str = "both"
+    allowance: float = 0.0
+    clip_sigma: float = 0.0
+    calibration_draws: int = CalibrationBudget().draws
+    calibration_steps: int = CalibrationBudget().max_steps
+    calibrate_at: str = "boundary"
+    drift_mean: tuple[float, ...] = ()
+    drift_sd: tuple[float, ...] = ()
+    steady_at: str = "nominal"
+    steady_nominal: int = DEFAULT_STEADY_NOMINAL
+    steady_density: str = "gauss"
+
+    def __post_init__(self) -> None:
+        try:
+            require(isinstance(self.dim, int) and 1 <= self.dim <= 16, "dim", f"must be 1 … 16, got {self.dim!r}")
+            require(self.density in DENSITY_KINDS, "density", f"{self.density!r}; choose one of {DENSITY_KINDS}")
+            need = min_points(self.density, self.dim)
+            require(isinstance(self.n_nominal, int) and need <= self.n_nominal <= MAX_NOMINAL, "n_nominal",
+                    f"{self.n_nominal!r} cycles: the {self.density!r} density in dimension {self.dim} needs "
+                    f"{need} … {MAX_NOMINAL} (default {DEFAULT_NOMINAL})")
+            require(self.steady_density in DENSITY_KINDS, "steady_density",
+                    f"{self.steady_density!r}; choose one of {DENSITY_KINDS}")
+            need = min_points(self.steady_density, self.dim)
+            require(isinstance(self.steady_nominal, int) and need <= self.steady_nominal <= MAX_NOMINAL,
+                    "steady_nominal", f"{self.steady_nominal!r} cycles: the {self.steady_density!r} density in "
+                    f"dimension {self.dim} needs {need} … {MAX_NOMINAL} (default {DEFAULT_STEADY_NOMINAL})")
+            require(isinstance(self.window, int) and 1 <= self.window <= MAX_WINDOW, "window",
+                    f"must be 1 … {MAX_WINDOW} cycles, got {self.window!r} (default {DEFAULT_WINDOW})")
+            require(self.mode in ("exact", "recursive"), "mode", f"must be 'exact' or 'recursive', got {self.mode!r}")
+            require(isinstance(self.arl0, (int, float)) and 10 <= self.arl0 <= MAX_ARL0, "arl0",
+                    f"mean run length to false alarm must be 10 … {MAX_ARL0:g} cycles, got {self.arl0!r}")
+            require(self.direction in DIRECTIONS, "direction", f"{self.direction!r}; choose one of {DIRECTIONS}")
+            require(isinstance(self.allowance, (int, float)) and 0 <= self.allowance <= 5, "allowance",
+                    f"must be 0 … 5 standard deviations of the nominal values, got {self.allowance!r}")
+            require(isinstance(self.clip_sigma, (int, float)) and (self.clip_sigma == 0 or 1 <= self.clip_sigma <= 20),
+                    "clip_sigma", f"must be 0 (off) or 1 … 20 standard deviations, got {self.clip_sigma!r}")
+            require(isinstance(self.calibration_draws, int) and MIN_EVENTS <= self.calibration_draws <= 4096,
+                    "calibration_draws", f"must be {MIN_EVENTS} … 4096 (a threshold needs {MIN_EVENTS} simulated "
+                    f"alarms), got {self.calibration_draws!r}")
+            require(isinstance(self.calibration_steps, int) and 200 <= self.calibration_steps <= 1_000_000,
+                    "calibration_steps", f"must be 200 … 1000000, got {self.calibration_steps!r}")
+            for name in ("calibrate_at", "steady_at"):
+                require(getattr(self, name) in CALIBRATE_AT, name,
+                        f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
+            if "healthy_drift" in (self.calibrate_at, self.steady_at):
+                bounds = (("drift_mean", self.drift_mean, -MAX_DRIFT), ("drift_sd", self.drift_sd, 0.0))
+                for name, values, low in bounds:
+                    require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
+                                                            for v in values), name,
+                            f"needs {self.dim} value(s) in {low:g} … {MAX_DRIFT:g} standard deviations, "
+                            f"got {values!r}")
+        except ConfigError as exc:
+            raise DetectorConfigError(str(exc)) from None
+        for name, gamma0, rho in (("gamma0", self.gamma0, 0.75), ("rho", 0.5, self.rho)):
+            try:
+                check_gain(gamma0, rho)
+            except BiasEMError as exc:
+                raise DetectorConfigError(f"{name}: {exc}") from None
+        if self.pf is not None:
+            try:
+                check_pf(self.pf)
+            except GLRError as exc:
+                raise DetectorConfigError(f"pf: {exc}") from None
+
+    def fingerprint(self) -> dict[str, Any]:
+        out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd)}
+        if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
+            for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
+                del out[key]                                           # these settings existed still match
+        if (self.steady_at, self.steady_nominal, self.steady_density) == STEADY_DEFAULTS:
+            del out["steady_at"], out["steady_nominal"], out["steady_density"]
+        return out
+
+    @property
+    def budget(self) -> CalibrationBudget:
+        return CalibrationBudget(draws=self.calibration_draws, max_steps=self.calibration_steps)

@@ -1,0 +1,254 @@
+"""Two detector stages: the thermal settling test on the motor temperature, and the detectors learning
+their steady nominal once it says so (warm-up nominal calibrated at the allowance boundary, steady
+nominal at the learned nominal; docs/DETECTION.md, "Two stages")."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from edge_monitor.errors import ConfigError
+from edge_monitor.pipeline.detectors import SETTLING_KEY, DecisionConfig, DetectorBank
+from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
+from edge_monitor.stats.sequential_detector import DetectorConfig, SequentialDetector
+
+#: Cycle-mean motor temperature scatter in the simulator [°C] (its per-cycle load heats the motor).
+NOISE = 3.0
+
+
+def warm_up(cycles: int, seed: int = 0, tau: float = 200.0) -> np.ndarray:
+    """A first-order warm-up 35 → 63 °C with time constant ``tau`` cycles, plus cycle noise."""
+    t = np.arange(cycles)
+    return 63.0 - 28.0 * np.exp(-t / tau) + np.random.default_rng(seed).normal(0.0, NOISE, cycles)
+
+
+def first_settled(values: np.ndarray, config: SettlingConfig | None = None) -> int | None:
+    tracker = ThermalSettling(config or SettlingConfig())
+    return next((i for i, v in enumerate(values) if tracker.update(float(v))), None)
+
+
+def test_a_warming_joint_settles_once_its_rise_is_slow_and_not_before() -> None:
+    """The test settles when slope + 2 SE ≤ 0.05 °C/cycle. The true slope 0.14·e^(−t/200) falls to 0.05
+    at t ≈ 206 and the window's fit lags it by ≈ 60 cycles, so no seed can settle before ≈ 200 (the
+    window must also be full, 120); with SE ≈ 0.008 every seed settles by ≈ 400."""
+    cycles = [first_settled(warm_up(800, seed)) for seed in range(10)]
+    assert all(c is not None and 200 <= c <= 420 for c in cycles), cycles
+
+
+def test_a_constant_temperature_settles_as_soon_as_the_window_is_full() -> None:
+    flat = 40.0 + np.random.default_rng(1).normal(0.0, NOISE, 300)
+    assert first_settled(flat) == SettlingConfig().window - 1
+
+
+def test_settled_holds_through_noise_and_ends_when_the_joint_clearly_warms_again() -> None:
+    tracker = ThermalSettling()
+    rng = np.random.default_rng(2)
+    states = [tracker.update(40.0 + rng.normal(0.0, NOISE)) for _ in range(2000)]
+    assert all(states[SettlingConfig().window:])             # 1 880 noisy flat cycles: never flickers
+    ramp = [tracker.update(40.0 + 0.3 * i + rng.normal(0.0, NOISE)) for i in range(200)]
+    assert not ramp[-1]                                       # 0.3 °C per cycle: warming again
+
+
+def test_unknown_temperatures_are_skipped() -> None:
+    tracker = ThermalSettling()
+    for _ in range(500):
+        assert tracker.update(None) is False and tracker.update(math.nan) is False
+    assert tracker.rate is None
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(-40, 150), min_size=0, max_size=300), st.integers(20, 200))
+def test_state_round_trip_continues_identically(values: list[float], window: int) -> None:
+    config = SettlingConfig(window=window)
+    tracker = ThermalSettling(config)
+    for v in values:
+        tracker.update(v)
+    restored = ThermalSettling.from_state(config, json.loads(json.dumps(tracker.state_dict())))
+    assert restored.settled == tracker.settled
+    for v in (50.0, 51.0, 49.0):
+        assert restored.update(v) == tracker.update(v)
+        assert restored.rate == pytest.approx(tracker.rate, nan_ok=True)
+
+
+@pytest.mark.parametrize("kwargs, match", [({"window": 5}, "settling_window"),
+                                           ({"max_rate": 0.0}, "settling_max_rate"),
+                                           ({"max_rate": True}, "settling_max_rate"),
+                                           ({"z": -1.0}, "z")])
+def test_bad_settings_are_clear_errors(kwargs: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        SettlingConfig(**kwargs)
+
+
+# ---------------------------------------------------------------------- the detector's two stages
+def _detector(**kwargs) -> SequentialDetector:
+    return SequentialDetector(DetectorConfig(n_nominal=20, steady_nominal=20, window=30, density="gauss",
+                                             calibration_draws=16, calibration_steps=400, direction="increase",
+                                             allowance=0.75, arl0=100, **kwargs))
+
+
+def test_a_monitoring_detector_learns_its_steady_nominal_while_still_deciding() -> None:
+    """Warm-up nominal N(0, 1) at the boundary; settled at cycle 40; the next 20 values (N(5, 1), a
+    warmer joint) are the steady nominal: meanwhile the warm-up threshold still decides (a 5 σ jump
+    would alarm it, so it may not see those values), afterwards the detector is steady, calibrated
+    at the nominal, and quiet on values like its steady nominal."""
+    rng = np.random.default_rng(5)
+    det = _detector()
+    for i, v in enumerate(rng.normal(size=40)):
+        det.update(v, i)
+    assert det.stage == "warm-up" and det.calibration_record()["at"] == "boundary"
+    det.begin_steady()
+    during = [det.update(v, 40 + i) for i, v in enumerate(rng.normal(0.2, 1.0, 19))]
+    assert all(d.state == "monitoring" and d.calibration["stage"] == "warm-up" for d in during)
+    switched = det.update(0.1, 59)
+    assert switched.calibration == {"arl0": 100, "at": "nominal", "stage": "steady",
+                                    "method": det.calibration.method}
+    assert det.threshold is not None and not det.alarmed
+    det.begin_steady()                                         # a no-op once steady
+    assert det.stage == "steady" and det._steady_values is None
+
+
+def test_a_learning_detector_learns_settled_values_only_and_an_alarmed_one_keeps_its_alarm() -> None:
+    det = _detector()
+    for i in range(10):
+        det.update(float(i % 3), i)
+    det.begin_steady()
+    assert det.stage == "steady" and det._nominal == []       # the 10 warm-up values are dropped
+    alarmed = _detector()
+    rng = np.random.default_rng(6)
+    for i, v in enumerate(np.concatenate([rng.normal(size=20), rng.normal(8.0, 1.0, 20)])):
+        alarmed.update(v, i)
+    assert alarmed.alarmed
+    alarmed.begin_steady()
+    assert alarmed.stage == "warm-up" and alarmed._steady_values is None
+    alarmed.reset()                                            # maintenance: warm-up again
+    assert alarmed.stage == "warm-up" and not alarmed.alarmed
+
+
+def test_a_detector_saved_while_learning_its_steady_nominal_continues_identically() -> None:
+    rng = np.random.default_rng(7)
+    values = rng.normal(size=80)
+    det = _detector()
+    for i, v in enumerate(values[:30]):
+        det.update(v, i)
+    det.begin_steady()
+    for i, v in enumerate(values[30:40]):
+        det.update(v, 30 + i)
+    restored = SequentialDetector.from_state(det.config, json.loads(json.dumps(det.state_dict())))
+    assert restored.stage == "warm-up" and restored._steady_values == det._steady_values
+    for i, v in enumerate(values[40:]):
+        assert restored.update(v, 40 + i) == det.update(v, 40 + i)
+    assert restored.stage == det.stage == "steady"
+
+
+def test_the_bank_starts_the_steady_stage_of_every_detector_when_the_joint_settles() -> None:
+    """A bank fed 60 learning values while its joint warms, then a flat temperature: once the test
+    settles every detector learns again and ends steady (a detector that alarms on these random values
+    is reset, as by a maintenance, and then learns its steady nominal directly); its state keeps the
+    temperature history."""
+    config = DecisionConfig(n_nominal=20, steady_nominal=30, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(8)
+    temperature = np.concatenate([np.linspace(30, 50, 60), np.full(200, 50.0)]) + rng.normal(0, NOISE, 260)
+    settled_at = None
+    for cycle, t in enumerate(temperature):
+        bank.observe_temperature(float(t))
+        values = {"wear_score": rng.normal(), "kl_raw": float(np.exp(rng.normal(-3, 0.3))),
+                  "kl_weighted": float(np.exp(rng.normal(-4, 0.3)))}
+        decisions, _ = bank.update(values, "r", 0, cycle)
+        for quantity, decision in decisions.items():
+            if decision.alarm:
+                bank.detectors[quantity].reset()
+        if settled_at is None and bank.settling.settled:
+            settled_at = cycle
+    assert settled_at is not None and settled_at >= 60
+    assert {d.stage for d in bank.detectors.values()} == {"steady"}
+    assert {d.calibration["at"] for d in decisions.values()} == {"nominal"}
+    state = json.loads(json.dumps(bank.state_dict()))
+    assert state[SETTLING_KEY]["settled"] is True
+    restored = DetectorBank(config, {})
+    restored.load_state(state, 0)
+    assert restored.settling.settled and restored.detectors["wear"].stage == "steady"
+
+
+def test_steady_relearn_off_keeps_the_warm_up_nominal() -> None:
+    bank = DetectorBank(DecisionConfig(steady_relearn=False, settling_window=20), {})
+    for _ in range(50):
+        bank.observe_temperature(40.0)
+    assert bank.settling.settled and {d.stage for d in bank.detectors.values()} == {"warm-up"}
+    with pytest.raises(ConfigError, match="steady_calibrate_at"):
+        DecisionConfig(steady_calibrate_at="somewhere")
+
+
+def test_an_acknowledged_alarm_restarts_the_statistic_on_the_same_nominal() -> None:
+    rng = np.random.default_rng(9)
+    det = _detector()
+    for i, v in enumerate(np.concatenate([rng.normal(size=20), rng.normal(8.0, 1.0, 5)])):
+        det.update(v, i)
+    assert det.alarmed
+    threshold, density = det.threshold, det.density
+    det.acknowledge()
+    after = det.update(0.0, 25)
+    assert not det.alarmed and not after.alarm and after.statistic == pytest.approx(0.0, abs=1e-9)
+    assert det.threshold == threshold and det.density is density
+
+
+@pytest.mark.parametrize("state", [{}, {"recent": None}, {"recent": "abc"}, {"recent": [1e308, "x", None, True]},
+                                   {"recent": {"a": 1}, "settled": "yes"}, {"recent": [], "settled": True},
+                                   {"recent": [40.0] * 50, "settled": True}])
+def test_a_damaged_saved_history_is_dropped_not_trusted(state: dict) -> None:
+    tracker = ThermalSettling.from_state(SettlingConfig(), state)
+    assert tracker.settled is False and tracker.update(40.0) is False
+
+
+def test_a_saved_state_is_a_snapshot_and_damaged_steady_values_are_rejected() -> None:
+    det = _detector()
+    rng = np.random.default_rng(10)
+    for i, v in enumerate(rng.normal(size=25)):
+        det.update(v, i)
+    det.begin_steady()
+    det.update(0.1, 25)
+    snapshot = det.state_dict()
+    det.update(0.2, 26)
+    assert len(snapshot["steady_values"]) == 1                     # not the live list
+    for damaged in ([[0.1, 0.2]], [[math.nan]], [[0.0]] * 20):      # wrong size, not finite, too many
+        state = json.loads(json.dumps({**snapshot, "steady_values": damaged}))
+        with pytest.raises(ValueError, match="steady values"):
+            SequentialDetector.from_state(det.config, state)
+
+
+def test_warming_again_drops_a_steady_collection_under_way() -> None:
+    config = DecisionConfig(n_nominal=20, steady_nominal=100, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(11)
+    for cycle in range(80):
+        bank.observe_temperature(40.0 + rng.normal(0, 0.5))
+        bank.update({"wear_score": rng.normal(), "kl_raw": 0.05, "kl_weighted": 0.02}, "r", 0, cycle)
+    assert bank.settling.settled and bank.detectors["wear"]._steady_values
+    for cycle in range(80, 140):                                     # 1 °C per cycle: clearly warming
+        bank.observe_temperature(40.0 + (cycle - 79) + rng.normal(0, 0.5))
+    assert not bank.settling.settled and bank.detectors["wear"]._steady_values is None
+    assert bank.detectors["wear"].stage == "warm-up"
+
+
+def test_maintenance_forgets_the_temperature_history_and_keep_keeps_the_schedule() -> None:
+    from edge_monitor.pipeline.agent_config import AgentConfig
+    from edge_monitor.pipeline.joint_monitor import JointMonitor
+
+    monitor = JointMonitor(0, AgentConfig())
+    for _ in range(200):
+        monitor.detectors.observe_temperature(45.0)
+    assert monitor.detectors.settling.settled
+    monitor.declare_maintenance(cycle=200)
+    assert not monitor.detectors.settling.settled                 # the joint may have cooled meanwhile
+    mine = AgentConfig(decision=DecisionConfig(steady_relearn=False, settling_window=60))
+    saved = AgentConfig(decision=DecisionConfig(allowance=0.5)).fingerprint(0)
+    kept, names = mine.with_learned(0, saved)
+    assert names == ["decision"] and kept.decision.allowance == 0.5
+    assert kept.decision.steady_relearn is False and kept.decision.settling_window == 60
