@@ -24,8 +24,8 @@ from edge_monitor.stats.glr_batch import DIRECTIONS
 DEFAULT_WINDOW = 100
 #: Learning phase length [cycles] (docs/ALGORITHMS.md §6: 50 … 70).
 DEFAULT_NOMINAL = 60
-#: Learning phase of the steady nominal [cycles]: 4 × the first, so that at a target of 10⁴ cycles
-#: the learning error does not bring most false alarms into the first few hundred cycles.
+#: Learning phase of the steady nominal [cycles]: 4 × the first, a margin against the learning error
+#: (a nominal learned too narrow alarms early; docs/DETECTION.md, "Two stages").
 DEFAULT_STEADY_NOMINAL = 240
 #: (steady_at, steady_nominal, steady_density) of the agent: left out of the fingerprint, so that states
 #: saved before the steady stage existed still match.
@@ -51,8 +51,8 @@ class DetectorConfig:
     ``calibrate_at``, ``drift_mean``/``drift_sd`` [σ of the nominal values, one per dimension]: which
     healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`);
     ``steady_at``, ``steady_nominal`` [cycles]: how the nominal learned once the temperature has settled
-    is calibrated, and from how many values (more than ``n_nominal``: its learning error would otherwise
-    bring false alarms early in the run, docs/DETECTION.md).
+    is calibrated, and from how many values (more than ``n_nominal``: a margin against its learning error);
+    ``steady_density``: its density family (docs/DETECTION.md, "Two stages").
     """
 
     dim: int = 1
