@@ -43,24 +43,26 @@ Parts (all with fixed seeds; select with --part, default all):
   simulator's fast path: healthy joints with the default individual variation, thermal drift and
   load spread. The per-cycle quantities of each joint are computed once; then for each target ARL0
   (50 and 200; ``--targets``) the detectors run over them, with each cycle's motor temperature for
-  their thermal settling test, a detector that alarms is reset and relearns (as after a declared
-  maintenance), and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
+  their thermal settling test; a warm-up detector that alarms is reset and relearns (as after a
+  declared maintenance), a steady one is acknowledged (its statistic restarts on the same nominal),
+  and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
   "stage", "target_arl0", "measured_arl0", "runs", "false_alarms", ...}, ...], "other_rows": [...]}``:
   ``rows`` are the steady stage (the nominal learned again once the joint's temperature settled, the
   stage ``arl0_cycles`` is stated for), ``other_rows`` the warm-up stage (threshold at the drift
   allowance: healthy joints run longer there) and any ``--at-boundary`` rows (``runs``: detector
   runs over all joints, each started by a learning phase or, in the steady stage, an acknowledged
-  false alarm; monitored cycles are those whose value the statistic tested). ``--quick``: 2 robots (seeds 1, 2) of 2 joints ×
-  1 000 cycles, 16 bootstrap detectors per calibration instead of 48, in parallel processes (≈ 5 min
-  on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--at-boundary`` adds warm-up rows
+  false alarm; monitored cycles are those whose value the statistic tested). ``--quick``: 2 robots
+  (seeds 1, 2) of 2 joints × 1 200 cycles (≈ 660 steady cycles per joint: the joints settle at
+  ≈ 300 and learn for 240), 16 bootstrap detectors per calibration instead of 48, in parallel
+  processes (≈ 3.5 min on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--at-boundary`` adds warm-up rows
   (``"at_boundary": true``) where each detector's
   monitored values are moved up by ``allowance`` × the std of the values it learned (in the units it
   watches): the least favourable healthy drift, the one its threshold is calibrated for, so there the
   measured ARL0 should match the target; without the shift, healthy joints sit inside the allowance and
   run longer. ``--calibrate-at healthy_drift|boundary|nominal`` measures with that calibration instead
   of the shipped ``decision.calibrate_at`` (docs/DETECTION.md); ``--steady-at`` and
-  ``--steady-density`` do the same for the steady nominal (``decision.steady_calibrate_at``,
-  ``decision.steady_density``).
+  ``--steady-density``, ``--steady-transform`` do the same for the steady nominal
+  (``decision.steady_calibrate_at``, ``decision.steady_density``, ``decision.steady_transform``).
 
 * ``--agent --curves`` — why a calibration alone cannot match healthy drifting data: for each
   quantity, the threshold h that gives each target (``--targets``) on the simulated healthy joints
@@ -540,7 +542,7 @@ class _BoundaryShift:
 def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | tuple[float, ...],
               draws: int = 48, allowance: float | None = None, boundary: bool = False,
               calibrate_at: str | None = None, workers: int = 1, steady_at: str | None = None,
-              steady_density: str | None = None) -> list[dict[str, object]]:
+              steady_density: str | None = None, steady_transform: str | None = None) -> list[dict[str, object]]:
     """Measured ARL0 of the agent's detectors (shipped defaults, ``arl0_cycles = target``; several
     targets: rows for each) with renewal, one row per quantity and stage (``"warm-up"``: the nominal
     learned after commissioning; ``"steady"``: the one learned again once the motor temperature
@@ -560,6 +562,8 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | t
         extra["steady_calibrate_at"] = steady_at
     if steady_density:
         extra["steady_density"] = steady_density
+    if steady_transform:
+        extra["steady_transform"] = steady_transform
     tasks = [(rows, joint, t, draws, extra, boundary) for t in targets for robot in series
              for joint, rows in robot.items()]
     if workers > 1:
@@ -727,6 +731,8 @@ def main(argv: list[str] | None = None) -> int:
                              "decision.steady_calibrate_at")
     parser.add_argument("--steady-density", choices=("gauss", "kde", "gce"), default=None,
                         help="--agent: the steady nominal's density instead of decision.steady_density")
+    parser.add_argument("--steady-transform", choices=("yeo-johnson", "none"), default=None,
+                        help="--agent: the steady nominal's transform instead of decision.steady_transform")
     parser.add_argument("--at-boundary", action="store_true",
                         help="--agent: also measure with each detector's values moved to the edge of its null")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
@@ -779,7 +785,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _agent_main(args: argparse.Namespace) -> int:
     robots = args.robots or (2 if args.quick else 4)
-    cycles = args.cycles or (1000 if args.quick else 2000)
+    cycles = args.cycles or (1200 if args.quick else 2000)
     joints, draws = (2, 16) if args.quick else (6, 48)
     workers = max(1, min(os.cpu_count() or 1, 8))
     started = time.monotonic()
@@ -792,14 +798,16 @@ def _agent_main(args: argparse.Namespace) -> int:
     log.info("simulated %d robots × %d joints × %d cycles in %.0f s; running the detectors", robots, joints,
              cycles, time.monotonic() - started)
     rows = agent_arl(series, targets, draws, args.allowance, calibrate_at=args.calibrate_at, workers=workers,
-                     steady_at=args.steady_at, steady_density=args.steady_density)
+                     steady_at=args.steady_at, steady_density=args.steady_density,
+                     steady_transform=args.steady_transform)
     if args.at_boundary:
         rows += agent_arl(series, targets, draws, args.allowance, boundary=True, workers=workers)
     log.info("detectors done, %.0f s", time.monotonic() - started)
     steady = [r for r in rows if r["stage"] == "steady" and not r["at_boundary"]]
     return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": draws,
                         "allowance": args.allowance, "calibrate_at": args.calibrate_at,
-                        "steady_at": args.steady_at, "steady_density": args.steady_density, "rows": steady,
+                        "steady_at": args.steady_at, "steady_density": args.steady_density,
+                        "steady_transform": args.steady_transform, "rows": steady,
                         "other_rows": [r for r in rows if r not in steady]}, args.json)
 
 

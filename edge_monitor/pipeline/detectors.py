@@ -63,8 +63,10 @@ class DecisionConfig:
     ``"healthy_drift"`` (a study option) uses ``healthy_drift`` (input → (mean, sd) [σ]) instead.
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
-    learns its nominal again, from ``steady_nominal`` cycles with the ``steady_density`` family, and
-    calibrates it at ``steady_calibrate_at`` (docs/DETECTION.md, "Two stages").
+    learns its nominal again, from ``steady_nominal`` cycles with the ``steady_density`` family after a
+    ``steady_transform`` ("yeo-johnson" or "none") learned from the same values for the inputs watched
+    as logs (it refines their fixed log; the wear score is near normal by construction), and calibrates
+    it at ``steady_calibrate_at`` (docs/DETECTION.md, "Two stages").
     """
 
     enabled: bool = True
@@ -92,6 +94,7 @@ class DecisionConfig:
     steady_calibrate_at: str = "nominal"
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
+    steady_transform: str = "yeo-johnson"
     settling_window: int = SettlingConfig().window
     settling_max_rate: float = SettlingConfig().max_rate
 
@@ -113,7 +116,7 @@ class DecisionConfig:
                     f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
         require(isinstance(self.steady_relearn, bool), "decision.steady_relearn",
                 f"must be true or false, got {self.steady_relearn!r}")
-        SettlingConfig(window=self.settling_window, max_rate=self.settling_max_rate)   # validates them
+        _ = self.settling                                         # validates the settling keys
         require((self.false_alarms_per_year is None) == (self.cycles_per_day is None),
                 "decision.false_alarms_per_year",
                 "give it together with decision.cycles_per_day (or use decision.arl0_cycles)")
@@ -146,7 +149,8 @@ class DecisionConfig:
                               calibration_draws=self.calibration_draws,
                               calibration_steps=self.calibration_steps, calibrate_at=self.calibrate_at,
                               steady_at=self.steady_calibrate_at, steady_nominal=self.steady_nominal,
-                              steady_density=self.steady_density,
+                              steady_density=self.steady_density, steady_transform=self.steady_transform,
+                              transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs),
                               drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
                               drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting))
 
@@ -155,8 +159,10 @@ class DecisionConfig:
                "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())}}
         if self.calibrate_at == "boundary" and self.steady_calibrate_at != "healthy_drift":
             del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
-        if (self.steady_calibrate_at, self.steady_nominal, self.steady_density) == STEADY_DEFAULTS:
-            del out["steady_calibrate_at"], out["steady_nominal"], out["steady_density"]   # still match
+        steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform")
+        if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
+            for key in steady:      # the default: states saved before these settings still match
+                del out[key]
         for key in SCHEDULE_KEYS:
             del out[key]
         return out

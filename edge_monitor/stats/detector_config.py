@@ -19,6 +19,7 @@ from edge_monitor.stats.calibration import (
 from edge_monitor.stats.densities import DENSITY_KINDS, min_points
 from edge_monitor.stats.glr import MAX_WINDOW, GLRError, check_pf
 from edge_monitor.stats.glr_batch import DIRECTIONS
+from edge_monitor.stats.normalising_transform import TRANSFORMS
 
 #: Candidate change times kept by the agent's detectors [cycles].
 DEFAULT_WINDOW = 100
@@ -27,9 +28,10 @@ DEFAULT_NOMINAL = 60
 #: Learning phase of the steady nominal [cycles]: 4 × the first, a margin against the learning error
 #: (a nominal learned too narrow alarms early; docs/DETECTION.md, "Two stages").
 DEFAULT_STEADY_NOMINAL = 240
-#: (steady_at, steady_nominal, steady_density) of the agent: left out of the fingerprint, so that states
-#: saved before the steady stage existed still match.
-STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss")
+#: (steady_at, steady_nominal, steady_density, steady_transform) of the agent: left out of the
+#: fingerprint, so that states saved before the steady stage existed still match (a saved steady
+#: nominal without a transform is watched untransformed, as it was learned).
+STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson")
 #: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
 MAX_NOMINAL = 10_000
 #: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
@@ -52,7 +54,9 @@ class DetectorConfig:
     healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`);
     ``steady_at``, ``steady_nominal`` [cycles]: how the nominal learned once the temperature has settled
     is calibrated, and from how many values (more than ``n_nominal``: a margin against its learning error);
-    ``steady_density``: its density family (docs/DETECTION.md, "Two stages").
+    ``steady_density``: its density family, fitted after ``steady_transform`` ("yeo-johnson": per-axis
+    :class:`~edge_monitor.stats.normalising_transform.YeoJohnson` learned from the same values, on the
+    axes ``transform_axes`` flags (empty: all), or "none") (docs/DETECTION.md, "Two stages").
     """
 
     dim: int = 1
@@ -75,6 +79,8 @@ class DetectorConfig:
     steady_at: str = "nominal"
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
+    steady_transform: str = "yeo-johnson"
+    transform_axes: tuple[bool, ...] = ()
 
     def __post_init__(self) -> None:
         try:
@@ -84,6 +90,10 @@ class DetectorConfig:
             require(isinstance(self.n_nominal, int) and need <= self.n_nominal <= MAX_NOMINAL, "n_nominal",
                     f"{self.n_nominal!r} cycles: the {self.density!r} density in dimension {self.dim} needs "
                     f"{need} … {MAX_NOMINAL} (default {DEFAULT_NOMINAL})")
+            require(self.steady_transform in TRANSFORMS, "steady_transform",
+                    f"{self.steady_transform!r}; choose one of {TRANSFORMS}")
+            require(len(self.transform_axes) in (0, self.dim) and all(isinstance(a, bool) for a in self.transform_axes),
+                    "transform_axes", f"needs {self.dim} true/false flag(s) or none, got {self.transform_axes!r}")
             require(self.steady_density in DENSITY_KINDS, "steady_density",
                     f"{self.steady_density!r}; choose one of {DENSITY_KINDS}")
             need = min_points(self.steady_density, self.dim)
@@ -129,12 +139,15 @@ class DetectorConfig:
                 raise DetectorConfigError(f"pf: {exc}") from None
 
     def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd)}
+        out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd),
+               "transform_axes": list(self.transform_axes)}
         if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
             for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
                 del out[key]                                           # these settings existed still match
-        if (self.steady_at, self.steady_nominal, self.steady_density) == STEADY_DEFAULTS:
-            del out["steady_at"], out["steady_nominal"], out["steady_density"]
+        steady = ("steady_at", "steady_nominal", "steady_density", "steady_transform")
+        if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
+            for key in (*steady, "transform_axes"):
+                del out[key]
         return out
 
     @property

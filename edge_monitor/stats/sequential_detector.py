@@ -46,6 +46,7 @@ from edge_monitor.stats.detector_config import (  # noqa: F401  (re-exported: th
 )
 from edge_monitor.stats.glr import GLRError, WindowedGLR, threshold_from_pf
 from edge_monitor.stats.glr_batch import clip_range, null_box
+from edge_monitor.stats.normalising_transform import TransformError, YeoJohnson
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +89,7 @@ class SequentialDetector:
         self._waiting_max = 0.0            # largest statistic while the calibration was under way
         self.stage = "warm-up"             # "warm-up" | "steady" (see the module docstring)
         self._steady_values: list[list[float]] | None = None    # the steady nominal being learned
+        self._transform: YeoJohnson | None = None    # applied to every value before the GLR (steady stage)
 
     @property
     def state(self) -> str:
@@ -200,18 +202,23 @@ class SequentialDetector:
         """Fit the nominal density of ``self._nominal``, start the GLR and its calibration."""
         try:
             nominal = np.asarray(self._nominal)
+            if self.stage == "steady" and self.config.steady_transform == "yeo-johnson" and any(
+                    self.config.transform_axes or (True,)):
+                self._transform = YeoJohnson.fit(nominal, self.config.transform_axes)
+                nominal = self._transform.apply(nominal)
             density = fit_density(nominal, self._density_kind)
             threshold = threshold_from_pf(self.config.pf, self.dim) if self.config.pf is not None else math.inf
             self._glr = WindowedGLR(density, self.window, 0.5, self.gamma0, self.rho,
                                     "exact" if self.mode == "exact" else "recursive", threshold=threshold,
                                     null_box=null_box(nominal, self.config.direction, self.config.allowance),
                                     clip=clip_range(nominal, self.config.clip_sigma))
-        except (DensityError, GLRError) as exc:
+        except (DensityError, GLRError, TransformError) as exc:
+            self._transform = None
             self._learning_note = f"nominal data unusable, still learning: {exc}"
             log.info("detector stays in learning: %s", exc)
             return Decision("learning", reason=self._learning_note, calibration=self.calibration_record())
         if self.config.pf is None:
-            self._job = CalibrationJob(tuple(tuple(v) for v in self._nominal), self._density_kind, self.window,
+            self._job = CalibrationJob(tuple(map(tuple, nominal.tolist())), self._density_kind, self.window,
                                        float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
                                        float(self.config.clip_sigma), self._calibrate_at,
@@ -256,12 +263,13 @@ class SequentialDetector:
             self._steady_values.append(vec.tolist())
             if len(self._steady_values) >= self.config.steady_nominal:
                 return self._start_steady(cycle)
-        result = self._glr.update(vec)
+        result = self._glr.update(vec if self._transform is None else self._transform.apply(vec))
         self._cycles[result.index % self.window] = int(cycle)
         change_cycle = self._cycles[result.change_index % self.window]
+        delta = self._shift_in_units(result.delta)
         if self.threshold is None:
             self._waiting_max = max(self._waiting_max, result.statistic)
-            return Decision("monitoring", result.statistic, None, False, change_cycle, tuple(result.delta), None,
+            return Decision("monitoring", result.statistic, None, False, change_cycle, delta, None,
                             "calibrating the threshold", self.calibration_record())
         if result.alarm and self._latched is None:
             self._latched = {"cycle": int(cycle), "change_cycle": change_cycle, "statistic": result.statistic}
@@ -269,8 +277,13 @@ class SequentialDetector:
                         cycle, result.statistic, result.threshold, change_cycle)
         reason = "alarm latched until reset()" if self._latched else "monitoring"
         return Decision("monitoring", result.statistic, result.threshold, self._latched is not None,
-                        change_cycle, tuple(result.delta), result.miss_probability, reason,
-                        self.calibration_record())
+                        change_cycle, delta, result.miss_probability, reason, self.calibration_record())
+
+    def _shift_in_units(self, delta: Sequence[float]) -> tuple[float, ...]:
+        """The GLR's shift estimate in the units the detector is fed (back through the transform)."""
+        if self._transform is None or self._glr is None:
+            return tuple(float(v) for v in delta)
+        return self._transform.shift_in_units(self._glr.density.mean, delta)
 
     def _start_steady(self, cycle: int) -> Decision:
         """Replace the warm-up nominal and threshold by the steady nominal just learned."""
@@ -301,7 +314,8 @@ class SequentialDetector:
                 "waiting_max": self._waiting_max,
                 "cycles": list(self._cycles), "latched": None if self._latched is None else dict(self._latched),
                 "learning_note": self._learning_note, "counters": self.counters(), "stage": self.stage,
-                "steady_values": None if self._steady_values is None else [list(v) for v in self._steady_values]}
+                "steady_values": None if self._steady_values is None else [list(v) for v in self._steady_values],
+                "transform": None if self._transform is None else self._transform.state_dict()}
 
     @classmethod
     def from_state(cls, config: DetectorConfig, state: dict[str, Any],
@@ -323,11 +337,22 @@ class SequentialDetector:
         det._learning_note = state.get("learning_note", "")
         det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
         det._steady_values = _steady_values(state.get("steady_values"), det)
+        det._transform = _transform(state.get("transform"), det)
         counters = state.get("counters", {})
         det.skipped_nonfinite = int(counters.get("skipped_nonfinite", 0))
         det.skipped_bad_shape = int(counters.get("skipped_bad_shape", 0))
         det.resets = int(counters.get("resets", 0))
         return det
+
+
+def _transform(saved: Any, det: SequentialDetector) -> YeoJohnson | None:
+    """A saved transform, checked: only a monitoring steady detector has one, of its dimension."""
+    if saved is None:
+        return None
+    transform = YeoJohnson.from_state(saved)          # TransformError is a ValueError: a damaged state
+    if det.stage != "steady" or det._glr is None or transform.dim != det.dim:
+        raise ValueError("saved detector state: a transform that no detector could have learned")
+    return transform
 
 
 def _steady_values(saved: Any, det: SequentialDetector) -> list[list[float]] | None:
