@@ -4,6 +4,7 @@ fit, its persistence, and a detector that watches transformed values (docs/DETEC
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -157,3 +158,25 @@ def test_a_steady_detector_with_no_axis_selected_has_no_transform() -> None:
         det.update(v, i)
     assert det.stage == "steady" and det.threshold is not None and det._transform is None
     assert det.state_dict()["transform"] is None
+
+
+def test_a_value_too_large_to_transform_is_skipped_and_counted_and_the_map_has_no_ceiling() -> None:
+    det, rng = _steady_detector()
+    decision = det.update(1e300, 300)                                   # z overflows to inf
+    assert det.skipped_nonfinite == 1 and "too large" in decision.reason
+    assert det.update(-4.0, 301).state == "monitoring"                 # and it goes on
+    for lam in (LAMBDA_MIN, LAMBDA_MAX):                                # both branches unbounded
+        z = YeoJohnson([0.0], [1.0], [lam]).apply(np.array([[-1e6], [1e6]]))
+        assert z[0, 0] < -10 and z[1, 0] > 10
+
+
+def test_a_saved_transform_the_settings_could_not_have_learned_is_rejected() -> None:
+    det, _ = _steady_detector()
+    state = json.loads(json.dumps(det.state_dict()))
+    with pytest.raises(ValueError, match="transform"):                  # the transform is off
+        SequentialDetector.from_state(replace(det.config, steady_transform="none"), state)
+    one_axis = replace(det.config, transform_axes=(False,))
+    with pytest.raises(ValueError, match="transform"):                  # λ ≠ 1 on an axis not selected
+        SequentialDetector.from_state(one_axis, {**state, "config": one_axis.fingerprint()})
+    with pytest.raises(TransformError):                                 # a scale no data could give
+        YeoJohnson.from_state({"center": [0.0], "scale": [1e-300], "lambdas": [1.0]})

@@ -263,7 +263,12 @@ class SequentialDetector:
             self._steady_values.append(vec.tolist())
             if len(self._steady_values) >= self.config.steady_nominal:
                 return self._start_steady(cycle)
-        result = self._glr.update(vec if self._transform is None else self._transform.apply(vec))
+        if self._transform is not None:
+            vec = self._transform.apply(vec)
+            if not np.all(np.isfinite(vec)):       # a finite value too large for the transform
+                self.skipped_nonfinite += 1
+                return replace(self._current(), reason="value skipped: too large to transform")
+        result = self._glr.update(vec)
         self._cycles[result.index % self.window] = int(cycle)
         change_cycle = self._cycles[result.change_index % self.window]
         delta = self._shift_in_units(result.delta)
@@ -346,11 +351,15 @@ class SequentialDetector:
 
 
 def _transform(saved: Any, det: SequentialDetector) -> YeoJohnson | None:
-    """A saved transform, checked: only a monitoring steady detector has one, of its dimension."""
+    """A saved transform, checked: only a monitoring steady detector with the transform on has one, of its
+    dimension, with λ = 1 on the axes it does not select."""
     if saved is None:
         return None
     transform = YeoJohnson.from_state(saved)          # TransformError is a ValueError: a damaged state
-    if det.stage != "steady" or det._glr is None or transform.dim != det.dim:
+    selected = det.config.transform_axes or (True,) * det.dim
+    fits = (det.config.steady_transform != "none" and transform.dim == det.dim == len(selected)
+            and all(on or lam == 1.0 for on, lam in zip(selected, transform.lambdas)))
+    if det.stage != "steady" or det._glr is None or not fits:
         raise ValueError("saved detector state: a transform that no detector could have learned")
     return transform
 
