@@ -786,7 +786,7 @@ def main(argv: list[str] | None = None) -> int:
 def _agent_main(args: argparse.Namespace) -> int:
     robots = args.robots or (2 if args.quick else 4)
     cycles = args.cycles or (1200 if args.quick else 2000)
-    joints, draws = (2, 16) if args.quick else (6, 48)
+    joints, draws = (2, 48) if args.quick else (6, 48)
     workers = max(1, min(os.cpu_count() or 1, 8))
     started = time.monotonic()
     series = _simulate_robots(robots, cycles, joints, workers)

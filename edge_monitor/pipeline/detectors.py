@@ -95,6 +95,7 @@ class DecisionConfig:
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
+    steady_simulate_from: str = "values"
     settling_window: int = SettlingConfig().window
     settling_max_rate: float = SettlingConfig().max_rate
 
@@ -150,6 +151,7 @@ class DecisionConfig:
                               calibration_steps=self.calibration_steps, calibrate_at=self.calibrate_at,
                               steady_at=self.steady_calibrate_at, steady_nominal=self.steady_nominal,
                               steady_density=self.steady_density, steady_transform=self.steady_transform,
+                              steady_simulate_from=self.steady_simulate_from,
                               transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs),
                               drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
                               drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting))
@@ -159,7 +161,8 @@ class DecisionConfig:
                "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())}}
         if self.calibrate_at == "boundary" and self.steady_calibrate_at != "healthy_drift":
             del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
-        steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform")
+        steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform",
+                  "steady_simulate_from")
         if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
             for key in steady:      # the default: states saved before these settings still match
                 del out[key]

@@ -19,6 +19,12 @@ including the error of learning the nominal from N0 values — a parametric boot
    else extrapolated along the straight line log E[T] = a + c·h fitted to the upper part of the
    reliable range (``method="extrapolated"``).
 
+With ``simulate_from="values"`` the nominal sets and the streams are drawn from the learned values
+themselves instead of p̂0 (:class:`SmoothedBootstrap`): the detector still assumes p̂0, but its
+threshold is set for data shaped as its nominal values are (a Gaussian nominal of values with light
+tails or a skew between axes states a heavier tail than the data have, and would alarm less often
+than stated).
+
 The run lengths of detectors learned from different nominal sets differ a lot (one learned with a
 too narrow density alarms early), so E[T] averages over learning as the operator's fleet does;
 docs/DETECTION.md shows the measured ARL0 of the agent's detectors against the targets. Cost: about
@@ -46,6 +52,7 @@ from edge_monitor.stats.glr_batch import (
     null_box,
     stack_bounds,
 )
+from edge_monitor.stats.smoothed_bootstrap import Sampler, SmoothedBootstrap
 
 log = logging.getLogger(__name__)
 
@@ -59,12 +66,15 @@ MAX_CENSORED = 0.10
 MIN_EVENTS = 10
 #: Threshold grid step [nats].
 H_STEP = 0.05
-#: ``"healthy_drift"``: simulated detectors of neighbouring drift pooled into one rate estimate.
-DRAWS_PER_STRATUM = 4
+#: Simulated detectors per learned nominal: their first passages estimate that nominal's false-alarm
+#: rate, and the rates are averaged over the nominals (:func:`fleet_run_lengths`).
+STREAMS_PER_NOMINAL = 4
 #: Where the simulated streams of a calibration sit (:func:`stream_shifts`).
 CALIBRATE_AT = ("healthy_drift", "boundary", "nominal")
 #: Largest healthy drift a calibration accepts, mean or sd [standard deviations of the nominal values].
 MAX_DRIFT = 5.0
+#: What the simulated nominal sets and streams are drawn from: the fitted density or the values.
+SIMULATE_FROM = ("model", "values")
 
 
 class CalibrationError(ValueError):
@@ -123,7 +133,7 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
               mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
               clip_sigma: float = 0.0, at: str = "boundary", drift_mean: ArrayLike = (),
-              drift_sd: ArrayLike = ()) -> Calibration:
+              drift_sd: ArrayLike = (), simulate_from: str = "model") -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
@@ -131,27 +141,31 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     bootstrap detector from its own nominal set. ``at`` says where the simulated streams sit
     (:func:`stream_shifts`): ``"boundary"`` (the agent's default), ``"healthy_drift"`` or ``"nominal"``;
     ``drift_mean``/``drift_sd`` (one per dimension, in standard deviations of the nominal values)
-    describe the healthy drift for ``"healthy_drift"``."""
+    describe the healthy drift for ``"healthy_drift"``. ``simulate_from``: ``"model"`` (p̂0) or
+    ``"values"`` (:class:`SmoothedBootstrap` of ``nominal``), see the module docstring."""
     if at not in CALIBRATE_AT:
         raise ValueError(f"at = {at!r}; choose one of {CALIBRATE_AT}")
+    if simulate_from not in SIMULATE_FROM:
+        raise ValueError(f"simulate_from = {simulate_from!r}; choose one of {SIMULATE_FROM}")
     started = time.process_time()
     values = as_observations(nominal, name="nominal data")
     seed = seed_from(values) if seed is None else seed
     rng = np.random.default_rng(seed)
-    truth = fit_density(values, kind)
-    mixtures, samples = _bootstrap_densities(truth, len(values), kind, budget.draws, rng)
-    boxes = stack_bounds([null_box(x, direction, allowance) for x in samples])
-    clips = stack_bounds([clip_range(x, clip_sigma) for x in samples])
-    steps = budget.steps(arl0)
-    shifts = stream_shifts(values.std(axis=0, ddof=1), len(mixtures), at, allowance, drift_mean, drift_sd,
+    model = fit_density(values, kind)
+    truth: Sampler = model if simulate_from == "model" else SmoothedBootstrap(values)
+    nominals = -(-budget.draws // STREAMS_PER_NOMINAL)
+    mixtures, samples = _bootstrap_densities(truth, len(values), kind, nominals, rng)
+    shifts = stream_shifts(values.std(axis=0, ddof=1), nominals, at, allowance, drift_mean, drift_sd,
                            np.random.default_rng([seed, 1]))      # its own stream: the draws stay the same
-    statistics = _simulate(truth, mixtures, boxes, clips, window, gamma0, rho, mode, steps, rng, shifts)
-    strata = 1
-    if at == "healthy_drift" and np.any(np.asarray(drift_sd, dtype=float) > 0):   # each joint keeps its drift
-        statistics = statistics[np.argsort(shifts.sum(axis=1), kind="stable")]
-        strata = max(len(mixtures) // DRAWS_PER_STRATUM, 1)
-    threshold, method, events, slope = _threshold_for(statistics, arl0, strata)
-    return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(mixtures), steps=steps,
+    each = np.repeat(np.arange(nominals), STREAMS_PER_NOMINAL)    # detector → its learned nominal
+    boxes = stack_bounds([null_box(samples[i], direction, allowance) for i in each])
+    clips = stack_bounds([clip_range(samples[i], clip_sigma) for i in each])
+    steps = budget.steps(arl0)
+    statistics = _simulate(truth, [mixtures[i] for i in each], boxes, clips, window, gamma0, rho, mode, steps,
+                           rng, shifts[each])
+    drifting = at == "healthy_drift" and bool(np.any(np.asarray(drift_sd, dtype=float) > 0))
+    threshold, method, events, slope = _threshold_for(statistics, arl0, nominals, drifting)
+    return Calibration(threshold=threshold, arl0=float(arl0), method=method, draws=len(each), steps=steps,
                        events=events, slope=slope, cpu_s=time.process_time() - started, at=at)
 
 
@@ -184,7 +198,7 @@ def stream_shifts(spread: NDArray[np.float64], draws: int, at: str, allowance: f
     return (mean[None, :] + sd[None, :] * z[:, None]) * spread[None, :]
 
 
-def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int, rng: np.random.Generator
+def _bootstrap_densities(truth: Sampler, n0: int, kind: str, draws: int, rng: np.random.Generator
                          ) -> tuple[list[GaussianMixture], list[NDArray[np.float64]]]:
     """B densities refitted on nominal sets drawn from ``truth``, and those sets."""
     mixtures: list[GaussianMixture] = []
@@ -203,7 +217,7 @@ def _bootstrap_densities(truth: GaussianMixture, n0: int, kind: str, draws: int,
     return mixtures, samples
 
 
-def _simulate(truth: GaussianMixture, mixtures: list[GaussianMixture],
+def _simulate(truth: Sampler, mixtures: list[GaussianMixture],
               boxes: tuple[NDArray[np.float64], NDArray[np.float64]],
               clips: tuple[NDArray[np.float64], NDArray[np.float64]], window: int, gamma0: float, rho: float,
               mode: GLRMode, steps: int, rng: np.random.Generator, shifts: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -216,49 +230,62 @@ def _simulate(truth: GaussianMixture, mixtures: list[GaussianMixture],
     return out
 
 
+def _passages(statistics: NDArray[np.float64], thresholds: NDArray[np.float64]
+              ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Per threshold: the cycles the detectors ran until their first passage or the end (exposure),
+    and how many passed. ``statistics`` (B, L) of B detectors over L cycles."""
+    steps = statistics.shape[1]
+    running = np.maximum.accumulate(statistics, axis=1)          # non-decreasing: first passage by bisection
+    below = np.stack([np.searchsorted(row, thresholds, side="left") for row in running])   # (B, H)
+    alarmed = below < steps
+    return np.where(alarmed, below + 1, steps).sum(axis=0).astype(float), alarmed.sum(axis=0)
+
+
 def mean_run_lengths(statistics: NDArray[np.float64], thresholds: NDArray[np.float64]
                      ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
     """For each threshold: the censored exponential estimate of E[T], the number of detectors that
     alarmed, and the censored fraction. ``statistics`` (B, L) of B detectors over L cycles."""
-    b, steps = statistics.shape
-    running = np.maximum.accumulate(statistics, axis=1)          # non-decreasing: first passage by bisection
-    below = np.stack([np.searchsorted(row, thresholds, side="left") for row in running])   # (B, H)
-    alarmed = below < steps
-    exposure = np.where(alarmed, below + 1, steps).sum(axis=0).astype(float)
-    events = alarmed.sum(axis=0)
+    exposure, events = _passages(statistics, thresholds)
     with np.errstate(divide="ignore"):
         mean = np.where(events > 0, exposure / np.maximum(events, 1), np.inf)
-    return mean, events, 1.0 - events / b
+    return mean, events, 1.0 - events / statistics.shape[0]
 
 
-def fleet_run_lengths(statistics: NDArray[np.float64], thresholds: NDArray[np.float64], strata: int
+def fleet_run_lengths(statistics: NDArray[np.float64], thresholds: NDArray[np.float64], groups: int
                       ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """A fleet of detectors that keep their own drift: ``statistics`` (B, L) ordered by drift, cut into
-    ``strata`` groups of neighbours. Within a group the detectors are alike and
-    :func:`mean_run_lengths` estimates its false-alarm rate; the fleet's rate is the mean of the groups'
-    rates (what a fleet that renews each detector after a false alarm sees). Returns 1 / that rate and
-    the number of detectors that alarmed, per threshold."""
+    """The mean run length a fleet sees whose detectors each learned their own nominal: ``statistics``
+    (B, L) cut into ``groups`` consecutive groups of detectors that share one learned nominal (and one
+    drift). A group's false-alarm rate is (e − 1)/X from its e first passages in X cycles of exposure
+    (the censored exponential rate e/X with the small-sample correction that makes it unbiased for
+    exponential passages: e/X overstates the rate of m passages by m/(m − 1)); the fleet's rate is the
+    mean of the groups' rates — what a fleet that renews each detector after a false alarm sees.
+    Pooling all first passages instead gives about the harmonic mean of the rates, which understates
+    the fleet's rate whenever the learned nominals differ. Returns 1 / that rate and the number of
+    detectors that alarmed, per threshold."""
     rates = []
-    for group in np.array_split(statistics, strata):
-        mean, _, _ = mean_run_lengths(group, thresholds)
-        rates.append(1.0 / mean)                       # 0 where the group never alarmed
+    for group in np.array_split(statistics, groups):
+        exposure, events = _passages(group, thresholds)
+        rates.append(np.maximum(events - 1, 0) / exposure)
     rate = np.mean(rates, axis=0)
-    _, events, _ = mean_run_lengths(statistics, thresholds)
+    _, events = _passages(statistics, thresholds)
     return np.divide(1.0, rate, out=np.full_like(rate, np.inf), where=rate > 0), events
 
 
-def _threshold_for(statistics: NDArray[np.float64], arl0: float, strata: int = 1
+def _threshold_for(statistics: NDArray[np.float64], arl0: float, groups: int = 1, drifting: bool = False
                    ) -> tuple[float, str, int, float | None]:
+    """The threshold for ``arl0`` from the simulated statistics (B, L) of ``groups`` groups of detectors
+    sharing a learned nominal (:func:`fleet_run_lengths`; 1: pooled first passages). ``drifting``:
+    each group sits at its own healthy drift, so slowly alarming groups are censored by nature, not by
+    budget, and censoring does not limit the reliable range."""
     top = float(np.max(statistics))
     if not math.isfinite(top) or top <= 0:
         raise CalibrationError("the simulated statistics are degenerate (no spread in the nominal data?)")
     grid = np.arange(H_STEP, top + H_STEP, H_STEP)
-    if strata > 1:           # a drifting fleet: slowly alarming groups are censored by nature, not by budget
-        mean, events = fleet_run_lengths(statistics, grid, strata)
-        reliable = events >= MIN_EVENTS
+    if groups > 1:
+        mean, events = fleet_run_lengths(statistics, grid, groups)
     else:
-        mean, events, censored = mean_run_lengths(statistics, grid)
-        reliable = (censored <= MAX_CENSORED) & (events >= MIN_EVENTS)
+        mean, events, _ = mean_run_lengths(statistics, grid)
+    reliable = (events >= MIN_EVENTS) & (drifting or (1.0 - events / len(statistics) <= MAX_CENSORED))
     if not reliable.any():
         raise CalibrationError("too few simulated alarms to calibrate; give a larger calibration budget")
     last = int(np.flatnonzero(reliable)[-1])
@@ -297,12 +324,14 @@ class CalibrationJob:
     at: str = "boundary"
     drift_mean: tuple[float, ...] = ()
     drift_sd: tuple[float, ...] = ()
+    simulate_from: str = "model"
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
                          "exact" if self.mode == "exact" else "recursive", self.budget,
                          direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma,
-                         at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd)
+                         at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd,
+                         simulate_from=self.simulate_from)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget),
@@ -316,7 +345,8 @@ class CalibrationJob:
                    direction=str(state.get("direction", "both")), allowance=float(state.get("allowance", 0.0)),
                    clip_sigma=float(state.get("clip_sigma", 0.0)), at=str(state.get("at", "boundary")),
                    drift_mean=tuple(float(x) for x in state.get("drift_mean", ())),
-                   drift_sd=tuple(float(x) for x in state.get("drift_sd", ())))
+                   drift_sd=tuple(float(x) for x in state.get("drift_sd", ())),
+                   simulate_from=str(state.get("simulate_from", "model")))
 
 
 class Pending:

@@ -14,6 +14,7 @@ from edge_monitor.stats.calibration import (
     MAX_ARL0,
     MAX_DRIFT,
     MIN_EVENTS,
+    SIMULATE_FROM,
     CalibrationBudget,
 )
 from edge_monitor.stats.densities import DENSITY_KINDS, min_points
@@ -28,10 +29,10 @@ DEFAULT_NOMINAL = 60
 #: Learning phase of the steady nominal [cycles]: 4 × the first, a margin against the learning error
 #: (a nominal learned too narrow alarms early; docs/DETECTION.md, "Two stages").
 DEFAULT_STEADY_NOMINAL = 240
-#: (steady_at, steady_nominal, steady_density, steady_transform) of the agent: left out of the
+#: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
 #: fingerprint, so that states saved before the steady stage existed still match (a saved steady
 #: nominal without a transform is watched untransformed, as it was learned).
-STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson")
+STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson", "values")
 #: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
 MAX_NOMINAL = 10_000
 #: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
@@ -81,6 +82,7 @@ class DetectorConfig:
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
     transform_axes: tuple[bool, ...] = ()
+    steady_simulate_from: str = "values"
 
     def __post_init__(self) -> None:
         try:
@@ -92,6 +94,8 @@ class DetectorConfig:
                     f"{need} … {MAX_NOMINAL} (default {DEFAULT_NOMINAL})")
             require(self.steady_transform in TRANSFORMS, "steady_transform",
                     f"{self.steady_transform!r}; choose one of {TRANSFORMS}")
+            require(self.steady_simulate_from in SIMULATE_FROM, "steady_simulate_from",
+                    f"{self.steady_simulate_from!r}; choose one of {SIMULATE_FROM}")
             require(len(self.transform_axes) in (0, self.dim) and all(isinstance(a, bool) for a in self.transform_axes),
                     "transform_axes", f"needs {self.dim} true/false flag(s) or none, got {self.transform_axes!r}")
             require(self.steady_density in DENSITY_KINDS, "steady_density",
@@ -144,7 +148,7 @@ class DetectorConfig:
         if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
             for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
                 del out[key]                                           # these settings existed still match
-        steady = ("steady_at", "steady_nominal", "steady_density", "steady_transform")
+        steady = ("steady_at", "steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
         if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
             for key in (*steady, "transform_axes"):
                 del out[key]

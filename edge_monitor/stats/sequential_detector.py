@@ -222,7 +222,8 @@ class SequentialDetector:
                                        float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
                                        float(self.config.clip_sigma), self._calibrate_at,
-                                       tuple(self.config.drift_mean), tuple(self.config.drift_sd))
+                                       tuple(self.config.drift_mean), tuple(self.config.drift_sd),
+                                       self.config.steady_simulate_from if self.stage == "steady" else "model")
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""
