@@ -53,8 +53,8 @@ Parts (all with fixed seeds; select with --part, default all):
   runs over all joints, each started by a learning phase or, in the steady stage, an acknowledged
   false alarm; monitored cycles are those whose value the statistic tested). ``--quick``: 2 robots
   (seeds 1, 2) of 2 joints × 1 200 cycles (≈ 660 steady cycles per joint: the joints settle at
-  ≈ 300 and learn for 240), 16 bootstrap detectors per calibration instead of 48, in parallel
-  processes (≈ 3.5 min on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--at-boundary`` adds warm-up rows
+  ≈ 300 and learn for 240), the agent's 48 bootstrap detectors per calibration, in parallel
+  processes (≈ 4 min on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--at-boundary`` adds warm-up rows
   (``"at_boundary": true``) where each detector's
   monitored values are moved up by ``allowance`` × the std of the values it learned (in the units it
   watches): the least favourable healthy drift, the one its threshold is calibrated for, so there the
