@@ -6,15 +6,15 @@ learned nominal density p̂0, by simulating the exact sequential statistic it ru
 over candidate change times, SA-EM, recursive or exact numerator; :mod:`edge_monitor.stats.glr_batch`)
 including the error of learning the nominal from N0 values — a parametric bootstrap:
 
-1. draw B nominal sets of N0 values from p̂0 and fit each with the detector's density family;
-2. run B detectors (one per refitted density) on independent streams drawn from p̂0, ``steps``
-   cycles long, each stream shifted by a constant that says what healthy data the target is for
-   (:func:`stream_shifts`: none, the drift allowance, or a fleet of healthy drifts), recording each
-   detector's statistic;
-3. for every candidate h, each detector's first-passage time T_b(h) gives the censored exponential
-   estimate of the mean run length E[T](h) = Σ min(T_b, L) / #{T_b ≤ L};
-   (with a spread of healthy drifts, the fleet's: the mean false-alarm rate over groups of detectors
-   of neighbouring drift, :func:`fleet_run_lengths`);
+1. draw B/4 nominal sets of N0 values from p̂0 and fit each with the detector's density family;
+2. run 4 detectors per refitted density (``STREAMS_PER_NOMINAL``, B in all) on independent streams
+   drawn from p̂0, ``steps`` cycles long, each nominal's streams shifted by a constant that says what
+   healthy data the target is for (:func:`stream_shifts`: none, the drift allowance, or a fleet of
+   healthy drifts), recording each detector's statistic;
+3. for every candidate h, the first-passage times T_b(h) of each nominal's 4 detectors give its
+   false-alarm rate, and E[T](h) is 1 / the mean of those rates over the nominals: the fleet's run
+   length (:func:`fleet_run_lengths`; pooling all first passages, Σ min(T_b, L) / #{T_b ≤ L}, would
+   give about the harmonic mean of the rates, smaller than what a fleet sees);
 4. h is where E[T](h) = ARL0: interpolated where the simulation reaches ARL0 with little censoring,
    else extrapolated along the straight line log E[T] = a + c·h fitted to the upper part of the
    reliable range (``method="extrapolated"``).
