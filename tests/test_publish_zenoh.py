@@ -135,6 +135,19 @@ def _query(session: zenoh.Session, selector: str) -> dict:
     return out
 
 
+def _route_ready(pub_session: zenoh.Session, sub_session: zenoh.Session) -> bool:
+    """Wait until a put on ``pub_session`` reaches ``sub_session`` through the router. Until the router
+    has the subscriber's declaration it drops what it cannot route (a CI run once lost all 20 symptoms
+    that way on a loaded machine); declarations travel in order, so a probe subscriber declared after
+    the symptom subscriber answers for it too."""
+    arrived: list[int] = []
+    probe = sub_session.declare_subscriber("probe/route", lambda _sample: arrived.append(1))
+    try:
+        return wait_until(lambda: pub_session.put("probe/route", b"?") or bool(arrived), WAIT_S)
+    finally:
+        probe.undeclare()
+
+
 def test_client_mode_through_router_subprocess():
     port = free_port()
     router = _start_router(port)
@@ -144,6 +157,7 @@ def test_client_mode_through_router_subprocess():
         try:
             with SymptomSubscriber(sub_session) as subscriber, \
                     SymptomPublisher(pub_session, "fleet-a", joints=[0, 1]) as publisher:
+                assert _route_ready(pub_session, sub_session)
                 for cycle in range(10):
                     for joint in (0, 1):
                         publisher.publish_symptom(symptom("fleet-a", joint, cycle))
