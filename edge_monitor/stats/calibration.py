@@ -297,6 +297,9 @@ def _threshold_for(statistics: NDArray[np.float64], arl0: float, groups: int = 1
         h = float(np.interp(math.log(arl0), log_mean[k - 1:k + 1], grid[k - 1:k + 1]))
         return h, "simulated", int(events[k]), None
     # extrapolate along the upper half of the reliable range (log E[T] is close to linear in h there)
+    if last == 0:
+        raise CalibrationError("one reliable simulated threshold only, no line to extrapolate along; "
+                               "give a larger calibration budget")
     lo = int(np.flatnonzero(mean >= math.sqrt(max(mean[0], 1.0) * mean[last]))[0])
     lo = min(lo, max(last - 10, 0))
     slope, intercept = np.polyfit(grid[lo:last + 1], log_mean[lo:last + 1], 1)
