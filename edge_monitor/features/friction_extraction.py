@@ -58,6 +58,10 @@ class FrictionCurve:
     torque: list[float]
     stderr: list[float]
     skipped: dict[str, int] = field(default_factory=dict)
+    #: the joint torque the gearbox carried at the test angle: mean over the data of ``(τ⁺ + τ⁻)/2``
+    #: (gravity and payload; friction cancels), None without data. The load of the §1 model is its
+    #: magnitude (docs/KL_DETECTOR.md, "Load compensation").
+    load_torque: float | None = None
 
     def to_record(self) -> dict:
         return {"speeds": self.speeds, "torque": self.torque, "stderr": self.stderr}
@@ -110,6 +114,7 @@ class FrictionExtractor:
         speeds: list[float] = []
         torque: list[float] = []
         stderr: list[float] = []
+        carried: list[float] = []
         for level in sorted({lvl for lvl, _ in self._moments}):
             fwd, bwd = self._moments.get((level, 1)), self._moments.get((level, -1))
             if fwd is None or bwd is None:
@@ -120,10 +125,12 @@ class FrictionExtractor:
                 continue
             speeds.append(float(self.speeds[level]) if self.speeds else _measured_speed(fwd, bwd))
             torque.append(0.5 * (fwd.mean - bwd.mean))
+            carried.append(0.5 * (fwd.mean + bwd.mean))
             stderr.append(0.5 * math.sqrt(fwd.var_of_mean + bwd.var_of_mean))
         order = np.argsort(speeds)
         curve = FrictionCurve(speeds=[speeds[i] for i in order], torque=[torque[i] for i in order],
-                              stderr=[stderr[i] for i in order], skipped=dict(self._skipped))
+                              stderr=[stderr[i] for i in order], skipped=dict(self._skipped),
+                              load_torque=float(np.mean(carried)) if carried else None)
         self._moments.clear()
         self._skipped.clear()
         return curve

@@ -1,54 +1,31 @@
 """Per-joint distribution-domain monitor: KL distance of each cycle's torque density to nominal (§4).
 
 Per cycle, two streaming KDEs are fed block by block: ``raw`` bins the joint torque ``τ`` and
-``weighted`` bins ``w(v)·τ`` (disturbance-rejecting weights of motor speed, see
-:mod:`edge_monitor.features.disturbance_weights`). At ``end_cycle`` each gives a density and its symmetric KL
-distance to the nominal density; these are ``kl.raw`` and ``kl.weighted`` of the symptom record.
+``weighted`` bins ``w(v)·τ`` (disturbance-rejecting weights of motor speed,
+:mod:`edge_monitor.features.disturbance_weights`). At ``end_cycle`` each gives a density and its
+symmetric KL distance to the nominal density: ``kl.raw`` and ``kl.weighted`` of the symptom record.
+docs/KL_DETECTOR.md ("How it works") derives each step; in short:
 
-Grid choice (bounded memory): while no grid is fixed, the cycle is binned
-on a provisional grid over the full wire range of torque, ``[-1.6384, 1.6384]``, with
-``PROVISIONAL_GRID`` = 16384 points (2e-4 = four wire quanta per bin; weighted values are within the
-same range since 0 ≤ w < 1). At the end of the first valid nominal cycle the working grid is
-``[lo − m, hi + m]`` with ``[lo, hi]`` the occupied range and ``m = max(0.25·(hi − lo), 4·h)``
-(h = that cycle's bandwidth), clipped to the wire range; that cycle's mass is re-binned onto it
-(positions move by ≤ 1e-4, far below any bandwidth seen in practice) so it still counts as a nominal
-cycle (with centring, the raw channel's range and mass are those of the centred cycle). Later
-samples outside the working grid are counted as tail mass; the density then integrates
-to less than one, which raises the KL distance: a shift out of the nominal range is seen, not hidden.
-
-Centring (``center=True``, default): within a cycle the load (gravity) torque at the test angle is
-constant and friction enters as ±τf symmetrically, so a per-cycle load is a location shift of the
-cycle's torque; wear changes the shape. Both channels are made exactly invariant to it:
-
-* ``raw``: the cycle is binned on the fixed provisional grid (wire range, 16384 points, memory
-  O(grid)) with its running mean; at cycle end the binned mass is moved by −(cycle mean) onto the
-  working grid by linear interpolation (:meth:`StreamingKDE.regrid` with ``shift``). The density
-  compared is that of ``τ − mean(τ)``. Error for a pure shift: two linear binnings, KL ≤ 1.5·δ²/h⁴
-  with δ = (dx_capture² + dx_working²)/4 (derived in the tests).
-* ``weighted``: the weight applies to centred torque, ``w(v)·(τ_t − m_t)``, with ``m_t`` the running
-  mean of the cycle's finite torque samples up to sample t (causal). Exact centring by the final
-  cycle mean before weighting is impossible in one pass with O(grid) memory (``w·(τ − m)`` is not a
-  shift of the ``w·τ`` histogram: it needs the joint histogram of (w, w·τ)), and centring after
-  weighting does not remove the load (``w·l`` spreads with w). The causal mean removes a per-cycle
-  constant exactly (it shifts ``τ_t`` and ``m_t`` alike), at the price that early samples are
-  centred on a noisier location; nominal and test cycles pass the same transform.
-
-``center=False`` reproduces the uncentred detector (densities of τ and w·τ themselves).
-
-Slow samples (``min_speed``, default 10 rad/s) are left out of both channels. At standstill the
-friction is static, of a sign the speed cannot tell. Below ≈ 10 rad/s (the Stribeck region) the
-lubricant temperature moves the torque in a way the temperature compensation cannot undo: there the
-speed loop's response to the temperature-dependent Stribeck friction changes the samples themselves,
-and the compensated torque of a 55 °C cycle differs from the same cycle at 35 °C by as much as without
-compensation (1–5 rad/s) or a third of it (5–10 rad/s), against ≤ 13 % above 10 rad/s
-(``tools/warmup_drift_study.py --part residual``). With 1 rad/s the raw KL distance of a healthy joint
-rose by +0.5 … +1.2 σ over a warm-up from 35 to 55 °C; the wear's Stribeck term reaches speeds of
-ϖ·vsϖ (≈ 40 rad/s at wear 20), so the wear stays visible above 10 rad/s (docs/KL_DETECTOR.md).
-
-Nominal model: the average of the densities of the first K valid cycles (``n_nominal_cycles``),
-relearned (grid included) after :meth:`KLMonitor.reset` (declared gearbox replacement). The simple
-threshold ``μ0 + 3σ0`` uses leave-one-out KL values of the K learning cycles (each against the
-average of the other K − 1), so it is not biased low by comparing a cycle with itself.
+* **Window** (``window``): by default the test cycle's segments only (the constant-speed moves and
+  their ramps). The production motion carries the robot's own dynamics (a gravity profile scaled by
+  the payload) that the agent has no model of, so a payload change would look like wear there.
+* **Grid** (bounded memory): a provisional grid over the wire range (``PROVISIONAL_GRID`` points)
+  until the first valid nominal cycle fixes the working grid (occupied range plus a margin); later
+  samples outside it count as tail mass, which raises the KL distance: a shift is seen, not hidden.
+* **Centring** (``center``): the load torque at the test angle is constant within a cycle, a location
+  shift; ``raw`` compares the density of ``τ − mean(τ)`` (moved at the cycle's end, linear
+  interpolation), ``weighted`` bins ``w(v)·(τ_t − m_t)`` with the causal running mean ``m_t`` (exact
+  centring before weighting would need the joint histogram of (w, w·τ)).
+* **Compensation**: temperature (:mod:`~edge_monitor.features.temperature_compensation`, per sample
+  with the previous cycles' ξ̂) and load (:mod:`~edge_monitor.features.load_compensation`, at the
+  cycle's end with its measured load torque, through a :class:`~edge_monitor.stats.sliced_kde.SlicedKDE`
+  capture), both with the joint's own friction model, so the densities are those of the reference
+  temperature and load.
+* **Slow samples** (``min_speed``, 10 rad/s) are left out: at standstill friction is static, and below
+  ≈ 10 rad/s the speed loop's response to the Stribeck friction changes the samples themselves in a
+  way no temperature compensation undoes.
+* **Nominal**: the average density of the first ``n_nominal_cycles`` valid cycles, relearned (grid
+  included) after :meth:`KLMonitor.reset`; ``μ0 + 3σ0`` from their leave-one-out KL values.
 
 Units: torque dimensionless (fraction of max. joint torque), speed rad/s, KL dimensionless.
 """
@@ -57,72 +34,29 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, field
-from typing import Any, Literal, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge_monitor.errors import check_learned_with, require
+from edge_monitor.errors import check_learned_with
 from edge_monitor.features.base import CycleInput, FeatureOutput
-from edge_monitor.features.disturbance_weights import DEFAULT_ALPHA, DEFAULT_BETA, WeightFunction
+from edge_monitor.features.disturbance_weights import WeightFunction
 from edge_monitor.features.kl_channel import KLChannel
+from edge_monitor.features.kl_config import LOAD_COMPENSATION, WINDOWS, KLConfig, Window  # noqa: F401 (re-exported)
+from edge_monitor.features.load_compensation import LoadCompensation
 from edge_monitor.features.temperature_compensation import TemperatureCompensation
 from edge_monitor.records import finite_or_none
-from edge_monitor.stats.kde_stream import MAX_GRID, symmetric_kl
+from edge_monitor.stats.kde_stream import symmetric_kl
 from joint_model import FrictionParams
 from protocol.frames import SEGMENT_PRODUCTION
 
 log = logging.getLogger(__name__)
 
-Window = Literal["cycle", "production"]
 CHANNELS = ("raw", "weighted")
 #: Section of a symptom when there is no KL value (feature off, or a partial cycle).
 EMPTY_SECTION: dict[str, Any] = {"raw": None, "weighted": None}
-
-
-@dataclass(frozen=True)
-class KLConfig:
-    """Distribution-domain detector settings (the ``[kl]`` table), validated once, here.
-
-    ``window``: "cycle" (every sample) or "production" (segment 200 only); ``center``: compare
-    densities of torque − cycle mean; ``alpha``, ``beta`` [s/rad]: weights w(v) = sech(β·v)·tanh(α·v);
-    ``min_samples``: fewest samples a cycle needs for a KL value.
-    """
-
-    enabled: bool = True
-    n_nominal_cycles: int = 10
-    n_grid: int = 512
-    window: str = "cycle"
-    center: bool = True
-    temperature_compensation: bool = True   # move samples to the reference temperature (needs the wear feature)
-    min_speed: float = 10.0                 # [rad/s] slower samples are left out (module docstring)
-    alpha: float = DEFAULT_ALPHA
-    beta: float = DEFAULT_BETA
-    min_samples: int = 1000
-
-    def __post_init__(self) -> None:
-        require(2 <= self.n_nominal_cycles <= 1000, "kl.n_nominal_cycles",
-                f"need 2 … 1000 cycles (2 for σ0), got {self.n_nominal_cycles}")
-        require(64 <= self.n_grid <= MAX_GRID, "kl.n_grid", f"need 64 … {MAX_GRID} grid points, got {self.n_grid}")
-        require(self.window in ("cycle", "production"), "kl.window",
-                f"must be 'cycle' or 'production', got {self.window!r}")
-        for name in ("alpha", "beta"):
-            value = getattr(self, name)
-            require(math.isfinite(value) and 0 <= value <= 10, f"kl.{name}", f"must be 0 … 10 s/rad, got {value}")
-        require(2 <= self.min_samples <= 10_000_000, "kl.min_samples", f"need 2 … 1e7, got {self.min_samples}")
-        require(math.isfinite(self.min_speed) and 0 <= self.min_speed <= 100, "kl.min_speed",
-                f"must be 0 … 100 rad/s, got {self.min_speed}")
-
-    def fingerprint(self) -> dict[str, Any]:
-        """The settings the learned grid and nominal densities depend on."""
-        out = asdict(self)
-        del out["enabled"]
-        return out
-
-    @property
-    def weights(self) -> WeightFunction:
-        return WeightFunction(alpha=self.alpha, beta=self.beta)
 
 
 @dataclass
@@ -144,6 +78,8 @@ class KLResult:
     nearest_mode: str | None = None
     #: raw channel for plotting: {"grid", "cycle", "nominal"} (ndarrays; nominal None while learning)
     density: dict[str, NDArray[np.float64] | None] | None = None
+    #: load compensation of this cycle: {"value", "reference", "source"} (|load torque|, dimensionless)
+    load: dict[str, Any] | None = None
 
     def to_section(self) -> dict[str, Any]:
         """The ``"kl"`` section of the symptom record: raw/weighted KL, the μ0 + 3σ0 thresholds, the
@@ -157,6 +93,8 @@ class KLResult:
             out["standstill"] = self.standstill
         if self.nearest_mode is not None:
             out["nearest_mode"] = self.nearest_mode
+        if self.load is not None:
+            out["load"] = self.load
         out["n_samples"] = self.n_samples
         return out
 
@@ -174,8 +112,8 @@ class KLMonitor:
     name = "kl"
     quantities = ("kl_raw", "kl_weighted")
 
-    def __init__(self, config: KLConfig = KLConfig(), params: FrictionParams | None = None) -> None:
-        self.config = config
+    def __init__(self, config: KLConfig | None = None, params: FrictionParams | None = None) -> None:
+        self.config = config = config or KLConfig()
         self.params = params
         self.compensation = TemperatureCompensation(params) \
             if config.temperature_compensation and params is not None else None
@@ -186,6 +124,8 @@ class KLMonitor:
         self.min_samples = config.min_samples
         self.center = config.center
         self.min_speed = config.min_speed
+        self.load = LoadCompensation(params, config.load_compensation) \
+            if config.load_compensation != "off" and params is not None else None
         self.reset()
 
     # -- configuration / lifecycle ------------------------------------------------------------
@@ -196,9 +136,12 @@ class KLMonitor:
     def reset(self) -> None:
         """Forget grid, nominal model and stored modes (they live on the old grid), e.g. after a
         declared gearbox replacement; the next valid cycles relearn them."""
-        self.channels = {name: KLChannel(self.n_grid, self._centred_by_mean(name)) for name in self.channel_names}
+        self.channels = {name: KLChannel(self.n_grid, self._centred_by_mean(name), self._coefficient_bound(name))
+                         for name in self.channel_names}
         self.modes: dict[str, NDArray[np.float64]] = {}
         self.n_learned = 0
+        if self.load is not None:
+            self.load.reset()
         if self.compensation is not None:
             self.compensation.reset()
         self._new_window()
@@ -208,22 +151,38 @@ class KLMonitor:
         self.n_standstill = 0      # of these, left out as standstill (|v| < min_speed)
         self.torque_sum = 0.0      # Σ finite τ of the window so far (causal location, weighted channel)
         self.torque_count = 0
+        self.coefficient_sum = 0.0     # Σ load coefficients of those samples (their causal mean)
 
     def _centred_by_mean(self, channel: str) -> bool:
         """The raw channel is centred by its cycle mean at cycle end; the weighted channel bins
         values already centred causally (see :meth:`_causally_centred`)."""
         return self.center and channel == "raw"
 
-    def _causally_centred(self, tau: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _coefficient_bound(self, channel: str) -> float:
+        """Largest |load coefficient| a sample of ``channel`` carries (0: no load compensation)."""
+        if self.load is None:
+            return 0.0
+        return self.load.bound(self.min_speed, self.weights if channel == "weighted" else None)
+
+    def _causally_centred(self, tau: NDArray[np.float64], coef: NDArray[np.float64] | None
+                          ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
         """``τ_t − m_t`` with ``m_t`` the mean of the window's finite torque samples up to and
-        including t (updates the running sums). A per-cycle constant load adds the same constant to
-        ``τ_t`` and ``m_t``, so the result is exactly invariant to it. Non-finite τ stay non-finite."""
+        including t (updates the running sums), and the load coefficients centred alike,
+        ``c_t − C_t``. A per-cycle constant load adds the same constant to ``τ_t`` and ``m_t``, so the
+        result is exactly invariant to it; a load change ε moves ``τ_t − m_t`` by ``ε·(c_t − C_t)``.
+        Non-finite τ stay non-finite."""
         finite = np.isfinite(tau)
         sums = self.torque_sum + np.cumsum(np.where(finite, tau, 0.0))
         counts = self.torque_count + np.cumsum(finite)
+        centred_coef = None
+        if coef is not None:
+            coef_sums = self.coefficient_sum + np.cumsum(np.where(finite, coef, 0.0))
+            centred_coef = coef - coef_sums / np.maximum(counts, 1)
+            if tau.size:
+                self.coefficient_sum = float(coef_sums[-1])
         if tau.size:
             self.torque_sum, self.torque_count = float(sums[-1]), int(counts[-1])
-        return tau - sums / np.maximum(counts, 1)
+        return tau - sums / np.maximum(counts, 1), centred_coef
 
     @property
     def learned(self) -> bool:
@@ -250,14 +209,15 @@ class KLMonitor:
         v = np.asarray(speed, dtype=float).reshape(-1)
         if v.shape != tau.shape:
             raise ValueError(f"KLMonitor.update_samples: speed has {v.size} samples, torque {tau.size}")
-        if self.window == "production":
-            if segment is None:
+        if self.window != "cycle":
+            if segment is None and self.window == "production":
                 return                       # no segment information: nothing is production
-            seg = np.asarray(segment).reshape(-1)
-            if seg.shape != tau.shape:
-                raise ValueError(f"KLMonitor.update_samples: segment has {seg.size} samples, torque {tau.size}")
-            keep = seg == SEGMENT_PRODUCTION
-            tau, v = tau[keep], v[keep]
+            if segment is not None:          # without segment codes every sample is the test's
+                seg = np.asarray(segment).reshape(-1)
+                if seg.shape != tau.shape:
+                    raise ValueError(f"KLMonitor.update_samples: segment has {seg.size} samples, torque {tau.size}")
+                keep = (seg == SEGMENT_PRODUCTION) if self.window == "production" else (seg != SEGMENT_PRODUCTION)
+                tau, v = tau[keep], v[keep]
         self.n_window += tau.size
         if self.min_speed > 0:           # standstill: static friction, of a sign the speed cannot tell
             still = np.abs(v) < self.min_speed          # NaN speeds stay in and are counted as non-finite
@@ -265,10 +225,15 @@ class KLMonitor:
             tau, v = tau[~still], v[~still]
         if self.compensation is not None:
             tau = self.compensation.apply(tau, v)
-        self.channels["raw"].kde.update(tau)
+        coef = None if self.load is None else self.load.coefficients(v)
+        self.channels["raw"].update(tau, coef)
         if self.weights is not None:
-            located = self._causally_centred(tau) if self.center else tau
-            self.channels["weighted"].kde.update(self.weights(v) * located)
+            w = self.weights(v)
+            if self.center:
+                located, located_coef = self._causally_centred(tau, coef)
+            else:
+                located, located_coef = tau, coef
+            self.channels["weighted"].update(w * located, None if located_coef is None else w * located_coef)
 
     def update(self, cycle: CycleInput, context: Mapping[str, float] | None = None) -> FeatureOutput:
         """The feature step (:class:`~edge_monitor.features.base.Feature`): close the cycle and give the
@@ -280,7 +245,7 @@ class KLMonitor:
         if cycle.partial:
             self.discard_cycle()
             return FeatureOutput(section=dict(EMPTY_SECTION), values={q: math.nan for q in self.quantities})
-        result = self.end_cycle(cycle.cycle)
+        result = self.end_cycle(cycle.cycle, None if self.load is None else self.load.cycle_load(cycle))
         values = {"kl_raw": _nan_if_none(result.raw), "kl_weighted": _nan_if_none(result.weighted)}
         extras = {"density": result.density} if result.density is not None else {}
         return FeatureOutput(section=result.to_section(), values=values, reason=result.reason, extras=extras)
@@ -291,18 +256,18 @@ class KLMonitor:
             ch.new_window()
         self._new_window()
 
-    def end_cycle(self, cycle: int) -> KLResult:
-        """Close the cycle: density, KL distances (or learning step, or a reason) and a new window."""
+    def end_cycle(self, cycle: int, load: tuple[float, str] | None = None) -> KLResult:
+        """Close the cycle: density, KL distances (or learning step, or a reason) and a new window.
+        ``load``: the cycle's |load torque| and its source (needed when the load is compensated)."""
         try:
-            return self._evaluate(int(cycle))
+            return self._evaluate(int(cycle), load)
         finally:
             for ch in self.channels.values():
                 ch.new_window()
             self._new_window()
 
     def _outside(self) -> dict[str, dict[str, int]]:
-        return {name: {"below": ch.kde.n_below, "above": ch.kde.n_above, "nonfinite": ch.kde.n_nonfinite}
-                for name, ch in self.channels.items()}
+        return {name: ch.counts() for name, ch in self.channels.items()}
 
     def _unusable(self) -> str | None:
         """Why this cycle cannot give a KL value, or None if it can."""
@@ -310,28 +275,31 @@ class KLMonitor:
             return "empty window: no samples" + (" in the production segment" if self.window == "production" else "")
         if self.n_standstill == self.n_window:
             return f"joint too slow: all {self.n_window} samples slower than kl.min_speed = {self.min_speed:g} rad/s"
-        counts = [ch.kde.n_samples for ch in self.channels.values()]
+        counts = [ch.n_samples for ch in self.channels.values()]
         if min(counts) < self.min_samples:
-            nonfinite = max(ch.kde.n_nonfinite for ch in self.channels.values())
+            nonfinite = max(ch.n_nonfinite for ch in self.channels.values())
             extra = f" ({nonfinite} non-finite skipped)" if nonfinite else ""
             return f"cycle too short: {min(counts)} samples < {self.min_samples}{extra}"
         for name, ch in self.channels.items():
-            if not ch.kde.bandwidth > 0:
+            if not ch.has_spread():
                 return "constant data" if name == "raw" else f"constant data ({name})"
         return None
 
-    def _evaluate(self, cycle: int) -> KLResult:
-        result = KLResult(cycle=cycle, n_samples=self.channels["raw"].kde.n_samples, outside=self._outside(),
+    def _evaluate(self, cycle: int, load: tuple[float, str] | None = None) -> KLResult:
+        result = KLResult(cycle=cycle, n_samples=self.channels["raw"].n_samples, outside=self._outside(),
                           standstill=self.n_standstill)
         reason = self._unusable()
-        if reason is not None:
+        eps, result.load = (0.0, None) if reason is not None or self.load is None else self.load.change(load)
+        if reason is None and eps is None:
+            reason = "load unknown: no plateau measured in both directions and no load estimate"
+        if reason is not None or eps is None:
             result.reason = reason
             log.info("cycle %d: no KL value: %s", cycle, reason)
             return result
         for ch in self.channels.values():
             if not ch.grid_fixed:
-                ch.fix_grid()
-        windows = {name: ch.window_kde() for name, ch in self.channels.items()}
+                ch.fix_grid(eps)
+        windows = {name: ch.window_kde(eps) for name, ch in self.channels.items()}
         # regrid (first cycle, or centring) may move mass outside the working grid
         result.outside = {name: {"below": k.n_below, "above": k.n_above, "nonfinite": k.n_nonfinite}
                           for name, k in windows.items()}
@@ -379,6 +347,8 @@ class KLMonitor:
             "compensation": None if self.compensation is None else self.compensation.state_dict(),
             "n_learned": self.n_learned, "n_window": self.n_window, "n_standstill": self.n_standstill,
             "torque_sum": self.torque_sum, "torque_count": self.torque_count,
+            "coefficient_sum": self.coefficient_sum,
+            "load_compensation": None if self.load is None else self.load.state_dict(),
             "channels": {name: ch.state_dict() for name, ch in self.channels.items()},
             "modes": {name: d.tolist() for name, d in self.modes.items()},
         }
@@ -387,7 +357,7 @@ class KLMonitor:
         """What the learned densities depend on: the config, and the friction model that compensates
         temperature (when it does)."""
         out = self.config.fingerprint()
-        if self.compensation is not None and self.params is not None:
+        if (self.compensation is not None or self.load is not None) and self.params is not None:
             out["friction"] = self.params.to_dict()
         return out
 
@@ -403,7 +373,11 @@ class KLMonitor:
         mon.n_standstill = int(state.get("n_standstill", 0))
         mon.torque_sum = float(state.get("torque_sum", 0.0))
         mon.torque_count = int(state.get("torque_count", 0))
-        mon.channels = {name: KLChannel.from_state(mon.n_grid, mon._centred_by_mean(name), state["channels"][name])
+        mon.coefficient_sum = float(state.get("coefficient_sum", 0.0))
+        if mon.load is not None:
+            mon.load.load_state(state.get("load_compensation"))
+        mon.channels = {name: KLChannel.from_state(mon.n_grid, mon._centred_by_mean(name), state["channels"][name],
+                                                   mon._coefficient_bound(name))
                         for name in mon.channel_names}
         mon.modes = {name: np.asarray(d, dtype=float) for name, d in state["modes"].items()}
         return mon
