@@ -139,6 +139,10 @@ class SegmentationCounters:
         return dict(self.__dict__)
 
 
+#: Samples labelled at once by :meth:`PlateauDetector.update` (bounds the re-labelling after a plateau).
+CLASSIFY_CHUNK = 2048
+
+
 @dataclass
 class PlateauDetector:
     """Streaming plateau detector for one joint: ``update(block) -> list[PlateauStat]``.
@@ -263,7 +267,9 @@ class PlateauDetector:
         out: list[PlateauStat] = []
         start = 0
         while start < tick.size:
-            part = slice(start, None)
+            # at most CLASSIFY_CHUNK samples are labelled at once: a finished plateau that changes the
+            # labelling makes the rest be labelled again, so a long block would cost O(plateaus · block)
+            part = slice(start, start + CLASSIFY_CHUNK)
             labels = self._labels(speed[part], finite[part], None if segment is None else segment[part])
             done = self._consume(tick[part], speed[part], torque[part], labels, out)
             self._last_speed = float(speed[start + done - 1])

@@ -59,6 +59,8 @@ from joint_model.friction import (
     FrictionParams,
     friction_magnitude,
     jacobian_temperature_wear,
+    load_sensitivity,
+    nominal_friction,
     wear_friction,
 )
 
@@ -67,6 +69,8 @@ log = logging.getLogger(__name__)
 #: Likelihood grid: largest temperature step [°C] (the narrowest ξ likelihood met, 12 default speeds,
 #: has a std ≥ 0.77 °C, i.e. ≥ 3 steps) and wear step [-] (the std of ϖ̂ is ≥ 3 at every design).
 _MAX_TEMPERATURE_STEP = 0.25
+#: Speed vectors whose model grids are kept (a robot's test cycle has one; a few after a redesign).
+_MODEL_CACHE = 4
 _WEAR_STEP = 0.5
 #: Profile-likelihood threshold of the upper bound and of the identifiability test: χ²₁(0.95) = 1.96²
 #: (the upper end of the two-sided 95 % interval). Calibrated by Monte Carlo: the nominal one-sided
@@ -197,6 +201,7 @@ class WearEstimator:
         self._grid_wear = np.linspace(0.0, self.wear_max, n_w)
         # The score's continuation below ϖ = 0 (mirrors the physical grid; see the module docstring).
         self._grid_signed = np.concatenate([-self._grid_wear[:0:-1], self._grid_wear])
+        self._model_cache: dict[bytes, tuple[NDArray[np.float64], ...]] = {}
         # Trapezoid weights of the flat prior of ϖ on [0, ϖmax] (the ξ midpoints carry equal weights).
         self._wear_weights = np.full(n_w, self._grid_wear[1] - self._grid_wear[0])
         self._wear_weights[[0, -1]] *= 0.5
@@ -280,11 +285,26 @@ class WearEstimator:
         """``C[i, j] = ‖L⁻¹(τ − τ0(ξi) − τw(ϖj))‖²`` (Nξ × Nϖ, ϖj over the signed grid −ϖmax … ϖmax) by one
         matrix product: ``‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b`` with a = L⁻¹(τ − τ0(ξi)), b = L⁻¹τw(ϖj).
         Returns (C, a)."""
-        p = self.params
-        a = (tau[None, :] - friction_magnitude(v[None, :], mu_l, self._xi_samples[:, None], 0.0, p)) @ whiten.T
-        b = wear_friction(v[None, :], self._grid_signed[:, None], p) @ whiten.T
+        unloaded, sensitivity, wear = self._model_at(v)
+        a = (tau[None, :] - (unloaded + abs(mu_l) * sensitivity[None, :])) @ whiten.T
+        b = wear @ whiten.T
         cost = np.einsum("ik,ik->i", a, a)[:, None] + np.einsum("jk,jk->j", b, b)[None, :] - 2.0 * (a @ b.T)
         return np.maximum(cost, 0.0), a
+
+    def _model_at(self, v: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        """The model on the grids at the speeds ``v``, which repeat from cycle to cycle (cached): the
+        nominal friction without load over the ξ samples (Nξ × n), the load sensitivity s(v) (the
+        model is linear in |τl|) and the wear friction over the signed wear grid (Nϖ × n)."""
+        key = v.tobytes()
+        cached = self._model_cache.get(key)
+        if cached is None:
+            p = self.params
+            cached = (nominal_friction(v[None, :], 0.0, self._xi_samples[:, None], p), load_sensitivity(v, p),
+                      wear_friction(v[None, :], self._grid_signed[:, None], p))
+            if len(self._model_cache) >= _MODEL_CACHE:
+                self._model_cache.pop(next(iter(self._model_cache)))
+            self._model_cache[key] = cached
+        return cached
 
     def _summarise(self, signed_cost: NDArray[np.float64], v, whiten, white_nominal,
                    prior: NDArray[np.float64]) -> _GridSummary:
