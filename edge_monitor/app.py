@@ -108,7 +108,7 @@ def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: St
     (replay calibrates inline: deterministic)."""
     calibrator = None
     if live and config.decision.enabled and config.decision.pf is None:
-        from edge_monitor.stats.calibration import ProcessCalibrator
+        from edge_monitor.stats.calibrators import ProcessCalibrator
         calibrator = ProcessCalibrator()
         stack.callback(calibrator.close)
     app = App(Agent(config, state_store=store, calibrator=calibrator))

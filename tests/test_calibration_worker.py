@@ -9,7 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from edge_monitor.stats.calibration import CalibrationBudget, CalibrationJob, ProcessCalibrator
+from edge_monitor.stats.calibration import CalibrationBudget, CalibrationJob
+from edge_monitor.stats.calibrators import ProcessCalibrator
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -43,7 +43,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import norm
 
+from edge_monitor.stats import threshold_table
 from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
+from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSettings, correlation
+from edge_monitor.stats.gaussian_calibration import threshold as gaussian_threshold
 from edge_monitor.stats.glr_batch import (
     BatchWindowedGLR,
     GLRMode,
@@ -75,6 +78,11 @@ CALIBRATE_AT = ("healthy_drift", "boundary", "nominal")
 MAX_DRIFT = 5.0
 #: What the simulated nominal sets and streams are drawn from: the fitted density or the values.
 SIMULATE_FROM = ("model", "values")
+#: Seed of every simulation of a mixture density (the same learned values give the same threshold).
+FIXED_SEED = 20261126
+#: Detectors of a Gaussian calibration per ``calibration_draws``: its closed-form recursion is ≈ 8×
+#: cheaper per detector than the mixture's, so its precision is bought with more detectors.
+GAUSSIAN_DRAW_FACTOR = 8
 
 
 class CalibrationError(ValueError):
@@ -109,6 +117,7 @@ class Calibration:
     slope: float | None           # fitted d log E[T] / dh [1/nat] when extrapolated
     cpu_s: float
     at: str = "boundary"          # where the simulated streams sat (:func:`stream_shifts`)
+    h_se: float | None = None     # Monte Carlo standard error of the threshold [nats] (Gaussian path)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -118,15 +127,30 @@ class Calibration:
         return cls(threshold=float(state["threshold"]), arl0=float(state["arl0"]), method=str(state["method"]),
                    draws=int(state["draws"]), steps=int(state["steps"]), events=int(state["events"]),
                    slope=None if state.get("slope") is None else float(state["slope"]),
-                   cpu_s=float(state.get("cpu_s", 0.0)), at=str(state.get("at", "boundary")))
+                   cpu_s=float(state.get("cpu_s", 0.0)), at=str(state.get("at", "boundary")),
+                   h_se=None if state.get("h_se") is None else float(state["h_se"]))
 
 
-def seed_from(values: ArrayLike) -> int:
-    """A reproducible seed from nominal values (the same learning gives the same threshold). Hashed
-    at single precision: nominal values that differ by floating-point rounding (the same stream read
-    in other blocks sums in another order) give the same seed, hence the same threshold."""
-    data = np.ascontiguousarray(np.asarray(values, dtype=np.float64).astype(np.float32))
-    return int(np.frombuffer(data.tobytes(), dtype=np.uint8).astype(np.uint64).sum() * 2654435761 % (2 ** 32))
+def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, gamma0: float, rho: float,
+                        budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
+                        at: str) -> Calibration:
+    """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
+    tabulated for the shipped scalar settings, else simulated (cached) with ``GAUSSIAN_DRAW_FACTOR`` ×
+    ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
+    settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
+                                float(clip_sigma), at)
+    found = threshold_table.lookup(settings, arl0) if values.shape[1] == 1 else None
+    if found is None:
+        detectors = GAUSSIAN_DRAW_FACTOR * budget.draws
+        gauss_budget = GaussianBudget(nominals=max(detectors // STREAMS_PER_NOMINAL, 8), streams=STREAMS_PER_NOMINAL,
+                                      steps=budget.steps(arl0))
+        try:
+            found = gaussian_threshold(settings, correlation(values), arl0, gauss_budget)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise CalibrationError(f"Gaussian calibration failed: {exc}") from None
+    return Calibration(threshold=found.threshold, arl0=float(arl0), method=found.method, draws=found.detectors,
+                       steps=found.steps, events=found.events, slope=None, cpu_s=found.cpu_s, at=at,
+                       h_se=found.h_se)
 
 
 def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: float = 0.6, rho: float = 1.0,
@@ -149,7 +173,9 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
         raise ValueError(f"simulate_from = {simulate_from!r}; choose one of {SIMULATE_FROM}")
     started = time.process_time()
     values = as_observations(nominal, name="nominal data")
-    seed = seed_from(values) if seed is None else seed
+    if kind == "gauss" and simulate_from == "model" and mode == "recursive" and at in ("nominal", "boundary"):
+        return _calibrate_gaussian(values, window, arl0, gamma0, rho, budget, direction, allowance, clip_sigma, at)
+    seed = FIXED_SEED if seed is None else seed
     rng = np.random.default_rng(seed)
     model = fit_density(values, kind)
     truth: Sampler = model if simulate_from == "model" else SmoothedBootstrap(values)
@@ -350,68 +376,3 @@ class CalibrationJob:
                    drift_mean=tuple(float(x) for x in state.get("drift_mean", ())),
                    drift_sd=tuple(float(x) for x in state.get("drift_sd", ())),
                    simulate_from=str(state.get("simulate_from", "model")))
-
-
-class Pending:
-    """A calibration under way: :meth:`result` is None until it is done."""
-
-    def result(self) -> Calibration | None:
-        raise NotImplementedError
-
-
-class Done(Pending):
-    """A finished calibration, or the error it ended with (raised by :meth:`result`, as a future does)."""
-
-    def __init__(self, calibration: Calibration | None = None, error: Exception | None = None) -> None:
-        self._calibration, self._error = calibration, error
-
-    def result(self) -> Calibration | None:
-        if self._error is not None:
-            raise self._error
-        return self._calibration
-
-
-class InlineCalibrator:
-    """Calibrates at once, in the calling thread (replay and studies: deterministic and simple)."""
-
-    def submit(self, job: CalibrationJob) -> Pending:
-        try:
-            return Done(job.run())
-        except (CalibrationError, DensityError, ValueError) as exc:   # reported where the result is read
-            return Done(error=exc)
-
-    def close(self) -> None:
-        """Nothing to release."""
-
-
-class _FuturePending(Pending):
-    def __init__(self, future: Any) -> None:
-        self._future = future
-
-    def result(self) -> Calibration | None:
-        return self._future.result() if self._future.done() else None
-
-
-class ProcessCalibrator:
-    """Calibrates in one worker process, so a live agent keeps taking frames while detectors calibrate
-    (a calibration costs seconds of CPU; all detectors of a robot finish learning at about the same
-    cycle). Results arrive a few cycles later; the detector decides with them from then on."""
-
-    def __init__(self) -> None:
-        import concurrent.futures
-        import multiprocessing
-
-        self._pool: concurrent.futures.Executor
-        try:
-            self._pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=1, mp_context=multiprocessing.get_context("spawn"))
-        except OSError as exc:       # e.g. no /dev/shm (minimal containers, initramfs): no semaphores
-            log.warning("calibration worker process unavailable (%s); calibrating in a background thread "
-                        "instead (frames are still taken, the numerics share the CPU)", exc)
-            self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration")
-
-    def submit(self, job: CalibrationJob) -> Pending:
-        return _FuturePending(self._pool.submit(job.run))
-
-    def close(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)

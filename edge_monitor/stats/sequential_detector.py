@@ -33,7 +33,8 @@ import numpy as np
 
 from edge_monitor.errors import check_learned_with
 from edge_monitor.records import Decision
-from edge_monitor.stats.calibration import Calibration, CalibrationError, CalibrationJob, InlineCalibrator, Pending
+from edge_monitor.stats.calibration import Calibration, CalibrationError, CalibrationJob
+from edge_monitor.stats.calibrators import InlineCalibrator, Pending
 from edge_monitor.stats.densities import DensityError, GaussianMixture, fit_density
 from edge_monitor.stats.detector_config import (  # noqa: F401  (re-exported: the detector's settings live there)
     DEFAULT_MODE,

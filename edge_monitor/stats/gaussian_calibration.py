@@ -1,0 +1,232 @@
+"""Thresholds of Gaussian-nominal detectors: exact to a stated Monte Carlo error, reproducible, fast.
+
+A detector with a Gaussian nominal N(μ̂, Ŝ), its null box and its winsorising range (all set in
+standard deviations of the values it learned) is invariant to the location and scale of each axis:
+in standard units z = (y − μ̂)/σ̂ its statistic's law depends only on the settings and, for d > 1, on the
+correlation matrix R of the learned values. So the calibration simulates in standard units, from
+N(0, R) with a fixed seed (:data:`SEED`): the same settings and R give the same threshold on every
+path and machine, and for d = 1 the threshold is one number per setting (cached, and tabulated for the
+shipped settings, :mod:`edge_monitor.stats.threshold_table`). The detectors run the closed-form
+recursion of :class:`~edge_monitor.stats.glr_gaussian.GaussianBatchGLR` (≈ 1 µs per detector and
+cycle in d = 1), so many more can be simulated than with a general mixture:
+
+1. ``nominals`` nominal sets of N0 values from N(0, R), each fitted (mean, covariance with ddof = 1,
+   its null box and winsorising range) as the agent fits its own — the learning error;
+2. ``streams`` detectors per nominal on independent streams from N(0, R) moved by the calibration
+   point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up), ``steps``
+   cycles each;
+3. per nominal g and candidate threshold h its false-alarm rate from its first passages (e/X, events
+   over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(rate);
+4. h where that run length is the target: interpolated where at least :data:`MIN_EVENTS_DIRECT`
+   detectors alarmed, else extrapolated along log E[T] = a + c·h over the upper reliable range;
+5. its precision: the standard error of h from a bootstrap over the nominals (both the learning
+   error and the Monte Carlo error), reported with the threshold.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
+
+log = logging.getLogger(__name__)
+
+#: Seed of every Gaussian calibration: the draws are the same for every detector and path.
+SEED = 20261126
+#: Threshold grid step [nats].
+H_STEP = 0.025
+#: Alarmed detectors a threshold needs to be read off directly (else extrapolated).
+MIN_EVENTS_DIRECT = 30
+#: Bootstrap resamples of the nominals for the standard error of h.
+BOOTSTRAP = 200
+#: Detectors simulated at once (larger batches fall out of the CPU caches).
+CHUNK = 512
+#: Cycles simulated between first-passage updates.
+SEGMENT = 2000
+#: Top of the threshold grid [nats].
+H_MAX = 60.0
+
+
+@dataclass(frozen=True)
+class GaussianSettings:
+    """What a Gaussian detector's threshold depends on besides R and the target (see the module docstring)."""
+
+    n0: int
+    window: int
+    gamma0: float
+    rho: float
+    direction: str
+    allowance: float
+    clip_sigma: float
+    at: str                        # "nominal" | "boundary"
+
+
+@dataclass(frozen=True)
+class GaussianBudget:
+    """``nominals`` × ``streams`` simulated detectors of ``steps`` cycles each."""
+
+    nominals: int = 256
+    streams: int = 4
+    steps: int = 2000
+
+
+@dataclass(frozen=True)
+class GaussianThreshold:
+    """h [nats] for mean run length ``arl0`` [cycles], its bootstrap standard error ``h_se`` [nats], how it
+    was read (``"simulated"`` | ``"extrapolated"``), the detectors that alarmed at h, the simulated
+    detectors and cycles, and the CPU time it took [s]."""
+
+    threshold: float
+    h_se: float
+    arl0: float
+    method: str
+    events: int
+    detectors: int
+    steps: int
+    cpu_s: float
+
+
+def correlation(values: NDArray[np.float64]) -> tuple[tuple[float, ...], ...]:
+    """The correlation matrix of learned values (N0 × d) as nested tuples (d = 1: ((1.0,),))."""
+    if values.shape[1] == 1:
+        return ((1.0,),)
+    r = np.atleast_2d(np.asarray(np.corrcoef(values, rowvar=False), dtype=float))
+    r = (r + r.T) / 2.0
+    np.fill_diagonal(r, 1.0)
+    return tuple(tuple(float(x) for x in row) for row in r)
+
+
+def threshold(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], arl0: float,
+              budget: GaussianBudget = GaussianBudget()) -> GaussianThreshold:
+    """The threshold for ``arl0`` (see the module docstring). The simulation is cached per settings,
+    correlation and budget: every target of one detector family costs one simulation."""
+    started = time.process_time()
+    sim = simulate(settings, corr, budget)
+    h, method, alarmed = read_threshold(sim.events, sim.exposure, sim.grid, float(arl0), budget.streams)
+    rng = np.random.default_rng([SEED, 2])
+    boot = []
+    for _ in range(BOOTSTRAP):
+        pick = rng.integers(0, sim.events.shape[0], sim.events.shape[0])
+        try:
+            boot.append(read_threshold(sim.events[pick], sim.exposure[pick], sim.grid, float(arl0), budget.streams)[0])
+        except ValueError:
+            continue
+    h_se = float(np.std(boot, ddof=1)) if len(boot) > 1 else math.inf
+    return GaussianThreshold(h, h_se, float(arl0), method, alarmed, budget.nominals * budget.streams, budget.steps,
+                             sim.cpu_s + time.process_time() - started)
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """First passages per nominal and grid threshold (G, H), their exposure [cycles], the grid [nats]
+    and the CPU time the simulation took [s]."""
+
+    events: NDArray[np.float64]
+    exposure: NDArray[np.float64]
+    grid: NDArray[np.float64]
+    cpu_s: float
+
+
+@functools.lru_cache(maxsize=32)
+def simulate(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], budget: GaussianBudget,
+             progress: bool = False) -> Simulation:
+    """The simulation of steps 1–3 of the module docstring (chunks of :data:`CHUNK` detectors; time in
+    segments of :data:`SEGMENT` cycles, so memory stays O(CHUNK·(SEGMENT + grid)))."""
+    started = time.process_time()
+    r = np.asarray(corr, dtype=float)
+    lower_chol = np.linalg.cholesky(r)
+    rng = np.random.default_rng(SEED)
+    grid = np.arange(H_STEP, H_MAX, H_STEP)
+    per_chunk = max(1, CHUNK // budget.streams)
+    events, exposure = [], []
+    for first in range(0, budget.nominals, per_chunk):
+        g = min(per_chunk, budget.nominals - first)
+        glr = _detectors(settings, rng.standard_normal((g, settings.n0, r.shape[0])) @ lower_chol.T, budget.streams)
+        passage = _passages(glr, settings, lower_chol, budget.steps, grid, rng)
+        alarmed = passage < budget.steps
+        shape = (g, budget.streams, grid.size)
+        events.append(alarmed.reshape(shape).sum(axis=1))
+        exposure.append(np.where(alarmed, passage + 1, budget.steps).reshape(shape).sum(axis=1))
+        if progress:
+            log.info("calibration simulation: %d/%d nominals", first + g, budget.nominals)
+    ev, ex = np.concatenate(events).astype(float), np.concatenate(exposure).astype(float)
+    used = int(np.flatnonzero(ev.sum(axis=0) > 0)[-1]) + 2 if ev.any() else 1
+    return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started)
+
+
+def _detectors(settings: GaussianSettings, samples: NDArray[np.float64], streams: int) -> GaussianBatchGLR:
+    """``streams`` detectors for each nominal set of ``samples`` (G, N0, d), fitted as the agent fits."""
+    means = samples.mean(axis=1)
+    dev = samples - means[:, None, :]
+    covs = np.einsum("gni,gnj->gij", dev, dev) / (settings.n0 - 1)
+    sd = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    upper = settings.allowance * sd
+    lower = np.full_like(upper, -np.inf) if settings.direction == "increase" else -upper
+    if settings.clip_sigma:
+        clip = (means - settings.clip_sigma * sd, means + settings.clip_sigma * sd)
+    else:
+        clip = (np.full_like(sd, -np.inf), np.full_like(sd, np.inf))
+    rep = functools.partial(np.repeat, repeats=streams, axis=0)
+    return GaussianBatchGLR(rep(means), rep(covs), settings.window, settings.gamma0, settings.rho,
+                            (rep(lower), rep(upper)), (rep(clip[0]), rep(clip[1])))
+
+
+def _passages(glr: GaussianBatchGLR, settings: GaussianSettings, lower_chol: NDArray[np.float64], steps: int,
+              grid: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:
+    """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never."""
+    b, d = glr.means.shape
+    shift = settings.allowance if settings.at == "boundary" else 0.0
+    first = np.full((b, grid.size), steps, dtype=np.int64)
+    running = np.zeros(b)
+    for start in range(0, steps, SEGMENT):
+        length = min(SEGMENT, steps - start)
+        stats = np.empty((b, length))
+        for t in range(length):
+            stats[:, t] = glr.update(rng.standard_normal((b, d)) @ lower_chol.T + shift)
+        stats[:, 0] = np.maximum(stats[:, 0], running)
+        np.maximum.accumulate(stats, axis=1, out=stats)
+        running = stats[:, -1]
+        reached = np.stack([np.searchsorted(row, grid, side="left") for row in stats])
+        first = np.where((first == steps) & (reached < length), start + reached, first)
+    return first
+
+
+def fleet_rate(events: NDArray[np.float64], exposure: NDArray[np.float64], streams_censored: NDArray[np.bool_]
+               ) -> NDArray[np.float64]:
+    """Mean over nominals of their false-alarm rates per cycle: e/X, or (e − 1)/X where no stream of
+    the nominal was censored (then X is a sum of e exponential times and e/X overstates the rate)."""
+    rates = np.where(streams_censored, events, np.maximum(events - 1.0, 0.0)) / exposure
+    return rates.mean(axis=0)
+
+
+def read_threshold(events: NDArray[np.float64], exposure: NDArray[np.float64], grid: NDArray[np.float64],
+                   arl0: float, streams: int) -> tuple[float, str, int]:
+    """h for ``arl0`` from per-nominal first passages ``events`` and ``exposure`` (G, H) on ``grid`` of
+    ``streams`` detectors per nominal; ``ValueError`` when the simulation cannot tell (module docstring)."""
+    rate = fleet_rate(events, exposure, events < streams)
+    total = events.sum(axis=0)
+    reliable = (total >= MIN_EVENTS_DIRECT) & (rate > 0)
+    if not reliable.any():
+        raise ValueError("too few simulated alarms to calibrate; give a larger calibration budget")
+    last = int(np.flatnonzero(reliable)[-1])
+    log_arl = -np.log(rate[: last + 1])
+    target = math.log(arl0)
+    if log_arl[last] >= target:
+        k = int(np.argmax(log_arl >= target))
+        if k == 0:
+            return float(grid[0]), "simulated", int(total[0])
+        return float(np.interp(target, log_arl[k - 1:k + 1], grid[k - 1:k + 1])), "simulated", int(total[k])
+    lo = max(0, last - int(round(1.0 / H_STEP)))                  # the last nat of the reliable range
+    if last - lo < 2:
+        raise ValueError("too few reliable simulated thresholds to extrapolate along")
+    slope, intercept = np.polyfit(grid[lo:last + 1], log_arl[lo:last + 1], 1)
+    if not slope > 0:
+        raise ValueError("the simulated run lengths do not grow with the threshold; cannot extrapolate")
+    return max(float((target - intercept) / slope), float(grid[last])), "extrapolated", int(total[last])

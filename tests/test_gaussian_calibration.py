@@ -1,0 +1,93 @@
+"""Gaussian thresholds: the same everywhere, what they promise delivered, precise to what they state
+(edge_monitor/stats/gaussian_calibration.py, threshold_table.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edge_monitor.stats.calibration import CalibrationBudget, calibrate
+from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSettings, threshold
+from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
+from edge_monitor.stats.threshold_table import lookup
+
+STEADY = GaussianSettings(240, 100, 0.6, 1.0, "increase", 0.75, 3.0, "nominal")
+BUDGET = GaussianBudget(nominals=256, streams=4, steps=2000)
+
+
+def _delivered(settings: GaussianSettings, h: float, corr: np.ndarray, detectors: int, cycles: int,
+               seed: int) -> tuple[float, int]:
+    """Measured ARL0 of ``detectors`` learned nominals (N0 values of N(0, corr) each) with threshold h on
+    N(0, corr) streams, every alarm acknowledged (the statistic restarts): cycles / alarms, and the
+    alarms. Independent of the calibration's draws (other seed, renewal instead of first passages)."""
+    rng = np.random.default_rng(seed)
+    chol = np.linalg.cholesky(corr)
+    d = corr.shape[0]
+    samples = rng.standard_normal((detectors, settings.n0, d)) @ chol.T
+    means = samples.mean(axis=1)
+    covs = np.array([np.atleast_2d(np.cov(s, rowvar=False)) for s in samples])
+    sd = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    glr = GaussianBatchGLR(means, covs, settings.window, settings.gamma0, settings.rho,
+                           (np.full_like(sd, -np.inf), settings.allowance * sd),
+                           (means - settings.clip_sigma * sd, means + settings.clip_sigma * sd))
+    alarms = 0
+    for _ in range(cycles):
+        alarm = glr.update(rng.standard_normal((detectors, d)) @ chol.T) >= h
+        alarms += int(alarm.sum())
+        if alarm.any():
+            glr.restart(alarm)
+    return detectors * cycles / max(alarms, 1), alarms
+
+
+def _tolerance(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], target: float, alarms: int) -> float:
+    """3 standard errors of log(delivered / target): the calibration's (h_se times the slope of log ARL0
+    in h, from the thresholds of target and e·target) and the measurement's (1/√alarms)."""
+    low, high = threshold(settings, corr, target, BUDGET), threshold(settings, corr, math.e * target, BUDGET)
+    slope = 1.0 / (high.threshold - low.threshold)
+    return 3.0 * math.hypot(slope * low.h_se, 1.0 / math.sqrt(max(alarms, 1)))
+
+
+def test_same_values_same_threshold_and_scalars_do_not_depend_on_the_values() -> None:
+    rng = np.random.default_rng(1)
+    values = rng.normal(5.0, 2.0, size=(240, 1))
+    args = dict(kind="gauss", window=100, arl0=1000.0, direction="increase", allowance=0.75, clip_sigma=3.0,
+                at="nominal", budget=CalibrationBudget(draws=16))
+    first, again = calibrate(values, **args), calibrate(values.copy(), **args)
+    other = calibrate(rng.normal(-3.0, 0.1, size=(240, 1)), **args)
+    assert first.threshold == again.threshold == other.threshold
+    assert first.h_se is not None and 0 < first.h_se < 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("target,cycles", [(200, 3000), (10_000, 20_000)])
+def test_delivered_run_length_is_the_target_on_gaussian_values(target: float, cycles: int) -> None:
+    """256 learned detectors: the delivered ARL0 is the target within 3 standard errors of what the
+    calibration states (h_se) and of the measurement, and that band is narrower than ±50 %; the other
+    side: 0.5 nat lower delivers less than 0.7× (log ARL0 grows by ≥ 1 per nat here)."""
+    found = threshold(STEADY, ((1.0,),), target, BUDGET)
+    delivered, alarms = _delivered(STEADY, found.threshold, np.eye(1), 256, cycles, seed=77)
+    tolerance = _tolerance(STEADY, ((1.0,),), target, alarms)
+    assert tolerance < math.log(1.5)       # 3 SE at this budget; the shipped table is far more precise
+    assert abs(math.log(delivered / target)) <= tolerance, (found, delivered, tolerance)
+    assert _delivered(STEADY, found.threshold - 0.5, np.eye(1), 256, cycles, seed=78)[0] < 0.7 * target
+
+
+@pytest.mark.slow
+def test_the_joint_vector_threshold_follows_the_correlation_and_is_delivered() -> None:
+    corr = np.array([[1.0, 0.05, 0.2], [0.05, 1.0, 0.65], [0.2, 0.65, 1.0]])
+    correlated = threshold(STEADY, tuple(map(tuple, corr)), 1000.0, BUDGET)
+    independent = threshold(STEADY, tuple(map(tuple, np.eye(3))), 1000.0, BUDGET)
+    assert abs(correlated.threshold - independent.threshold) > 3 * math.hypot(correlated.h_se, independent.h_se)
+    delivered, alarms = _delivered(STEADY, correlated.threshold, corr, 256, 6000, seed=79)
+    tolerance = _tolerance(STEADY, tuple(map(tuple, corr)), 1000.0, alarms)
+    assert abs(math.log(delivered / 1000.0)) <= tolerance, (correlated, delivered, tolerance)
+
+
+def test_one_winsorised_glitch_cannot_raise_an_alarm_at_the_default_target() -> None:
+    """The largest statistic one value can give: clipped at +3σ, its first SA-EM step γ0·3σ, against
+    the allowance: ½·[(3 − a)² − (3 − 3γ0)²] nats (a = 0.75, γ0 = 0.6: 1.81)."""
+    single = 0.5 * ((3.0 - 0.75) ** 2 - (3.0 - 3.0 * 0.6) ** 2)
+    found = lookup(STEADY, 10_000) or threshold(STEADY, ((1.0,),), 10_000, BUDGET)
+    assert found.threshold > single + 3 * found.h_se
