@@ -100,12 +100,41 @@ class Alarm:
     threshold: float | None = None
     miss_probability: float | None = None
     change_cycle: int | None = None
+    #: why, as far as the agent can tell: the shift estimate in the quantity's units (per input) and the
+    #: operating conditions then against the learned ones (:mod:`edge_monitor.pipeline.operating_range`)
+    cause: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        out = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
+               "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
+               "threshold": finite_or_none(self.threshold),
+               "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
+        if self.cause is not None:
+            out["cause"] = self.cause
+        return out
+
+
+@dataclass(frozen=True)
+class Advisory:
+    """Something a person should know that is not a fault: here an operating condition that left the
+    range the joint's detectors learned in (``state`` "entered" the outside) or came back ("left")."""
+
+    robot: str
+    joint: int
+    cycle: int
+    kind: str                                 # "operating_range"
+    state: str                                # "entered" | "left"
+    covariate: str
+    value: float
+    learned: tuple[float, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        where = "outside" if self.state == "entered" else "back inside"
         return {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
-                "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
-                "threshold": finite_or_none(self.threshold),
-                "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
+                "advisory": self.kind, "state": self.state, "covariate": self.covariate,
+                "value": finite_or_none(self.value), "learned": [finite_or_none(v) for v in self.learned],
+                "message": f"{self.covariate} {self.value:.3g} {where} the learned range "
+                           f"{self.learned[0]:.3g} … {self.learned[1]:.3g}: operating condition, not wear"}
 
 
 @dataclass
@@ -114,8 +143,8 @@ class Symptom:
 
     ``sections`` holds one JSON-ready section per registered feature (``"wear"``, ``"kl"``, …), in
     registration order; ``decisions`` one :class:`Decision` per watched quantity. ``alarms`` are the
-    alarm transitions of this cycle and ``extras`` data for viewers that are not published (e.g. the
-    cycle's torque density); neither is part of :meth:`to_dict`.
+    alarm transitions of this cycle, ``advisories`` its advisories, and ``extras`` data for viewers that
+    are not published (e.g. the cycle's torque density); none of them is part of :meth:`to_dict`.
     """
 
     robot: str
@@ -131,6 +160,7 @@ class Symptom:
     reasons: dict[str, str] = field(default_factory=dict)
     partial: bool = False
     alarms: list[Alarm] = field(default_factory=list)
+    advisories: list[Advisory] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict)
 
     @property

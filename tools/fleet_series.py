@@ -62,9 +62,9 @@ def code_hash() -> str:
     return digest.hexdigest()[:12]
 
 
-def _cache_path(seed: int, cycles: int, joints: int, scenario: str | None) -> Path:
+def _cache_path(seed: int, cycles: int, joints: int, scenario: str | None, code: str | None = None) -> Path:
     tag = "default" if scenario is None else hashlib.sha256(Path(scenario).read_bytes()).hexdigest()[:10]
-    return CACHE / f"seed{seed}-j{joints}-c{cycles}-{tag}-{code_hash()}.json.gz"
+    return CACHE / f"seed{seed}-j{joints}-c{cycles}-{tag}-{code or code_hash()}.json.gz"
 
 
 def compute(seed: int, cycles: int, joints: int = 6, scenario: str | None = None) -> Series:
@@ -88,7 +88,7 @@ def compute(seed: int, cycles: int, joints: int = 6, scenario: str | None = None
 
 def robot_series(seed: int, cycles: int, joints: int = 6, scenario: str | None = None) -> Series:
     """:func:`compute`, from the cache when it holds this robot for the current code."""
-    path = _cache_path(seed, cycles, joints, scenario)
+    path = _cache_path(seed, cycles, joints, scenario)       # the code as it is now, before computing
     if path.exists():
         with gzip.open(path, "rt") as f:
             return {int(j): rows for j, rows in json.load(f).items()}

@@ -34,6 +34,7 @@ class RunStats:
     cycles: int = 0
     symptoms: int = 0
     alarms: list[dict[str, Any]] = field(default_factory=list)
+    advisories: int = 0
     duplicate_cycles_skipped: int = 0
     partial_cycles: int = 0
     sink_errors: int = 0
@@ -170,10 +171,18 @@ class Agent:
                         alarm.robot, alarm.joint, alarm.cycle, alarm.quantity,
                         alarm.statistic if alarm.statistic is not None else float("nan"),
                         alarm.threshold if alarm.threshold is not None else float("nan"))
+        for advisory in symptom.advisories:
+            self.stats.advisories += 1
+            log.warning("advisory robot %s joint %d cycle %d: %s", advisory.robot, advisory.joint, advisory.cycle,
+                        advisory.to_dict()["message"])
         for sink in self.sinks:
             self._deliver(sink.on_symptom, symptom)
             for alarm in symptom.alarms:
                 self._deliver(sink.on_alarm, alarm)
+            on_advisory = getattr(sink, "on_advisory", None)
+            if on_advisory is not None:
+                for advisory in symptom.advisories:
+                    self._deliver(on_advisory, advisory)
         return [symptom]
 
     def _deliver(self, fn: Callable[[Any], None], record: Any) -> None:
@@ -248,7 +257,8 @@ class Agent:
             h: dict[str, Any] = self.ingest.counters()
             h.update({
                 "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
-                "alarms": len(self.stats.alarms), "sink_errors": self.stats.sink_errors,
+                "alarms": len(self.stats.alarms), "advisories": self.stats.advisories,
+                "sink_errors": self.stats.sink_errors,
                 "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
                 "partial_cycles": self.stats.partial_cycles,
                 "states_rejected": self.stats.states_rejected,
@@ -268,6 +278,7 @@ class Agent:
         keys = ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated", "unknown_id", "malformed")
         out = {k: h[k] for k in keys}
         out.update({"cycles": self.stats.cycles, "symptoms": self.stats.symptoms, "alarms": list(self.stats.alarms),
+                    "advisories": self.stats.advisories,
                     "frames_per_second": h["frames_per_second"], "wall_s": h["wall_s"]})
         out["details"] = {k: v for k, v in h.items() if k not in out and k not in ("e2e", "no_new_data")}
         return out

@@ -71,8 +71,8 @@ class DecisionConfig:
 
     enabled: bool = True
     n_nominal: int = DEFAULT_NOMINAL
-    density: str = "gce"
-    density_joint: str = "kde"
+    density: str = "gauss"
+    density_joint: str = "gauss"
     arl0_cycles: float = DEFAULT_ARL0
     false_alarms_per_year: float | None = None
     cycles_per_day: float | None = None
@@ -95,7 +95,7 @@ class DecisionConfig:
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
-    steady_simulate_from: str = "values"
+    steady_simulate_from: str = "model"
     settling_window: int = SettlingConfig().window
     settling_max_rate: float = SettlingConfig().max_rate
 
@@ -241,6 +241,16 @@ class DetectorBank:
                 alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
                                     decision.miss_probability, decision.change_cycle))
         return decisions, alarms
+
+    @property
+    def collecting(self) -> bool:
+        """Whether any detector is collecting the values of a nominal (learning, or steady values)."""
+        return any(d.collecting for d in self.detectors.values())
+
+    @property
+    def fits(self) -> int:
+        """Nominals fitted by the detectors so far (grows when one is learned)."""
+        return sum(d.fits for d in self.detectors.values())
 
     def idle(self, reason: str = PARTIAL_REASON) -> dict[str, Decision]:
         """Decisions of a cycle that did not enter the detectors (state unchanged)."""

@@ -18,6 +18,7 @@ processing (the streaming algorithms are block-size invariant up to floating-poi
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -30,8 +31,9 @@ from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import DetectorBank
+from edge_monitor.pipeline.operating_range import OperatingRange
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
-from edge_monitor.records import Alarm, Symptom, finite_or_none
+from edge_monitor.records import Advisory, Alarm, Decision, Symptom, finite_or_none
 from edge_monitor.stats.sequential_detector import Calibrator
 from joint_model import FrictionParams
 
@@ -72,6 +74,7 @@ class JointMonitor:
         self._pending_samples = 0
         self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean) \
             if config.model.enabled else None
+        self.operating = OperatingRange()
         self._build()
         self.maintenances = 0
 
@@ -192,6 +195,8 @@ class JointMonitor:
             if out.reason:
                 reasons[spec.name] = out.reason
         alarms: list[Alarm] = []
+        advisories: list[Advisory] = []
+        covariates = _covariates(cycle)
         if learning_model and self.model is not None:
             decisions = self.detectors.idle(self.model.progress)
             if self.model.update(cycle):                    # this cycle completed the model: rebuild
@@ -200,12 +205,25 @@ class JointMonitor:
         elif cycle.partial:
             decisions = self.detectors.idle()
         else:
+            collecting, fits = self.detectors.collecting, self.detectors.fits
             decisions, alarms = self.detectors.update(values, robot, self.joint, cycle.cycle)
+            events = self.operating.update(covariates, collecting, self.detectors.fits > fits)
+            advisories = [Advisory(robot, self.joint, cycle.cycle, "operating_range", e.state, e.covariate, e.value,
+                                   e.learned) for e in events]
+            alarms = [replace(a, cause=self._cause(decisions[a.quantity], covariates)) for a in alarms]
+        sections["operating"] = self.operating.section(covariates)
         return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
                        friction=cycle.friction.to_record(), sections=sections, decisions=decisions,
-                       load={"mean": finite_or_none(cycle.load_mean), "std": finite_or_none(cycle.load_std)},
+                       load={"mean": finite_or_none(cycle.load_mean), "std": finite_or_none(cycle.load_std),
+                             "measured": finite_or_none(cycle.friction.load_torque)},
                        skipped=cycle.friction.skipped, critical_wear=self.config.wear.critical,
-                       reasons=reasons, partial=cycle.partial, alarms=alarms, extras=extras)
+                       reasons=reasons, partial=cycle.partial, alarms=alarms, advisories=advisories, extras=extras)
+
+    def _cause(self, decision: Decision, covariates: dict[str, float | None]) -> dict[str, Any]:
+        """An alarm's cause as far as the agent can tell: the shift in the quantity's units and the
+        operating conditions against those learned (:mod:`~edge_monitor.pipeline.operating_range`)."""
+        return {"delta": None if decision.delta is None else [finite_or_none(v) for v in decision.delta],
+                "change_cycle": decision.change_cycle, "operating": self.operating.section(covariates)}
 
     def declare_maintenance(self, cycle: int, config: AgentConfig | None = None) -> list[Alarm]:
         """Gearbox replaced or serviced: relearn the nominal models; one "cleared" alarm per raised one.
@@ -221,6 +239,7 @@ class JointMonitor:
         self.model = JointModelLearner(self.config.model, self.config.friction_for(self.joint),
                                        self.config.wear.default_load_mean) if self.config.model.enabled else None
         self._build()
+        self.operating.reset()
         self.detectors.settling = ThermalSettling(self.config.decision.settling)   # it may have cooled meanwhile
         self.maintenances += 1
         return cleared
@@ -238,7 +257,7 @@ class JointMonitor:
                 "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
-                "detectors": self.detectors.state_dict()}
+                "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict()}
 
     @classmethod
     def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any],
@@ -268,6 +287,7 @@ class JointMonitor:
         monitor.detectors = DetectorBank(config.decision, monitor._sources(), calibrator)
         for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
             log.warning("%s", message)
+        monitor.operating = OperatingRange.from_state(state.get("operating"))
         monitor._report_model(" (learned before the restart)")
         return monitor
 
@@ -284,3 +304,10 @@ class JointMonitor:
             log.warning("joint %d: %s; relearning it", self.joint, exc)
         except (KeyError, TypeError, ValueError) as exc:
             log.warning("joint %d: saved %s state unusable (%s); relearning it", self.joint, spec.name, exc)
+
+
+def _covariates(cycle: CycleInput) -> dict[str, float | None]:
+    """The cycle's operating conditions: |load torque| (measured at the plateaus, else the controller's
+    estimate) and the mean motor temperature [°C]."""
+    load = cycle.friction.load_torque if cycle.friction.load_torque is not None else cycle.load_mean
+    return {"load": None if load is None else abs(load), "motor_temperature": cycle.motor_temperature}

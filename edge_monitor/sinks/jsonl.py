@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 from typing import Any, TextIO
 
-from edge_monitor.records import Alarm, Health, Symptom, to_json
+from edge_monitor.records import Advisory, Alarm, Health, Symptom, to_json
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +103,10 @@ class JsonlSink:
     def on_alarm(self, alarm: Alarm) -> None:
         if self.include_alarms:
             self._write({"kind": "alarm", **alarm.to_dict()})
+
+    def on_advisory(self, advisory: Advisory) -> None:
+        if self.include_alarms:
+            self._write({"kind": "advisory", **advisory.to_dict()})
 
     def on_health(self, health: Health) -> None:
         """Health is not written to the symptom file."""

@@ -1,6 +1,6 @@
 """The Zenoh key space of the agent (docs/OUTPUTS.md), built and parsed in one place.
 
-    edge/<robot>/<joint>/{symptom,alarm,friction,state,maintenance}
+    edge/<robot>/<joint>/{symptom,alarm,advisory,friction,state,maintenance}
     edge/<robot>/agent/health          edge/<robot>/agent (liveliness token)
 """
 
@@ -11,11 +11,12 @@ from dataclasses import dataclass
 
 SYMPTOM = "symptom"
 ALARM = "alarm"
+ADVISORY = "advisory"
 FRICTION = "friction"
 HEALTH = "health"
 STATE = "state"
 MAINTENANCE = "maintenance"
-KINDS = (SYMPTOM, ALARM, FRICTION, HEALTH)
+KINDS = (SYMPTOM, ALARM, ADVISORY, FRICTION, HEALTH)
 AGENT = "agent"
 PREFIX = "edge"
 #: A robot name is one key segment: no key-expression syntax (``/ * $ ? #``), no spaces.

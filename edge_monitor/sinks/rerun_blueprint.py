@@ -36,6 +36,7 @@ def fleet_blueprint(layout: Mapping[str, set[int]], health_robots: set[str]) -> 
                 rrb.Spatial2DView(origin=f"{base}/density", name="torque density: cycle vs nominal"),
                 rrb.TimeSeriesView(origin=f"{base}/temperature", name="lubricant temperature °C"),
                 rrb.TextLogView(origin=f"{base}/alarms", name="alarms"),
+                rrb.TextLogView(origin=f"{base}/advisories", name="advisories (not faults)"),
                 grid_columns=2, name=f"{robot} · joint {joint}"))
     for robot in sorted(set(layout) | health_robots):
         tabs.append(rrb.Vertical(

@@ -225,6 +225,17 @@ class Drawer:
         self.rec.send_columns(f"{joint_path(robot, joint)}/alarms", indexes=self._indexes(cycles, times),
                               columns=rr.TextLog.columns(text=texts, level=levels))
 
+    def advisories(self, robot: str, joint: int, block: list[dict]) -> None:
+        """Advisories (not faults) as their own text log of the joint, apart from its alarms."""
+        import rerun as rr
+
+        block.sort(key=lambda r: int(r["cycle"]))
+        texts = [f"cycle {r.get('cycle')}: {r.get('message') or r.get('advisory')}" for r in block]
+        cycles = np.array([int(r["cycle"]) for r in block], dtype=np.int64)
+        times = np.array([_number(r.get("t")) for r in block])
+        self.rec.send_columns(f"{joint_path(robot, joint)}/advisories", indexes=self._indexes(cycles, times),
+                              columns=rr.TextLog.columns(text=texts, level=[rr.TextLogLevel.INFO] * len(texts)))
+
     def health(self, robot: str, rows: list[tuple[float, dict[str, float]]]) -> None:
         import rerun as rr
 

@@ -40,7 +40,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from edge_monitor.records import Alarm, Health, Symptom
+from edge_monitor.records import Advisory, Alarm, Health, Symptom
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.rerun_blueprint import fleet_blueprint
 from edge_monitor.sinks.rerun_draw import DENSITY_HEIGHT, FRICTION_SCALE, Y_UP, Drawer, cycle_colors, wear_bounds
@@ -184,16 +184,17 @@ class RerunSink:
                 self._fail("symptom", ValueError(f"record without robot/joint/cycle: {exc!r}"))
         self._enqueue([("symptom", item) for item in accepted])
 
-    def log_alarm(self, record: dict) -> None:
-        """Draw an alarm raised/cleared record as a text-log entry of its joint (with the next block)."""
+    def log_alarm(self, record: dict, kind: str = "alarm") -> None:
+        """Draw an alarm raised/cleared record (``kind="advisory"``: an advisory) as a text-log entry of
+        its joint (with the next block)."""
         if self.rec is None:
             return
         try:
             item = (str(record["robot"]), int(record["joint"]), int(record["cycle"]), record)
         except (KeyError, TypeError, ValueError) as exc:
-            self._fail("alarm", ValueError(f"alarm without robot/joint/cycle: {exc!r}"))
+            self._fail(kind, ValueError(f"{kind} without robot/joint/cycle: {exc!r}"))
             return
-        self._enqueue([("alarm", item)])
+        self._enqueue([(kind, item)])
 
     def log_health(self, record: dict, robot: str | None = None) -> None:
         """Draw the numeric fields of an agent health record on the ``wall_time`` timeline."""
@@ -276,6 +277,7 @@ class RerunSink:
         draw = self.draw
         symptoms: dict[tuple[str, int], list[dict]] = defaultdict(list)
         alarms: dict[tuple[str, int], list[dict]] = defaultdict(list)
+        advisories: dict[tuple[str, int], list[dict]] = defaultdict(list)
         health: dict[str, list[tuple[float, dict[str, float]]]] = defaultdict(list)
         for kind, item in pending:
             if kind == "health":
@@ -284,7 +286,7 @@ class RerunSink:
                 self._health_robots.add(robot)
             else:
                 robot, joint, cycle, record = item
-                (symptoms if kind == "symptom" else alarms)[(robot, joint)].append(record)
+                {"symptom": symptoms, "advisory": advisories}.get(kind, alarms)[(robot, joint)].append(record)
                 self._layout[robot].add(joint)
         layout = (frozenset((r, j) for r, js in self._layout.items() for j in js), frozenset(self._health_robots))
         if layout != self._sent_layout and (symptoms or alarms or self._stop.is_set()):
@@ -295,6 +297,8 @@ class RerunSink:
             self.records_logged += self._draw_block(draw.symptoms, "symptom", robot, joint, block)
         for (robot, joint), block in alarms.items():
             self.alarms_logged += self._draw_block(draw.alarms, "alarm", robot, joint, block)
+        for (robot, joint), block in advisories.items():
+            self._draw_block(draw.advisories, "advisory", robot, joint, block)
         for robot, rows in health.items():
             try:
                 draw.health(robot, rows)
@@ -364,6 +368,9 @@ class RerunViewSink:
 
     def on_alarm(self, alarm: Alarm) -> None:
         self.rerun.log_alarm(alarm.to_dict())
+
+    def on_advisory(self, advisory: Advisory) -> None:
+        self.rerun.log_alarm(advisory.to_dict(), kind="advisory")
 
     def on_health(self, health: Health) -> None:
         self.rerun.log_health(health.numbers(), robot=health.robot)

@@ -25,8 +25,9 @@ from typing import Any, Callable, Iterable
 import zenoh
 import zenoh.ext as zext
 
-from edge_monitor.records import Alarm, Health, Symptom, to_json
+from edge_monitor.records import Advisory, Alarm, Health, Symptom, to_json
 from edge_monitor.sinks.keys import (
+    ADVISORY,
     ALARM,
     FRICTION,
     HEALTH,
@@ -42,7 +43,7 @@ from edge_monitor.sinks.keys import (
 
 log = logging.getLogger(__name__)
 
-_STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", FRICTION: "friction", HEALTH: "health"}
+_STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", ADVISORY: "advisories", FRICTION: "friction", HEALTH: "health"}
 
 DEFAULT_CACHE_SIZE = 256          # samples per advanced publisher (≈ 2 h of 30 s cycles)
 HEARTBEAT_S = 0.5                 # sample-miss heartbeat period, s
@@ -100,6 +101,7 @@ class SymptomPublisher:
                 publishers = {
                     SYMPTOM: self._advanced(joint_key(self.robot, joint, SYMPTOM)),
                     ALARM: self._advanced(joint_key(self.robot, joint, ALARM)),
+                    ADVISORY: self._advanced(joint_key(self.robot, joint, ADVISORY)),
                     FRICTION: self.session.declare_publisher(
                         joint_key(self.robot, joint, FRICTION), encoding=zenoh.Encoding.APPLICATION_JSON,
                         congestion_control=zenoh.CongestionControl.DROP),
@@ -133,6 +135,10 @@ class SymptomPublisher:
     def publish_alarm(self, record: dict) -> bool:
         """Publish one alarm raised/cleared record."""
         return self._put(ALARM, record.get("joint"), record)
+
+    def publish_advisory(self, record: dict) -> bool:
+        """Publish one advisory (not a fault: e.g. an operating condition outside the learned range)."""
+        return self._put(ADVISORY, record.get("joint"), record)
 
     def publish_friction(self, record: dict) -> bool:
         """Publish the friction curve of a cycle (``Symptom.friction_record()``)."""
@@ -338,6 +344,9 @@ class ZenohSink:
 
     def on_alarm(self, alarm: Alarm) -> None:
         self.publisher.publish_alarm(alarm.to_dict())
+
+    def on_advisory(self, advisory: Advisory) -> None:
+        self.publisher.publish_advisory(advisory.to_dict())
 
     def on_health(self, health: Health) -> None:
         self.publisher.publish_health(health.to_dict())

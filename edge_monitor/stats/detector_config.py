@@ -32,7 +32,7 @@ DEFAULT_STEADY_NOMINAL = 240
 #: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
 #: fingerprint, so that states saved before the steady stage existed still match (a saved steady
 #: nominal without a transform is watched untransformed, as it was learned).
-STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson", "values")
+STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson", "model")
 #: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
 MAX_NOMINAL = 10_000
 #: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
@@ -62,7 +62,7 @@ class DetectorConfig:
 
     dim: int = 1
     n_nominal: int = DEFAULT_NOMINAL
-    density: str = "gce"
+    density: str = "gauss"
     window: int = DEFAULT_WINDOW
     gamma0: float = 0.6
     rho: float = 1.0
@@ -82,7 +82,7 @@ class DetectorConfig:
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
     transform_axes: tuple[bool, ...] = ()
-    steady_simulate_from: str = "values"
+    steady_simulate_from: str = "model"
 
     def __post_init__(self) -> None:
         try:

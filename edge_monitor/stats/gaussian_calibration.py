@@ -107,20 +107,29 @@ def threshold(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], a
               budget: GaussianBudget = GaussianBudget()) -> GaussianThreshold:
     """The threshold for ``arl0`` (see the module docstring). The simulation is cached per settings,
     correlation and budget: every target of one detector family costs one simulation."""
+    return thresholds(settings, corr, (arl0,), budget)[0]
+
+
+def thresholds(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], targets: tuple[float, ...],
+               budget: GaussianBudget = GaussianBudget()) -> list[GaussianThreshold]:
+    """:func:`threshold` for several targets from one simulation and one bootstrap."""
     started = time.process_time()
     sim = simulate(settings, corr, budget)
-    h, method, alarmed = read_threshold(sim.events, sim.exposure, sim.grid, float(arl0), budget.streams)
+    found = [read_threshold(sim.events, sim.exposure, sim.grid, float(t), budget.streams) for t in targets]
     rng = np.random.default_rng([SEED, 2])
-    boot = []
+    boot: list[list[float]] = [[] for _ in targets]
     for _ in range(BOOTSTRAP):
         pick = rng.integers(0, sim.events.shape[0], sim.events.shape[0])
-        try:
-            boot.append(read_threshold(sim.events[pick], sim.exposure[pick], sim.grid, float(arl0), budget.streams)[0])
-        except ValueError:
-            continue
-    h_se = float(np.std(boot, ddof=1)) if len(boot) > 1 else math.inf
-    return GaussianThreshold(h, h_se, float(arl0), method, alarmed, budget.nominals * budget.streams, budget.steps,
-                             sim.cpu_s + time.process_time() - started)
+        curve = fleet_curve(sim.events[pick], sim.exposure[pick], budget.streams)
+        for k, target in enumerate(targets):
+            try:
+                boot[k].append(read_from_curve(*curve, sim.grid, float(target))[0])
+            except ValueError:
+                continue
+    cpu = sim.cpu_s + time.process_time() - started
+    return [GaussianThreshold(h, float(np.std(b, ddof=1)) if len(b) > 1 else math.inf, float(t), method, alarmed,
+                              budget.nominals * budget.streams, budget.steps, cpu)
+            for (h, method, alarmed), b, t in zip(found, boot, targets)]
 
 
 @dataclass(frozen=True)
@@ -128,8 +137,8 @@ class Simulation:
     """First passages per nominal and grid threshold (G, H), their exposure [cycles], the grid [nats]
     and the CPU time the simulation took [s]."""
 
-    events: NDArray[np.float64]
-    exposure: NDArray[np.float64]
+    events: NDArray[np.float32]
+    exposure: NDArray[np.float32]
     grid: NDArray[np.float64]
     cpu_s: float
 
@@ -156,7 +165,7 @@ def simulate(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], bu
         exposure.append(np.where(alarmed, passage + 1, budget.steps).reshape(shape).sum(axis=1))
         if progress:
             log.info("calibration simulation: %d/%d nominals", first + g, budget.nominals)
-    ev, ex = np.concatenate(events).astype(float), np.concatenate(exposure).astype(float)
+    ev, ex = np.concatenate(events).astype(np.float32), np.concatenate(exposure).astype(np.float32)   # exact
     used = int(np.flatnonzero(ev.sum(axis=0) > 0)[-1]) + 2 if ev.any() else 1
     return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started)
 
@@ -198,20 +207,26 @@ def _passages(glr: GaussianBatchGLR, settings: GaussianSettings, lower_chol: NDA
     return first
 
 
-def fleet_rate(events: NDArray[np.float64], exposure: NDArray[np.float64], streams_censored: NDArray[np.bool_]
-               ) -> NDArray[np.float64]:
-    """Mean over nominals of their false-alarm rates per cycle: e/X, or (e − 1)/X where no stream of
-    the nominal was censored (then X is a sum of e exponential times and e/X overstates the rate)."""
-    rates = np.where(streams_censored, events, np.maximum(events - 1.0, 0.0)) / exposure
-    return rates.mean(axis=0)
+def fleet_curve(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per grid threshold: the mean over nominals of their false-alarm rates per cycle — e/X, or
+    (e − 1)/X where none of the nominal's ``streams`` detectors was censored (then X is a sum of e
+    exponential times and e/X overstates the rate) — and the detectors that alarmed in all."""
+    ev, ex = np.asarray(events, dtype=float), np.asarray(exposure, dtype=float)
+    rates = np.where(ev < streams, ev, np.maximum(ev - 1.0, 0.0)) / ex
+    return rates.mean(axis=0), ev.sum(axis=0)
 
 
-def read_threshold(events: NDArray[np.float64], exposure: NDArray[np.float64], grid: NDArray[np.float64],
+def read_threshold(events: NDArray[np.floating], exposure: NDArray[np.floating], grid: NDArray[np.float64],
                    arl0: float, streams: int) -> tuple[float, str, int]:
     """h for ``arl0`` from per-nominal first passages ``events`` and ``exposure`` (G, H) on ``grid`` of
     ``streams`` detectors per nominal; ``ValueError`` when the simulation cannot tell (module docstring)."""
-    rate = fleet_rate(events, exposure, events < streams)
-    total = events.sum(axis=0)
+    return read_from_curve(*fleet_curve(events, exposure, streams), grid, arl0)
+
+
+def read_from_curve(rate: NDArray[np.float64], total: NDArray[np.float64], grid: NDArray[np.float64],
+                    arl0: float) -> tuple[float, str, int]:
+    """h for ``arl0`` from the fleet's rate and alarmed detectors per grid threshold (:func:`fleet_curve`)."""
     reliable = (total >= MIN_EVENTS_DIRECT) & (rate > 0)
     if not reliable.any():
         raise ValueError("too few simulated alarms to calibrate; give a larger calibration budget")

@@ -76,6 +76,7 @@ class SequentialDetector:
         self.skipped_nonfinite = 0
         self.skipped_bad_shape = 0
         self.resets = 0
+        self.fits = 0                      # nominals fitted so far (warm-up, steady, after resets)
         self._clear()
 
     def _clear(self) -> None:
@@ -95,6 +96,11 @@ class SequentialDetector:
     @property
     def state(self) -> str:
         return "learning" if self._glr is None else "monitoring"
+
+    @property
+    def collecting(self) -> bool:
+        """Whether the values fed now go into a nominal being learned (warm-up or steady)."""
+        return self._glr is None or (self._steady_values is not None and self._latched is None)
 
     @property
     def alarmed(self) -> bool:
@@ -175,7 +181,7 @@ class SequentialDetector:
 
     def counters(self) -> dict[str, int]:
         return {"skipped_nonfinite": self.skipped_nonfinite, "skipped_bad_shape": self.skipped_bad_shape,
-                "resets": self.resets}
+                "resets": self.resets, "fits": self.fits}
 
     def _as_vector(self, value: float | Sequence[float]) -> tuple[np.ndarray | None, str]:
         try:
@@ -228,6 +234,7 @@ class SequentialDetector:
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""
+        self.fits += 1
         self._collect_calibration(cycle)
         log.info("%s nominal %s density learned (%d components); monitoring from cycle %s",
                  self.stage, self._density_kind, density.n_components, cycle)
@@ -349,6 +356,7 @@ class SequentialDetector:
         det.skipped_nonfinite = int(counters.get("skipped_nonfinite", 0))
         det.skipped_bad_shape = int(counters.get("skipped_bad_shape", 0))
         det.resets = int(counters.get("resets", 0))
+        det.fits = int(counters.get("fits", 0))
         return det
 
 

@@ -1,0 +1,119 @@
+"""The operating conditions a joint's detectors learned in, and the cycles outside them (docs/DETECTION.md,
+"Operating conditions").
+
+The detectors watch quantities made invariant to the measured operating conditions within the range
+they were learned in: the wear likelihood marginalises the load, the KL distances are moved to the
+reference load and temperature with the joint's friction model. Outside that range the invariance is
+an extrapolation of the model, so the agent says so: per joint it keeps, for each covariate, the range
+of the cycles its current nominals were learned from (:meth:`OperatingRange.update` with
+``collecting`` while a detector collects nominal values, ``fitted`` when one fits its nominal), and
+reports each cycle's covariates, which of them lie outside the learned range widened by a margin, and
+an advisory when a covariate leaves the range or comes back. The detectors keep monitoring (their
+quantities are compensated, and holding them would blind the agent to wear during a new regime);
+every alarm carries the covariates next to the learned range.
+
+Covariates: ``load`` — |load torque| of the cycle (measured at the plateaus, else the controller's
+estimate; dimensionless); ``motor_temperature`` — the cycle's mean motor temperature [°C].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+#: Covariates tracked, and the smallest margin around a learned range that still counts as inside:
+#: a load 0.02 (≈ the scatter of the plateau measurement and the wire resolution many times over),
+#: a motor temperature 2 °C (its per-cycle scatter is ≈ 3 °C in the simulator).
+MARGINS: dict[str, float] = {"load": 0.02, "motor_temperature": 2.0}
+#: Margin as a fraction of the learned span (the larger of the two applies).
+RELATIVE_MARGIN = 0.1
+
+
+@dataclass
+class _Span:
+    lo: float = math.inf
+    hi: float = -math.inf
+
+    def add(self, value: float) -> None:
+        self.lo, self.hi = min(self.lo, value), max(self.hi, value)
+
+    @property
+    def empty(self) -> bool:
+        return self.lo > self.hi
+
+
+@dataclass(frozen=True)
+class RangeEvent:
+    """A covariate left (``"entered"`` the outside) or came back into its learned range."""
+
+    covariate: str
+    state: str                    # "entered" | "left"
+    value: float
+    learned: tuple[float, float]
+
+
+@dataclass
+class OperatingRange:
+    """See the module docstring."""
+
+    learned: dict[str, _Span] = field(default_factory=dict)
+    collecting: dict[str, _Span] = field(default_factory=dict)
+    outside: set[str] = field(default_factory=set)
+
+    def update(self, values: dict[str, float | None], collecting: bool, fitted: bool) -> list[RangeEvent]:
+        """One cycle's covariates; ``collecting``: its values went into a nominal being learned;
+        ``fitted``: a nominal was fitted this cycle (the collected range becomes the learned one)."""
+        known = {k: float(v) for k, v in values.items() if v is not None and math.isfinite(v) and k in MARGINS}
+        if collecting:
+            for name, value in known.items():
+                self.collecting.setdefault(name, _Span()).add(value)
+        if fitted and self.collecting:
+            self.learned, self.collecting = self.collecting, {}
+        events = []
+        for name, value in known.items():
+            span = self.learned.get(name)
+            if span is None or span.empty:
+                continue
+            margin = max(MARGINS[name], RELATIVE_MARGIN * (span.hi - span.lo))
+            out = not span.lo - margin <= value <= span.hi + margin
+            if out != (name in self.outside):
+                events.append(RangeEvent(name, "entered" if out else "left", value, (span.lo, span.hi)))
+                (self.outside.add if out else self.outside.discard)(name)
+        return events
+
+    def section(self, values: dict[str, float | None]) -> dict[str, Any]:
+        """The symptom's ``operating`` section: the covariates, the learned ranges, those outside."""
+        return {"covariates": {k: v for k, v in values.items() if k in MARGINS},
+                "learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
+                "outside": sorted(self.outside)}
+
+    def reset(self) -> None:
+        """A declared maintenance: the nominals are learned again, and so is their range."""
+        self.learned, self.collecting, self.outside = {}, {}, set()
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
+                "collecting": {k: [s.lo, s.hi] for k, s in self.collecting.items() if not s.empty},
+                "outside": sorted(self.outside)}
+
+    @classmethod
+    def from_state(cls, state: Any) -> "OperatingRange":
+        """Restore; an unusable state gives an empty range (learned again with the next nominals)."""
+        out = cls()
+        if not isinstance(state, dict):
+            return out
+        for key in ("learned", "collecting"):
+            spans = state.get(key)
+            if isinstance(spans, dict):
+                getattr(out, key).update({name: _Span(float(v[0]), float(v[1])) for name, v in spans.items()
+                                          if name in MARGINS and _pair(v)})
+        outside = state.get("outside")
+        if isinstance(outside, list):
+            out.outside = {name for name in outside if name in out.learned}
+        return out
+
+
+def _pair(value: Any) -> bool:
+    return (isinstance(value, list) and len(value) == 2
+            and all(isinstance(x, (int, float)) and math.isfinite(x) for x in value) and value[0] <= value[1])

@@ -1,0 +1,68 @@
+"""The operating conditions learned with the nominals, and the advisories outside them
+(edge_monitor/pipeline/operating_range.py)."""
+
+from __future__ import annotations
+
+import json
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from edge_monitor.pipeline.operating_range import OperatingRange
+from edge_monitor.records import Advisory
+
+
+def _learned(loads: list[float], temperatures: list[float]) -> OperatingRange:
+    rng = OperatingRange()
+    for k, (load, temp) in enumerate(zip(loads, temperatures)):
+        rng.update({"load": load, "motor_temperature": temp}, collecting=True, fitted=k == len(loads) - 1)
+    return rng
+
+
+def test_the_range_is_that_of_the_cycles_the_nominal_was_learned_from() -> None:
+    rng = _learned([0.3, 0.5, 0.7], [40.0, 42.0, 41.0])
+    assert rng.section({"load": 0.5, "motor_temperature": 41.0}) == {
+        "covariates": {"load": 0.5, "motor_temperature": 41.0},
+        "learned": {"load": [0.3, 0.7], "motor_temperature": [40.0, 42.0]}, "outside": []}
+
+
+def test_a_load_beyond_the_margin_enters_and_leaves_once() -> None:
+    rng = _learned([0.3, 0.5, 0.7], [40.0, 42.0, 41.0])
+    assert rng.update({"load": 0.74, "motor_temperature": 41.0}, False, False) == []    # inside the 0.04 margin
+    events = rng.update({"load": 0.9, "motor_temperature": 41.0}, False, False)
+    assert [(e.covariate, e.state, e.learned) for e in events] == [("load", "entered", (0.3, 0.7))]
+    assert rng.update({"load": 0.95, "motor_temperature": 41.0}, False, False) == []    # still outside: no new event
+    assert rng.section({"load": 0.95})["outside"] == ["load"]
+    assert [e.state for e in rng.update({"load": 0.6, "motor_temperature": 41.0}, False, False)] == ["left"]
+
+
+def test_a_new_nominal_replaces_the_range_and_a_reset_forgets_it() -> None:
+    rng = _learned([0.3, 0.7], [30.0, 35.0])
+    for k, temp in enumerate([50.0, 52.0, 51.0]):          # the steady nominal, learned warm
+        rng.update({"load": 0.5, "motor_temperature": temp}, collecting=True, fitted=k == 2)
+    events = rng.update({"load": 0.5, "motor_temperature": 33.0}, False, False)     # cold after a stop
+    assert [(e.covariate, e.state) for e in events] == [("motor_temperature", "entered")]
+    rng.reset()
+    assert rng.update({"load": 2.0, "motor_temperature": 0.0}, False, False) == []
+
+
+def test_unknown_covariates_are_ignored_and_the_state_round_trips() -> None:
+    rng = _learned([0.3, 0.7], [30.0, 35.0])
+    rng.update({"load": None, "motor_temperature": float("nan")}, False, False)
+    rng.update({"load": 1.0, "motor_temperature": 33.0}, False, False)
+    again = OperatingRange.from_state(json.loads(json.dumps(rng.state_dict())))
+    assert again.state_dict() == rng.state_dict()
+    assert OperatingRange.from_state({"learned": {"load": ["x", 1]}, "outside": ["load"]}).state_dict() == {
+        "learned": {}, "collecting": {}, "outside": []}
+
+
+@given(st.dictionaries(st.text(max_size=12), st.one_of(st.none(), st.floats(), st.lists(st.floats(), max_size=3),
+                                                        st.text(max_size=5)), max_size=4))
+def test_any_saved_state_restores_without_error(state: dict) -> None:
+    OperatingRange.from_state({"learned": state, "collecting": state, "outside": list(state)})
+
+
+def test_the_advisory_says_what_it_is() -> None:
+    record = Advisory("r1", 2, 700, "operating_range", "entered", "load", 0.93, (0.3, 0.7)).to_dict()
+    assert record["advisory"] == "operating_range" and record["state"] == "entered"
+    assert "not wear" in record["message"] and record["learned"] == [0.3, 0.7]
