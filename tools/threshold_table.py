@@ -47,11 +47,9 @@ OUT = ROOT / "edge_monitor" / "stats" / "data" / "gaussian_thresholds.json"
 
 def shipped_settings(config: DecisionConfig | None = None) -> list[GaussianSettings]:
     """The warm-up and steady settings of the agent's scalar detectors."""
-    config = config or DecisionConfig()
-    common = dict(window=config.window, gamma0=config.gamma0, rho=config.rho, direction=config.direction,
-                  allowance=float(config.allowance), clip_sigma=float(config.clip_sigma))
-    return [GaussianSettings(n0=config.n_nominal, at=config.calibrate_at, **common),
-            GaussianSettings(n0=config.steady_nominal, at=config.steady_calibrate_at, **common)]
+    c = config or DecisionConfig()
+    return [GaussianSettings(n0, c.window, c.gamma0, c.rho, c.direction, float(c.allowance), float(c.clip_sigma), at)
+            for n0, at in ((c.n_nominal, c.calibrate_at), (c.steady_nominal, c.steady_calibrate_at))]
 
 
 def entry(settings: GaussianSettings, budget: GaussianBudget) -> dict[str, object]:
