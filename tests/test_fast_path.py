@@ -1,5 +1,5 @@
-"""The simulator's cycle-level mode fed to the agent gives the same per-cycle quantities as the full frame
-path (`sim-controller record` → `edge-monitor replay`) with the same seed."""
+"""The simulator's cycle-level mode fed to the agent gives the same per-cycle quantities, statistics and
+thresholds as the full frame path (`sim-controller record` → `edge-monitor replay`) with the same seed."""
 
 from __future__ import annotations
 
@@ -48,6 +48,7 @@ def test_cycle_mode_gives_the_frame_path_quantities(tmp_path: Path):
 
     assert [(s["joint"], s["cycle"]) for s in fast] == [(s["joint"], s["cycle"]) for s in framed]
     assert len(fast) == 18
+    thresholds: list[str] = []
     for a, b in zip(fast, framed):
         np.testing.assert_allclose(a["friction"]["torque"], b["friction"]["torque"], rtol=1e-12, atol=1e-15)
         for section, key in (("wear", "estimate"), ("wear", "temperature"), ("kl", "raw"), ("kl", "weighted")):
@@ -60,6 +61,12 @@ def test_cycle_mode_gives_the_frame_path_quantities(tmp_path: Path):
             assert a["decisions"][quantity]["state"] == decision["state"]
             if decision["statistic"] is not None:
                 assert a["decisions"][quantity]["statistic"] == pytest.approx(decision["statistic"], rel=1e-6)
+            # the same thresholds: a scalar's depends only on the settings, the joint vector's on the
+            # correlation of its learned values (equal here to ~1e-6), through a simulation with fixed draws
+            if decision["threshold"] is not None:
+                thresholds.append(quantity)
+                assert a["decisions"][quantity]["threshold"] == pytest.approx(decision["threshold"], rel=1e-3)
+    assert {"wear", "kl_raw", "kl_weighted", "joint"} <= set(thresholds)
 
 
 def test_detector_inputs_are_the_symptoms_values_once_each_joint_has_learned() -> None:

@@ -125,6 +125,8 @@ class SequentialDetector:
         out: dict[str, Any] = {"arl0": self.config.arl0, "at": self._calibrate_at, "stage": self.stage}
         if self.calibration is not None:
             out["method"] = self.calibration.method
+            if self.calibration.h_se is not None:
+                out["h_se"] = self.calibration.h_se
         elif self._glr is not None:
             out["method"] = "pending"
         return out
