@@ -7,8 +7,14 @@ import json
 
 import numpy as np
 import pytest
+from test_agent_pipeline import feed as feed_frames
+from test_agent_pipeline import small_config
 
+from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
+from edge_monitor.pipeline.state_store import StateStore
+
+from synthetic_frames import make_frames
 
 QUANTITIES = ("wear", "kl_raw", "kl_weighted")
 
@@ -101,3 +107,40 @@ def test_an_acknowledgement_survives_a_state_save_and_restore(latched):
     values = healthy(rng)
     (after, raised), (control, _) = (b.update(values, "r1", 2, 66) for b in (restored, bank))
     assert raised == [] and after["wear"] == control["wear"]     # continues exactly as the live bank
+
+
+# -- the agent: sinks, state file, restart ------------------------------------------------------------
+
+
+class AlarmSink:
+    def __init__(self) -> None:
+        self.alarms: list[dict] = []
+
+    def on_symptom(self, symptom) -> None: pass
+    def on_alarm(self, alarm) -> None: self.alarms.append(alarm.to_dict())
+    def on_health(self, health) -> None: pass
+    def close(self) -> None: pass
+
+
+def test_the_agent_acknowledges_sends_the_event_and_a_restart_does_not_bring_the_alarm_back(tmp_path):
+    frames = make_frames(14, joints=(0,), wear=lambda j, c: 0.0 if c < 5 else 60.0, seed=9)
+    sink = AlarmSink()
+    agent = Agent(small_config(), sinks=[sink], state_store=StateStore(tmp_path))
+    feed_frames(agent, frames)
+    assert "wear" in {a["quantity"] for a in sink.alarms if a["state"] == "raised"}
+    with pytest.raises(ValueError, match="joint 3: nothing learned yet"):
+        agent.acknowledge(3)
+    result = agent.acknowledge(0, ["wear"], by="alice", note="probe knocked the arm")
+    event = [a for a in sink.alarms if a["state"] == "acknowledged"]
+    assert event == [a.to_dict() for a in result.alarms] and len(event) == 1
+    assert event[0]["quantity"] == "wear" and event[0]["by"] == "alice" and event[0]["note"] == "probe knocked the arm"
+    assert event[0]["cycle"] == 12                     # the last cycle published (cycle 13 is still open)
+    assert agent.health().counters["alarms_acknowledged"] == 1
+    # the state was saved by the acknowledgement itself (no cycle closed since): a restart keeps it
+    restarted = Agent(small_config(), state_store=StateStore(tmp_path))
+    saved = restarted.state_dict()["joints"]["0"]
+    assert saved["acknowledgements"] == 1 and saved["detectors"]["wear"]["latched"] is None
+    still = sorted(q for q in ("kl_raw", "kl_weighted") if agent.joints[0].detectors.detectors[q].alarmed)
+    assert still                                   # the other side: what was not acknowledged stays latched
+    again = restarted.acknowledge(0)
+    assert sorted(a.quantity for a in again.alarms) == still and "wear" in again.not_latched
