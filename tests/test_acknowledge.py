@@ -4,15 +4,28 @@ restart) and the request payload (validated, size-capped; never a traceback)."""
 from __future__ import annotations
 
 import json
+import logging
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_agent_pipeline import feed as feed_frames
 from test_agent_pipeline import small_config
 
+from edge_monitor.config import AgentConfig, ConfigError, config_from_mapping
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
 from edge_monitor.pipeline.state_store import StateStore
+from edge_monitor.sinks.acknowledge import (
+    FIELDS,
+    MAX_PAYLOAD_BYTES,
+    AcknowledgeConfig,
+    AcknowledgeRequest,
+    parse_request,
+)
+from edge_monitor.sinks.control_gate import ControlGate
+from edge_monitor.sinks.maintenance import MaintenanceConfig
 
 from synthetic_frames import make_frames
 
@@ -144,3 +157,102 @@ def test_the_agent_acknowledges_sends_the_event_and_a_restart_does_not_bring_the
     assert still                                   # the other side: what was not acknowledged stays latched
     again = restarted.acknowledge(0)
     assert sorted(a.quantity for a in again.alarms) == still and "wear" in again.not_latched
+
+
+# -- the request payload and the gate ----------------------------------------------------------------
+
+JSON_VALUES = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=80),
+                           lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=12), inner,
+                                                                                          max_size=5),
+                           max_leaves=20)
+
+
+@pytest.mark.parametrize("payload, request_", [
+    (b"", AcknowledgeRequest()),
+    (b"  {}  ", AcknowledgeRequest()),
+    (b'{"quantities": ["kl_raw", "wear", "kl_raw"]}', AcknowledgeRequest(("kl_raw", "wear"))),
+    ('{"by": "Zoë", "note": "probe knocked the arm"}'.encode(), AcknowledgeRequest(None, "Zoë", "probe knocked the arm")),
+    (b'{"quantities": null, "by": null}', AcknowledgeRequest()),
+])
+def test_valid_payloads(payload, request_):
+    assert parse_request(payload) == request_
+
+
+@pytest.mark.parametrize("payload, message", [
+    (b"wear", "not a UTF-8 JSON object"),
+    (b"\xff\xfe{}", "not a UTF-8 JSON object"),
+    (b'["wear"]', "must be a JSON object, got list"),
+    (b'{"quantity": ["wear"]}', "unknown field(s) 'quantity'; known: quantities, by, note"),
+    (b'{"quantities": "wear"}', "quantities: expected a non-empty list"),
+    (b'{"quantities": []}', "quantities: expected a non-empty list"),
+    (b'{"quantities": ["wear", "gearbox"]}', "quantities: unknown 'gearbox'"),
+    (b'{"by": ""}', "by: expected a string of 1 … 64 characters"),
+    (b'{"by": 7}', "by: expected a string"),
+    (b'{"by": "alice\\nWARNING forged"}', "by: control characters are not allowed"),
+    (b'{"note": "\\ud800"}', "note: control characters"),
+    (b'{"note": "' + b"x" * 501 + b'"}', "note: expected a string of 1 … 500 characters"),
+    (b" " * (MAX_PAYLOAD_BYTES + 1), f"at most {MAX_PAYLOAD_BYTES}"),
+    (b"[" * 3000 + b"]" * 3000, f"at most {MAX_PAYLOAD_BYTES}"),
+    (b"[" * 2000 + b"]" * 2000, "not a UTF-8 JSON object"),        # nested deeper than the parser recurses
+])
+def test_bad_payloads_are_refused_naming_the_field(payload, message):
+    with pytest.raises(ValueError) as info:
+        parse_request(payload)
+    assert message in str(info.value)
+
+
+@settings(max_examples=300)
+@given(st.binary(max_size=MAX_PAYLOAD_BYTES + 10))
+def test_random_bytes_never_raise_anything_but_a_value_error(payload):
+    try:
+        assert isinstance(parse_request(payload), AcknowledgeRequest)
+    except ValueError as exc:
+        assert str(exc)
+
+
+@settings(max_examples=300)
+@given(st.dictionaries(st.sampled_from(FIELDS) | st.text(max_size=8), JSON_VALUES, max_size=4))
+def test_random_json_objects_are_parsed_or_refused_with_a_message(data):
+    try:
+        request = parse_request(json.dumps(data).encode())
+    except ValueError as exc:
+        assert str(exc) and "\n" not in str(exc)
+        return
+    assert parse_request(request.to_payload()) == request            # what the CLI puts parses the same
+
+
+def test_the_acknowledge_gate_refuses_a_bad_payload_without_spending_the_rate_limit(caplog):
+    gate = ControlGate("r1", "acknowledge", allow=True, max_per_joint=1, parse=parse_request)
+    applied: list[tuple[int, AcknowledgeRequest]] = []
+    callback = gate.callback(lambda joint, request: applied.append((joint, request)))
+
+    class Sample:
+        def __init__(self, key: str, payload: bytes) -> None:
+            self.key_expr, self.payload, self.attachment, self.source_info = key, payload, None, None
+
+    with caplog.at_level(logging.WARNING, logger="edge_monitor.sinks.acknowledge"):
+        for key, payload in (("edge/r1/2/acknowledge", b'{"quantities": ["gearbox"]}'),
+                             ("edge/*/2/acknowledge", b""), ("edge/r1/2/maintenance", b""),
+                             ("edge/r1/2/acknowledge", b'{"quantities": ["wear"], "by": "alice"}'),
+                             ("edge/r1/2/acknowledge", b"")):
+            callback(Sample(key, payload))
+    assert applied == [(2, AcknowledgeRequest(("wear",), "alice"))]
+    assert gate.stats() == {"acknowledge_accepted": 1, "acknowledge_refused_disabled": 0,
+                            "acknowledge_refused_bad_key": 2, "acknowledge_refused_bad_payload": 1,
+                            "acknowledge_refused_rate_limited": 1}
+    lines = [r.getMessage() for r in caplog.records]
+    assert any("acknowledgement refused for joint 2 (quantities: unknown 'gearbox'" in line for line in lines)
+    assert any(line.startswith("acknowledgement ACCEPTED for joint 2") for line in lines)
+
+
+def test_remote_acknowledgements_are_off_by_default_and_configured_in_their_own_table(tmp_path):
+    assert AgentConfig().acknowledge == AcknowledgeConfig(remote=False, max_per_joint=4, window_s=600.0)
+    config = config_from_mapping({"acknowledge": {"remote": True, "max_per_joint": 2}})
+    assert config.acknowledge == AcknowledgeConfig(remote=True, max_per_joint=2)
+    assert config.maintenance == MaintenanceConfig()
+    with pytest.raises(ConfigError, match=r"acknowledge\.max_per_joint: must be 1 … 1000, got 0"):
+        config_from_mapping({"acknowledge": {"max_per_joint": 0}})
+    with pytest.raises(ConfigError, match=r"acknowledge\.by: unknown key"):
+        config_from_mapping({"acknowledge": {"by": "x"}})
+    gate = ControlGate("r1", "acknowledge", parse=parse_request)
+    assert gate.decide("edge/r1/0/acknowledge", b"{}").reason == "disabled"

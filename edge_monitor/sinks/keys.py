@@ -1,6 +1,6 @@
 """The Zenoh key space of the agent (docs/OUTPUTS.md), built and parsed in one place.
 
-    edge/<robot>/<joint>/{symptom,alarm,friction,state,maintenance}
+    edge/<robot>/<joint>/{symptom,alarm,friction,state,maintenance,acknowledge}
     edge/<robot>/agent/health          edge/<robot>/agent (liveliness token)
 """
 
@@ -15,6 +15,7 @@ FRICTION = "friction"
 HEALTH = "health"
 STATE = "state"
 MAINTENANCE = "maintenance"
+ACKNOWLEDGE = "acknowledge"
 KINDS = (SYMPTOM, ALARM, FRICTION, HEALTH)
 AGENT = "agent"
 PREFIX = "edge"
