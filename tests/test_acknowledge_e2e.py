@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_run_e2e import CONFIG as RUN_CONFIG
 from test_run_e2e import send_frames
 
 from edge_monitor.sinks.loopback import free_loopback_port as free_port
@@ -30,22 +31,14 @@ pytestmark = pytest.mark.slow
 
 SPEEDS = (8.7, 41.7, 133.5)
 TICKS = cycle_profile(SPEEDS)[0].size
-CONFIG = """
-robot = "cell7"
-status_interval_s = 0.5
-[segmentation]
-speeds = [8.7, 41.7, 133.5]
-[model]
-enabled = false
-[kl]
-n_nominal_cycles = 2
-[decision]
-n_nominal = 3
-density = "gauss"
+#: test_run_e2e's agent, plus: small calibrations, no joint-model learning, no steady relearning (the
+#: detectors decide from the 4th cycle on and keep their nominal), status every 0.5 s.
+CONFIG = RUN_CONFIG.replace("status_interval_s = 1.0", "status_interval_s = 0.5") + """\
 calibration_draws = 16
 calibration_steps = 400
 steady_relearn = false
-quantities = ["wear", "kl_raw", "kl_weighted"]
+[model]
+enabled = false
 """
 WORN = 60.0            # wear of the faulty gearbox (healthy: 0); the wear score jumps far beyond 3σ
 WAIT_S = 60.0          # bound for what the agent reports; never a speed assertion
