@@ -256,3 +256,39 @@ def test_remote_acknowledgements_are_off_by_default_and_configured_in_their_own_
         config_from_mapping({"acknowledge": {"by": "x"}})
     gate = ControlGate("r1", "acknowledge", parse=parse_request)
     assert gate.decide("edge/r1/0/acknowledge", b"{}").reason == "disabled"
+
+
+# -- the command line: bad arguments and no agent ----------------------------------------------------
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--robot", "r/1", "--joint", "0"], "--robot: robot name 'r/1'"),
+    (["--robot", "r1", "--joint", "8"], "--joint 8: a joint index is 0 … 7"),
+    (["--robot", "r1", "--joint", "0", "--quantity", "gearbox"], "invalid choice: 'gearbox'"),
+    (["--robot", "r1", "--joint", "0", "--note", "a\nb"], "note: control characters are not allowed"),
+    (["--robot", "r1", "--joint", "0", "--timeout", "0"], "--timeout 0: must be > 0"),
+    (["--robot", "r1", "--joint", "0", "--tls-ca", "/no/ca.pem"], "TLS CA certificate file '/no/ca.pem' does not exist"),
+    (["--robot", "r1", "--joint", "0", "--tls-ca", "{pem}", "--zenoh-connect", "tcp/127.0.0.1:7447"],
+     "refusing to downgrade"),
+])
+def test_bad_arguments_exit_2_naming_the_option(args, message, tmp_path, capsys):
+    from edge_monitor.cli import main
+
+    pem = tmp_path / "ca.pem"
+    pem.write_text("-----BEGIN CERTIFICATE-----\nx\n-----END CERTIFICATE-----\n")
+    try:
+        code = main(["acknowledge", *[a.format(pem=pem) for a in args]])
+    except SystemExit as exc:                 # argparse's own checks (choices)
+        code = exc.code
+    assert code == 2 and message in capsys.readouterr().err
+
+
+def test_no_agent_exits_1_after_the_timeout():
+    import subprocess
+    import sys
+
+    from edge_monitor.sinks.loopback import free_loopback_port
+    done = subprocess.run([sys.executable, "-m", "edge_monitor.cli", "acknowledge", "--robot", "r1", "--joint", "0",
+                           "--zenoh-connect", f"tcp/127.0.0.1:{free_loopback_port()}", "--timeout", "1"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and "no agent answered for robot r1 joint 0 within 1 s" in done.stderr

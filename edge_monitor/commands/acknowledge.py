@@ -17,6 +17,7 @@ import json
 import sys
 import threading
 import time
+from dataclasses import replace
 from typing import Any
 
 from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
@@ -85,8 +86,7 @@ def _arguments(args: argparse.Namespace) -> tuple[AcknowledgeRequest, ZenohOptio
     try:
         options = zenoh_options(args)
         if args.tls_ca or args.tls_cert or args.tls_key:
-            options.tls = TlsFiles.from_paths(args.tls_ca, args.tls_cert, args.tls_key)
-            options.__post_init__()                 # checks the files
+            options = replace(options, tls=TlsFiles.from_paths(args.tls_ca, args.tls_cert, args.tls_key))
         options.to_config()                         # a bad config file or a plain endpoint with TLS
     except ZenohSetupError as exc:
         raise UsageError(str(exc)) from None

@@ -19,6 +19,14 @@ from typing import Any
 import zenoh
 
 from edge_monitor.errors import key_name
+from edge_monitor.sinks.zenoh_security import (
+    TlsFiles,
+    apply_settings,
+    check_no_downgrade,
+    client_tls_settings,
+    config_endpoints,
+    tls_settings_of,
+)
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +54,7 @@ class ZenohOptions:
     listen: list[str] = field(default_factory=list)
     connect: list[str] = field(default_factory=list)
     config_file: str | None = None
-    tls: Any = None
+    tls: TlsFiles | None = None
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode not in MODES:
@@ -109,15 +117,8 @@ def _insert(config: zenoh.Config, key: str, value: Any) -> None:
         raise ZenohSetupError(f"zenoh setting {key_name(key)}={value!r} rejected: {exc}") from exc
 
 
-def _client_tls(config: zenoh.Config, files: Any) -> None:
+def _client_tls(config: zenoh.Config, files: TlsFiles) -> None:
     """TLS client settings from ``files``; no plain-text connect endpoint may remain."""
-    from edge_monitor.sinks.zenoh_security import (
-        apply_settings,
-        check_no_downgrade,
-        client_tls_settings,
-        config_endpoints,
-        tls_settings_of,
-    )
     try:
         apply_settings(config, client_tls_settings(files))
         check_no_downgrade(config_endpoints(config, "connect"), tls_settings_of(config), "connect")
