@@ -2,7 +2,7 @@
 
 The command modules only parse arguments into an :class:`AgentConfig` and :class:`Outputs`;
 :func:`build_app` opens what the outputs name (JSONL file, Zenoh session and publisher, Rerun
-recording, the maintenance subscriber) with the agent, and registers their closing on an ExitStack.
+recording, the maintenance and acknowledgement subscribers) with the agent, and registers their closing on an ExitStack.
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ class Outputs:
 
     ``zenoh``: a :class:`~edge_monitor.sinks.zenoh_session.ZenohOptions`, or None for no Zenoh;
     ``rerun``: ``off`` | ``save:PATH`` | ``spawn`` | ``connect:URL``; ``maintenance``: listen for
-    maintenance declarations put on Zenoh (accepted only as ``config.maintenance`` allows).
+    operator requests put on Zenoh, maintenance declarations and acknowledgements (accepted only as
+    ``config.maintenance`` / ``config.acknowledge`` allow).
     """
 
     jsonl: str | None = None
@@ -46,12 +47,14 @@ class App:
     session: Any = None
     publisher: Any = None
     maintenance_gate: Any = None
+    acknowledge_gate: Any = None
 
     def extra_counters(self) -> dict[str, Any]:
-        """Counters of the outputs for the health record (maintenance gate, Zenoh delivery)."""
+        """Counters of the outputs for the health record (operator request gates, Zenoh delivery)."""
         out: dict[str, Any] = {}
-        if self.maintenance_gate is not None:
-            out.update(self.maintenance_gate.stats())
+        for gate in (self.maintenance_gate, self.acknowledge_gate):
+            if gate is not None:
+                out.update(gate.stats())
         if self.publisher is not None:
             out.update(self.publisher.stats())
         return out
@@ -79,9 +82,17 @@ def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) ->
                                      state_provider=app.agent.joint_state)
     log.info("zenoh: %s", outputs.zenoh.describe())
     if outputs.maintenance:
-        from edge_monitor.sinks.maintenance import gate_maintenance
-        app.maintenance_gate, subscriber = gate_maintenance(app.session, config.robot, config.maintenance,
-                                                            app.agent.declare_maintenance)
+        from edge_monitor.sinks.acknowledge import AcknowledgeRequest, parse_request
+        from edge_monitor.sinks.control_gate import open_gate
+
+        def acknowledge(joint: int, request: AcknowledgeRequest) -> None:
+            app.agent.acknowledge(joint, request.quantities, by=request.by, note=request.note)
+
+        app.maintenance_gate, subscriber = open_gate(app.session, config.robot, config.maintenance,
+                                                     app.agent.declare_maintenance)
+        stack.callback(subscriber.undeclare)
+        app.acknowledge_gate, subscriber = open_gate(app.session, config.robot, config.acknowledge, acknowledge,
+                                                     parse_request)
         stack.callback(subscriber.undeclare)
     return ZenohSink(app.publisher)
 

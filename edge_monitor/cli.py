@@ -31,6 +31,7 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("run", "run"), ("replay", "replay"), ("demo", "demo"), ("design", "design"),
     ("commission", "commission"), ("fit-weights", "fit_weights"), ("glr", "glr"), ("view", "view"),
     ("evaluate", "evaluate"),
+    ("acknowledge", "acknowledge"),
 )
 
 

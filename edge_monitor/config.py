@@ -22,6 +22,7 @@ from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import DecisionConfig
+from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import FrictionParams
 from protocol.frames import MAX_JOINTS
@@ -87,7 +88,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
     kwargs: dict[str, Any] = {}
     sections = {"segmentation": PlateauConfig, "model": ModelConfig, "wear": WearConfig, "kl": KLConfig,
                 "decision": DecisionConfig,
-                "maintenance": MaintenanceConfig}
+                "maintenance": MaintenanceConfig, "acknowledge": AcknowledgeConfig}
     for name, cls in sections.items():
         if name in data:
             kwargs[name] = _section(cls, data.pop(name), name)
@@ -125,7 +126,8 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
 
 #: Plain keys at the top of the TOML file (the structured fields have tables of their own).
 _TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
-    "friction", "joint_friction", "segmentation", "model", "wear", "kl", "decision", "maintenance", "zenoh"}
+    "friction", "joint_friction", "segmentation", "model", "wear", "kl", "decision", "maintenance", "acknowledge",
+    "zenoh"}
 
 
 def load_config(path: str | Path | None) -> AgentConfig:

@@ -89,28 +89,32 @@ class Decision:
 
 @dataclass(frozen=True)
 class Alarm:
-    """An alarm raised or cleared on one quantity of one joint."""
+    """An alarm event on one quantity of one joint: "raised" (a threshold crossing), "cleared" (a
+    declared maintenance: the detector relearns) or "acknowledged" (judged false by an operator: the
+    statistic restarts on the same nominal and threshold); ``by``/``note`` say who acknowledged and why."""
 
     robot: str
     joint: int
     cycle: int
     quantity: str
-    state: str                                # "raised" | "cleared"
+    state: str                                # "raised" | "cleared" | "acknowledged"
     statistic: float | None = None
     threshold: float | None = None
     miss_probability: float | None = None
     change_cycle: int | None = None
+    by: str | None = None
+    note: str | None = None
     #: why, as far as the agent can tell: the shift estimate in the quantity's units (per input) and the
     #: operating conditions then against the learned ones (:mod:`edge_monitor.pipeline.operating_range`)
     cause: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        out = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
-               "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
-               "threshold": finite_or_none(self.threshold),
-               "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
-        if self.cause is not None:
-            out["cause"] = self.cause
+        out: dict[str, Any] = {
+            "schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
+            "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
+            "threshold": finite_or_none(self.threshold),
+            "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
+        out.update({k: v for k, v in (("by", self.by), ("note", self.note), ("cause", self.cause)) if v is not None})
         return out
 
 

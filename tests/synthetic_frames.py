@@ -42,14 +42,16 @@ def cycle_torque(speed, rng, load=0.5, temperature=40.0, wear=0.0, noise=2e-3, i
 
 def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j, c: 0.0,
                 temperature=lambda c: 40.0, load=0.5, load_std=0.1, noise=2e-3, seed=0,
-                status=True, first_cycle=0):
-    """Return (ids, data[n,8], dlc, timestamps) of ``n_cycles`` cycles, in transmission order."""
+                status=True, first_cycle=0, first_tick=0):
+    """Return (ids, data[n,8], dlc, timestamps) of ``n_cycles`` cycles, in transmission order.
+    ``first_cycle``/``first_tick``: where a stream made of several calls goes on (e.g. the ticks of
+    ``first_cycle`` earlier cycles: ``first_cycle * cycle_profile(speeds)[0].size``)."""
     rng = np.random.default_rng(seed)
     speed_ref, segment = cycle_profile(speeds)
     n_tick = speed_ref.size
     ids, rows, ts = [], [], []
-    tick0 = 0
-    status_counter = 0
+    tick0 = first_tick
+    status_counter = first_tick // 10
     for c in range(n_cycles):
         cyc = first_cycle + c
         ticks = tick0 + np.arange(n_tick)

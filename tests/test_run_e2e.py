@@ -87,12 +87,14 @@ def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: P
             # a wildcard put is refused by the agent's gate (counted), an exact one makes the joint relearn
             session.put("edge/*/1/maintenance", "reset every robot")
             session.put("edge/cell7/1/maintenance", "gearbox replaced")
+            session.put("edge/cell7/1/acknowledge", "{}")     # remote acknowledgements are off: refused, counted
 
             def maintenances() -> int:
                 replies = list(session.get("edge/cell7/1/state", timeout=5.0))
                 return json.loads(replies[0].ok.payload.to_string()).get("maintenances", 0) if replies else 0
             assert wait_until(lambda: maintenances() == 1, 30)
             assert wait_until(lambda: any(h.get("maintenance_refused_bad_key") == 1 and h.get("maintenance_accepted") == 1
+                                          and h.get("acknowledge_refused_disabled") == 1
                                           for h in sub.records("health")), 30)
             agent.send_signal(signal.SIGTERM)
             out, _ = agent.communicate(timeout=60)

@@ -1,5 +1,5 @@
-"""Zenoh security on loopback: mutual TLS, the shipped router ACL, the router tool's TLS handling and the
-maintenance gate.
+"""Zenoh security on loopback: mutual TLS, the shipped router ACL, the router tool's TLS handling, the
+maintenance gate and acknowledgements through the ACL.
 
 Certificates are made by the tests (tests/certs.py): a fleet CA issuing the router's certificate
 (127.0.0.1/localhost) and client certificates with CNs agent-r1, viewer, operator, intruder; a second
@@ -23,11 +23,15 @@ import signal
 import subprocess
 import sys
 import threading
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
 import zenoh
+from test_agent_pipeline import feed, small_config
 
+from edge_monitor.app import Outputs, build_app
+from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.maintenance import MaintenanceGate, describe_source
 from edge_monitor.sinks.zenoh_publisher import SymptomPublisher, SymptomSubscriber
@@ -41,8 +45,10 @@ from edge_monitor.sinks.zenoh_security import (
     router_tls_settings,
     tls_settings_of,
 )
+from edge_monitor.sinks.zenoh_session import ZenohOptions
 
 from certs import CertFiles, CertificateAuthority
+from synthetic_frames import make_frames
 from waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[1]
@@ -282,6 +288,51 @@ def test_gate_on_the_agent_refuses_what_the_acl_lets_through(pki, router, sessio
         assert len(accepted) == 1 and "payload='first'" in accepted[0] and "operator=alice" in accepted[0]
     finally:
         inbox.close()
+
+
+def acknowledge_cli(pki: Pki, router: Router, identity: str, timeout_s: float) -> subprocess.CompletedProcess:
+    """`edge-monitor acknowledge` of joint 0 of r1 as ``identity``, through the ACL router over mTLS."""
+    files = pki.clients[identity]
+    return subprocess.run(
+        [sys.executable, "-m", "edge_monitor.cli", "acknowledge", "--robot", "r1", "--joint", "0", "--by", identity,
+         "--zenoh-mode", "client", "--zenoh-connect", router.endpoint, "--tls-ca", str(pki.fleet.cert),
+         "--tls-cert", str(files.cert), "--tls-key", str(files.key), "--timeout", str(timeout_s)],
+        capture_output=True, text=True, timeout=timeout_s + 60)
+
+
+def test_only_an_operator_acknowledges_an_alarm_through_the_acl(pki, router, sessions, tmp_path):
+    """An agent (its own session, mTLS as agent-r1) with a latched wear alarm and remote acknowledgements on:
+    a viewer's or another agent's put never reaches it (the ACL), a viewer's `edge-monitor acknowledge`
+    gets no acknowledgement (exit 1), an operator's acknowledges (exit 0)."""
+    agent_files = pki.clients["agent-r1"]
+    agent_zenoh = tmp_path / "agent.json5"
+    agent_zenoh.write_text(json.dumps({
+        "mode": "client", "connect": {"endpoints": [router.endpoint]}, "listen": {"endpoints": []},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"protocols": ["tls"], "tls": {
+            "root_ca_certificate": str(pki.fleet.cert), "connect_certificate": str(agent_files.cert),
+            "connect_private_key": str(agent_files.key), "enable_mtls": True, "verify_name_on_connect": True}}}}))
+    config = small_config(robot="r1", acknowledge=AcknowledgeConfig(remote=True))
+    with ExitStack() as stack:
+        app = build_app(config, Outputs(zenoh=ZenohOptions(mode=None, config_file=str(agent_zenoh)), maintenance=True),
+                        stack)
+        feed(app.agent, make_frames(14, joints=(0,), wear=lambda j, c: 0.0 if c < 5 else 60.0, seed=9))
+        wear = app.agent.joints[0].detectors.detectors["wear"]
+        assert wear.alarmed
+        gate = app.acknowledge_gate
+        for sender in ("viewer", "agent-r1#2"):
+            sessions[sender].put("edge/r1/0/acknowledge", b"{}")
+            through_router(sessions[sender])
+        sessions["operator"].put("edge/r1/0/acknowledge", b"marker")     # refused by the gate: a bad payload
+        assert wait_until(lambda: gate.stats()["acknowledge_refused_bad_payload"] == 1, WAIT_S)
+        assert gate.stats()["acknowledge_accepted"] == 0 and wear.alarmed      # the two puts never arrived
+        viewer = acknowledge_cli(pki, router, "viewer", 5.0)
+        assert viewer.returncode == 1 and "did not acknowledge" in viewer.stderr, viewer.stdout + viewer.stderr
+        assert gate.stats()["acknowledge_accepted"] == 0 and wear.alarmed
+        operator = acknowledge_cli(pki, router, "operator", WAIT_S)
+        assert operator.returncode == 0, operator.stdout + operator.stderr
+        assert "wear alarm acknowledged" in operator.stdout and "by operator" in operator.stdout
+        assert gate.stats()["acknowledge_accepted"] == 1 and not wear.alarmed
 
 
 def test_usrpwd_identities_are_the_alternative_to_client_certificates(pki, tmp_path):

@@ -67,6 +67,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-remote-maintenance", action="store_true",
                    help="accept maintenance declarations put on Zenoh key edge/<robot>/<joint>/maintenance "
                         "(off by default; rate-limited; restrict who may put with a Zenoh ACL, docs/SECURITY.md)")
+    p.add_argument("--allow-remote-acknowledge", action="store_true",
+                   help="accept alarm acknowledgements put on Zenoh key edge/<robot>/<joint>/acknowledge "
+                        "(`edge-monitor acknowledge`; off by default; rate-limited; docs/SECURITY.md)")
     p.set_defaults(func=run)
 
 
@@ -104,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_agent_config(args)
     if args.allow_remote_maintenance:
         cfg = dataclasses.replace(cfg, maintenance=dataclasses.replace(cfg.maintenance, remote=True))
+    if args.allow_remote_acknowledge:
+        cfg = dataclasses.replace(cfg, acknowledge=dataclasses.replace(cfg.acknowledge, remote=True))
     store = open_state_store(cfg)
     with ExitStack() as stack:
         try:

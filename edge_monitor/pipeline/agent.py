@@ -11,13 +11,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Iterable, Sequence
 
 from numpy.typing import NDArray
 
 from edge_monitor.errors import StateError
 from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.detectors import Acknowledgement
 from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateStore
@@ -40,6 +41,7 @@ class RunStats:
     sink_errors: int = 0
     states_rejected: int = 0          # saved state files moved aside (unusable), relearned from scratch
     joint_states_rejected: int = 0    # joints whose saved models did not load, relearned alone
+    acknowledged: int = 0             # alarms acknowledged by an operator (judged false)
     started: float = field(default_factory=time.perf_counter)
 
 
@@ -219,25 +221,57 @@ class Agent:
                     outputs += self._emit(monitor.end_cycle(monitor.cycles))
         return outputs
 
+    def _known_monitor(self, joint: int, what: str) -> JointMonitor:
+        """The monitor of a joint the agent monitors (seen on the bus or restored from the state) for
+        ``what`` an operator asks; ``ValueError`` naming the fix otherwise."""
+        joint = int(joint)
+        if self.config.joints is not None and joint not in self.config.joints:
+            raise ValueError(f"joint {joint}: not monitored (configured joints: {list(self.config.joints)})")
+        if joint not in self.joints and joint not in self._restored_joint_states:
+            raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
+                             f"{what} is only needed for a joint with learned models")
+        return self._monitor(joint)
+
     def declare_maintenance(self, joint: int) -> list[Alarm]:
         """Gearbox replaced or serviced: relearn the joint's nominal models; raised alarms are cleared
         (one "cleared" alarm record per quantity, returned and sent to the sinks). Thread-safe.
         Only for a joint the agent monitors (seen on the bus or restored from the state)."""
-        joint = int(joint)
         with self.lock:
-            if self.config.joints is not None and joint not in self.config.joints:
-                raise ValueError(f"joint {joint}: not monitored (configured joints: {list(self.config.joints)})")
-            if joint not in self.joints and joint not in self._restored_joint_states:
-                raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
-                                 "a maintenance declaration is only needed for a joint with learned models")
+            monitor = self._known_monitor(joint, "a maintenance declaration")
+            joint = monitor.joint
             cycle = self._last_emitted.get(joint, -1)
-            cleared = self._monitor(joint).declare_maintenance(cycle, self.config)
+            cleared = monitor.declare_maintenance(cycle, self.config)
             log.warning("joint %d: maintenance declared after cycle %d; nominal models are relearned", joint, cycle)
             for alarm in cleared:
                 for sink in self.sinks:
                     self._deliver(sink.on_alarm, alarm)
             self.save_state()
             return cleared
+
+    def acknowledge(self, joint: int, quantities: Sequence[str] | None = None, by: str | None = None,
+                    note: str | None = None) -> Acknowledgement:
+        """An operator judged the latched alarms of ``joint`` (``quantities``, default all) false: each
+        restarts its statistic on the same nominal and threshold; one "acknowledged" alarm record per
+        cleared alarm (``by``/``note`` in it), returned and sent to the sinks; the state is saved at once
+        (a restart does not bring the alarm back). Quantities without a latched alarm are a no-op, named
+        in the result. Thread-safe. ``ValueError`` for a joint or quantity not monitored."""
+        with self.lock:
+            monitor = self._known_monitor(joint, "an acknowledgement")
+            cycle = self._last_emitted.get(monitor.joint, -1)
+            result = monitor.acknowledge(cycle, quantities)
+            result = replace(result, alarms=tuple(replace(a, by=by, note=note) for a in result.alarms))
+            for alarm in result.alarms:
+                log.warning("joint %d: %s alarm ACKNOWLEDGED after cycle %d by %s: its statistic restarts on "
+                            "the same nominal and threshold", alarm.joint, alarm.quantity, cycle, by or "(unnamed)")
+                self.stats.acknowledged += 1
+                for sink in self.sinks:
+                    self._deliver(sink.on_alarm, alarm)
+            if result.not_latched:
+                log.info("joint %d: no latched alarm on %s: nothing to acknowledge", monitor.joint,
+                         ", ".join(result.not_latched))
+            if result.alarms:
+                self.save_state()
+            return result
 
     def poll(self, now: float) -> None:
         """Periodic work without frames: E2E timeout supervision (NO_NEW_DATA per identifier)."""
@@ -263,6 +297,7 @@ class Agent:
                 "partial_cycles": self.stats.partial_cycles,
                 "states_rejected": self.stats.states_rejected,
                 "joint_states_rejected": self.stats.joint_states_rejected,
+                "alarms_acknowledged": self.stats.acknowledged,
                 "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
                 "segmentation": {str(j): m.counters()["segmentation"] for j, m in self.joints.items()},
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},

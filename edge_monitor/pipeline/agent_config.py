@@ -19,6 +19,7 @@ from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.detectors import SCHEDULE_KEYS, DecisionConfig
+from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import DEFAULT_PARAMS, FrictionParams
 from protocol.frames import MAX_JOINTS
@@ -47,6 +48,7 @@ class AgentConfig:
     kl: KLConfig = field(default_factory=KLConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
     maintenance: MaintenanceConfig = field(default_factory=MaintenanceConfig)
+    acknowledge: AcknowledgeConfig = field(default_factory=AcknowledgeConfig)
     on_config_change: str = "relearn"          # relearn | keep (what was learned with another config)
     queue_size: int = 65536                    # bounded CAN receive queue [frames]
     block_size: int = 4096                     # frames per processing block

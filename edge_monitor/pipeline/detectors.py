@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -192,6 +192,15 @@ def _log_or_nan(x: float) -> float:
     return math.log(x) if math.isfinite(x) and x > 0 else math.nan
 
 
+@dataclass(frozen=True)
+class Acknowledgement:
+    """What :meth:`DetectorBank.acknowledge` did: one "acknowledged" alarm per quantity whose latched
+    alarm it cleared, and the quantities asked for that had no latched alarm (left unchanged)."""
+
+    alarms: tuple[Alarm, ...]
+    not_latched: tuple[str, ...]
+
+
 class DetectorBank:
     """The detectors of one joint. ``sources`` maps each feature name to the fingerprint of what its
     values depend on: a detector learned on values of another feature configuration is relearned."""
@@ -263,6 +272,25 @@ class DetectorBank:
             detector.reset()
         return cleared
 
+    def acknowledge(self, robot: str, joint: int, cycle: int,
+                    quantities: Sequence[str] | None = None) -> Acknowledgement:
+        """An operator judged the latched alarms of ``quantities`` (default: every watched one) false:
+        each latched detector clears its alarm and restarts its statistic on the same nominal and
+        threshold (no relearning, unlike :meth:`reset`); a later crossing raises a new alarm. One
+        "acknowledged" alarm per cleared quantity; a detector without a latched alarm is left as it is
+        and named in ``not_latched``. ``ValueError`` (nothing changed) for a quantity not watched here."""
+        names = list(self.detectors) if quantities is None else list(dict.fromkeys(quantities))
+        unknown = [q for q in names if q not in self.detectors]
+        if unknown:
+            raise ValueError(f"joint {joint}: quantity {', '.join(map(repr, unknown))} is not watched; "
+                             f"watched: {', '.join(self.detectors) or 'none (decision layer off)'}")
+        latched = [q for q in names if self.detectors[q].alarmed]
+        for quantity in latched:
+            self.detectors[quantity].acknowledge()
+        events = tuple(Alarm(robot, joint, cycle, q, "acknowledged", threshold=self.detectors[q].threshold)
+                       for q in latched)
+        return Acknowledgement(events, tuple(q for q in names if q not in latched))
+
     # ------------------------------------------------------------------ persistence
     def _fingerprint(self, quantity: str) -> dict[str, Any]:
         spec = QUANTITIES[quantity]
@@ -309,4 +337,4 @@ class DetectorBank:
         return messages
 
 
-__all__ = ["DecisionConfig", "DetectorBank", "PARTIAL_REASON", "QuantitySpec"]
+__all__ = ["Acknowledgement", "DecisionConfig", "DetectorBank", "PARTIAL_REASON", "QuantitySpec"]

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,7 +30,7 @@ from edge_monitor.features.joint_model_learning import JointModelLearner
 from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
-from edge_monitor.pipeline.detectors import DetectorBank
+from edge_monitor.pipeline.detectors import Acknowledgement, DetectorBank
 from edge_monitor.pipeline.operating_range import OperatingRange
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Advisory, Alarm, Decision, Symptom, finite_or_none
@@ -77,6 +77,7 @@ class JointMonitor:
         self.operating = OperatingRange()
         self._build()
         self.maintenances = 0
+        self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
 
     def _build(self) -> None:
         """Features with the joint's current model, and fresh detectors (which keep the temperature
@@ -244,6 +245,14 @@ class JointMonitor:
         self.maintenances += 1
         return cleared
 
+    def acknowledge(self, cycle: int, quantities: Sequence[str] | None = None) -> Acknowledgement:
+        """An operator judged the latched alarms of ``quantities`` (default: all) false: those detectors
+        restart their statistic on the same nominal and threshold (:meth:`DetectorBank.acknowledge`)."""
+        self._process_pending()
+        result = self.detectors.acknowledge(self.config.robot, self.joint, cycle, quantities)
+        self.acknowledgements += len(result.alarms)
+        return result
+
     def counters(self) -> dict[str, Any]:
         """Segmentation counters of the samples processed so far (≤ SAMPLE_BATCH may still wait)."""
         return self.assembler.counters()
@@ -254,7 +263,8 @@ class JointMonitor:
         ticks and state queries call it): samples still gathered are not in it, as samples after the
         snapshot are not; a cycle resumed from a saved state is published partial anyway."""
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
-                "maintenances": self.maintenances, "assembly": self.assembler.state_dict(),
+                "maintenances": self.maintenances, "acknowledgements": self.acknowledgements,
+                "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict()}
@@ -274,6 +284,7 @@ class JointMonitor:
                             "declaration or with on_config_change = \"relearn\"", joint, ", ".join(kept))
         monitor = cls(joint, config, calibrator)
         monitor.maintenances = int(state.get("maintenances", 0))
+        monitor.acknowledgements = int(state.get("acknowledgements", 0))
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
             monitor.assembler.load_state(assembly)

@@ -1,6 +1,6 @@
 """The Zenoh key space of the agent (docs/OUTPUTS.md), built and parsed in one place.
 
-    edge/<robot>/<joint>/{symptom,alarm,advisory,friction,state,maintenance}
+    edge/<robot>/<joint>/{symptom,alarm,advisory,friction,state,maintenance,acknowledge}
     edge/<robot>/agent/health          edge/<robot>/agent (liveliness token)
 """
 
@@ -16,6 +16,7 @@ FRICTION = "friction"
 HEALTH = "health"
 STATE = "state"
 MAINTENANCE = "maintenance"
+ACKNOWLEDGE = "acknowledge"
 KINDS = (SYMPTOM, ALARM, ADVISORY, FRICTION, HEALTH)
 AGENT = "agent"
 PREFIX = "edge"

@@ -19,6 +19,14 @@ from typing import Any
 import zenoh
 
 from edge_monitor.errors import key_name
+from edge_monitor.sinks.zenoh_security import (
+    TlsFiles,
+    apply_settings,
+    check_no_downgrade,
+    client_tls_settings,
+    config_endpoints,
+    tls_settings_of,
+)
 
 log = logging.getLogger(__name__)
 
@@ -38,12 +46,15 @@ class ZenohOptions:
     ``mode``: "peer" | "client" | "router"; ``None`` keeps the mode of ``config_file`` (peer without one).
     ``listen`` / ``connect``: endpoints such as ``tcp/127.0.0.1:7447``.
     ``config_file``: a Zenoh JSON5 config; explicit ``listen``/``connect``/``mode`` override it.
+    ``tls``: a :class:`~edge_monitor.sinks.zenoh_security.TlsFiles`: connect over ``tls/...`` checking the
+    router against its CA, presenting its certificate/key when given (mTLS); plain endpoints are refused.
     """
 
     mode: str | None = "peer"
     listen: list[str] = field(default_factory=list)
     connect: list[str] = field(default_factory=list)
     config_file: str | None = None
+    tls: TlsFiles | None = None
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode not in MODES:
@@ -57,6 +68,11 @@ class ZenohOptions:
                     )
         if self.config_file is not None and not Path(self.config_file).is_file():
             raise ZenohSetupError(f"zenoh config file {self.config_file!r} does not exist; fix --zenoh-config")
+        if self.tls is not None:
+            try:
+                self.tls.check(need_ca=True)
+            except ValueError as exc:
+                raise ZenohSetupError(str(exc)) from None
 
     def to_config(self) -> zenoh.Config:
         """The ``zenoh.Config`` these options describe."""
@@ -76,6 +92,8 @@ class ZenohOptions:
             _insert(config, "listen/endpoints", self.listen)
         if self.connect:
             _insert(config, "connect/endpoints", self.connect)
+        if self.tls is not None:
+            _client_tls(config, self.tls)
         return config
 
     def describe(self) -> str:
@@ -87,6 +105,8 @@ class ZenohOptions:
             parts.append("connect=" + ",".join(self.connect))
         if self.config_file:
             parts.append(f"config={self.config_file}")
+        if self.tls is not None:
+            parts.append("tls" + ("+client certificate" if self.tls.cert is not None else ""))
         return " ".join(parts)
 
 
@@ -95,6 +115,15 @@ def _insert(config: zenoh.Config, key: str, value: Any) -> None:
         config.insert_json5(key, json.dumps(value))
     except Exception as exc:
         raise ZenohSetupError(f"zenoh setting {key_name(key)}={value!r} rejected: {exc}") from exc
+
+
+def _client_tls(config: zenoh.Config, files: TlsFiles) -> None:
+    """TLS client settings from ``files``; no plain-text connect endpoint may remain."""
+    try:
+        apply_settings(config, client_tls_settings(files))
+        check_no_downgrade(config_endpoints(config, "connect"), tls_settings_of(config), "connect")
+    except ValueError as exc:
+        raise ZenohSetupError(str(exc)) from None
 
 
 def _warn_if_multicast(config: zenoh.Config, path: str) -> None:
