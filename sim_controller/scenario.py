@@ -36,10 +36,10 @@ import tomllib
 from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 from joint_model.friction import FrictionParams
-from sim_controller.config import JointOverride, SimConfig, SimConfigError
+from sim_controller.config import JointOverride, SimConfig, SimConfigError, merge_wear, wear_profiles_from_ramps
 from sim_controller.faults import FaultSpec
 from sim_controller.timeline import PlantEvent, TimelineError, check_order, plant_event_from_mapping
 from sim_controller.wear_scenarios import WearEvent, WearProfile, WearScenarioError, event_from_mapping
@@ -111,6 +111,20 @@ def load_scenario(path: str | Path, joints: int | None = None) -> dict[str, Any]
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"scenario: {path} is not valid TOML: {exc}") from None
     return scenario_from_mapping(doc, joints)
+
+
+def scenario_config(scenario: str | Path | None, fields: Mapping[str, Any], *,
+                    fallback: Mapping[str, Any] | None = None, wear_ramps: Sequence[str] = ()) -> SimConfig:
+    """A study's ``SimConfig``: the ``scenario`` (file or packaged name; ``None``: none) with ``fields``
+    set over it (e.g. each robot's seed), ``fallback`` for what neither sets (e.g. a study's default
+    length), and ``--wear-ramp`` specs added to the scenario's wear (``index = "all"`` covers
+    ``fields["joints"]`` joints when given)."""
+    given = {key: value for key, value in fields.items() if value is not None}
+    kwargs = {**(fallback or {}), **(load_scenario(scenario, given.get("joints")) if scenario else {}), **given}
+    if wear_ramps:
+        joints = int(kwargs.get("joints", SimConfig().joints))
+        kwargs["wear"] = merge_wear(kwargs.get("wear", ()), wear_profiles_from_ramps(wear_ramps, joints), joints)
+    return SimConfig(**kwargs)
 
 
 def scenario_from_mapping(doc: dict[str, Any], joints: int | None = None) -> dict[str, Any]:

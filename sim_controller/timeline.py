@@ -170,35 +170,41 @@ def plant_event_from_mapping(doc: Mapping[str, Any], where: str) -> PlantEvent:
         elif _number(value):
             values[name] = float(value)
         else:
-            raise TimelineError(f"{where}.{name}: expected a number, got {value!r}")
+            raise TimelineError(f"{where}.{name}: expected a finite number, got {value!r}")
     check_event(values, where)
     return PlantEvent(**values)
 
 
 def parse_event(text: str) -> PlantEvent:
     """The command-line form ``CYCLE:KEY=VALUE[,KEY=VALUE…]`` (ranges as ``LOW:HIGH``), e.g.
-    ``620:load_range=0.6:1.0`` or ``900:stop_hours=56,ambient=25``."""
-    where = f"event {text!r}"
+    ``620:load_range=0.6:1.0`` or ``900:stop_hours=56,ambient=25``; errors name ``event.KEY`` and
+    quote ``text``."""
+    try:
+        return plant_event_from_mapping(_event_fields(text), "event")
+    except TimelineError as exc:
+        raise TimelineError(f"{exc} (in --event {text!r})") from None
+
+
+def _event_fields(text: str) -> dict[str, Any]:
     cycle_text, sep, rest = text.partition(":")
     if not sep or not rest.strip():
-        raise TimelineError(f"{where}: expected CYCLE:KEY=VALUE[,KEY=VALUE…] with KEY one of "
+        raise TimelineError(f"event: expected CYCLE:KEY=VALUE[,KEY=VALUE…] with KEY one of "
                             f"{', '.join(EVENT_KEYS[1:])}")
     try:
-        cycle = int(cycle_text)
+        doc: dict[str, Any] = {"cycle": int(cycle_text)}
     except ValueError:
-        raise TimelineError(f"{where}.cycle: expected an integer test-cycle number, got {cycle_text!r}") from None
-    doc: dict[str, Any] = {"cycle": cycle}
+        raise TimelineError(f"event.cycle: expected an integer test-cycle number, got {cycle_text!r}") from None
     for item in rest.split(","):
         key, eq, raw = (s.strip() for s in item.partition("="))
         if not eq:
-            raise TimelineError(f"{where}: expected KEY=VALUE, got {item!r}")
+            raise TimelineError(f"event: expected KEY=VALUE, got {item!r}")
         if key not in EVENT_KEYS[1:]:
-            raise TimelineError(f"{where}: unknown key {key!r}; use {', '.join(EVENT_KEYS[1:])}")
+            raise TimelineError(f"event: unknown key {key!r}; use {', '.join(EVENT_KEYS[1:])}")
         if key in doc:
-            raise TimelineError(f"{where}.{key}: given twice")
+            raise TimelineError(f"event.{key}: given twice")
         try:
-            doc[key] = ([float(v) for v in raw.split(":")] if key == "load_range" else float(raw))
+            doc[key] = [float(v) for v in raw.split(":")] if key == "load_range" else float(raw)
         except ValueError:
-            raise TimelineError(f"{where}.{key}: expected "
-                                f"{'LOW:HIGH' if key == 'load_range' else 'a number'}, got {raw!r}") from None
-    return plant_event_from_mapping(doc, where)
+            raise TimelineError(f"event.{key}: expected {'LOW:HIGH' if key == 'load_range' else 'a number'}, "
+                                f"got {raw!r}") from None
+    return doc
