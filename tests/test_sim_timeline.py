@@ -11,12 +11,11 @@ import math
 import threading
 from pathlib import Path
 
-import can
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_sim_support import collect, decode
+from test_sim_support import collect, decode, run_on_virtual_bus
 
 from protocol import frames as pf
 from sim_controller.cli import main
@@ -304,15 +303,8 @@ def test_record_with_a_scenario_timeline_and_events_writes_the_conditions_to_the
 def test_run_pauses_for_a_stop_at_most_max_pause_and_says_so(caplog):
     config = SimConfig(joints=1, cycles=2, speeds=(20.0,), plateau_time=0.2, seed=1,
                        timeline=(PlantEvent(1, stop_hours=10.0),))
-    receiver = can.Bus(interface="virtual", channel="sim-test-stop", ignore_config=True)
-    try:
-        with caplog.at_level(logging.WARNING, logger="sim_controller"):
-            summary = run(config, "virtual:sim-test-stop", speedup=1e4, max_pause=0.05)
-        received = 0
-        while receiver.recv(timeout=0) is not None:
-            received += 1
-    finally:
-        receiver.shutdown()
+    with caplog.at_level(logging.WARNING, logger="sim_controller"):
+        summary, received = run_on_virtual_bus(config, "sim-test-stop", speedup=1e4, max_pause=0.05)
     assert received == summary.frames_sent > 0 and summary.cycles == 2
     assert any("plant stop of 10.00 h before cycle 1 would pause 4 s" in r.getMessage()
                and "pausing 0 s instead" in r.getMessage() for r in caplog.records), caplog.text
