@@ -48,8 +48,9 @@ from sim_controller.config import (
     wear_profiles_from_ramps,
 )
 from sim_controller.faults import FaultSpec
-from sim_controller.output import record, run
-from sim_controller.scenario import load_scenario
+from sim_controller.output import DEFAULT_MAX_PAUSE_S, record, run
+from sim_controller.scenario import load_scenario, packaged_scenarios
+from sim_controller.timeline import merge_timelines, parse_event
 
 log = logging.getLogger("sim_controller")
 
@@ -78,7 +79,14 @@ def _number(name: str, kind: type = float) -> Any:
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("simulation")
-    g.add_argument("--scenario", metavar="FILE.toml", help="scenario file; command-line options override it")
+    g.add_argument("--scenario", metavar="FILE.toml|NAME",
+                   help="scenario file, or a packaged one by name (" + ", ".join(packaged_scenarios()) +
+                        "); command-line options override it")
+    g.add_argument("--event", action="append", default=[], type=_typed(parse_event, "event"),
+                   metavar="CYCLE:KEY=VALUE[,KEY=VALUE]",
+                   help="plant change at a test cycle (repeatable; added to the scenario's timeline): "
+                        "load_range=LOW:HIGH, ambient=C, payload_error=F, load_std=S, stop_hours=H "
+                        "(the robot stands still H hours before the cycle), e.g. 620:load_range=0.6:1.0")
     g.add_argument("--joints", type=_number("joints", int), help="number of joints 1 … 8 (default 6)")
     g.add_argument("--rate", type=_number("rate"), help="controller tick rate in Hz (default 500)")
     g.add_argument("--cycles", type=_number("cycles", int), help="number of test cycles (default 10)")
@@ -155,6 +163,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
     kwargs["wear"] = tuple(wear)
     overrides = kwargs.get("joint_overrides", ())
     kwargs["joint_overrides"] = tuple(overrides[:joints])
+    kwargs["timeline"] = merge_timelines(kwargs.get("timeline", ()), args.event)
     return SimConfig(**kwargs)
 
 
@@ -171,6 +180,9 @@ def build_parser() -> argparse.ArgumentParser:
     pace.add_argument("--realtime", action="store_true", help="pace at real time (default)")
     pace.add_argument("--speedup", type=_number("speedup"), metavar="X",
                       help="pace at X × real time; 0 = as fast as the link takes frames")
+    p_run.add_argument("--max-pause", type=_number("max_pause"), metavar="S", default=DEFAULT_MAX_PAUSE_S,
+                       help="longest wall-clock pause of a plant stop (--event …:stop_hours=H lasts H h / X); "
+                            f"longer ones are cut to S seconds, with a log line (default {DEFAULT_MAX_PAUSE_S:g})")
     _add_common(p_run)
     p_rec = sub.add_parser("record", help="write frames to a python-can log file as fast as possible")
     p_rec.add_argument("--out", required=True, metavar="FILE.{blf,log,asc}", help="log file (format from the suffix)")
@@ -183,6 +195,8 @@ def _run_option_error(args: argparse.Namespace) -> str | None:
     """What is wrong with the options of ``run`` beyond their syntax, or None."""
     if args.speedup is not None and args.speedup < 0:
         return f"speedup: must be ≥ 0, got {args.speedup}"
+    if args.max_pause < 0:
+        return f"max_pause: must be ≥ 0 s, got {args.max_pause}"
     if is_log_file(args.link):
         return f"--link {args.link} is a log file; use `sim-controller record --out {args.link}`"
     return None
@@ -223,7 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 usage_error(problem)
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
             summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args),
-                          stop=_stop_on_sigterm().is_set)
+                          stop=_stop_on_sigterm().is_set, max_pause=args.max_pause)
     except NoCanConfigError as exc:
         usage_error(str(exc))
     except (LinkError, OSError) as exc:

@@ -16,6 +16,16 @@ from typing import Any, Sequence
 from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, FrictionParams
 from protocol.frames import MAX_JOINTS
 from sim_controller.faults import FaultSpec
+from sim_controller.timeline import (
+    CONDITIONS,
+    PlantConditions,
+    PlantEvent,
+    TimelineError,
+    check_condition,
+    check_order,
+    conditions_at,
+    stop_before,
+)
 from sim_controller.wear_scenarios import WearEvent, WearProfile, parse_wear_ramp
 
 #: Default friction speed levels [rad/s] (defined once, in joint_model).
@@ -82,8 +92,11 @@ class SimConfig:
     start_time: float = 0.0            # timestamp offset of tick 0 in record mode [s]
     block_time: float = 0.5            # length of the frame blocks yielded [s]
     joint_overrides: tuple[JointOverride | None, ...] = ()
+    # plant changes over the run (sim_controller.timeline): events in increasing cycle order
+    timeline: tuple[PlantEvent, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "timeline", tuple(self.timeline))
         validate(self)
 
     def with_(self, **changes: Any) -> "SimConfig":
@@ -92,6 +105,15 @@ class SimConfig:
 
     def wear_profile(self, joint: int) -> WearProfile:
         return self.wear[joint] if joint < len(self.wear) else WearProfile()
+
+    def conditions(self, cycle: int) -> PlantConditions:
+        """Load range, ambient, payload error and σl in effect at ``cycle`` (the timeline applied)."""
+        base = PlantConditions(self.load_range, self.ambient, self.payload_error, self.load_std)
+        return conditions_at(base, self.timeline, cycle) if self.timeline else base
+
+    def stop_hours(self, cycle: int) -> float:
+        """Hours the robot stands still before ``cycle`` (0.0: none)."""
+        return stop_before(self.timeline, cycle) if self.timeline else 0.0
 
     def effective_variation(self) -> float:
         if self.variation is not None:
@@ -139,17 +161,16 @@ def validate(c: SimConfig) -> None:
              f"must be 0 … 0.1, got {c.torque_noise!r}")
     _require(_finite(c.speed_noise) and 0.0 <= c.speed_noise <= 5.0, "speed_noise",
              f"must be 0 … 5 rad/s, got {c.speed_noise!r}")
-    lo, hi = c.load_range
-    _require(_finite(lo) and _finite(hi) and 0.0 <= lo <= hi <= 1.0, "load_range",
-             f"need 0 ≤ LOW ≤ HIGH ≤ 1 (|τl|, fraction of max torque), got {lo!r}:{hi!r}")
-    _require(_finite(c.load_std) and 0.0 <= c.load_std <= 0.5, "load_std", f"must be 0 … 0.5, got {c.load_std!r}")
-    _require(_finite(c.payload_error) and -0.5 <= c.payload_error <= 0.5, "payload_error",
-             f"must be −0.5 … 0.5 (a fraction of the payload mass), got {c.payload_error!r}")
+    for name in CONDITIONS:
+        try:
+            check_condition(name, getattr(c, name), "")
+        except TimelineError as exc:
+            raise SimConfigError(str(exc)) from None
     if c.temperature_range is not None:
         lo, hi = c.temperature_range
         _require(_finite(lo) and _finite(hi) and lo <= hi, "temperature_range", f"need LOW ≤ HIGH, got {lo!r}:{hi!r}")
         _require(-40.0 <= lo and hi <= 150.0, "temperature_range", f"must lie within −40 … 150 °C, got {lo!r}:{hi!r}")
-    for name in ("ambient", "start_temperature", "min_temperature"):
+    for name in ("start_temperature", "min_temperature"):
         value = getattr(c, name)
         _require(_finite(value) and -40.0 <= value <= 150.0, name, f"must be −40 … 150 °C, got {value!r}")
     _require(_finite(c.thermal_time_constant) and c.thermal_time_constant > 0, "thermal_time_constant",
@@ -163,6 +184,12 @@ def validate(c: SimConfig) -> None:
              f"must be 0.01 … 60 s, got {c.block_time!r}")
     _require(len(c.joint_overrides) <= c.joints, "joint_overrides",
              f"{len(c.joint_overrides)} overrides for {c.joints} joints")
+    for i, event in enumerate(c.timeline):
+        _require(isinstance(event, PlantEvent), f"timeline[{i}]", f"expected a PlantEvent, got {event!r}")
+    try:
+        check_order(c.timeline, "timeline")
+    except TimelineError as exc:
+        raise SimConfigError(str(exc)) from None
 
 
 # ---------------------------------------------------------------------------------------------

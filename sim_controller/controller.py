@@ -33,6 +33,7 @@ from sim_controller.faults import FaultInjector, FrameBlock
 from sim_controller.joint_dynamics import SpeedLoop, SpeedLoopParams, simulate_block
 from sim_controller.test_cycle import CycleReference, build_cycle
 from sim_controller.thermal import ThermalModel
+from sim_controller.timeline import PlantConditions
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +73,11 @@ class JointSetup:
 
 @dataclass(frozen=True)
 class CycleConditions:
-    """Per-joint conditions of one cycle (arrays of length ``joints``; model_error joints × levels)."""
+    """Per-joint conditions of one cycle (arrays of length ``joints``; model_error joints × levels), the
+    plant conditions in effect (timeline) and the hours the robot stood still before the cycle."""
 
+    plant: PlantConditions
+    stop_hours: float
     load: NDArray[np.float64]
     load_estimate: NDArray[np.float64]
     temperature: NDArray[np.float64]
@@ -120,6 +124,17 @@ def make_joint_setups(config: SimConfig, rng: np.random.Generator) -> list[Joint
     return setups
 
 
+def stop_ticks(hours: float, rate: float) -> int:
+    """Controller ticks of a plant stop of ``hours`` (rounded to a tick)."""
+    return int(round(hours * 3600.0 * rate))
+
+
+def statuses_between(tick: int, gap: int) -> int:
+    """Status frames a running controller sends in the ticks ``tick`` … ``tick + gap − 1`` (every
+    ``STATUS_EVERY``-th tick): the status counter moves on by this during a stop."""
+    return -(-(tick + gap) // STATUS_EVERY) - -(-tick // STATUS_EVERY)
+
+
 class Controller:
     """Simulated controller of one robot (see module docstring). Deterministic given ``config.seed``."""
 
@@ -157,13 +172,21 @@ class Controller:
         tick_base = 0         # abs tick of the last (re)start: controller tick = abs_tick − tick_base
         status_count = 0
         for cycle in range(c.cycles):
+            plant, stop_hours = c.conditions(cycle), c.stop_hours(cycle)
+            for model in self._thermal:
+                model.ambient = plant.ambient
+            if stop_hours > 0:
+                gap = stop_ticks(stop_hours, c.rate)
+                self._advance_thermal(gap / c.rate, np.zeros(c.joints))
+                status_count += statuses_between(abs_tick - tick_base, gap)
+                abs_tick += gap
             restarted = c.faults.restart > 0 and self._restart_rng.random() < c.faults.restart
             if restarted:
                 abs_tick += int(round(c.faults.restart_gap * c.rate))
                 tick_base = abs_tick
                 status_count = 0
                 self.injector.counts["restarts"] += 1
-            cond = self._draw_conditions(cycle)
+            cond = self._draw_conditions(cycle, plant, stop_hours)
             ref, mode = self._reference(cond)
             sim = self._simulate(ref, cond)
             ticks = np.arange(abs_tick, abs_tick + ref.n) - tick_base
@@ -209,15 +232,16 @@ class Controller:
                 "payload_error": c.payload_error,
                 "temperature_range": None if c.temperature_range is None else list(c.temperature_range),
                 "thermal_time_constant": c.thermal_time_constant, "time_acceleration": c.time_acceleration,
-                "wear": [c.wear_profile(j).to_dict() for j in range(c.joints)], "faults": c.faults.to_dict()}
+                "wear": [c.wear_profile(j).to_dict() for j in range(c.joints)], "faults": c.faults.to_dict(),
+                "timeline": [event.to_dict() for event in c.timeline]}
 
     # -- one cycle ------------------------------------------------------------------------------
 
-    def _draw_conditions(self, cycle: int) -> CycleConditions:
+    def _draw_conditions(self, cycle: int, plant: PlantConditions, stop_hours: float) -> CycleConditions:
         c, rng, n = self.config, self._cycle_rng, self.config.joints
-        magnitude = rng.uniform(c.load_range[0], c.load_range[1], size=n)
+        magnitude = rng.uniform(plant.load_range[0], plant.load_range[1], size=n)
         load = magnitude * np.array([s.load_sign for s in self.joints])
-        estimate = load * (1.0 + c.payload_error) + rng.normal(0.0, c.load_std, size=n)
+        estimate = load * (1.0 + plant.payload_error) + rng.normal(0.0, plant.load_std, size=n)
         if c.temperature_range is not None:
             temperature = rng.uniform(c.temperature_range[0], c.temperature_range[1], size=n)
         else:
@@ -227,8 +251,8 @@ class Controller:
         p2p_delay = float(rng.uniform(*c.p2p_delay))
         wear = np.array([c.wear_profile(j).wear(cycle) for j in range(n)])
         maintenance = np.array([c.wear_profile(j).maintenance(cycle) for j in range(n)])
-        return CycleConditions(load, estimate, np.asarray(temperature, dtype=float), wear, model_error,
-                               motor_temperature, maintenance, p2p_delay)
+        return CycleConditions(plant, stop_hours, load, estimate, np.asarray(temperature, dtype=float), wear,
+                               model_error, motor_temperature, maintenance, p2p_delay)
 
     def _reference(self, cond: CycleConditions) -> tuple[CycleReference, NDArray[np.int64]]:
         c = self.config
@@ -306,7 +330,7 @@ class Controller:
             pos = base + 1 + j
             ids[pos] = pf.JOINT_STATUS_BASE_ID + j
             ts[pos] = t_tick[st] + (n_j + 1 + j) * self._frame_spacing
-            data[pos] = pf.encode_joint_status_block(j, counters, sim["load_estimate"][j, st], c.load_std,
+            data[pos] = pf.encode_joint_status_block(j, counters, sim["load_estimate"][j, st], cond.plant.load_std,
                                                   cond.motor_temperature[j] + sc.status_noise[j])
         return FrameBlock(ids, data, ts)
 
@@ -335,7 +359,9 @@ class Controller:
             self._truth.append({
                 "joint": j, "cycle": cycle,
                 "temperature": float(cond.temperature[j]), "load": float(cond.load[j]),
-                "load_estimate": float(cond.load_estimate[j]), "load_std": c.load_std,
+                "load_estimate": float(cond.load_estimate[j]), "load_std": cond.plant.load_std,
+                "load_range": list(cond.plant.load_range), "ambient": cond.plant.ambient,
+                "payload_error": cond.plant.payload_error, "stop_hours": cond.stop_hours,
                 "wear": float(cond.wear[j]), "maintenance": bool(cond.maintenance[j]), "restart": restarted,
                 "motor_temperature": float(cond.motor_temperature[j]), "p2p_delay": cond.p2p_delay,
                 "t_start": c.start_time + abs_tick / c.rate, "t_end": c.start_time + (abs_tick + n) / c.rate,

@@ -4,7 +4,9 @@ without encoding frames (for statistical studies that need 10⁵ cycles).
 The physics is the frame mode's own (:meth:`Controller.simulated_cycles`, same seeds, same random
 streams); values are quantised exactly as the wire quantises them (torque, speed, load estimate,
 its std and the motor temperature), so a consumer that labels samples as the agent's ingest does
-gets the same per-cycle quantities as from the frames. Link faults are not applied in this mode.
+gets the same per-cycle quantities as from the frames. The plant timeline (load range, ambient,
+payload error, σl, stops) is the frame mode's too. Link faults are not applied in this mode.
+Ticks are the controller's, not wrapped: the wire carries them mod 2²⁴ (status) and mod 2⁸ (samples).
 Units: speed rad/s, torque a fraction of the joint's maximum torque, temperature °C, time in ticks.
 """
 
@@ -42,7 +44,8 @@ class JointSignals:
 class CycleSignals:
     """One cycle: controller ticks of the samples, ticks and segment codes of the status frames
     (sent every ``STATUS_EVERY`` ticks, after that tick's joint samples), every joint's signals, and
-    the ground truth of the cycle (one record per joint)."""
+    the ground truth of the cycle (one record per joint: its plant conditions and any stop before it
+    included)."""
 
     cycle: int
     ticks: NDArray[np.int64]
@@ -52,7 +55,7 @@ class CycleSignals:
     truth: list[dict[str, Any]]
 
 
-def _signals(sc: SimulatedCycle, load_std: float) -> CycleSignals:
+def _signals(sc: SimulatedCycle) -> CycleSignals:
     status = sc.ticks % STATUS_EVERY == 0
     torque_limit = 1 << 15
     joints = []
@@ -62,7 +65,7 @@ def _signals(sc: SimulatedCycle, load_std: float) -> CycleSignals:
             torque=_wire(sc.sim["torque"][j], pf.TORQUE_SCALE, -torque_limit, torque_limit - 1),
             speed=_wire(sc.sim["speed"][j], pf.SPEED_SCALE, -(1 << 17), (1 << 17) - 1),
             load_estimate=_wire(sc.sim["load_estimate"][j, status], pf.TORQUE_SCALE, -torque_limit, torque_limit - 1),
-            load_std=_wire(np.full(int(status.sum()), load_std), pf.LOAD_STD_SCALE, 0, 255),
+            load_std=_wire(np.full(int(status.sum()), sc.cond.plant.load_std), pf.LOAD_STD_SCALE, 0, 255),
             motor_temperature=_wire(sc.cond.motor_temperature[j] + sc.status_noise[j], pf.TEMPERATURE_SCALE,
                                     -torque_limit, torque_limit - 1)))
     return CycleSignals(cycle=sc.cycle, ticks=sc.ticks, status_ticks=sc.ticks[status],
@@ -73,7 +76,7 @@ def cycle_signals(config: SimConfig) -> Iterator[CycleSignals]:
     """Every cycle of the run described by ``config`` (with its ground truth), no frames."""
     controller = Controller(config)
     for sc in controller.simulated_cycles():
-        signals = _signals(sc, config.load_std)
+        signals = _signals(sc)
         signals.truth.extend(controller.drain_truth())
         controller.ticks_done += sc.ref.n
         controller.cycles_done += 1

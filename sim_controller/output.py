@@ -4,7 +4,9 @@
 ``.log`` candump, ``.asc``, …; block writers in ``log_writers``); timestamps are controller time; with
 ``progress`` a bar over the cycles shows on stderr when it is a terminal. ``run`` paces the
 frames to wall time (``speedup`` × real time, ``None`` = as fast as the link takes them) and sends
-them on a bus opened with ``protocol.links.open_bus``; timestamps are wall time.
+them on a bus opened with ``protocol.links.open_bus``; timestamps are wall time. A plant stop of the
+timeline (no frames for hours of controller time) is a pause of its length / ``speedup``, cut to
+``max_pause`` seconds with a warning when longer.
 
 Ground truth (``truth_path``, JSONL): one record per joint per cycle, written as cycles complete,
 then a last line ``{"faults": {...}, "frames_sent": N, "send_errors": E}`` (E: sends that raised; a
@@ -38,6 +40,11 @@ PACING_SLACK_S = 1e-3
 #: A sender this far behind its schedule (the process was stopped, or starved of CPU) moves the schedule
 #: on instead of catching up in a burst: a frozen controller resumes at its pace [s].
 MAX_LAG_S = 1.0
+#: Longest wall-clock pause of a plant stop in ``run`` unless told otherwise (``--max-pause``) [s]: long
+#: enough for a receiver's timeouts and "no data" handling to show, short enough for a live session.
+DEFAULT_MAX_PAUSE_S = 600.0
+#: Longest single sleep while pacing, so that ``stop()`` is honoured during a long pause [s].
+SLEEP_SLICE_S = 0.25
 
 
 @dataclass
@@ -133,13 +140,15 @@ def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = 
 
 
 def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, truth_path: str | Path | None = None,
-        bus_kwargs: dict[str, Any] | None = None, stop: Callable[[], bool] | None = None) -> RunSummary:
+        bus_kwargs: dict[str, Any] | None = None, stop: Callable[[], bool] | None = None,
+        max_pause: float = DEFAULT_MAX_PAUSE_S) -> RunSummary:
     """Stream the simulation onto a bus, paced at ``speedup`` × real time (``None``: unpaced).
 
     ``link`` is a link string (``slcan:…``, ``socketcan:…``, ``virtual:…``) or ``None`` for
     python-can's configuration; ``bus_kwargs`` go to ``open_bus``. ``stop()`` returning True ends
-    the run early (checked per frame block). A sender more than ``MAX_LAG_S`` behind its schedule
-    goes on at its pace from there (no burst; frames are never dropped).
+    the run early (checked per frame block and during pauses). A sender more than ``MAX_LAG_S`` behind
+    its schedule goes on at its pace from there (no burst; frames are never dropped). A gap in the
+    controller's timestamps (a plant stop) pauses at most ``max_pause`` seconds of wall time.
     """
     bus = open_bus(link, **(bus_kwargs or {}))
     controller = Controller(config)
@@ -148,12 +157,20 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
     start = time.perf_counter()
     wall0 = time.time()
     t0: float | None = None
-    shift = 0.0                                   # schedule moved on after stalls [s]
+    last_t: float | None = None                   # controller time of the last frame sent [s]
+    shift = 0.0                                   # schedule moved on after stalls and cut pauses [s]
     sent = errors = 0
+    stopped = stop or (lambda: False)
     try:
         for block in controller.frames():
+            first = float(block.timestamps[0])
             if t0 is None:
-                t0 = float(block.timestamps[0])
+                t0 = first
+            if speedup is not None and last_t is not None:
+                shift -= _cut_pause(first - last_t, speedup, max_pause, controller.cycles_done)
+                if not _wait_until(start + shift + (first - t0) / speedup, stopped):
+                    break
+            last_t = float(block.timestamps[-1])
             for message, t in zip(block_messages(block), block.timestamps.tolist()):
                 if speedup is not None:
                     delay = start + shift + (t - t0) / speedup - time.perf_counter()
@@ -171,7 +188,7 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
                         log.warning("send failed on %s (%d so far): %s", link, errors, exc)
             truth.drain()
             progress.tick()
-            if stop is not None and stop():
+            if stopped():
                 break
     finally:
         truth.close(sent, errors)
@@ -179,3 +196,26 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
     wall = time.perf_counter() - start
     return RunSummary(sent, errors, controller.cycles_done, controller.simulated_seconds, wall,
                       dict(controller.injector.counts))
+
+
+def _cut_pause(gap: float, speedup: float, max_pause: float, cycle: int) -> float:
+    """Wall seconds to take off a pause of ``gap`` seconds of controller time at ``speedup`` × real
+    time so that it lasts at most ``max_pause`` (0 when it is short enough); says so when it cuts."""
+    pause = gap / speedup
+    if pause <= max_pause:
+        if pause > 1.0:
+            log.info("plant stop of %.2f h before cycle %d: pausing %.0f s", gap / 3600.0, cycle, pause)
+        return 0.0
+    log.warning("plant stop of %.2f h before cycle %d would pause %.0f s at %g× real time: pausing %.0f s "
+                "instead (--max-pause); frame timestamps show the shorter pause, controller ticks the whole stop",
+                gap / 3600.0, cycle, pause, speedup, max_pause)
+    return pause - max_pause
+
+
+def _wait_until(deadline: float, stopped: Callable[[], bool]) -> bool:
+    """Sleep until ``deadline`` (``time.perf_counter`` time) in short slices; False if ``stopped()``."""
+    while (left := deadline - time.perf_counter()) > PACING_SLACK_S:
+        if stopped():
+            return False
+        time.sleep(min(left, SLEEP_SLICE_S))
+    return True

@@ -16,24 +16,37 @@ load_sign = -1
 friction = { fc0 = 0.032 }          # absolute parameter values replacing the table
 wear = [ { kind = "exponential", start = 100, end = 300, from = 5, to = 60, tau = 40 },
          { kind = "replacement", start = 320 } ]
+
+[[timeline]]              # plant changes (sim_controller.timeline), in increasing cycle order
+cycle = 620
+load_range = [0.6, 1.0]
+[[timeline]]
+cycle = 900
+stop_hours = 56
 ```
 
-Every error names the field (``scenario.simulation.rate: …``).
+Every error names the field (``scenario.simulation.rate: …``, ``scenario.timeline[1].stop_hours: …``).
+A scenario is a file path or the name of one shipped in ``sim_controller/scenarios/``
+(:func:`packaged_scenarios`).
 """
 
 from __future__ import annotations
 
 import tomllib
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 from joint_model.friction import FrictionParams
-from sim_controller.config import JointOverride, SimConfig, SimConfigError
+from sim_controller.config import JointOverride, SimConfig, SimConfigError, merge_wear, wear_profiles_from_ramps
 from sim_controller.faults import FaultSpec
+from sim_controller.timeline import PlantEvent, TimelineError, check_order, plant_event_from_mapping
 from sim_controller.wear_scenarios import WearEvent, WearProfile, WearScenarioError, event_from_mapping
 
 _RANGE_FIELDS = {"load_range", "temperature_range", "p2p_delay"}
-_SKIP_FIELDS = {"wear", "faults", "joint_overrides", "friction"}
+_SKIP_FIELDS = {"wear", "faults", "joint_overrides", "friction", "timeline"}
+_TABLES = ("simulation", "faults", "joint", "timeline")
 _JOINT_KEYS = {"index", "wear_initial", "wear", "friction", "load_sign"}
 
 
@@ -66,13 +79,33 @@ def _convert(name: str, value: Any, where: str) -> Any:
     return float(value)
 
 
+def packaged_scenarios() -> list[str]:
+    """Names of the scenarios shipped in ``sim_controller/scenarios/`` (usable instead of a path)."""
+    folder = resources.files("sim_controller") / "scenarios"
+    return sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".toml"))
+
+
+def scenario_source(name_or_path: str | Path) -> Path | Traversable:
+    """The file of a scenario: an existing path, else the packaged scenario of that name (``.toml``
+    optional); a :class:`ScenarioError` lists the packaged ones when it is neither."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    packaged = resources.files("sim_controller") / "scenarios" / (path.stem + ".toml")
+    if path.parent == Path(".") and path.suffix in ("", ".toml") and packaged.is_file():
+        return packaged
+    raise ScenarioError(f"scenario: no file {str(name_or_path)!r} and no packaged scenario of that name; "
+                        f"packaged: {', '.join(packaged_scenarios())}")
+
+
 def load_scenario(path: str | Path, joints: int | None = None) -> dict[str, Any]:
-    """Parse and validate a scenario file into ``SimConfig`` keyword arguments.
+    """Parse and validate a scenario (file path or packaged name) into ``SimConfig`` keyword arguments.
 
     ``joints`` (e.g. from the command line) overrides the file's joint count, so that
     ``index = "all"`` covers every joint that will run."""
+    source = scenario_source(path)
     try:
-        doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        doc = tomllib.loads(source.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ScenarioError(f"scenario: cannot read {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
@@ -80,10 +113,25 @@ def load_scenario(path: str | Path, joints: int | None = None) -> dict[str, Any]
     return scenario_from_mapping(doc, joints)
 
 
+def scenario_config(scenario: str | Path | None, fields: Mapping[str, Any], *,
+                    fallback: Mapping[str, Any] | None = None, wear_ramps: Sequence[str] = ()) -> SimConfig:
+    """A study's ``SimConfig``: the ``scenario`` (file or packaged name; ``None``: none) with ``fields``
+    set over it (e.g. each robot's seed), ``fallback`` for what neither sets (e.g. a study's default
+    length), and ``--wear-ramp`` specs added to the scenario's wear (``index = "all"`` covers
+    ``fields["joints"]`` joints when given)."""
+    given = {key: value for key, value in fields.items() if value is not None}
+    kwargs = {**(fallback or {}), **(load_scenario(scenario, given.get("joints")) if scenario else {}), **given}
+    if wear_ramps:
+        joints = int(kwargs.get("joints", SimConfig().joints))
+        kwargs["wear"] = merge_wear(kwargs.get("wear", ()), wear_profiles_from_ramps(wear_ramps, joints), joints)
+    return SimConfig(**kwargs)
+
+
 def scenario_from_mapping(doc: dict[str, Any], joints: int | None = None) -> dict[str, Any]:
-    unknown = sorted(set(doc) - {"simulation", "faults", "joint"})
+    unknown = sorted(set(doc) - set(_TABLES))
     if unknown:
-        raise ScenarioError(f"scenario: unknown table(s) {unknown}; use [simulation], [faults], [[joint]]")
+        raise ScenarioError(f"scenario: unknown table(s) {unknown}; use [simulation], [faults], [[joint]], "
+                            "[[timeline]]")
     kwargs: dict[str, Any] = {}
     sim = doc.get("simulation", {})
     if not isinstance(sim, dict):
@@ -111,7 +159,24 @@ def scenario_from_mapping(doc: dict[str, Any], joints: int | None = None) -> dic
     wear, overrides = _joints(doc.get("joint", []), joints)
     kwargs["wear"] = wear
     kwargs["joint_overrides"] = overrides
+    kwargs["timeline"] = _timeline(doc.get("timeline", []))
     return kwargs
+
+
+def _timeline(tables: Any) -> tuple[PlantEvent, ...]:
+    if not isinstance(tables, list):
+        raise ScenarioError("scenario.timeline: expected [[timeline]] tables, e.g. { cycle = 620, "
+                            "load_range = [0.6, 1.0] }")
+    events = []
+    try:
+        for n, table in enumerate(tables):
+            if not isinstance(table, dict):
+                raise ScenarioError(f"scenario.timeline[{n}]: expected a table, got {table!r}")
+            events.append(plant_event_from_mapping(table, f"scenario.timeline[{n}]"))
+        check_order(events, "scenario.timeline")
+    except TimelineError as exc:
+        raise ScenarioError(str(exc)) from None
+    return tuple(events)
 
 
 def _joints(tables: Any, joints: int) -> tuple[tuple[WearProfile, ...], tuple[JointOverride | None, ...]]:

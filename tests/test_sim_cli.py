@@ -197,17 +197,11 @@ def test_sigterm_ends_a_run_in_order_with_every_sent_frame_in_the_truth_summary(
 
 
 def test_run_on_virtual_bus_in_process_paced_by_speedup():
+    from test_sim_support import run_on_virtual_bus
+
     from sim_controller.config import SimConfig
-    from sim_controller.output import run
     config = SimConfig(joints=1, cycles=1, speeds=(20.0,), plateau_time=0.2, seed=1)
-    receiver = can.Bus(interface="virtual", channel="sim-test-run", ignore_config=True)
-    try:
-        summary = run(config, "virtual:sim-test-run", speedup=None)
-        received = 0
-        while receiver.recv(timeout=0) is not None:
-            received += 1
-    finally:
-        receiver.shutdown()
+    summary, received = run_on_virtual_bus(config, "sim-test-run", speedup=None)
     assert received == summary.frames_sent > 0 and summary.send_errors == 0
 
 

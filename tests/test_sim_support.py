@@ -4,7 +4,9 @@ their own test."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
+import can
 import numpy as np
 
 from protocol import frames as pf
@@ -16,6 +18,21 @@ class JointSignals:
     tick: np.ndarray      # unwrapped controller tick (from the frame order)
     torque: np.ndarray
     speed: np.ndarray
+
+
+def run_on_virtual_bus(config: Any, channel: str, **run_kwargs: Any) -> tuple[Any, int]:
+    """``sim_controller.output.run`` onto a python-can virtual bus: (its summary, frames received)."""
+    from sim_controller.output import run
+
+    receiver = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+    try:
+        summary = run(config, f"virtual:{channel}", **run_kwargs)
+        received = 0
+        while receiver.recv(timeout=0) is not None:
+            received += 1
+    finally:
+        receiver.shutdown()
+    return summary, received
 
 
 def collect(blocks) -> FrameBlock:

@@ -54,7 +54,9 @@ Parts (all with fixed seeds; select with --part, default all):
   false alarm; monitored cycles are those whose value the statistic tested). ``--quick``: 2 robots
   (seeds 1, 2) of 2 joints × 1 200 cycles (≈ 660 steady cycles per joint: the joints settle at
   ≈ 300 and learn for 240), the agent's 48 bootstrap detectors per calibration, in parallel
-  processes (≈ 4 min on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--at-boundary`` adds warm-up rows
+  processes (≈ 4 min on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--scenario FILE|NAME``
+  runs every robot in a simulator scenario (its plant timeline: load steps, stops, ``plant_week``;
+  seeds, joints and cycles as given here). ``--at-boundary`` adds warm-up rows
   (``"at_boundary": true``) where each detector's
   monitored values are moved up by ``allowance`` × the std of the values it learned (in the units it
   watches): the least favourable healthy drift, the one its threshold is calibrated for, so there the
@@ -492,15 +494,17 @@ def learning_error_study(n0: int, target: float = 1e4, detectors: int = 16, hori
             "arl_estimate": exposure / alarms if alarms else None}
 
 
-def simulated_quantities(seed: int, cycles: int, joints: int = 6) -> dict[int, list[dict[str, float]]]:
-    """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults),
-    with the cycle's motor temperature [°C] as the controller reports it (``"motor_temperature"``; the
-    detectors' thermal settling test watches it)."""
+def simulated_quantities(seed: int, cycles: int, joints: int = 6,
+                         scenario: str | None = None) -> dict[int, list[dict[str, float]]]:
+    """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults or
+    the simulator ``scenario``: a file or packaged name), with the cycle's motor temperature [°C] as the
+    controller reports it (``"motor_temperature"``; the detectors' thermal settling test watches it)."""
     from edge_monitor.offline.fast_path import detector_inputs_with_truth
-    from sim_controller.config import SimConfig
+    from sim_controller.scenario import scenario_config
 
     out: dict[int, list[dict[str, float]]] = {}
-    for joint, cycle, values, truth in detector_inputs_with_truth(SimConfig(joints=joints, cycles=cycles, seed=seed)):
+    sim = scenario_config(scenario, {"joints": joints, "cycles": cycles, "seed": seed})
+    for joint, cycle, values, truth in detector_inputs_with_truth(sim):
         out.setdefault(joint, []).append({**values, "motor_temperature": float(truth["motor_temperature"])})
         if cycle % 100 == 99 and joint == 0:
             log.info("seed %d: simulated cycle %d/%d", seed, cycle + 1, cycles)
@@ -718,6 +722,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--targets", default="50,200", help="--agent: target ARL0 values [cycles]")
     parser.add_argument("--robots", type=int, default=None, help="--agent: simulated robots (seeds 1 …)")
     parser.add_argument("--cycles", type=int, default=None, help="--agent: cycles per robot")
+    parser.add_argument("--scenario", metavar="FILE.toml|NAME", default=None,
+                        help="--agent: simulator scenario of every robot (e.g. plant_week; seeds, joints and "
+                             "cycles as above)")
     parser.add_argument("--allowance", type=float, default=None,
                         help="--agent: drift allowance [σ] instead of the shipped 0.75 (0: calibrated at Δ = 0)")
     parser.add_argument("--curves", action="store_true",
@@ -789,10 +796,18 @@ def _agent_main(args: argparse.Namespace) -> int:
     joints, draws = (2, 48) if args.quick else (6, 48)
     workers = max(1, min(os.cpu_count() or 1, 8))
     started = time.monotonic()
-    series = _simulate_robots(robots, cycles, joints, workers)
+    if args.scenario:
+        from sim_controller.scenario import scenario_config
+        try:
+            scenario_config(args.scenario, {"joints": joints, "cycles": cycles})
+        except ValueError as exc:          # ScenarioError / SimConfigError: names the field
+            print(f"arl_study: {exc}", file=sys.stderr)
+            return 2
+    series = _simulate_robots(robots, cycles, joints, workers, args.scenario)
     if args.curves:
         targets = tuple(float(t) for t in args.targets.split(","))
-        return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": 32,
+        return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "scenario": args.scenario,
+                            "calibration_draws": 32,
                             "rows": threshold_curves(series, targets)}, args.json)
     targets = tuple(float(t) for t in args.targets.split(","))
     log.info("simulated %d robots × %d joints × %d cycles in %.0f s; running the detectors", robots, joints,
@@ -804,22 +819,24 @@ def _agent_main(args: argparse.Namespace) -> int:
         rows += agent_arl(series, targets, draws, args.allowance, boundary=True, workers=workers)
     log.info("detectors done, %.0f s", time.monotonic() - started)
     steady = [r for r in rows if r["stage"] == "steady" and not r["at_boundary"]]
-    return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "calibration_draws": draws,
-                        "allowance": args.allowance, "calibrate_at": args.calibrate_at,
+    return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "scenario": args.scenario,
+                        "calibration_draws": draws, "allowance": args.allowance, "calibrate_at": args.calibrate_at,
                         "steady_at": args.steady_at, "steady_density": args.steady_density,
                         "steady_transform": args.steady_transform, "rows": steady,
                         "other_rows": [r for r in rows if r not in steady]}, args.json)
 
 
-def _simulate_robots(robots: int, cycles: int, joints: int, workers: int) -> list[dict[int, list[dict[str, float]]]]:
+def _simulate_robots(robots: int, cycles: int, joints: int, workers: int,
+                     scenario: str | None = None) -> list[dict[int, list[dict[str, float]]]]:
     """:func:`simulated_quantities` of seeds 1 … ``robots``, in up to ``workers`` processes."""
     seeds = list(range(1, robots + 1))
     if workers < 2 or robots < 2:
-        return [simulated_quantities(seed, cycles, joints) for seed in seeds]
+        return [simulated_quantities(seed, cycles, joints, scenario) for seed in seeds]
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(workers, robots)) as pool:
-        return list(pool.map(simulated_quantities, seeds, [cycles] * robots, [joints] * robots))
+        return list(pool.map(simulated_quantities, seeds, [cycles] * robots, [joints] * robots,
+                             [scenario] * robots))
 
 
 def _print_json(result: dict[str, object], path: Path | None) -> int:

@@ -7,6 +7,10 @@ lubricant warming from 30 °C by the thermal model, load spread 0.3 … 0.7 per 
 agent at its shipped defaults on the cycle-level fast path (the per-cycle quantities equal those of
 ``sim-controller record`` + ``edge-monitor replay``; tests/test_fast_path.py). ``--wear-ramp`` adds
 wear on some joints (``JOINT:START:END:FROM:TO``, as ``sim-controller record --wear-ramp``).
+``--scenario FILE|NAME`` runs every robot in a simulator scenario instead of the defaults (its plant
+timeline: load steps, stops, a plant week; ``sim-controller``'s packaged ``load_step``,
+``mild_load_step``, ``plant_week`` by name; each seed replaces the file's, ``--cycles`` and
+``--joints`` override it when given).
 
 Reported per quantity: monitored cycles of healthy joints (the exposure), false alarms (alarms on
 joints without wear), the run length to false alarm it implies (a lower bound when there are none),
@@ -16,7 +20,7 @@ observed misses). Seeds run in parallel worker
 processes (``--jobs``); a status line per seed and every ``--progress`` cycles.
 
 Usage: ``python tools/healthy_fleet_study.py --cycles 200 --seeds 1 2 [--wear-ramp 2:100:200:0:60]
-[--set decision.allowance=0] [--json OUT]``.
+[--scenario load_step] [--set decision.allowance=0] [--json OUT]``.
 """
 
 from __future__ import annotations
@@ -37,22 +41,31 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.offline.fast_path import run_cycles  # noqa: E402
 from edge_monitor.pipeline.agent import Agent  # noqa: E402
-from sim_controller.config import SimConfig, wear_profiles_from_ramps  # noqa: E402
+from sim_controller.config import SimConfig  # noqa: E402
 from sim_controller.cycle_mode import CycleSignals, cycle_signals  # noqa: E402
+from sim_controller.scenario import scenario_config  # noqa: E402
 
 log = logging.getLogger("healthy_fleet_study")
+#: Cycles per robot without ``--cycles`` or a scenario that says.
+DEFAULT_CYCLES = 200
 
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One simulated robot: seed, length [cycles], joints, wear ramps, agent overrides (TOML tables)."""
+    """One simulated robot: seed, length [cycles] (None: the scenario's), joints, wear ramps, agent
+    overrides (TOML tables), simulator scenario (file or packaged name)."""
 
     seed: int
-    cycles: int
+    cycles: int | None
     joints: int = 6
     wear_ramps: tuple[str, ...] = ()
     overrides: tuple[tuple[str, Any], ...] = ()
     progress: int = 50
+    scenario: str | None = None
+
+    def sim_config(self) -> SimConfig:
+        return scenario_config(self.scenario, {"seed": self.seed, "joints": self.joints, "cycles": self.cycles},
+                               fallback={"cycles": DEFAULT_CYCLES}, wear_ramps=self.wear_ramps)
 
 
 def settings_from(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
@@ -68,8 +81,7 @@ def settings_from(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
 
 def run_robot(spec: RunSpec) -> dict[str, Any]:
     """Simulate one robot through the agent; per joint the monitored cycles and alarms per quantity."""
-    sim = SimConfig(joints=spec.joints, cycles=spec.cycles, seed=spec.seed,
-                    wear=wear_profiles_from_ramps(spec.wear_ramps, spec.joints))
+    sim = spec.sim_config()
     agent = Agent(config_from_mapping(settings_from(spec.overrides)))
     monitored: dict[int, dict[str, int]] = {}
     alarms: list[dict[str, Any]] = []
@@ -84,7 +96,7 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
                 wear_truth[(int(truth["joint"]), int(truth["cycle"]))] = float(truth["wear"])
                 temperatures.append(float(truth["temperature"]))
             if spec.progress and signals.cycle % spec.progress == 0 and signals.cycle:
-                log.info("seed %d: cycle %d/%d, %d alarms, %.0f s", spec.seed, signals.cycle, spec.cycles,
+                log.info("seed %d: cycle %d/%d, %d alarms, %.0f s", spec.seed, signals.cycle, sim.cycles,
                          len(agent.stats.alarms), time.monotonic() - started)
             yield signals
 
@@ -108,7 +120,7 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             "steady_from": {str(j): c for j, c in steady_from.items()},
             "worn": worn, "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()}
                                                          for q, per in miss.get(j, {}).items()} for j in worn},
-            "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(spec.cycles) if (j, c) in wear_truth]
+            "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(sim.cycles) if (j, c) in wear_truth]
                            for j in worn},
             "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
 
@@ -186,10 +198,13 @@ def parse_set(text: str) -> tuple[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cycles", type=int, default=200)
+    ap.add_argument("--cycles", type=int, default=None,
+                    help=f"cycles per robot (default: the scenario's, else {DEFAULT_CYCLES})")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--joints", type=int, default=6)
     ap.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO")
+    ap.add_argument("--scenario", metavar="FILE.toml|NAME",
+                    help="simulator scenario for every robot (e.g. load_step, mild_load_step, plant_week)")
     ap.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
                     help="agent setting (value as JSON), e.g. decision.allowance=0")
     ap.add_argument("--jobs", type=int, default=2)
@@ -197,11 +212,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
-    specs = [RunSpec(seed, args.cycles, args.joints, tuple(args.wear_ramp), tuple(args.set), args.progress)
-             for seed in args.seeds]
+    specs = [RunSpec(seed, args.cycles, args.joints, tuple(args.wear_ramp), tuple(args.set), args.progress,
+                     args.scenario) for seed in args.seeds]
+    try:
+        sim = specs[0].sim_config()
+    except ValueError as exc:          # SimConfigError, ScenarioError: names the field
+        ap.error(str(exc))
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         runs = list(pool.map(run_robot, specs))
-    result = {"cycles": args.cycles, "seeds": args.seeds, "joints": args.joints, "wear_ramps": args.wear_ramp,
+    result = {"cycles": sim.cycles, "seeds": args.seeds, "joints": args.joints, "wear_ramps": args.wear_ramp,
+              "scenario": args.scenario, "timeline": [e.to_dict() for e in sim.timeline],
               "overrides": dict(args.set), "runs": runs, "summary": summarise(runs)}
     for q, row in result["summary"]["per_quantity"].items():
         arl = f"ARL0 ≈ {row['arl0']:.0f}" if row["arl0"] else f"ARL0 ≥ {row['arl0_95_lower']:.0f} (95 %)"

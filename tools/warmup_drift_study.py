@@ -58,6 +58,7 @@ from joint_model import FrictionParams  # noqa: E402
 from sim_controller.config import JointOverride, SimConfig  # noqa: E402
 from sim_controller.controller import VARIED_PARAMS, Controller  # noqa: E402
 from sim_controller.cycle_mode import cycle_signals  # noqa: E402
+from sim_controller.scenario import scenario_config  # noqa: E402
 
 log = logging.getLogger("warmup_drift_study")
 
@@ -101,14 +102,18 @@ def drift_rows(series: dict[str, np.ndarray], window: int, n_nominal: int = DEFA
     return rows
 
 
-def drift(seeds: list[int], cycles: int, joints: int, window: int, settings: dict[str, Any]) -> dict[str, Any]:
+def drift(seeds: list[int], cycles: int, joints: int, window: int, settings: dict[str, Any],
+          scenario: str | None = None) -> dict[str, Any]:
+    """The drift part on each seed (the simulator's defaults, or ``scenario``: a file or packaged name)."""
     joints_out = []
     for seed in seeds:
-        variation = joint_variation(SimConfig(joints=joints, seed=seed))
-        for joint, series in sorted(joint_series(SimConfig(joints=joints, cycles=cycles, seed=seed), settings).items()):
+        config = scenario_config(scenario, {"joints": joints, "cycles": cycles, "seed": seed})
+        variation = joint_variation(config)
+        for joint, series in sorted(joint_series(config, settings).items()):
             joints_out.append({"seed": seed, "joint": joint, "variation": variation[joint],
                                "windows": drift_rows(series, window)})
     return {"seeds": seeds, "cycles": cycles, "joints": joints, "window": window, "settings": settings,
+            "scenario": scenario,
             "per_joint": joints_out, "summary": summarise(joints_out), "causes": causes(joints_out)}
 
 
@@ -228,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cycles", type=int, default=600)
     ap.add_argument("--joints", type=int, default=6)
     ap.add_argument("--window", type=int, default=150, help="cycles per reported window")
+    ap.add_argument("--scenario", metavar="FILE.toml|NAME", default=None,
+                    help="drift part: simulator scenario of every seed (e.g. plant_week; joints and cycles as given)")
     ap.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
                     help="agent setting (value as JSON), e.g. kl.min_speed=1")
     ap.add_argument("--json", type=Path, default=None)
@@ -253,7 +260,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {r['speed_from']:g} … {r['speed_to']:g} | {r['samples']} | {r['uncompensated_rms']:.5f} | "
                   f"{r['residual_rms']:.5f} |")
     else:
-        result = drift(args.seeds, args.cycles, args.joints, args.window, settings_from(tuple(args.set)))
+        try:
+            scenario_config(args.scenario, {"joints": args.joints, "cycles": args.cycles})
+        except ValueError as exc:          # ScenarioError / SimConfigError: names the field
+            ap.error(str(exc))
+        result = drift(args.seeds, args.cycles, args.joints, args.window, settings_from(tuple(args.set)),
+                       args.scenario)
         print(markdown(result))
         print("\n| quantity | R² on fsξ, fvξ | correlation of the late shift with each varied parameter |\n|---|---|---|")
         for q, c in result["causes"].items():
