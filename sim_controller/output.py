@@ -106,10 +106,10 @@ class _Progress:
 
 
 def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = None,
-           progress: bool = False) -> RunSummary:
+           progress: bool = False, encoder: Any = None) -> RunSummary:
     """Simulate ``config`` and write all frames to the log ``path`` (format from the suffix);
     ``progress``: a bar over the cycles on stderr if it is a terminal, else INFO lines every 10 s."""
-    controller = Controller(config)
+    controller = Controller(config, encoder)
     writer = open_block_writer(path)
     truth = _TruthWriter(controller, truth_path)
     status = _Progress(controller, f"record {path}")
@@ -133,7 +133,8 @@ def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = 
 
 
 def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, truth_path: str | Path | None = None,
-        bus_kwargs: dict[str, Any] | None = None, stop: Callable[[], bool] | None = None) -> RunSummary:
+        bus_kwargs: dict[str, Any] | None = None, stop: Callable[[], bool] | None = None,
+        encoder: Any = None) -> RunSummary:
     """Stream the simulation onto a bus, paced at ``speedup`` × real time (``None``: unpaced).
 
     ``link`` is a link string (``slcan:…``, ``socketcan:…``, ``virtual:…``) or ``None`` for
@@ -142,7 +143,7 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
     goes on at its pace from there (no burst; frames are never dropped).
     """
     bus = open_bus(link, **(bus_kwargs or {}))
-    controller = Controller(config)
+    controller = Controller(config, encoder)
     truth = _TruthWriter(controller, truth_path)
     progress = _Progress(controller, f"run {link}")
     start = time.perf_counter()
