@@ -148,6 +148,9 @@ def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Sign
         raise MappingError(f"{where}: read_mapping: eds (from the EDS, nothing sent) or sdo, got {read_mapping!r}")
     if read_mapping == "sdo" and listen_only:
         raise MappingError(f"{where}: read_mapping = \"sdo\" sends SDO requests: set listen_only = false to allow it")
+    if read_mapping == "sdo":
+        raise MappingError(f"{where}: read_mapping = \"sdo\" is not implemented yet: give the drive's EDS/DCF "
+                           "(read_mapping = \"eds\") or write its TPDO mapping as joint.N.tpdo")
     trace = _trace(data.get("trace", {}), f"{where}: trace") if kind == "trace" else None
     joints_table = data.get("joint")
     if not isinstance(joints_table, dict) or not joints_table:

@@ -99,8 +99,7 @@ class ForeignSource:
         return self.stream.flush()
 
     def counters(self) -> dict[str, Any]:
-        return {**self.c.__dict__, "cycle_finding": {"method": self.stream.labeller.method,
-                                                     **self.stream.counters()}}
+        return {**self.c.__dict__, "cycle_finding": self.stream.counters()}
 
     def state_dict(self) -> dict[str, Any]:
         return {"cycles": self.stream.labeller.state_dict()}

@@ -153,5 +153,6 @@ class SampleStream:
         return sum(len(p) for p in self._samples.values())
 
     def counters(self) -> dict[str, Any]:
-        return {"before_first_cycle": self.before_first_cycle, "forced_release": self.forced_release,
+        return {"method": self.labeller.method, "before_first_cycle": self.before_first_cycle,
+                "forced_release": self.forced_release,
                 **self.labeller.counters()}
