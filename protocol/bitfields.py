@@ -7,7 +7,8 @@ second and a 200-cycle recording tens of millions. :class:`BitField` holds what 
 ``BitField.from_cantools(signal)`` takes cantools' numbering (Intel: start = LSB; Motorola: start = MSB
 in the DBC's sawtooth numbering), so a field decodes exactly what ``Message.decode`` decodes
 (tests/test_bitfields.py checks both directions against cantools with hypothesis).
-Floating-point signals are refused with a clear error (no robot signal we met needs them).
+Floating-point signals are refused with a clear error (no robot signal we met needs them). Physical values
+are float64: exact for raw values up to 2⁵³ (encoding saturates unsigned fields at 2⁶³).
 """
 
 from __future__ import annotations
@@ -90,10 +91,8 @@ class BitField:
         raw = (word >> np.uint64(self._shift())) & self._mask()
         if not self.signed:
             return raw
-        if self.length == 64:
-            return raw.view(np.int64)
-        value = raw.astype(np.int64)
-        return np.where(value >= (1 << (self.length - 1)), value - (1 << self.length), value)
+        spare = np.uint64(64 - self.length)            # sign-extend: to the top, arithmetic shift back
+        return (raw << spare).view(np.int64) >> np.int64(64 - self.length)
 
     def decode(self, data: NDArray[np.uint8]) -> NDArray[np.float64]:
         """Physical value of each row (raw · scale + offset)."""
@@ -107,7 +106,8 @@ class BitField:
     def encode_into(self, data: NDArray[np.uint8], values: NDArray[np.float64] | float) -> None:
         """Write ``values`` (physical, rounded to the step, saturated to the field) into ``data`` in place."""
         lo, hi = self.raw_limits()
-        raw = np.clip(np.rint((np.asarray(values, dtype=np.float64) - self.offset) / self.scale), lo, hi)
+        raw = np.clip(np.rint((np.asarray(values, dtype=np.float64) - self.offset) / self.scale),
+                      float(lo), float(min(hi, (1 << 63) - 1024)))
         self.encode_raw_into(data, raw.astype(np.int64))
 
     def encode_raw_into(self, data: NDArray[np.uint8], raw: NDArray[np.int64] | int) -> None:
