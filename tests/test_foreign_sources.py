@@ -62,8 +62,7 @@ def test_every_profile_gives_the_same_friction_curves(runs):
         assert {(r["joint"], r["cycle"]) for r in records} == set(native)
         for r in records:
             ref = native[(r["joint"], r["cycle"])]["friction"]
-            assert len(r["friction"]["torque"]) == len(ref["torque"]) == 2 * len(SPEEDS) or \
-                len(r["friction"]["torque"]) == len(ref["torque"])
+            assert len(r["friction"]["torque"]) == len(ref["torque"]) == len(SPEEDS)
             # resolution: ‰ of rated = 3.3e-4 of T_ref (cia402), 0.001 N·m / 30 N·m (foreign), averaged over a plateau
             np.testing.assert_allclose(r["friction"]["torque"], ref["torque"], atol=2e-4)
             np.testing.assert_allclose(r["friction"]["speeds"], ref["speeds"], atol=0.05)
