@@ -56,17 +56,21 @@ def main() -> int:
     p.add_argument("--wear-ramp", default="2:100:200:0:40")
     p.add_argument("--at", default="99,150,199", help="cycles at which wear estimates are listed")
     p.add_argument("--keep", action="store_true", help="keep the .blf recordings")
+    p.add_argument("--report-only", action="store_true", help="only print the table from the files in --out")
     args = p.parse_args()
     Path(args.out).mkdir(parents=True, exist_ok=True)
     worn, start = int(args.wear_ramp.split(":")[0]), int(args.wear_ramp.split(":")[1])
     healthy = 0 if worn != 0 else 1
     results = {}
-    for name, (profile, mapping) in PROFILES.items():
-        results[name] = run_profile(name, profile, mapping, args)
-        print(f"{name}: recorded in {results[name]['record_s']:.0f} s, replayed in {results[name]['replay_s']:.0f} s",
-              file=sys.stderr, flush=True)
-    (Path(args.out) / "results.json").write_text(json.dumps(
-        {k: {"stats": v["stats"], "record_s": v["record_s"], "replay_s": v["replay_s"]} for k, v in results.items()}))
+    if not args.report_only:
+        for name, (profile, mapping) in PROFILES.items():
+            results[name] = run_profile(name, profile, mapping, args)
+            print(f"{name}: recorded in {results[name]['record_s']:.0f} s, replayed in "
+                  f"{results[name]['replay_s']:.0f} s", file=sys.stderr, flush=True)
+        (Path(args.out) / "results.json").write_text(json.dumps(
+            {k: {"stats": v["stats"], "record_s": v["record_s"], "replay_s": v["replay_s"]}
+             for k, v in results.items()}))
+    results = _from_files(Path(args.out))
     print("| | " + " | ".join(results) + " |")
     print("|---|" + "---|" * len(results))
     row = {name: r for name, r in results.items()}
@@ -95,9 +99,40 @@ def main() -> int:
     for c in [int(v) for v in args.at.split(",")]:
         line(f"wear joint {worn}, cycle {c}", lambda r: wear(r, worn, c))
         line(f"wear joint {healthy}, cycle {c}", lambda r: wear(r, healthy, c))
+    line(f"healthy joints: mean reported wear std, cycles {start}–{args.cycles - 1}",
+         lambda r: f"{_mean_std(r, worn, start):.2f}")
+    line(f"healthy joints: RMS wear error, cycles {start}–{args.cycles - 1}",
+         lambda r: f"{_rms_error(r, worn, start):.2f}")
     line("frames", lambda r: f"{r['stats']['frames_total']:,}")
     line("replay frames/s", lambda r: f"{r['stats']['frames_per_second']:,.0f}")
     return 0
+
+
+def _from_files(out: Path) -> dict:
+    saved = json.loads((out / "results.json").read_text())
+    results = {}
+    for name, entry in saved.items():
+        stem = name.replace(" ", "_")
+        results[name] = {**entry, "symptoms": [json.loads(line) for line in (out / f"{stem}.symptoms.jsonl").open()],
+                         "truth": [json.loads(line) for line in (out / f"{stem}.truth.jsonl").open()
+                                   if '"joint"' in line]}
+    return results
+
+
+def _healthy(r: dict, worn: int, start: int) -> list[tuple[dict, float]]:
+    truth = {(t["joint"], t["cycle"]): t["wear"] for t in r["truth"]}
+    return [(s["wear"], truth[(s["joint"], s["cycle"])]) for s in r["symptoms"]
+            if s["joint"] != worn and s["cycle"] >= start and (s.get("wear") or {}).get("estimate") is not None]
+
+
+def _mean_std(r: dict, worn: int, start: int) -> float:
+    values = [w["std"] for w, _ in _healthy(r, worn, start) if w.get("std") is not None]
+    return sum(values) / max(len(values), 1)
+
+
+def _rms_error(r: dict, worn: int, start: int) -> float:
+    errors = [(w["estimate"] - true) ** 2 for w, true in _healthy(r, worn, start)]
+    return (sum(errors) / max(len(errors), 1)) ** 0.5
 
 
 if __name__ == "__main__":
