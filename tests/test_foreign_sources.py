@@ -162,3 +162,22 @@ def test_check_mapping_refuses_wrong_mappings(runs, tmp_path):
         assert done.returncode == 2, (name, done.stdout, done.stderr)
         assert message in done.stdout + done.stderr, (name, done.stdout, done.stderr)
         assert "Traceback" not in done.stderr
+
+
+def test_a_restarted_agent_numbers_found_cycles_on(runs, tmp_path):
+    """State saved by an agent on a foreign source loads, and the cycle numbering goes on after a restart."""
+    from edge_monitor.pipeline.state_store import StateStore
+    _, _, log, m = runs["foreign"]
+    cfg = load_config(None)
+    blocks = list(log_blocks(log, 4096))
+    first = Agent(cfg, state_store=StateStore(tmp_path), source=open_source(m, cfg))
+    for block in blocks[:len(blocks) // 2]:
+        first.update(*block)
+    first.close()
+    second = Agent(cfg, state_store=StateStore(tmp_path), source=open_source(m, cfg))
+    assert second.stats.states_rejected == 0
+    emitted = []
+    for block in blocks[len(blocks) // 2:]:
+        emitted += second.update(*block)
+    emitted += second.flush_source() + second.finish()
+    assert emitted and min(s.cycle for s in emitted) > max(first._last_emitted.values())

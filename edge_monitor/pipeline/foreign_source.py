@@ -102,11 +102,12 @@ class ForeignSource:
         return {**self.c.__dict__, "cycle_finding": self.stream.counters()}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"cycles": self.stream.labeller.state_dict()}
+        """The cycle numbering (flat integers, as the agent's state validation expects): a restarted agent
+        numbers the cycles it finds after the ones it published."""
+        return self.stream.labeller.state_dict()
 
     def load_state(self, state: dict[str, Any]) -> None:
-        if isinstance(state.get("cycles"), dict):
-            self.stream.labeller.load_state(state["cycles"])
+        self.stream.labeller.load_state(state)
 
 
 def take(bound: BoundSignal, ids: NDArray[np.int64], data: NDArray[np.uint8], times: NDArray[np.float64],
