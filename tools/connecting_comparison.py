@@ -94,7 +94,7 @@ def main() -> int:
         return f"{s['wear']['estimate']:.1f} ± {s['wear']['std']:.1f} (true {true:.1f})"
 
     line("cycles / symptoms", lambda r: f"{r['stats']['cycles']} / {r['stats']['symptoms']}")
-    line("alarms (joint, cycle, quantity)", alarms)
+    line("first alarm per (joint, quantity): joint cycle quantity", alarms)
     line(f"detection delay, joint {worn}", lambda r: first_alarm(r, worn))
     for c in [int(v) for v in args.at.split(",")]:
         line(f"wear joint {worn}, cycle {c}", lambda r: wear(r, worn, c))
@@ -103,17 +103,31 @@ def main() -> int:
          lambda r: f"{_mean_std(r, worn, start):.2f}")
     line(f"healthy joints: RMS wear error, cycles {start}–{args.cycles - 1}",
          lambda r: f"{_rms_error(r, worn, start):.2f}")
-    line("frames", lambda r: f"{r['stats']['frames_total']:,}")
-    line("replay frames/s", lambda r: f"{r['stats']['frames_per_second']:,.0f}")
+    line("frames", lambda r: f"{r['stats'].get('frames_total', 0):,}")
     return 0
 
 
 def _from_files(out: Path) -> dict:
-    saved = json.loads((out / "results.json").read_text())
+    """Each profile's symptoms and truth in ``out`` (profiles not run yet are left out); alarms: the first
+    cycle each (joint, quantity) decision reads alarm."""
+    saved = json.loads((out / "results.json").read_text()) if (out / "results.json").exists() else {}
     results = {}
-    for name, entry in saved.items():
+    for name in PROFILES:
         stem = name.replace(" ", "_")
-        results[name] = {**entry, "symptoms": [json.loads(line) for line in (out / f"{stem}.symptoms.jsonl").open()],
+        if not (out / f"{stem}.symptoms.jsonl").exists() or not (out / f"{stem}.truth.jsonl").exists():
+            continue
+        symptoms = [json.loads(line) for line in (out / f"{stem}.symptoms.jsonl").open()]
+        first: dict[tuple[int, str], int] = {}
+        for s in symptoms:
+            for q, d in s["decisions"].items():
+                if d.get("alarm"):
+                    first.setdefault((s["joint"], q), s["cycle"])
+        stats = saved.get(name, {}).get("stats", {})
+        stats["alarms"] = [{"joint": j, "cycle": c, "quantity": q} for (j, q), c in sorted(first.items(),
+                                                                                          key=lambda x: x[1])]
+        stats.setdefault("cycles", max((s["cycle"] for s in symptoms), default=-1) + 1)
+        stats.setdefault("symptoms", len(symptoms))
+        results[name] = {"stats": stats, "symptoms": symptoms,
                          "truth": [json.loads(line) for line in (out / f"{stem}.truth.jsonl").open()
                                    if '"joint"' in line]}
     return results
