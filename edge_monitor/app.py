@@ -111,18 +111,19 @@ SINK_BUILDERS: dict[str, Callable[[AgentConfig, Outputs, App, ExitStack], Sink |
 
 
 def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: StateStore | None = None,
-              live: bool = False) -> App:
+              live: bool = False, source: Any = None) -> App:
     """The agent and every sink ``outputs`` asks for. Opening failures raise
     :class:`~edge_monitor.sinks.zenoh_session.ZenohSetupError` or
     :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix.
     ``live``: detectors calibrate their thresholds in a worker process, so frames keep flowing
-    (replay calibrates inline: deterministic)."""
+    (replay calibrates inline: deterministic). ``source``: a foreign sample source (pipeline.sources);
+    None: our frames."""
     calibrator = None
     if live and config.decision.enabled and config.decision.pf is None:
         from edge_monitor.stats.calibrators import ProcessCalibrator
         calibrator = ProcessCalibrator()
         stack.callback(calibrator.close)
-    app = App(Agent(config, state_store=store, calibrator=calibrator))
+    app = App(Agent(config, state_store=store, calibrator=calibrator, source=source))
     for name, build in SINK_BUILDERS.items():
         sink = build(config, outputs, app, stack)
         if sink is not None:

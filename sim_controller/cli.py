@@ -128,6 +128,10 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     g.add_argument("--truth", metavar="PATH.jsonl",
                    help="write ground truth (one record per joint per cycle, then a fault summary)")
     g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
+    g.add_argument("--profile", default="native", metavar="native|cia402|dbc:MAPPING.toml",
+                   help="whose frames to send: ours (default), CiA 402 drives (canopen TPDOs of "
+                        "protocol/eds/cia402_drive.eds) or a DBC mapping's (e.g. dbc:protocol/mappings/"
+                        "foreign_robot.toml); docs/CONNECTING.md")
 
 
 _FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "seed": "seed", "speeds": "speeds",
@@ -214,6 +218,16 @@ def _stop_on_sigterm() -> threading.Event:
     return stop
 
 
+def _encoder(args: argparse.Namespace, config: SimConfig) -> Any:
+    """The frame encoder of ``--profile`` (None: our frames)."""
+    if args.profile == "native":
+        return None
+    if config.faults.any_link_fault:
+        raise SimConfigError("faults: link faults are simulated for --profile native only")
+    from sim_controller.profiles import profile_encoder
+    return profile_encoder(args.profile, config.joints, config.start_time, config.rate)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -230,14 +244,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     log.info("%s: %d joints, %d cycles at %g Hz, seed %d -> %s", args.command, config.joints, config.cycles,
              config.rate, config.seed, getattr(args, "out", None) or args.link or "python-can configuration")
     try:
+        encoder = _encoder(args, config)
+    except ValueError as exc:     # ProfileError, MappingError, BitFieldError, Cia402Error
+        usage_error(str(exc))
+    try:
         if args.command == "record":
-            summary = record(config, args.out, args.truth, progress=verbosity(args) >= 0)
+            summary = record(config, args.out, args.truth, progress=verbosity(args) >= 0, encoder=encoder)
         else:
             if (problem := _run_option_error(args)) is not None:
                 usage_error(problem)
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
             summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args),
-                          stop=_stop_on_sigterm().is_set, max_pause=args.max_pause)
+                          stop=_stop_on_sigterm().is_set, max_pause=args.max_pause, encoder=encoder)
     except NoCanConfigError as exc:
         usage_error(str(exc))
     except (LinkError, OSError) as exc:

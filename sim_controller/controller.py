@@ -138,8 +138,9 @@ def statuses_between(tick: int, gap: int) -> int:
 class Controller:
     """Simulated controller of one robot (see module docstring). Deterministic given ``config.seed``."""
 
-    def __init__(self, config: SimConfig) -> None:
+    def __init__(self, config: SimConfig, encoder: Any = None) -> None:
         self.config = config
+        self.encoder = encoder       # another controller's frames (sim_controller.profiles); None: ours
         seeds = np.random.SeedSequence(config.seed).spawn(6)
         setup_rng, self._cycle_rng, self._noise_rng, fault_rng, self._restart_rng, _ = (
             np.random.default_rng(s) for s in seeds)
@@ -201,7 +202,11 @@ class Controller:
     def frames(self) -> Iterator[FrameBlock]:
         """All frames of the run, in blocks of about ``config.block_time`` seconds."""
         for sc in self.simulated_cycles():
-            yield from self._emit(self._encode(sc), sc.ticks)
+            if self.encoder is None:
+                yield from self._emit(self._encode(sc), sc.ticks)
+            else:
+                block, per_tick = self.encoder.encode(sc, self._frame_spacing)
+                yield from self._emit(block, sc.ticks, per_tick)
             self.cycles_done += 1
         tail = self.injector.flush()
         if len(tail):
@@ -334,17 +339,18 @@ class Controller:
                                                   cond.motor_temperature[j] + sc.status_noise[j])
         return FrameBlock(ids, data, ts)
 
-    def _emit(self, block: FrameBlock, ticks: NDArray[np.int64]) -> Iterator[FrameBlock]:
+    def _emit(self, block: FrameBlock, ticks: NDArray[np.int64],
+              frames_per_tick: NDArray[np.int64] | None = None) -> Iterator[FrameBlock]:
         c = self.config
         n_j = c.joints
-        status = ticks % STATUS_EVERY == 0
-        frames_per_tick = n_j + status * (n_j + 1)
+        if frames_per_tick is None:
+            status = ticks % STATUS_EVERY == 0
+            frames_per_tick = n_j + status * (n_j + 1)
         starts = np.concatenate([[0], np.cumsum(frames_per_tick)])
         step = max(1, int(round(c.block_time * c.rate)))
         for i0 in range(0, ticks.size, step):
             i1 = min(ticks.size, i0 + step)
-            part = FrameBlock(block.ids[starts[i0]:starts[i1]], block.data[starts[i0]:starts[i1]],
-                              block.timestamps[starts[i0]:starts[i1]])
+            part = block.take(np.arange(starts[i0], starts[i1]))
             out = self.injector.apply(part) if (c.faults.any_link_fault or self.injector.holding) else part
             self.frames_emitted += len(out)
             self.ticks_done += i1 - i0

@@ -99,24 +99,29 @@ class FaultSpec:
 
 @dataclass
 class FrameBlock:
-    """A block of frames in send order: ``ids`` (n,), ``data`` (n, 8) uint8, ``timestamps`` (n,) [s]."""
+    """A block of frames in send order: ``ids`` (n,), ``data`` (n, 8) uint8, ``timestamps`` (n,) [s],
+    ``dlc`` (n,) or None (all 8: our frames)."""
 
     ids: NDArray[np.int64]
     data: NDArray[np.uint8]
     timestamps: NDArray[np.float64]
+    dlc: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return int(self.ids.size)
 
     def take(self, index: NDArray[np.int64] | NDArray[np.bool_]) -> "FrameBlock":
-        return FrameBlock(self.ids[index], self.data[index], self.timestamps[index])
+        return FrameBlock(self.ids[index], self.data[index], self.timestamps[index],
+                          None if self.dlc is None else self.dlc[index])
 
     @staticmethod
     def concat(blocks: list["FrameBlock"]) -> "FrameBlock":
         if not blocks:
             return FrameBlock(np.zeros(0, np.int64), np.zeros((0, 8), np.uint8), np.zeros(0))
+        dlc = None if all(b.dlc is None for b in blocks) else np.concatenate(
+            [np.full(len(b), 8, np.int64) if b.dlc is None else b.dlc for b in blocks])
         return FrameBlock(np.concatenate([b.ids for b in blocks]), np.concatenate([b.data for b in blocks]),
-                          np.concatenate([b.timestamps for b in blocks]))
+                          np.concatenate([b.timestamps for b in blocks]), dlc)
 
 
 CrcFn = Callable[[NDArray[np.int64], NDArray[np.uint8]], NDArray[np.uint8]]

@@ -108,7 +108,7 @@ class BlockBLFWriter(blf.BLFWriter):
         objects["flags"] = _TIME_ONE_NANS
         objects["timestamp"] = np.maximum(rel, 0)
         objects["channel"] = self.channel
-        objects["dlc"] = 8
+        objects["dlc"] = 8 if block.dlc is None else block.dlc
         objects["arbitration_id"] = block.ids
         objects["data"] = block.data
         self._append_objects(objects.tobytes(), n)
@@ -130,6 +130,10 @@ class BlockCanutilsWriter(can.CanutilsLogWriter):
     def write_block(self, block: FrameBlock) -> None:
         n = len(block)
         if n == 0:
+            return
+        if block.dlc is not None:            # frames shorter than 8 bytes: python-can's own formatting
+            for message in block_messages(block):
+                self.on_message_received(message)
             return
         if self.last_timestamp is None:
             self.last_timestamp = float(block.timestamps[0])
@@ -153,6 +157,10 @@ class BlockASCWriter(can.ASCWriter):
     def write_block(self, block: FrameBlock) -> None:
         n = len(block)
         if n == 0:
+            return
+        if block.dlc is not None:            # frames shorter than 8 bytes: python-can's own formatting
+            for message in block_messages(block):
+                self.on_message_received(message)
             return
         start = 0
         if not self.header_written:
@@ -247,9 +255,13 @@ class MessageWriter:
 
 
 def block_messages(block: FrameBlock) -> list[can.Message]:
-    """python-can messages of a block (11-bit IDs, DLC 8, timestamps of the block)."""
+    """python-can messages of a block (11-bit IDs, DLC 8 or the block's, timestamps of the block)."""
     raw = block.data.tobytes()
     message = can.Message
+    if block.dlc is not None:
+        return [message(timestamp=t, arbitration_id=i, is_extended_id=False, dlc=n, data=raw[8 * k:8 * k + n],
+                        check=False)
+                for k, (i, t, n) in enumerate(zip(block.ids.tolist(), block.timestamps.tolist(), block.dlc.tolist()))]
     return [message(timestamp=t, arbitration_id=i, is_extended_id=False, dlc=8, data=raw[8 * k:8 * k + 8],
                     check=False)
             for k, (i, t) in enumerate(zip(block.ids.tolist(), block.timestamps.tolist()))]

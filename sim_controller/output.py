@@ -113,10 +113,10 @@ class _Progress:
 
 
 def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = None,
-           progress: bool = False) -> RunSummary:
+           progress: bool = False, encoder: Any = None) -> RunSummary:
     """Simulate ``config`` and write all frames to the log ``path`` (format from the suffix);
     ``progress``: a bar over the cycles on stderr if it is a terminal, else INFO lines every 10 s."""
-    controller = Controller(config)
+    controller = Controller(config, encoder)
     writer = open_block_writer(path)
     truth = _TruthWriter(controller, truth_path)
     status = _Progress(controller, f"record {path}")
@@ -141,7 +141,7 @@ def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = 
 
 def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, truth_path: str | Path | None = None,
         bus_kwargs: dict[str, Any] | None = None, stop: Callable[[], bool] | None = None,
-        max_pause: float = DEFAULT_MAX_PAUSE_S) -> RunSummary:
+        max_pause: float = DEFAULT_MAX_PAUSE_S, encoder: Any = None) -> RunSummary:
     """Stream the simulation onto a bus, paced at ``speedup`` × real time (``None``: unpaced).
 
     ``link`` is a link string (``slcan:…``, ``socketcan:…``, ``virtual:…``) or ``None`` for
@@ -151,7 +151,7 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
     controller's timestamps (a plant stop) pauses at most ``max_pause`` seconds of wall time.
     """
     bus = open_bus(link, **(bus_kwargs or {}))
-    controller = Controller(config)
+    controller = Controller(config, encoder)
     truth = _TruthWriter(controller, truth_path)
     progress = _Progress(controller, f"run {link}")
     start = time.perf_counter()

@@ -23,6 +23,9 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
     parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")
     parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
+    parser.add_argument("--mapping", metavar="MAPPING.toml",
+                        help="the controller is not ours: a mapping file for its DBC, CiA 402 drives or trace "
+                             "table (docs/CONNECTING.md; examples in protocol/mappings/)")
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -118,3 +121,19 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)
+
+
+def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig, Any]:
+    """``(config, source)`` for ``--mapping`` (``(cfg, None)`` without one: our frames). A mapping that
+    does not load or does not match its DBC/EDS raises MappingError (a ValueError: exit code 2)."""
+    if not path:
+        return cfg, None
+    from edge_monitor.pipeline.sources import config_for, open_source
+    from protocol.signal_mapping import load_mapping
+    try:
+        mapping = load_mapping(path)
+        cfg = config_for(cfg, mapping)
+        return cfg, open_source(mapping, cfg)
+    except ValueError as exc:       # MappingError and what the DBC/EDS parsers raise
+        print(f"edge-monitor: mapping error: {exc}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE) from None

@@ -21,6 +21,7 @@ from edge_monitor.app import Outputs, build_app
 from edge_monitor.commands.common import (
     add_config_arguments,
     load_agent_config,
+    open_mapped_source,
     open_state_store,
     print_json,
     summary_table,
@@ -28,16 +29,17 @@ from edge_monitor.commands.common import (
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import FrameArrays
 from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
+from edge_monitor.pipeline.trace_source import TraceError, is_trace_file, replay_trace
 from edge_monitor.sinks.base import LastSymptomSink
-from protocol.console import EXIT_FAILURE, progress_bar, verbosity
+from protocol.console import EXIT_FAILURE, EXIT_USAGE, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("replay", help="run the agent over a python-can log (.blf/.log/.asc)",
-                              description=__doc__)
-    p.add_argument("file", help="python-can log file")
+    p = subparsers.add_parser("replay", help="run the agent over a python-can log (.blf/.log/.asc) or a trace "
+                                             "table (.csv/.parquet, with --mapping)", description=__doc__)
+    p.add_argument("file", help="python-can log file, or a CSV/Parquet trace table (needs --mapping)")
     add_config_arguments(p)
     p.add_argument("--json", action="store_true", help="print the run statistics as JSON")
     p.add_argument("--no-close", action="store_true",
@@ -74,16 +76,24 @@ def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, ba
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = load_agent_config(args)
+    cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     last = LastSymptomSink()
     with ExitStack() as stack:
-        agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg)).agent
+        agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg), source=source).agent
         agent.sinks.append(last)
         try:
-            report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
+            if is_trace_file(args.file):
+                report = replay_trace(agent, args.file, args.mapping)
+            else:
+                report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
         except (FileNotFoundError, LogReadError) as exc:
             print(f"edge-monitor replay: {exc}", file=sys.stderr)
             return EXIT_FAILURE
+        except TraceError as exc:
+            print(f"edge-monitor replay: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        if not args.no_close:
+            agent.flush_source()
         agent.finish(close_open_cycle=not args.no_close and report.truncated is None)
         stats = {**agent.run_statistics(), "log": report.to_dict()}
     if args.json:

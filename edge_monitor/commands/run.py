@@ -23,6 +23,7 @@ from edge_monitor.commands.common import (
     add_config_arguments,
     add_zenoh_arguments,
     load_agent_config,
+    open_mapped_source,
     open_state_store,
     zenoh_options,
 )
@@ -104,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from protocol.links import LinkError, NoCanConfigError, is_log_file, open_bus
     if args.link and is_log_file(args.link):
         raise UsageError(f"--link {args.link} is a log file; use `edge-monitor replay {args.link}`")
-    cfg = load_agent_config(args)
+    cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     if args.allow_remote_maintenance:
         cfg = dataclasses.replace(cfg, maintenance=dataclasses.replace(cfg.maintenance, remote=True))
     if args.allow_remote_acknowledge:
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             outputs = Outputs(jsonl=cfg.jsonl, zenoh=None if args.no_zenoh else zenoh_options(args),
                               rerun=args.rerun or cfg.rerun, rerun_fallback="edge-monitor.rrd", maintenance=True)
-            app = build_app(cfg, outputs, stack, store, live=True)
+            app = build_app(cfg, outputs, stack, store, live=True, source=source)
         except (ZenohSetupError, ValueError) as exc:
             print(f"edge-monitor run: {exc}", file=sys.stderr)
             return EXIT_USAGE
@@ -140,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
             # the stream ended (docs/OUTPUTS.md "End of the stream"): its last cycle is complete, publish it
             # as replay does at the end of a file; a stop mid-stream (signal, --duration, --max-cycles,
             # a link failure) leaves it open
+            agent.flush_source()
             agent.finish(close_open_cycle=True)
             runner.report()
         if args.summary_json:

@@ -190,6 +190,12 @@ class PlateauDetector:
         """Speeds of the levels by index [rad/s]: configured or discovered (empty with segment codes)."""
         return tuple(self.config.speeds) if not self.auto else tuple(self._levels)
 
+    @property
+    def open_run_start(self) -> int | None:
+        """Tick at which the run on a level now in progress began (None: no level run is open). Samples
+        from there on may still become part of a plateau."""
+        return self._run_tick_start if self._label != 0 and self._label != UNMATCHED else None
+
     def _steady(self, speed: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Small sample-to-sample change at a speed well above standstill (across blocks)."""
         steady = np.abs(np.diff(speed, prepend=self._last_speed)) < self.config.tolerance_abs

@@ -49,12 +49,13 @@ class Agent:
     """Holds one :class:`JointMonitor` per joint and routes ingested samples to them."""
 
     def __init__(self, config: AgentConfig, sinks: Iterable[Sink] = (), state_store: StateStore | None = None,
-                 calibrator: Calibrator | None = None):
+                 calibrator: Calibrator | None = None, source: Any = None):
         self.config = config
         self.calibrator = calibrator     # None: detectors calibrate inline (replay, studies)
         self.sinks = list(sinks)
         self.store = state_store
-        self.ingest = Ingest(rate_hz=config.rate_hz, joints=config.joints)
+        # the sample source (docs/ARCHITECTURE.md): our frames, or a mapping's (pipeline.sources)
+        self.ingest = source if source is not None else Ingest(rate_hz=config.rate_hz, joints=config.joints)
         self.joints: dict[int, JointMonitor] = {}
         self.stats = RunStats()
         self._open_cycle: int | None = None
@@ -75,6 +76,11 @@ class Agent:
         with self.lock:
             block = self.ingest.update(ids, data, dlc, timestamps)
             return self._route(block)
+
+    def flush_source(self) -> list[Symptom]:
+        """End of stream: the samples a source still holds (a foreign source waits for plateaus to end)."""
+        flush = getattr(self.ingest, "flush", None)
+        return self.update_ingested(flush()) if flush is not None else []
 
     def update_ingested(self, block: IngestBlock) -> list[Symptom]:
         """Process samples that are already decoded, checked and labelled (the simulator's cycle-level

@@ -4,16 +4,18 @@ Works on numpy blocks of frames (``ids``, ``data`` (n, 8), ``dlc``, ``timestamps
 the live loop and in replay. Frames failing decoding or E2E checks are excluded and counted,
 never averaged in. The motor-state counter (controller tick mod 256) is unwrapped per joint into a
 monotone controller tick; controller time = tick / rate. Every sample is labelled with the cycle and
-segment of the controller status frame in force when it arrived (stream order).
+segment of the controller status frame in force when it arrived (stream order). Its output is the
+sample interface of :mod:`edge_monitor.pipeline.samples`, which every source produces.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from edge_monitor.pipeline.samples import CycleRun, IngestBlock, JointSamples, JointStatusBlock
 from protocol.e2e import E2EReceiver, E2EStatus
 from protocol.frames import (
     CYCLE_MODULUS,
@@ -24,46 +26,11 @@ from protocol.frames import (
     decode_block,
 )
 
+__all__ = ["CycleRun", "Ingest", "IngestBlock", "IngestCounters", "JointSamples", "JointStatusBlock"]
+
 _USABLE = (int(E2EStatus.OK), int(E2EStatus.OK_SOME_LOST))
 #: Largest forward jump of the cycle counter taken as progress; larger or backward: controller restart.
 MAX_CYCLE_STEP = 1000
-
-
-@dataclass
-class JointSamples:
-    """Usable samples of one joint within one cycle run of a block, in stream order."""
-
-    tick: NDArray[np.int64]
-    speed: NDArray[np.float64]      # rad/s, motor side
-    torque: NDArray[np.float64]     # fraction of max. joint torque
-    segment: NDArray[np.int64]      # controller segment code in force (-1: unknown)
-
-
-@dataclass(frozen=True)
-class JointStatusBlock:
-    """JointStatus frames of one joint in stream order: the controller's load estimate μl and its σl
-    (fraction of max. torque) and the motor temperature [°C], one entry per frame."""
-
-    load_estimate: NDArray[np.float64]
-    load_std: NDArray[np.float64]
-    motor_temperature: NDArray[np.float64]
-
-
-@dataclass
-class CycleRun:
-    """A maximal run of rows of a block under one controller cycle number (``None``: unknown)."""
-
-    cycle: int | None
-    samples: dict[int, JointSamples]
-    joint_status: dict[int, JointStatusBlock]
-    starts_at_boundary: bool | None = None              # first run of a cycle: was its start seen?
-    previous_cut: bool = False                          # entered by a controller restart: the cycle
-                                                        # before it ended early (its end is unknown)
-
-
-@dataclass
-class IngestBlock:
-    runs: list[CycleRun] = field(default_factory=list)
 
 
 @dataclass

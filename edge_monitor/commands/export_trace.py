@@ -1,0 +1,65 @@
+"""``edge-monitor export-trace LOG --out TRACE.csv``: a recording as a trace table, with the mapping that
+replays it (``edge-monitor replay TRACE.csv --mapping TRACE.toml``). Decoded as the agent decodes it:
+our frames, or another controller's with ``--mapping``. See docs/CONNECTING.md."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from edge_monitor.commands.common import load_agent_config, open_mapped_source
+from edge_monitor.pipeline.ingest import Ingest
+from edge_monitor.pipeline.log_source import LogReadError, log_blocks
+from edge_monitor.pipeline.samples import IngestBlock
+from edge_monitor.pipeline.trace_export import TraceWriter
+from protocol.console import EXIT_FAILURE
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("export-trace", help="export a recording as a CSV/Parquet trace table",
+                              description=__doc__)
+    p.add_argument("file", help="python-can log file")
+    p.add_argument("--out", required=True, metavar="TRACE.csv", help="table to write (.csv or .parquet)")
+    p.add_argument("--mapping", metavar="MAPPING.toml", help="the recording's controller is not ours")
+    p.add_argument("--config", metavar="FILE", help="agent TOML config (rate_hz)")
+    p.add_argument("--separator", default=";", help="CSV separator (default ;)")
+    p.add_argument("--time-unit", choices=("s", "ms"), default="s")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
+    source = source or Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
+    blocks: list[IngestBlock] = []         # held until the first samples tell which joints there are
+    writer: TraceWriter | None = None
+    try:
+        for ids, data, dlc, ts in log_blocks(args.file, cfg.block_size):
+            blocks.append(source.update(ids, data, dlc, ts))
+            writer = writer or _writer(args, cfg.rate_hz, blocks)
+            if writer is not None:
+                for block in blocks:
+                    writer.write(block)
+                blocks = []
+        if hasattr(source, "flush"):
+            blocks.append(source.flush())
+        writer = writer or _writer(args, cfg.rate_hz, blocks)
+        if writer is None:
+            print(f"edge-monitor export-trace: no joint samples in {args.file}", file=sys.stderr)
+            return EXIT_FAILURE
+        for block in blocks:
+            writer.write(block)
+        writer.close()
+    except (FileNotFoundError, LogReadError, OSError) as exc:
+        print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    mapping = Path(args.out).with_suffix(".toml")
+    mapping.write_text(writer.mapping_text(), encoding="utf-8")
+    print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
+          f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
+    return 0
+
+
+def _writer(args: argparse.Namespace, rate_hz: float, blocks: list[IngestBlock]) -> TraceWriter | None:
+    joints = sorted({j for block in blocks for run in block.runs if run.cycle is not None for j in run.samples})
+    return TraceWriter(args.out, joints, rate_hz, args.separator, args.time_unit) if joints else None

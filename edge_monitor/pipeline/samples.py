@@ -1,0 +1,87 @@
+"""The sample interface under the pipeline: what every source hands the agent.
+
+Everything above the sources (cycle assembly, features, detectors, sinks) works on per-joint samples:
+controller time (ticks at the agent's ``rate_hz``), motor speed [rad/s, motor side], motor torque [fraction
+of the joint's reference torque T_ref] and the segment code in force (speed level k is segment k + 1, 0 a
+transition, 200 production motion, −1 unknown); per joint, where the controller has them, its load
+estimate μl, σl [fraction of T_ref] and motor temperature [°C], one entry per status frame; and the cycle
+they belong to. A source produces an :class:`IngestBlock` of :class:`CycleRun` s, which
+``Agent.update_ingested`` takes. Sources: our native frames (:mod:`~edge_monitor.pipeline.ingest`), any
+DBC (:mod:`~edge_monitor.pipeline.dbc_source`), CiA 402 drives (:mod:`~edge_monitor.pipeline.cia402_source`),
+trace tables (:mod:`~edge_monitor.pipeline.trace_source`) and the simulator's cycle-level mode
+(:mod:`~edge_monitor.offline.fast_path`). A source whose controller sends no cycle marks gets them from
+:mod:`~edge_monitor.pipeline.cycle_labels` through :mod:`~edge_monitor.pipeline.sample_stream`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass
+class JointSamples:
+    """Usable samples of one joint within one cycle run of a block, in stream order."""
+
+    tick: NDArray[np.int64]
+    speed: NDArray[np.float64]      # rad/s, motor side
+    torque: NDArray[np.float64]     # fraction of max. joint torque
+    segment: NDArray[np.int64]      # controller segment code in force (-1: unknown)
+
+
+@dataclass(frozen=True)
+class JointStatusBlock:
+    """JointStatus frames of one joint in stream order: the controller's load estimate μl and its σl
+    (fraction of max. torque) and the motor temperature [°C], one entry per frame (NaN: not sent)."""
+
+    load_estimate: NDArray[np.float64]
+    load_std: NDArray[np.float64]
+    motor_temperature: NDArray[np.float64]
+
+
+@dataclass
+class CycleRun:
+    """A maximal run of rows of a block under one controller cycle number (``None``: unknown)."""
+
+    cycle: int | None
+    samples: dict[int, JointSamples]
+    joint_status: dict[int, JointStatusBlock]
+    starts_at_boundary: bool | None = None              # first run of a cycle: was its start seen?
+    previous_cut: bool = False                          # entered by a controller restart: the cycle
+                                                        # before it ended early (its end is unknown)
+
+
+@dataclass
+class IngestBlock:
+    runs: list[CycleRun] = field(default_factory=list)
+
+
+@dataclass
+class JointColumns:
+    """Decoded, not yet labelled samples of one joint: time [s], speed [rad/s], torque [fraction]."""
+
+    time: NDArray[np.float64]
+    speed: NDArray[np.float64]
+    torque: NDArray[np.float64]
+
+
+@dataclass
+class StatusColumns:
+    """Decoded per-joint status values with their times [s]; NaN where a quantity was not in the frame."""
+
+    time: NDArray[np.float64]
+    load: NDArray[np.float64]
+    temperature: NDArray[np.float64]
+
+
+@dataclass
+class DecodedSamples:
+    """One block of a foreign source, decoded and converted to the agent's units but without cycle labels.
+    ``marks``: the cycle-mark signals the mapping names (``cycle``, ``segment``, ``trigger``), each
+    ``(time [s], value)``."""
+
+    joints: dict[int, JointColumns] = field(default_factory=dict)
+    status: dict[int, StatusColumns] = field(default_factory=dict)
+    marks: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]] = field(default_factory=dict)

@@ -1,0 +1,352 @@
+"""The mapping file (TOML): which signals of a foreign controller carry each joint's speed, torque and,
+where it has them, motor temperature, load estimate and cycle marks, in which units (docs/CONNECTING.md).
+
+Three kinds share one layout: ``dbc`` (any DBC, decoded with cantools' signal definitions), ``cia402``
+(CANopen drives, TPDOs from an EDS through the canopen library) and ``trace`` (CSV/Parquet tables).
+:func:`load_mapping` validates the file once and raises :class:`MappingError` naming the key and the fix;
+whether the named messages, signals and objects exist is checked against the DBC/EDS by the sources.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from protocol.units import UnitError, speed_factor, temperature_conversion, torque_factor
+
+KINDS = ("dbc", "cia402", "trace")
+CYCLE_SOURCES = ("controller", "motion", "trigger")
+QUANTITIES = ("speed", "torque", "temperature", "load")
+
+
+class MappingError(ValueError):
+    """Invalid mapping file; the message names the file, the key and the fix."""
+
+
+@dataclass(frozen=True)
+class SignalRef:
+    """Where one quantity comes from and its linear conversion to the agent's unit
+    (agent value = decoded value · factor + offset)."""
+
+    message: str | None = None       # DBC message (dbc)
+    signal: str | None = None        # DBC signal (dbc)
+    column: str | None = None        # table column (trace)
+    index: int | None = None         # CANopen object index (cia402 vendor objects)
+    subindex: int = 0
+    unit: str = ""
+    factor: float = 1.0
+    offset: float = 0.0
+
+    def describe(self) -> str:
+        if self.column is not None:
+            return f"column {self.column!r}"
+        if self.index is not None:
+            return f"object 0x{self.index:04X}sub{self.subindex}"
+        return f"{self.message}.{self.signal}"
+
+
+@dataclass(frozen=True)
+class JointMapping:
+    joint: int
+    speed: SignalRef | None = None
+    torque: SignalRef | None = None
+    temperature: SignalRef | None = None
+    load: SignalRef | None = None
+    reference_torque_nm: float | None = None
+    rated_torque_nm: float | None = None
+    gear_ratio: float = 1.0
+    side: str = "motor"
+    node: int | None = None          # CANopen node id (cia402)
+    eds: Path | None = None          # its EDS/DCF (cia402)
+    velocity_factor: float | None = None   # rad/s per unit of 0x606C (cia402; default 2π / 0x608F)
+    tpdo: tuple[tuple[int, tuple[str, ...]], ...] = ()   # (COB-ID, objects) written in the mapping (cia402)
+    key: str | None = None           # value of the joint column in a long table (trace)
+
+
+@dataclass(frozen=True)
+class CycleMapping:
+    """How cycles are found: the controller's own marks, the motion, or a trigger signal."""
+
+    source: str = "motion"
+    speeds: tuple[float, ...] = ()   # designed test-cycle levels in order [rad/s, motor side]
+    reference_joint: int | None = None
+    cycle: SignalRef | None = None
+    segment: SignalRef | None = None
+    trigger: SignalRef | None = None
+    trigger_value: float = 1.0
+
+
+@dataclass(frozen=True)
+class E2EMapping:
+    """AUTOSAR E2E protection of one DBC message (profile 2 or 5, checked with cantools.autosar)."""
+
+    message: str
+    profile: int
+    counter_signal: str | None = None
+    data_id: int | None = None               # profile 5
+    data_ids: tuple[int, ...] = ()           # profile 2: one per counter value (16)
+
+
+@dataclass(frozen=True)
+class TraceFormat:
+    layout: str = "wide"             # wide (one column per joint and quantity) | long (a joint column)
+    separator: str = ","
+    decimal: str = "."
+    time_column: str = "time"
+    time_unit: str = "s"             # s | ms
+    joint_column: str | None = None  # long tables
+
+
+@dataclass(frozen=True)
+class SignalMapping:
+    kind: str
+    path: Path | None
+    joints: dict[int, JointMapping]
+    cycles: CycleMapping = field(default_factory=CycleMapping)
+    dbc: Path | None = None
+    e2e: tuple[E2EMapping, ...] = ()
+    listen_only: bool = True
+    read_mapping: str = "eds"        # cia402: eds (no SDO) | sdo (opt-in, needs listen_only = false)
+    trace: TraceFormat | None = None
+    rate_hz: float | None = None
+
+    def where(self, key: str) -> str:
+        return f"mapping {self.path.name if self.path else '<text>'}: {key}"
+
+
+def load_mapping(path: str | Path) -> SignalMapping:
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise MappingError(f"mapping file {p} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MappingError(f"mapping file {p} cannot be read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise MappingError(f"mapping file {p} is not valid TOML: {exc}") from None
+    return mapping_from_dict(data, p)
+
+
+def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> SignalMapping:
+    where = f"mapping {path.name if path else '<text>'}"
+    base = path.parent if path is not None else Path(".")
+    _only(data, {"kind", "dbc", "rate_hz", "listen_only", "read_mapping", "cycles", "joint", "e2e", "trace"}, where)
+    kind = data.get("kind")
+    if kind not in KINDS:
+        raise MappingError(f"{where}: kind: must be one of {list(KINDS)}, got {kind!r}")
+    dbc = None
+    if kind == "dbc":
+        if not isinstance(data.get("dbc"), str):
+            raise MappingError(f"{where}: dbc: name the DBC file (path relative to the mapping file)")
+        dbc = base / data["dbc"]
+    listen_only = _bool(data.get("listen_only", True), f"{where}: listen_only")
+    read_mapping = data.get("read_mapping", "eds")
+    if read_mapping not in ("eds", "sdo"):
+        raise MappingError(f"{where}: read_mapping: eds (from the EDS, nothing sent) or sdo, got {read_mapping!r}")
+    if read_mapping == "sdo" and listen_only:
+        raise MappingError(f"{where}: read_mapping = \"sdo\" sends SDO requests: set listen_only = false to allow it")
+    if read_mapping == "sdo":
+        raise MappingError(f"{where}: read_mapping = \"sdo\" is not implemented yet: give the drive's EDS/DCF "
+                           "(read_mapping = \"eds\") or write its TPDO mapping as joint.N.tpdo")
+    trace = _trace(data.get("trace", {}), f"{where}: trace") if kind == "trace" else None
+    joints_table = data.get("joint")
+    if not isinstance(joints_table, dict) or not joints_table:
+        raise MappingError(f"{where}: joint: add a [joint.N] table for each joint (N = 0, 1, …)")
+    joints = {}
+    for key, table in joints_table.items():
+        if not str(key).isdigit() or not isinstance(table, dict):
+            raise MappingError(f"{where}: joint.{key}: tables are [joint.N] with N = 0, 1, …")
+        joints[int(key)] = _joint(int(key), table, kind, base, f"{where}: joint.{key}")
+    cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles")
+    e2e = tuple(_e2e(t, f"{where}: e2e[{i}]") for i, t in enumerate(data.get("e2e", [])))
+    rate = data.get("rate_hz")
+    if rate is not None and not (_number(rate) and rate > 0):
+        raise MappingError(f"{where}: rate_hz: must be > 0, got {rate!r}")
+    return SignalMapping(kind, path, joints, cycles, dbc, e2e, listen_only, read_mapping, trace,
+                         None if rate is None else float(rate))
+
+
+# ---------------------------------------------------------------------------------------------- tables
+def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) -> JointMapping:
+    _only(t, {*QUANTITIES, "reference_torque_nm", "rated_torque_nm", "gear_ratio", "side", "node", "eds",
+              "velocity_factor", "tpdo", "key"}, where)
+    side = t.get("side", "motor")
+    if side not in ("motor", "joint"):
+        raise MappingError(f"{where}: side: motor or joint (joint: speeds × gear_ratio, torques / gear_ratio)")
+    ratio = float(t.get("gear_ratio", 1.0))
+    if not (_number(ratio) and ratio > 0):
+        raise MappingError(f"{where}: gear_ratio: must be > 0, got {ratio!r}")
+    ref, rated = t.get("reference_torque_nm"), t.get("rated_torque_nm")
+    for name, value in (("reference_torque_nm", ref), ("rated_torque_nm", rated)):
+        if value is not None and not (_number(value) and value > 0):
+            raise MappingError(f"{where}: {name}: must be > 0 N·m, got {value!r}")
+    jm = JointMapping(joint=joint, reference_torque_nm=None if ref is None else float(ref),
+                      rated_torque_nm=None if rated is None else float(rated), gear_ratio=ratio, side=side,
+                      key=None if t.get("key") is None else str(t["key"]))
+    refs = {}
+    for q in QUANTITIES:
+        if q in t:
+            refs[q] = _signal(t[q], q, kind, jm, f"{where}.{q}")
+    if kind == "cia402":
+        node = t.get("node")
+        if not (isinstance(node, int) and 1 <= node <= 127):
+            raise MappingError(f"{where}: node: the drive's CANopen node id 1 … 127, got {node!r}")
+        eds = base / t["eds"] if isinstance(t.get("eds"), str) else None
+        tpdo = tuple((_int(p.get("cob_id"), f"{where}.tpdo.cob_id"), tuple(str(o) for o in p.get("objects", [])))
+                     for p in t.get("tpdo", []))
+        if eds is None and not tpdo:
+            raise MappingError(f"{where}: give eds = \"drive.eds\" or the TPDO mapping as "
+                               "tpdo = [{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}]")
+        vf = t.get("velocity_factor")
+        if vf is not None and not (_number(vf) and vf > 0):
+            raise MappingError(f"{where}: velocity_factor: rad/s per velocity unit, > 0, got {vf!r}")
+        jm = JointMapping(**{**jm.__dict__, "node": node, "eds": eds, "tpdo": tpdo,
+                             "velocity_factor": None if vf is None else float(vf)})
+    elif "speed" not in refs or "torque" not in refs:
+        raise MappingError(f"{where}: speed and torque are required (e.g. speed = {{ message = \"…\", "
+                           f"signal = \"…\", unit = \"rpm\" }})")
+    return JointMapping(**{**jm.__dict__, **refs})
+
+
+def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> SignalRef:
+    if not isinstance(t, dict):
+        raise MappingError(f"{where}: an inline table, e.g. {{ message = \"…\", signal = \"…\", unit = \"…\" }}")
+    _only(t, {"message", "signal", "column", "index", "subindex", "unit", "scale"}, where)
+    unit = str(t.get("unit", _header_unit(t.get("column")) or _DEFAULT_UNIT[quantity]))
+    joint_side = jm.side == "joint"
+    try:
+        if quantity == "speed":
+            factor, offset = speed_factor(unit, where, jm.gear_ratio, joint_side), 0.0
+        elif quantity in ("torque", "load"):
+            factor, offset = torque_factor(unit, where, jm.reference_torque_nm, jm.rated_torque_nm,
+                                           jm.gear_ratio, joint_side), 0.0
+        else:
+            factor, offset = temperature_conversion(unit, where)
+    except UnitError as exc:
+        raise MappingError(str(exc)) from None
+    scale = t.get("scale", 1.0)
+    if not (_number(scale) and scale != 0):
+        raise MappingError(f"{where}: scale: a non-zero number applied before the unit, got {scale!r}")
+    ref = SignalRef(message=t.get("message"), signal=t.get("signal"), column=t.get("column"),
+                    index=None if t.get("index") is None else _int(t["index"], f"{where}.index"),
+                    subindex=_int(t.get("subindex", 0), f"{where}.subindex"), unit=unit,
+                    factor=factor * float(scale), offset=offset)
+    needed = {"dbc": ("message", "signal"), "trace": ("column",), "cia402": ("index",)}[kind]
+    if quantity in ("speed", "torque") and kind == "cia402":
+        needed = ()
+    missing = [k for k in needed if getattr(ref, k) is None]
+    if missing:
+        raise MappingError(f"{where}: needs {' and '.join(missing)} for a {kind} mapping")
+    return ref
+
+
+def _header_unit(column: Any) -> str | None:
+    """The unit a table header states in brackets, e.g. ``"A1 speed [rpm]"`` → ``rpm``."""
+    if isinstance(column, str) and column.endswith("]") and "[" in column:
+        return column[column.rindex("[") + 1:-1].strip() or None
+    return None
+
+
+_DEFAULT_UNIT = {"speed": "rad/s", "torque": "fraction", "load": "fraction", "temperature": "degC"}
+
+
+def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> CycleMapping:
+    if not isinstance(t, dict):
+        raise MappingError(f"{where}: must be a table [cycles]")
+    _only(t, {"from", "speeds", "reference_joint", "cycle", "segment", "trigger", "value"}, where)
+    source = t.get("from", "motion")
+    if source not in CYCLE_SOURCES:
+        raise MappingError(f"{where}: from: one of {list(CYCLE_SOURCES)}, got {source!r}")
+    speeds = tuple(float(v) for v in t.get("speeds", []))
+    if any(not (math.isfinite(v) and v > 0) for v in speeds):
+        raise MappingError(f"{where}: speeds: positive rad/s (motor side), the test cycle's levels in order")
+    if source in ("motion", "trigger") and not speeds:
+        raise MappingError(f"{where}: speeds: cycles found from the {source} need the designed speed levels "
+                           "in order (rad/s, motor side); `edge-monitor check-mapping` lists the steady speeds "
+                           "it finds")
+    ref_joint = t.get("reference_joint", min(joints))
+    if ref_joint not in joints:
+        raise MappingError(f"{where}: reference_joint: {ref_joint!r} is not a mapped joint {sorted(joints)}")
+    probe = JointMapping(joint=-1)
+    cyc = CycleMapping(source=source, speeds=speeds, reference_joint=int(ref_joint))
+    refs = {}
+    for name in ("cycle", "segment", "trigger"):
+        if name in t:
+            refs[name] = _signal({**t[name], "unit": "degC"} if isinstance(t[name], dict) else t[name],
+                                 "temperature", kind, probe, f"{where}.{name}")
+    if source == "controller" and ("cycle" not in refs or "segment" not in refs):
+        raise MappingError(f"{where}: from = \"controller\" needs cycle and segment signals")
+    if source == "trigger" and "trigger" not in refs:
+        raise MappingError(f"{where}: from = \"trigger\" needs trigger = {{ … }} (a program number or a "
+                           "digital output) and value = the value that marks the test cycle")
+    value = t.get("value", 1)
+    if not _number(value):
+        raise MappingError(f"{where}: value: a number, got {value!r}")
+    return CycleMapping(**{**cyc.__dict__, **refs, "trigger_value": float(value)})
+
+
+def _e2e(t: Any, where: str) -> E2EMapping:
+    if not isinstance(t, dict):
+        raise MappingError(f"{where}: [[e2e]] tables with message, profile, …")
+    _only(t, {"message", "profile", "counter_signal", "data_id", "data_ids"}, where)
+    profile = t.get("profile")
+    if profile not in (2, 5):
+        raise MappingError(f"{where}: profile: 2 or 5 (AUTOSAR E2E profiles cantools checks), got {profile!r}")
+    if not isinstance(t.get("message"), str):
+        raise MappingError(f"{where}: message: the protected message's name")
+    ids = tuple(int(v) for v in t.get("data_ids", []))
+    if profile == 2 and len(ids) != 16:
+        raise MappingError(f"{where}: data_ids: profile 2 needs the 16 data IDs (one per counter value)")
+    if profile == 5 and t.get("data_id") is None:
+        raise MappingError(f"{where}: data_id: profile 5 needs the message's 16-bit data ID")
+    return E2EMapping(message=t["message"], profile=profile, counter_signal=t.get("counter_signal"),
+                      data_id=None if t.get("data_id") is None else int(t["data_id"]), data_ids=ids)
+
+
+def _trace(t: Any, where: str) -> TraceFormat:
+    if not isinstance(t, dict):
+        raise MappingError(f"{where}: must be a table [trace]")
+    _only(t, {"layout", "separator", "decimal", "time_column", "time_unit", "joint_column"}, where)
+    fmt = TraceFormat(layout=t.get("layout", "wide"), separator=t.get("separator", ","),
+                      decimal=t.get("decimal", "."), time_column=t.get("time_column", "time"),
+                      time_unit=t.get("time_unit", "s"), joint_column=t.get("joint_column"))
+    if fmt.layout not in ("wide", "long"):
+        raise MappingError(f"{where}: layout: wide or long, got {fmt.layout!r}")
+    if fmt.time_unit not in ("s", "ms"):
+        raise MappingError(f"{where}: time_unit: s or ms, got {fmt.time_unit!r}")
+    if fmt.layout == "long" and not fmt.joint_column:
+        raise MappingError(f"{where}: joint_column: a long table needs the column that names the joint")
+    if len(fmt.separator) != 1 or fmt.decimal not in (".", ","):
+        raise MappingError(f"{where}: separator: one character; decimal: \".\" or \",\"")
+    return fmt
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _only(t: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    unknown = sorted(set(t) - allowed)
+    if unknown:
+        raise MappingError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _bool(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise MappingError(f"{where}: true or false, got {value!r}")
+    return value
+
+
+def _int(value: Any, where: str) -> int:
+    if isinstance(value, str):
+        try:
+            return int(value, 0)
+        except ValueError:
+            pass
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    raise MappingError(f"{where}: an integer (e.g. 0x2010), got {value!r}")
