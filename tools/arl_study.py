@@ -88,7 +88,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")     # tiny matrices: a threaded BLAS only spins
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -498,17 +500,11 @@ def simulated_quantities(seed: int, cycles: int, joints: int = 6,
                          scenario: str | None = None) -> dict[int, list[dict[str, float]]]:
     """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults or
     the simulator ``scenario``: a file or packaged name), with the cycle's motor temperature [°C] as the
-    controller reports it (``"motor_temperature"``; the detectors' thermal settling test watches it)."""
-    from edge_monitor.offline.fast_path import detector_inputs_with_truth
-    from sim_controller.scenario import scenario_config
+    controller reports it (``"motor_temperature"``; the detectors' thermal settling test watches it):
+    tools/fleet_series.py, computed once per code version and kept in ``.cache/fleet_series``."""
+    from fleet_series import robot_series
 
-    out: dict[int, list[dict[str, float]]] = {}
-    sim = scenario_config(scenario, {"joints": joints, "cycles": cycles, "seed": seed})
-    for joint, cycle, values, truth in detector_inputs_with_truth(sim):
-        out.setdefault(joint, []).append({**values, "motor_temperature": float(truth["motor_temperature"])})
-        if cycle % 100 == 99 and joint == 0:
-            log.info("seed %d: simulated cycle %d/%d", seed, cycle + 1, cycles)
-    return out
+    return robot_series(seed, cycles, joints, scenario)
 
 
 class _BoundaryShift:
@@ -722,6 +718,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--targets", default="50,200", help="--agent: target ARL0 values [cycles]")
     parser.add_argument("--robots", type=int, default=None, help="--agent: simulated robots (seeds 1 …)")
     parser.add_argument("--cycles", type=int, default=None, help="--agent: cycles per robot")
+    parser.add_argument("--seeds", default=None, help="--agent: robot seeds instead of 1 … --robots, e.g. 101-108")
+    parser.add_argument("--joints", type=int, default=None, help="--agent: joints per robot")
     parser.add_argument("--scenario", metavar="FILE.toml|NAME", default=None,
                         help="--agent: simulator scenario of every robot (e.g. plant_week; seeds, joints and "
                              "cycles as above)")
@@ -803,7 +801,15 @@ def _agent_main(args: argparse.Namespace) -> int:
         except ValueError as exc:          # ScenarioError / SimConfigError: names the field
             print(f"arl_study: {exc}", file=sys.stderr)
             return 2
-    series = _simulate_robots(robots, cycles, joints, workers, args.scenario)
+    seeds = None
+    if args.seeds:
+        from fleet_series import parse_seeds
+
+        seeds = parse_seeds(args.seeds)
+        robots = len(seeds)
+    if args.joints:
+        joints = args.joints
+    series = _simulate_robots(robots, cycles, joints, workers, args.scenario, seeds)
     if args.curves:
         targets = tuple(float(t) for t in args.targets.split(","))
         return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "scenario": args.scenario,
@@ -826,10 +832,11 @@ def _agent_main(args: argparse.Namespace) -> int:
                         "other_rows": [r for r in rows if r not in steady]}, args.json)
 
 
-def _simulate_robots(robots: int, cycles: int, joints: int, workers: int,
-                     scenario: str | None = None) -> list[dict[int, list[dict[str, float]]]]:
-    """:func:`simulated_quantities` of seeds 1 … ``robots``, in up to ``workers`` processes."""
-    seeds = list(range(1, robots + 1))
+def _simulate_robots(robots: int, cycles: int, joints: int, workers: int, scenario: str | None = None,
+                     seeds: list[int] | None = None) -> list[dict[int, list[dict[str, float]]]]:
+    """:func:`simulated_quantities` of ``seeds`` (default 1 … ``robots``), in up to ``workers`` processes."""
+    seeds = seeds or list(range(1, robots + 1))
+    robots = len(seeds)
     if workers < 2 or robots < 2:
         return [simulated_quantities(seed, cycles, joints, scenario) for seed in seeds]
     from concurrent.futures import ProcessPoolExecutor

@@ -33,6 +33,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -62,19 +63,23 @@ def code_hash() -> str:
     return digest.hexdigest()[:12]
 
 
+def _config(seed: int, cycles: int, joints: int, scenario: str | None) -> Any:
+    from sim_controller.scenario import scenario_config
+
+    return scenario_config(scenario, {"joints": joints, "cycles": cycles, "seed": seed})
+
+
 def _cache_path(seed: int, cycles: int, joints: int, scenario: str | None, code: str | None = None) -> Path:
-    tag = "default" if scenario is None else hashlib.sha256(Path(scenario).read_bytes()).hexdigest()[:10]
+    tag = "default" if scenario is None else \
+        hashlib.sha256(repr(_config(seed, cycles, joints, scenario)).encode()).hexdigest()[:10]
     return CACHE / f"seed{seed}-j{joints}-c{cycles}-{tag}-{code or code_hash()}.json.gz"
 
 
 def compute(seed: int, cycles: int, joints: int = 6, scenario: str | None = None) -> Series:
     """Per joint, the rows of every cycle with feature values (see the module docstring)."""
     from edge_monitor.offline.fast_path import detector_inputs_with_truth
-    from sim_controller.config import SimConfig
-    from sim_controller.scenario import load_scenario
 
-    settings = load_scenario(scenario, joints) if scenario else {}
-    config = SimConfig(**{**settings, "joints": joints, "cycles": cycles, "seed": seed})
+    config = _config(seed, cycles, joints, scenario)
     out: Series = {}
     started = time.monotonic()
     for joint, cycle, values, truth in detector_inputs_with_truth(config):
@@ -124,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default="101-108", help="seeds, e.g. 101-108 or 1,2,5 (default 101-108)")
     parser.add_argument("--cycles", type=int, default=1100)
     parser.add_argument("--joints", type=int, default=6)
-    parser.add_argument("--scenario", help="simulator scenario file (TOML), e.g. a plant timeline")
+    parser.add_argument("--scenario", help="simulator scenario: a TOML file or a packaged name (e.g. plant_week)")
     parser.add_argument("--jobs", type=int, default=max(1, min(os.cpu_count() or 1, 4)))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")

@@ -29,6 +29,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")     # before numpy loads: tiny matrices, a threaded BLAS only spins
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.offline.fast_path import run_cycles  # noqa: E402
