@@ -118,9 +118,11 @@ def thresholds(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], 
     found = [read_threshold(sim.events, sim.exposure, sim.grid, float(t), budget.streams) for t in targets]
     rng = np.random.default_rng([SEED, 2])
     boot: list[list[float]] = [[] for _ in targets]
+    rates, events = nominal_rates(sim.events, sim.exposure, budget.streams), sim.events.astype(float)
+    nominals = rates.shape[0]
     for _ in range(BOOTSTRAP):
-        pick = rng.integers(0, sim.events.shape[0], sim.events.shape[0])
-        curve = fleet_curve(sim.events[pick], sim.exposure[pick], budget.streams)
+        weights = np.bincount(rng.integers(0, nominals, nominals), minlength=nominals).astype(float)
+        curve = (weights @ rates / nominals, weights @ events)          # a resample of the nominals
         for k, target in enumerate(targets):
             try:
                 boot[k].append(read_from_curve(*curve, sim.grid, float(target))[0])
@@ -207,14 +209,19 @@ def _passages(glr: GaussianBatchGLR, settings: GaussianSettings, lower_chol: NDA
     return first
 
 
+def nominal_rates(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int) -> NDArray[np.float64]:
+    """Per nominal and grid threshold (G, H): its false-alarm rate per cycle, e/X, or (e − 1)/X where
+    none of its ``streams`` detectors was censored (then X is a sum of e exponential times and e/X
+    overstates the rate)."""
+    ev, ex = np.asarray(events, dtype=float), np.asarray(exposure, dtype=float)
+    return np.where(ev < streams, ev, np.maximum(ev - 1.0, 0.0)) / ex
+
+
 def fleet_curve(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Per grid threshold: the mean over nominals of their false-alarm rates per cycle — e/X, or
-    (e − 1)/X where none of the nominal's ``streams`` detectors was censored (then X is a sum of e
-    exponential times and e/X overstates the rate) — and the detectors that alarmed in all."""
-    ev, ex = np.asarray(events, dtype=float), np.asarray(exposure, dtype=float)
-    rates = np.where(ev < streams, ev, np.maximum(ev - 1.0, 0.0)) / ex
-    return rates.mean(axis=0), ev.sum(axis=0)
+    """Per grid threshold: the mean over nominals of their rates (:func:`nominal_rates`) and the
+    detectors that alarmed in all."""
+    return nominal_rates(events, exposure, streams).mean(axis=0), np.asarray(events, dtype=float).sum(axis=0)
 
 
 def read_threshold(events: NDArray[np.floating], exposure: NDArray[np.floating], grid: NDArray[np.float64],
