@@ -30,7 +30,7 @@ from protocol.console import (
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("run", "run"), ("replay", "replay"), ("demo", "demo"), ("design", "design"),
     ("commission", "commission"), ("fit-weights", "fit_weights"), ("glr", "glr"), ("view", "view"),
-    ("evaluate", "evaluate"),
+    ("evaluate", "evaluate"), ("router", "router"), ("slcan-hub", "slcan_hub"),
 )
 
 

@@ -7,7 +7,7 @@ reconciled at the end (docs/RELIABILITY.md, "A real soak").
     .venv/bin/python tools/soak.py --duration 1800 --json --keep out/soak
 
 Processes: ``sim-controller run`` (paced at ``--speedup`` × real time, link faults), ``edge-monitor run``
-(state dir, JSONL, Zenoh client of the router), ``tools/zenoh_router.py`` on a free loopback port,
+(state dir, JSONL, Zenoh client of the router), ``edge-monitor router`` on a free loopback port,
 ``tools/soak_subscriber.py`` (writes every symptom it receives). The pty bridge runs in this process
 and reports where every byte went (tools/soak_link.py). Chaos (``--no-chaos`` to disable), one action at
 a time, each waiting until the agent has processed two cycle starts afterwards: kill -9 of the agent's
@@ -256,7 +256,7 @@ class Soak:
     # -- processes --------------------------------------------------------------------------
     def start_router(self) -> None:
         for attempt in range(20):
-            proc = Proc("router", [sys.executable, str(TOOLS / "zenoh_router.py"), "--port", str(self.port)],
+            proc = Proc("router", [str(Path(sys.executable).parent / "edge-monitor"), "router", "--port", str(self.port)],
                         self.work)
             if wait_for(lambda: "listening" in proc.output() or not proc.alive(), START_TIMEOUT_S, "the router"):
                 if proc.alive():

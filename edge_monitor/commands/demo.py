@@ -179,13 +179,21 @@ def run(args: argparse.Namespace) -> int:
     print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
           f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['wall_s']} s")
     if summary["rrd"]:
-        print(f"recording: {summary['rrd']}  (open with: .venv/bin/rerun {summary['rrd']})")
+        print(f"recording: {summary['rrd']}  (open with: {rerun_command()} {summary['rrd']})")
     if args.json_summary:
         Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_summary).write_text(json.dumps(summary, indent=2))
     if interrupted:
         return EXIT_INTERRUPTED
     return 0 if sim_rc == 0 else EXIT_FAILURE
+
+
+def rerun_command() -> str:
+    """How to run the Rerun viewer of this installation: ``rerun`` when it is on PATH, else its full path."""
+    import shutil
+    beside = Path(sys.executable).parent / "rerun"
+    found = shutil.which("rerun")
+    return "rerun" if found and (not beside.exists() or Path(found).resolve() == beside.resolve()) else str(beside)
 
 
 def _frames_sent(truth: Path) -> int | None:

@@ -127,5 +127,5 @@ def _explain_open_failure(options: ZenohOptions, exc: Exception) -> str:
                 f"choose another port with --zenoh-listen ({text.split(' at ')[0]})")
     if "Unable to connect" in text:
         return (f"no Zenoh router reachable at {', '.join(options.connect) or '(none given)'}: start one "
-                f"(python tools/zenoh_router.py --port PORT) or fix --zenoh-connect")
+                f"(edge-monitor router --port PORT) or fix --zenoh-connect")
     return f"cannot open the Zenoh session ({options.describe()}): {text}"
