@@ -8,6 +8,7 @@ plateau sequence (see :mod:`edge_monitor.pipeline.cycle_assembly`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -22,7 +23,7 @@ from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateStore
 from edge_monitor.pipeline.state_validation import validate_state
-from edge_monitor.records import Alarm, Health, Symptom
+from edge_monitor.records import Alarm, Health, Symptom, utc_now, utc_text
 from edge_monitor.sinks.base import Sink
 from edge_monitor.stats.sequential_detector import Calibrator
 
@@ -61,6 +62,7 @@ class Agent:
         self._restored_joint_states: dict[int, dict] = {}
         self._open_last_segment = -1              # highest segment seen in the open cycle
         self._complete_last_segment: int | None = None    # … in the last cycle that ended normally
+        self._last_frame_time: float | None = None   # timestamp of the last frame routed (bus or log) [s]
         self.lock = threading.RLock()     # processing vs. state queries from output threads
         if state_store is not None:
             self._restore(state_store.load())
@@ -119,6 +121,8 @@ class Agent:
                     outputs += self._emit(symptom)
             for joint, status in run.joint_status.items():
                 self._monitor(joint).add_status(status.load_estimate, status.load_std, status.motor_temperature)
+            if run.last_time is not None:
+                self._last_frame_time = run.last_time
         return outputs
 
     def _monitor(self, joint: int) -> JointMonitor:
@@ -162,6 +166,9 @@ class Agent:
         return outputs
 
     def _emit(self, symptom: Symptom) -> list[Symptom]:
+        # the cycle ended with the last frame routed before the one that closes it (bus or log time)
+        symptom.utc = utc_text(self._last_frame_time)
+        symptom.alarms = [dataclasses.replace(alarm, utc=symptom.utc) for alarm in symptom.alarms]
         self._last_emitted[symptom.joint] = symptom.cycle
         self.stats.symptoms += 1
         for alarm in symptom.alarms:
@@ -222,7 +229,8 @@ class Agent:
                 raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
                                  "a maintenance declaration is only needed for a joint with learned models")
             cycle = self._last_emitted.get(joint, -1)
-            cleared = self._monitor(joint).declare_maintenance(cycle, self.config)
+            cleared = [dataclasses.replace(alarm, utc=utc_now())
+                       for alarm in self._monitor(joint).declare_maintenance(cycle, self.config)]
             log.warning("joint %d: maintenance declared after cycle %d; nominal models are relearned", joint, cycle)
             for alarm in cleared:
                 for sink in self.sinks:
