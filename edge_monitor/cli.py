@@ -30,7 +30,8 @@ from protocol.console import (
 SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("run", "run"), ("replay", "replay"), ("demo", "demo"), ("design", "design"),
     ("commission", "commission"), ("fit-weights", "fit_weights"), ("glr", "glr"), ("view", "view"),
-    ("evaluate", "evaluate"), ("router", "router"), ("slcan-hub", "slcan_hub"),
+    ("evaluate", "evaluate"), ("listen", "listen"), ("schema", "schema"), ("router", "router"),
+    ("slcan-hub", "slcan_hub"),
 )
 
 

@@ -30,7 +30,11 @@ def test_demo_reduced(tmp_path: Path):
     assert summary["cycles"] == cycles
     assert summary["symptoms_published"] == summary["symptoms_received"] == cycles * joints
     assert summary["rrd"] == str(rrd)
-    symptoms = [json.loads(x) for x in (out / "symptoms.jsonl").read_text().splitlines()]
+    lines = [json.loads(x) for x in (out / "symptoms.jsonl").read_text().splitlines()]
+    symptoms = [r for r in lines if "kind" not in r]          # alarm events are marked "kind": "alarm"
+    alarms = [r for r in lines if r.get("kind") == "alarm"]
+    assert [(a["joint"], a["cycle"], a["quantity"]) for a in alarms if a["state"] == "raised"] == \
+        [(a["joint"], a["cycle"], a["quantity"]) for a in summary["alarms"]]
     assert sorted((s["joint"], s["cycle"]) for s in symptoms) == [(j, c) for j in range(joints) for c in range(cycles)]
     assert all(len(s["friction"]["speeds"]) == 4 for s in symptoms)
     assert "joint" in proc.stdout and "symptoms published" in proc.stdout    # the summary table

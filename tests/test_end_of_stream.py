@@ -24,7 +24,7 @@ CYCLES, JOINTS = 3, (0, 1)
 
 
 def _keys(jsonl: Path) -> list[tuple[int, int]]:
-    return sorted((r["joint"], r["cycle"]) for r in map(json.loads, jsonl.read_text().splitlines()))
+    return sorted((r["joint"], r["cycle"]) for r in map(json.loads, jsonl.read_text().splitlines()) if "kind" not in r)
 
 
 def _write_log(path: Path, frames) -> None:

@@ -129,3 +129,12 @@ def stop_on_signals() -> threading.Event:
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, lambda *_: stop.set())
     return stop
+
+
+def setup_failure(command: str, exc: ValueError) -> int:
+    """Report an output that could not be opened; the exit code by the README's rule: 1 when valid
+    options met a runtime failure (unreachable router, occupied port, unwritable recording), else 2."""
+    from edge_monitor.sinks.rerun_view import RerunUnavailable
+    from edge_monitor.sinks.zenoh_session import ZenohUnavailable
+    print(f"edge-monitor {command}: {exc}", file=sys.stderr)
+    return EXIT_FAILURE if isinstance(exc, (ZenohUnavailable, RerunUnavailable)) else EXIT_USAGE

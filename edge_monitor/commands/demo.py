@@ -22,7 +22,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import open_state_store, summary_table
+from edge_monitor.commands.common import open_state_store, setup_failure, summary_table
 from edge_monitor.errors import ConfigError
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
@@ -132,8 +132,7 @@ def run(args: argparse.Namespace) -> int:
                                          rerun=spec, rerun_fallback=str(out / "demo.rrd"), maintenance=True),
                             stack, open_state_store(cfg), live=True)
         except ValueError as exc:      # ZenohSetupError, RerunSetupError: say what to fix
-            print(f"edge-monitor demo: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+            return setup_failure("demo", exc)
         agent = app.agent
         last = LastSymptomSink()
         agent.sinks.append(last)

@@ -24,16 +24,15 @@ from edge_monitor.commands.common import (
     add_zenoh_arguments,
     load_agent_config,
     open_state_store,
+    setup_failure,
     zenoh_options,
 )
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
-from edge_monitor.sinks.zenoh_session import ZenohSetupError
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,
-    EXIT_USAGE,
     UsageError,
     add_can_arguments,
     can_options,
@@ -110,9 +109,8 @@ def run(args: argparse.Namespace) -> int:
             outputs = Outputs(jsonl=cfg.jsonl, zenoh=None if args.no_zenoh else zenoh_options(args),
                               rerun=args.rerun or cfg.rerun, rerun_fallback="edge-monitor.rrd", maintenance=True)
             app = build_app(cfg, outputs, stack, store, live=True)
-        except (ZenohSetupError, ValueError) as exc:
-            print(f"edge-monitor run: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+        except ValueError as exc:         # ZenohSetupError, RerunSetupError, a bad robot name
+            return setup_failure("run", exc)
         agent = app.agent
         for joint in args.maintenance:
             try:

@@ -87,13 +87,23 @@ class Agent:
         return self.ingest.c.frames_total
 
     def joint_state(self, joint: int) -> dict[str, Any]:
-        """Snapshot of one joint's models and detector state (for the read-only state queryable)."""
+        """Snapshot of one joint's models and detector state (for the read-only state queryable): also of
+        a joint restored from the saved state but not seen yet (``"restored": true``); ``"known": false``
+        for a joint with nothing seen or learned (e.g. configured, not on the bus yet)."""
         with self.lock:
             monitor = self.joints.get(joint)
-            if monitor is None:
-                return {"joint": joint, "known": False}
-            return {"joint": joint, "known": True, "last_cycle": self._last_emitted.get(joint),
-                    **monitor.state_dict()}
+            last = self._last_emitted.get(joint)
+            if monitor is not None:
+                return {"joint": joint, "known": True, "last_cycle": last, **monitor.state_dict()}
+            saved = self._restored_joint_states.get(joint)
+            if saved is not None:
+                return {"joint": joint, "known": True, "restored": True, "last_cycle": last, **saved}
+            return {"joint": joint, "known": False, "last_cycle": last}
+
+    def known_joints(self) -> list[int]:
+        """Joints the agent knows: seen on the bus, restored from the saved state, or configured."""
+        with self.lock:
+            return sorted(set(self.joints) | set(self._restored_joint_states) | set(self.config.joints or ()))
 
     def _route(self, block: IngestBlock) -> list[Symptom]:
         outputs: list[Symptom] = []

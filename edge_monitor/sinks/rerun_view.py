@@ -73,7 +73,11 @@ IMMEDIATE = Batching(records=1, seconds=None)
 
 
 class RerunSetupError(ValueError):
-    """A Rerun sink could not be opened (bad spec, unwritable path)."""
+    """A Rerun sink spec that cannot work (``--rerun`` not off/save:PATH/spawn/connect:URL): a usage error."""
+
+
+class RerunUnavailable(RerunSetupError):
+    """A valid Rerun sink could not be opened (unwritable path, unreachable viewer): a runtime failure."""
 
 
 def _display_available() -> bool:
@@ -154,7 +158,7 @@ class RerunSink:
             else:
                 rec.connect_grpc(_grpc_url(arg))
         except (OSError, RuntimeError) as exc:
-            raise RerunSetupError(f"--rerun {spec!r} failed: {exc}; choose a writable path or reachable "
+            raise RerunUnavailable(f"--rerun {spec!r} failed: {exc}; choose a writable path or reachable "
                                   "viewer, or use --rerun off") from exc
         if batching is None:
             batching = SAVE_BATCHING if kind == "save" else LIVE_BATCHING

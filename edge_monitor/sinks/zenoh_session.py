@@ -28,7 +28,12 @@ _ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 
 
 class ZenohSetupError(ValueError):
-    """A Zenoh session could not be opened (occupied port, unreachable router, bad config)."""
+    """Zenoh options that cannot work (bad mode, endpoint or config file): a usage error."""
+
+
+class ZenohUnavailable(ZenohSetupError):
+    """The session could not be opened with valid options (occupied port, unreachable router): a runtime
+    failure."""
 
 
 @dataclass
@@ -115,7 +120,7 @@ def open_session(options: ZenohOptions | None = None) -> zenoh.Session:
     try:
         session = zenoh.open(config)
     except Exception as exc:
-        raise ZenohSetupError(_explain_open_failure(options, exc)) from exc
+        raise ZenohUnavailable(_explain_open_failure(options, exc)) from exc
     log.info("zenoh session open (%s)", options.describe())
     return session
 
