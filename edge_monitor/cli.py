@@ -1,6 +1,8 @@
-"""``edge-monitor`` command line: dispatches to one module per subcommand (``edge_monitor.commands``).
+"""edge-monitor: the edge condition monitor for robot joints (the agent, its tools and its outputs).
 
-``-v``/``-vv``/``-q`` work before and after the subcommand; exit codes in ``protocol.console``."""
+run monitors a live CAN link, replay a recorded log; demo shows the whole system on a simulated
+robot. -v/-vv/-q work before and after the subcommand. "edge-monitor COMMAND --help" tells more.
+"""
 
 from __future__ import annotations
 

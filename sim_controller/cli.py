@@ -36,7 +36,7 @@ from protocol.console import (
     subcommands,
     verbosity,
 )
-from protocol.links import LinkError, NoCanConfigError, is_log_file
+from protocol.links import LinkError, LinkUsageError, is_log_file
 from sim_controller.config import (
     SimConfig,
     SimConfigError,
@@ -119,7 +119,8 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                    help="record: timestamp of tick 0 in s (default 0; e.g. a Unix time)")
     g.add_argument("--truth", metavar="PATH.jsonl",
                    help="write ground truth (one record per joint per cycle, then a fault summary)")
-    g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
+    g.add_argument("--json", dest="summary_json", action="store_true", help="print the run summary as JSON on stdout")
+    g.add_argument("--summary-json", dest="summary_json", action="store_true", help=argparse.SUPPRESS)  # old name
 
 
 _FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "seed": "seed", "speeds": "speeds",
@@ -173,7 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="pace at X × real time; 0 = as fast as the link takes frames")
     _add_common(p_run)
     p_rec = sub.add_parser("record", help="write frames to a python-can log file as fast as possible")
-    p_rec.add_argument("--out", required=True, metavar="FILE.{blf,log,asc}", help="log file (format from the suffix)")
+    p_rec.add_argument("-o", "--out", required=True, metavar="FILE.{blf,log,asc}",
+                       help="log file (format from the suffix)")
     _add_common(p_rec)
     install_conventions(parser)
     return parser
@@ -224,7 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
             summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args),
                           stop=_stop_on_sigterm().is_set)
-    except NoCanConfigError as exc:
+    except LinkUsageError as exc:        # a bad link, interface or log suffix, no CAN configured: exit 2
         usage_error(str(exc))
     except (LinkError, OSError) as exc:
         print(f"sim-controller: {exc}", file=sys.stderr)

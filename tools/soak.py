@@ -281,7 +281,7 @@ class Soak:
             sys.executable, "-m", "edge_monitor.cli", "run", "-v", "--link", self.agent_link,
             "--config", str(self.work / "agent.toml"), "--jsonl", str(self.work / "symptoms.jsonl"),
             "--state-dir", str(self.work / "state"), "--zenoh-mode", "client", "--zenoh-connect", self.endpoint,
-            "--summary-json"], self.work)
+            "--json"], self.work)
         self.lives.append(LifeRecord(len(self.lives), self.agent.pid, t0))
         assert self.health is not None
         health = self.health
@@ -300,7 +300,7 @@ class Soak:
             "--joints", str(self.args.joints), "--cycles", "1000000", "--seed", str(self.args.seed + index),
             "--speeds", ",".join(str(v) for v in SPEEDS), "--plateau-time", str(PLATEAU_TIME),
             "--speedup", str(self.args.speedup), "--faults", self.args.faults,
-            "--truth", str(self.work / f"truth{index}.jsonl"), "--summary-json"], self.work)
+            "--truth", str(self.work / f"truth{index}.jsonl"), "--json"], self.work)
 
     def stop_sim(self) -> None:
         """SIGTERM: the simulator finishes its frame block and writes its truth summary."""
@@ -324,7 +324,7 @@ class Soak:
         self.link_closed()
 
     def stop_agent(self) -> None:
-        """SIGTERM: the agent's normal end; its final counters come from --summary-json."""
+        """SIGTERM: the agent's normal end; its final counters come from --json."""
         assert self.agent is not None
         self.sample(force=True)
         rc = self.agent.stop(signal.SIGTERM, timeout=120.0)
@@ -332,7 +332,8 @@ class Soak:
         life.ended = time.time()
         summary = [line for line in self.agent.output().splitlines() if line.startswith("{")]
         if summary:
-            life.counters = json.loads(summary[-1])
+            final = json.loads(summary[-1])
+            life.counters = final.get("health", final)     # the run summary carries the last health record
         else:
             log.warning("agent life %d printed no summary (exit code %s)", life.index, rc)
         self.quiet_link()

@@ -15,6 +15,7 @@ import os
 import sys
 import time
 from contextlib import ExitStack
+from pathlib import Path
 from typing import Iterator
 
 from edge_monitor.app import Outputs, build_app
@@ -23,6 +24,7 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_state_store,
     print_json,
+    setup_failure,
     summary_table,
 )
 from edge_monitor.pipeline.agent import Agent
@@ -36,10 +38,14 @@ log = logging.getLogger(__name__)
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("replay", help="run the agent over a python-can log (.blf/.log/.asc)",
-                              description=__doc__)
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", help="python-can log file")
     add_config_arguments(p)
-    p.add_argument("--json", action="store_true", help="print the run statistics as JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print the run summary as JSON instead of the table (schema: edge-monitor schema summary)")
+    p.add_argument("--rerun", default="off", metavar="SPEC",
+                   help="draw the run in Rerun: off (default), save:PATH (a recording, compacted when closed), spawn "
+                        "(a viewer; without a display: save:<log name>.rrd) or connect:URL")
     p.add_argument("--no-close", action="store_true",
                    help="leave the last cycle open at end of file (as if the stream continued)")
     p.set_defaults(func=run)
@@ -77,7 +83,12 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_agent_config(args)
     last = LastSymptomSink()
     with ExitStack() as stack:
-        agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg)).agent
+        try:
+            agent = build_app(cfg, Outputs(jsonl=cfg.jsonl, rerun=args.rerun,
+                                           rerun_fallback=Path(args.file).with_suffix(".rrd").name),
+                              stack, open_state_store(cfg)).agent
+        except ValueError as exc:           # RerunSetupError: a bad --rerun, an unwritable recording
+            return setup_failure("replay", exc)
         agent.sinks.append(last)
         try:
             report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
@@ -88,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         stats = {**agent.run_statistics(), "log": report.to_dict()}
     if args.json:
         print_json(stats)
-    else:
+    elif verbosity(args) >= 0:              # -q: no summary
         print(summary_table(last.last, stats, cfg.decision))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "

@@ -4,8 +4,8 @@ Receives frames from a CAN link, publishes per-cycle symptoms over Zenoh (and op
 Rerun), persists learned models in ``--state-dir`` and shuts down cleanly on SIGINT/SIGTERM
 (state saved, Zenoh undeclared, Rerun flushed; exit code 0: the normal end of a monitor that runs
 until stopped). The status line (every ``status_interval_s``) is logged at INFO (``-v``); a final
-line says why it stopped; ``--summary-json`` also prints the final counters (the health record) as
-one JSON line on standard output.
+line says why it stopped; ``--json`` prints the run summary (the same as replay's, with the reason it
+stopped and the last health record) as one JSON line on standard output.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ log = logging.getLogger(__name__)
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("run", help="monitor a live CAN link", description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter,
                               epilog=f"{EXIT_CODES_HELP}. Ctrl-C or SIGTERM is the normal end of a run: "
                                      "state saved, exit code 0")
     add_can_arguments(p, "socketcan:IFACE | slcan:DEVICE_OR_URL | virtual:NAME "
@@ -61,8 +62,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="at the end of the stream (--idle-stop) leave the last cycle open, as replay --no-close")
     p.add_argument("--maintenance", type=int, action="append", default=[], metavar="JOINT",
                    help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models")
-    p.add_argument("--summary-json", action="store_true",
-                   help="at the end, print the final counters (the health record) as one JSON line on stdout")
+    p.add_argument("--json", action="store_true",
+                   help="at the end, print the run summary as one JSON line on stdout (schema: edge-monitor schema "
+                        "summary)")
+    p.add_argument("--summary-json", dest="json", action="store_true", help=argparse.SUPPRESS)   # its old name
     p.add_argument("--allow-remote-maintenance", action="store_true",
                    help="accept maintenance declarations put on Zenoh key edge/<robot>/<joint>/maintenance "
                         "(off by default; rate-limited; restrict who may put with a Zenoh ACL, docs/SECURITY.md)")
@@ -97,7 +100,7 @@ def final_line(runner: LiveRunner, args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from protocol.links import LinkError, NoCanConfigError, is_log_file, open_bus
+    from protocol.links import LinkError, LinkUsageError, is_log_file, open_bus
     if args.link and is_log_file(args.link):
         raise UsageError(f"--link {args.link} is a log file; use `edge-monitor replay {args.link}`")
     cfg = load_agent_config(args)
@@ -119,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError(f"--maintenance {joint}: {exc}") from None
         try:
             bus = open_bus(args.link, **can_options(args))
-        except NoCanConfigError as exc:
+        except LinkUsageError as exc:     # a bad link or interface name, no CAN configured: exit 2
             raise UsageError(str(exc)) from None
         except LinkError as exc:
             print(f"edge-monitor run: cannot open the CAN link: {exc}", file=sys.stderr)
@@ -135,8 +138,9 @@ def run(args: argparse.Namespace) -> int:
             # a link failure) leaves it open
             agent.finish(close_open_cycle=True)
             runner.report()
-        if args.summary_json:
-            print(to_json(runner.health().to_dict()), flush=True)
+        if args.json:
+            print(to_json({**agent.run_statistics(), "stopped": stop_text(runner, args),
+                           "health": runner.health().to_dict()}), flush=True)
         if runner.link_failure:
             print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
             return EXIT_FAILURE

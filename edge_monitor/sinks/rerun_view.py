@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -43,6 +42,7 @@ import numpy as np
 from edge_monitor.records import Alarm, Health, Symptom
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.rerun_blueprint import fleet_blueprint
+from edge_monitor.sinks.rerun_cli import compact_recording, rerun_executable, usage_reporting_off
 from edge_monitor.sinks.rerun_draw import DENSITY_HEIGHT, FRICTION_SCALE, Y_UP, Drawer, cycle_colors, wear_bounds
 from joint_model import CRITICAL_WEAR
 
@@ -145,6 +145,7 @@ class RerunSink:
             sink = cls.open(fallback, app_id, recording_id, batching=batching)
             sink.fallback_reason = reason
             return sink
+        usage_reporting_off()      # before the SDK loads or a viewer starts (docs/SECURITY.md)
         import rerun as rr  # lazy: the wheel is large and only needed when drawing
 
         rec = rr.RecordingStream(app_id, recording_id=recording_id)
@@ -239,6 +240,8 @@ class RerunSink:
             except Exception as exc:
                 self._fail("close", exc)
             self.rec = None
+        if self.spec.startswith("save:"):
+            compact_recording(self.spec.partition(":")[2])
 
     def stats(self) -> dict[str, Any]:
         return {"sink": self.spec, "records": self.records_logged, "alarms": self.alarms_logged,
@@ -340,7 +343,7 @@ class RerunSink:
 
 def _spawn_viewer(rec: Any) -> subprocess.Popen:
     """Start a native viewer whose gRPC server binds 127.0.0.1 only, then connect ``rec`` to it."""
-    executable = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
+    executable = rerun_executable()
     if executable is None:
         raise RuntimeError("the rerun executable is not installed")
     port = free_loopback_port(DEFAULT_VIEWER_PORT)
