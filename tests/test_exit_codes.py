@@ -6,7 +6,6 @@ traceback. Every subcommand must appear in the table."""
 from __future__ import annotations
 
 import socket
-from pathlib import Path
 
 import pytest
 
