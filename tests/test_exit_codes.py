@@ -75,6 +75,7 @@ CASES = [
     ("edge", ["listen", "--kind", "a/b"], 2),
     ("edge", ["listen", "--zenoh-connect", "not-an-endpoint"], 2),
     ("edge", ["listen", "--zenoh-mode", "client", "--zenoh-connect", "tcp/127.0.0.1:{closed}"], 1),
+    ("edge", ["listen", "--kind", "health", "--count", "1", "--duration", "0.5", "--no-history"], 1),  # no agent
     ("edge", ["schema", "nosuchkind"], 2),
     ("edge", ["schema", "symptom", "-o", f"{MISSING}/symptom.json"], 1),
     # the infrastructure

@@ -3,7 +3,9 @@
 Subscribes to edge/<robot>/<joint>/<kind> and prints one JSON object per record on standard output:
 the record as published, with "kind" (the key's last segment: symptom, alarm, friction, health, or a
 kind added later) and "key" in front. It first recovers what the agents' publishers still cache (off
-with --no-history), then follows live until Ctrl-C or SIGTERM, --duration or --count.
+with --no-history), then follows live until Ctrl-C or SIGTERM, --duration or --count. With both
+--count and --duration it exits 1 when fewer than --count records came within --duration (a health
+check: --kind health --count 1 --duration 30).
 
 Examples:
   edge-monitor listen --zenoh-mode client --zenoh-connect tcp/127.0.0.1:7447 --kind alarm
@@ -25,7 +27,7 @@ from edge_monitor.records import to_json
 from edge_monitor.sinks.keys import PREFIX, check_robot_name
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import open_session
-from protocol.console import EXIT_CODES_HELP, UsageError, verbosity
+from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, verbosity
 
 log = logging.getLogger(__name__)
 
@@ -132,4 +134,9 @@ def run(args: argparse.Namespace) -> int:
     if verbosity(args) >= 0 and not sys.stderr.closed:
         print(f"edge-monitor listen: {printed} records printed; missed {subscriber.misses}, "
               f"undecodable {subscriber.decode_errors}, dropped {dropped}", file=sys.stderr)
+    if args.count is not None and args.duration is not None and printed < args.count and not stop.is_set() \
+            and not sys.stderr.closed:
+        print(f"edge-monitor listen: {printed} of --count {args.count} records within --duration "
+              f"{args.duration:g} s", file=sys.stderr)
+        return EXIT_FAILURE
     return 0
