@@ -33,6 +33,14 @@ def analytics_config_path() -> Path:
     return Path(base) / "rerun" / "analytics.json"
 
 
+def _analytics_data_path() -> Path:
+    """Where Rerun keeps usage events not yet sent (a field its config file must name)."""
+    if sys.platform == "darwin":
+        return Path.home() / "Library" / "Application Support" / "rerun" / "analytics"
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "rerun" / "analytics"
+
+
 def usage_reporting_off() -> bool:
     """Make Rerun's analytics config say disabled; True when it does. Never raises: a config that cannot
     be written is logged with the command that fixes it."""
@@ -43,10 +51,13 @@ def usage_reporting_off() -> bool:
         config = json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
         if not isinstance(config, dict):
             config = {}
-        if config.get("analytics_enabled") is not False:
+        fields = {"analytics_id", "metadata", "config_file_path", "data_dir_path"}
+        if config.get("analytics_enabled") is not False or not fields <= config.keys():
             config.update({"analytics_enabled": False})
             config.setdefault("analytics_id", uuid.uuid4().hex)
             config.setdefault("metadata", {})
+            config.setdefault("config_file_path", str(path))           # Rerun rejects a config without them
+            config.setdefault("data_dir_path", str(_analytics_data_path()))
             _write_atomically(path, json.dumps(config))
             log.info("Rerun usage reporting turned off in %s (docs/SECURITY.md)", path)
     except (OSError, ValueError) as exc:
