@@ -39,6 +39,14 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh JSON5 config file; the flags above override it")
 
 
+def add_subscriber_arguments(parser: argparse.ArgumentParser, counted: str) -> None:
+    """``--no-history``, ``--duration S`` and ``--count N`` of a command that follows what agents publish."""
+    parser.add_argument("--no-history", action="store_true",
+                        help="only what is published from now on, not what the agents' publishers still cache")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    parser.add_argument("--count", type=int, default=None, metavar="N", help=f"stop after N {counted}")
+
+
 def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
     """The session the ``--zenoh-*`` flags describe (peer mode unless a config file says otherwise)."""
     config_file = getattr(args, "zenoh_config", None)

@@ -22,7 +22,13 @@ import sys
 import time
 from typing import Any
 
-from edge_monitor.commands.common import add_zenoh_arguments, setup_failure, stop_on_signals, zenoh_options
+from edge_monitor.commands.common import (
+    add_subscriber_arguments,
+    add_zenoh_arguments,
+    setup_failure,
+    stop_on_signals,
+    zenoh_options,
+)
 from edge_monitor.records import to_json
 from edge_monitor.sinks.keys import PREFIX, check_robot_name
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
@@ -47,10 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--kind", action="append", default=[], metavar="KIND",
                         help="only records of this kind: symptom, alarm, friction, health, or any later kind "
                              "(repeatable; default: every kind)")
-    parser.add_argument("--no-history", action="store_true",
-                        help="print only what is published from now on, not what the agents still cache")
-    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
-    parser.add_argument("--count", type=int, default=None, metavar="N", help="stop after printing N records")
+    add_subscriber_arguments(parser, "printed records")
     parser.set_defaults(func=run)
     return parser
 

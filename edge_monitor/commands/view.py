@@ -9,12 +9,16 @@ from __future__ import annotations
 import argparse
 import logging
 import queue
-import signal
 import sys
-import threading
 import time
 
-from edge_monitor.commands.common import add_zenoh_arguments, setup_failure, zenoh_options
+from edge_monitor.commands.common import (
+    add_subscriber_arguments,
+    add_zenoh_arguments,
+    setup_failure,
+    stop_on_signals,
+    zenoh_options,
+)
 from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
 from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
@@ -37,10 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--rerun", default="spawn", metavar="SPEC",
                         help="save:PATH | spawn | connect[:URL] (default spawn; without a display: "
                              "save:edge-view.rrd)")
-    parser.add_argument("--no-history", action="store_true",
-                        help="do not recover the records the agents still cache")
-    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
-    parser.add_argument("--count", type=int, default=None, metavar="N", help="stop after N symptom records")
+    add_subscriber_arguments(parser, "symptom records")
     parser.set_defaults(func=run)
     return parser
 
@@ -72,9 +73,7 @@ def run(args: argparse.Namespace) -> int:
         sink.close()
         return setup_failure("view", exc)
 
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
+    stop = stop_on_signals()
     inbox: queue.Queue[ReceivedRecord] = queue.Queue(maxsize=QUEUE_SIZE)
     counts = _Counts()
 
