@@ -5,7 +5,9 @@ and the loopback ports moved to free ones. A block that cannot run here says why
 
 from __future__ import annotations
 
+import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -40,12 +42,28 @@ def test_the_readme_commands_run_as_written(tmp_path):
         script = code.replace(".venv/bin/", bin_dir)
         for old, new in ports.items():
             script = re.sub(rf"\b{old}\b", new, script)
-        done = subprocess.run(["bash", "-e", "-c", script], cwd=tmp_path, capture_output=True, text=True,
-                              timeout=1500, stdin=subprocess.DEVNULL)
-        output = done.stdout + done.stderr
-        assert done.returncode == 0, f"README block {index} failed (exit {done.returncode}):\n{code}\n{output[-4000:]}"
+        returncode, output = _run_block(script, tmp_path)
+        assert returncode == 0, f"README block {index} failed (exit {returncode}):\n{code}\n{output[-4000:]}"
         assert "Traceback" not in output, output[-4000:]
     symptoms = (tmp_path / "symptoms.jsonl").read_text().splitlines()
     assert len(symptoms) == 80 and '"utc":"2026-11-18T' in symptoms[0]    # 40 cycles, 2 joints, wall time
     assert len((tmp_path / "seen.jsonl").read_text().splitlines()) == 4
     assert "[friction]" in (tmp_path / "friction.toml").read_text()
+
+
+def _run_block(script: str, cwd: Path) -> tuple[int, str]:
+    """Run one block with bash in a process group of its own; whatever it left running is ended after it
+    (a background job of a failed block would otherwise hold the output pipes open)."""
+    proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, stdin=subprocess.DEVNULL, start_new_session=True)
+    try:
+        output, _ = proc.communicate(timeout=1500)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        if proc.poll() is None:
+            proc.kill()
+            output, _ = proc.communicate()
+    return proc.returncode, output
