@@ -12,7 +12,7 @@ import subprocess
 import pytest
 
 from edge_monitor.sinks import rerun_cli
-from edge_monitor.sinks.rerun_view import RerunSink
+from edge_monitor.sinks.rerun_view import IMMEDIATE, RerunSink
 
 
 @pytest.fixture
@@ -52,13 +52,12 @@ def test_a_user_who_enabled_it_gets_it_turned_off_again_keeping_the_id(home):
 
 def test_a_saved_recording_is_compacted_when_closed_and_stays_valid(home, tmp_path):
     path = tmp_path / "r.rrd"
-    sink = RerunSink.open(f"save:{path}")
+    sink = RerunSink.open(f"save:{path}", batching=IMMEDIATE)   # drawn record by record: many small chunks
     for cycle in range(30):
         sink.log_symptom({"robot": "r1", "joint": 0, "cycle": cycle, "t": 10.0 * cycle,
                           "wear": {"estimate": 0.5 * cycle, "std": 1.0, "temperature": 40.0},
                           "kl": {"raw": 0.01, "weighted": 0.02}, "friction": {"speeds": [20.0], "torque": [0.05]},
                           "decisions": {}, "critical_wear": 35.0})
-        sink.flush()                             # one block per record: many small chunks before compaction
     sink.close()
     assert not (tmp_path / "r.rrd.compacting").exists()
     assert _rerun("rrd", "verify", str(path)).returncode == 0

@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from edge_monitor.config import AgentConfig, ConfigError, load_config, with_overrides
-from edge_monitor.errors import StateError
-from edge_monitor.pipeline.state_store import StateStore
 from edge_monitor.records import to_json
 from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, MODES, ZenohOptions
 from protocol.console import EXIT_FAILURE, EXIT_USAGE
+
+if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
+    from edge_monitor.config import AgentConfig
+    from edge_monitor.pipeline.state_store import StateStore
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,7 @@ def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
 
 def load_agent_config(args: argparse.Namespace) -> AgentConfig:
     """Config file + command-line overrides; exits with a clear message on bad input."""
+    from edge_monitor.config import ConfigError, load_config, with_overrides
     try:
         cfg = load_config(args.config)
         cfg = with_overrides(cfg, robot=getattr(args, "robot", None), jsonl=getattr(args, "jsonl", None),
@@ -74,6 +75,8 @@ def load_agent_config(args: argparse.Namespace) -> AgentConfig:
 
 def open_state_store(cfg: AgentConfig) -> StateStore | None:
     """The state store of ``--state-dir``; exits with code 1 when it cannot be used (a runtime failure)."""
+    from edge_monitor.errors import StateError
+    from edge_monitor.pipeline.state_store import StateStore
     if not cfg.state_dir:
         return None
     try:
@@ -127,16 +130,6 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)
-
-
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM (the normal end of a command that runs until stopped)."""
-    import signal
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, lambda *_: stop.set())
-    return stop
 
 
 def setup_failure(command: str, exc: ValueError) -> int:

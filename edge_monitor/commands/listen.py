@@ -26,14 +26,13 @@ from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
     setup_failure,
-    stop_on_signals,
     zenoh_options,
 )
 from edge_monitor.records import to_json
 from edge_monitor.sinks.keys import PREFIX, check_robot_name
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import open_session
-from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, verbosity
+from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals, verbosity
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from edge_monitor.commands.common import stop_on_signals
 from edge_monitor.sinks.zenoh_router import (
     DEFAULT_HOST,
     RouterOptions,
@@ -26,7 +25,7 @@ from edge_monitor.sinks.zenoh_router import (
 )
 from edge_monitor.sinks.zenoh_security import ZenohSecurityError
 from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, ZenohSetupError
-from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, EXIT_USAGE
+from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, EXIT_USAGE, stop_on_signals
 
 NAME = "edge-monitor router"
 

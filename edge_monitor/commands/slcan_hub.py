@@ -13,8 +13,7 @@ import argparse
 import sys
 import threading
 
-from edge_monitor.commands.common import stop_on_signals
-from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError
+from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals
 from protocol.slcan_hub import SlcanHub
 
 

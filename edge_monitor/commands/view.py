@@ -16,14 +16,13 @@ from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
     setup_failure,
-    stop_on_signals,
     zenoh_options,
 )
 from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
 from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohSetupError, open_session
-from protocol.console import EXIT_CODES_HELP
+from protocol.console import EXIT_CODES_HELP, stop_on_signals
 
 log = logging.getLogger(__name__)
 

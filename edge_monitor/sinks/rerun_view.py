@@ -101,6 +101,7 @@ class RerunSink:
         self.spec = spec                    # effective sink after any fallback
         self.batching = batching
         self.fallback_reason: str | None = None
+        self.compact_on_close = False       # rewrite the closed file with its chunks compacted
         self.records_logged = 0
         self.alarms_logged = 0
         self.health_logged = 0
@@ -126,11 +127,13 @@ class RerunSink:
 
     @classmethod
     def open(cls, spec: str, app_id: str = APP_ID, recording_id: str | None = None,
-             fallback_save: str | None = None, batching: Batching | None = None) -> "RerunSink":
+             fallback_save: str | None = None, batching: Batching | None = None,
+             compact: bool | None = None) -> "RerunSink":
         """Open the sink named by ``spec``; ``spawn`` without a display falls back to
         ``save:<fallback_save>`` (or ``off``) with a warning. ``batching`` defaults to
-        :data:`SAVE_BATCHING` for a file and :data:`LIVE_BATCHING` for a viewer. Raises
-        :class:`RerunSetupError`."""
+        :data:`SAVE_BATCHING` for a file and :data:`LIVE_BATCHING` for a viewer. ``compact``: compact a
+        saved file when it is closed (default: when it was drawn in smaller blocks than
+        :data:`SAVE_BATCHING`'s, e.g. by ``view``). Raises :class:`RerunSetupError`."""
         kind, _, arg = spec.partition(":")
         if kind == "off":
             return cls(None, "off")
@@ -142,7 +145,7 @@ class RerunSink:
             reason = "no display (DISPLAY/WAYLAND_DISPLAY unset): cannot spawn the Rerun viewer"
             fallback = f"save:{fallback_save}" if fallback_save else "off"
             log.warning("%s; recording goes to %s instead", reason, fallback)
-            sink = cls.open(fallback, app_id, recording_id, batching=batching)
+            sink = cls.open(fallback, app_id, recording_id, batching=batching, compact=compact)
             sink.fallback_reason = reason
             return sink
         usage_reporting_off()      # before the SDK loads or a viewer starts (docs/SECURITY.md)
@@ -164,6 +167,7 @@ class RerunSink:
         if batching is None:
             batching = SAVE_BATCHING if kind == "save" else LIVE_BATCHING
         sink = cls(rec, spec, batching=batching)
+        sink.compact_on_close = kind == "save" and (batching != SAVE_BATCHING if compact is None else compact)
         sink._viewer = viewer
         return sink
 
@@ -240,7 +244,7 @@ class RerunSink:
             except Exception as exc:
                 self._fail("close", exc)
             self.rec = None
-        if self.spec.startswith("save:"):
+        if self.compact_on_close:
             compact_recording(self.spec.partition(":")[2])
 
     def stats(self) -> dict[str, Any]:
