@@ -122,6 +122,7 @@ def test_listen_prints_json_lines_filtered_by_robot_joint_and_kind_also_kinds_ad
     endpoint = f"tcp/127.0.0.1:{port}"
     session = open_session(ZenohOptions(listen=[endpoint]))
     symptoms = [s.to_dict() for s in _short_run()]
+    listeners: list[subprocess.Popen] = []
     try:
         with SymptomPublisher(session, "cell7", joints=[0, 1], cache_size=64) as publisher:
             for record in symptoms:
@@ -135,9 +136,14 @@ def test_listen_prints_json_lines_filtered_by_robot_joint_and_kind_also_kinds_ad
             everything = _listen(endpoint, "--robot", "cell7", "--count", str(len(symptoms) + 1), "--kind",
                                  "symptom", "--kind", "advisory")
             joint1 = _listen(endpoint, "--joint", "1", "--kind", "symptom", "--count", "2")
+            listeners += [everything, joint1]
             out, err = everything.communicate(timeout=60)
             out1, err1 = joint1.communicate(timeout=60)
     finally:
+        for proc in listeners:
+            if proc.poll() is None:   # a listener that did not finish must not outlive the test
+                proc.kill()
+                proc.communicate()
         session.close()
     assert everything.returncode == 0 and joint1.returncode == 0, err + err1
     lines = [json.loads(x) for x in out.splitlines()]
