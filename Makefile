@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint test-vcan soak bench clean
+.PHONY: demo test test-slow test-all lint test-vcan soak bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,8 +15,16 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/edge-monitor demo
 
+# The suite without the tests marked slow, on every core (pytest-xdist; a test module stays on one worker,
+# so its module-scoped fixtures are built once). docs/BENCHMARKS.md "Test suite" has its duration.
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow"
+
+# The tests marked slow: end-to-end runs with real processes, the demo, the wheel in a fresh venv.
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -n auto --dist loadfile -m slow
+
+test-all: test test-slow
 
 # Static checks (configured in pyproject.toml): ruff (style, imports, bugbear) and mypy.
 lint: $(STAMP)

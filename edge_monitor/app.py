@@ -68,7 +68,7 @@ def _jsonl(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) ->
     if not outputs.jsonl:
         return None
     from edge_monitor.sinks.jsonl import JsonlSink
-    return JsonlSink(outputs.jsonl)
+    return JsonlSink(outputs.jsonl, include_alarms=True)     # alarm raised/cleared events too ("kind": "alarm")
 
 
 def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) -> Sink | None:
@@ -79,7 +79,7 @@ def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) ->
     app.session = open_session(outputs.zenoh)
     stack.callback(app.session.close)
     app.publisher = SymptomPublisher(app.session, config.robot, config.joints or (),
-                                     state_provider=app.agent.joint_state)
+                                     state_provider=app.agent.joint_state, joints_provider=app.agent.known_joints)
     log.info("zenoh: %s", outputs.zenoh.describe())
     if outputs.maintenance:
         from edge_monitor.sinks.acknowledge import AcknowledgeRequest, parse_request

@@ -1,6 +1,8 @@
-"""``edge-monitor`` command line: dispatches to one module per subcommand (``edge_monitor.commands``).
+"""edge-monitor: the edge condition monitor for robot joints (the agent, its tools and its outputs).
 
-``-v``/``-vv``/``-q`` work before and after the subcommand; exit codes in ``protocol.console``."""
+run monitors a live CAN link, replay a recorded log; demo shows the whole system on a simulated
+robot. -v/-vv/-q work before and after the subcommand. "edge-monitor COMMAND --help" tells more.
+"""
 
 from __future__ import annotations
 
@@ -31,22 +33,33 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("run", "run"), ("replay", "replay"), ("demo", "demo"), ("design", "design"),
     ("commission", "commission"), ("fit-weights", "fit_weights"), ("glr", "glr"), ("view", "view"),
     ("evaluate", "evaluate"), ("check-mapping", "check_mapping"), ("export-trace", "export_trace"),
-    ("acknowledge", "acknowledge"),
+    ("acknowledge", "acknowledge"), ("listen", "listen"), ("schema", "schema"), ("router", "router"),
+    ("slcan-hub", "slcan_hub"),
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand, or of ``only`` that one (a command starts without importing the
+    others: ``router`` and ``listen`` need no numerics)."""
     parser = argparse.ArgumentParser(prog="edge-monitor", description=__doc__)
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     subparsers = parser.add_subparsers(dest="command", required=True)
-    for _name, module_name in SUBCOMMANDS:
-        importlib.import_module(f"edge_monitor.commands.{module_name}").add_parser(subparsers)
+    for name, module_name in SUBCOMMANDS:
+        if only is None or name == only:
+            importlib.import_module(f"edge_monitor.commands.{module_name}").add_parser(subparsers)
     install_conventions(parser)
     return parser
 
 
+def requested_subcommand(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names (the first word that is not an option), if it is one."""
+    word = next((token for token in argv if not token.startswith("-")), None)
+    return word if word in dict(SUBCOMMANDS) else None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(requested_subcommand(argv))
     args = parser.parse_args(argv)
     configure_logging(verbosity(args))
     try:

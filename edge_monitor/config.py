@@ -130,6 +130,10 @@ _TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
     "zenoh"}
 
 
+#: The shipped example config, where this installation has it (every key with its default and meaning).
+EXAMPLE_CONFIG = Path(__file__).resolve().parent / "defaults" / "agent.toml"
+
+
 def load_config(path: str | Path | None) -> AgentConfig:
     """Load a TOML config file; ``None`` gives the embedded defaults."""
     if path is None:
@@ -139,7 +143,7 @@ def load_config(path: str | Path | None) -> AgentConfig:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"config file {p} not found; pass an existing TOML file "
-                          f"(example: edge_monitor/defaults/agent.toml)") from None
+                          f"(the example with every key: {EXAMPLE_CONFIG})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {p}: invalid TOML: {exc}") from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -9,13 +9,34 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
 
-#: Version of every published record (symptom, alarm, friction, health): the "schema" field.
+#: Version of every published record (symptom, alarm, friction, health): the "schema" field. Fields are
+#: only ever added within a version (``utc`` was), so a reader of version 1 ignores what it does not know.
 SCHEMA_VERSION = 1
+
+#: Frame timestamps before 2000-01-01T00:00:00Z are not wall-clock time (a log with relative time, a
+#: simulated clock starting at 0): records then carry ``"utc": null``.
+EARLIEST_WALL_TIME = 946684800.0
+
+
+def utc_text(timestamp: float | None) -> str | None:
+    """ISO 8601 UTC text of a Unix timestamp [s], to the millisecond (``2026-11-26T13:09:00.250Z``);
+    None when ``timestamp`` is missing, not finite or before :data:`EARLIEST_WALL_TIME`."""
+    if timestamp is None or not math.isfinite(timestamp) or timestamp < EARLIEST_WALL_TIME:
+        return None
+    text = datetime.fromtimestamp(timestamp, tz=timezone.utc).isoformat(timespec="milliseconds")
+    return text.replace("+00:00", "Z")
+
+
+def utc_now() -> str | None:
+    """The host clock as :func:`utc_text`."""
+    return utc_text(time.time())
 
 
 def to_strict(value: Any) -> Any:
@@ -107,10 +128,12 @@ class Alarm:
     #: why, as far as the agent can tell: the shift estimate in the quantity's units (per input) and the
     #: operating conditions then against the learned ones (:mod:`edge_monitor.pipeline.operating_range`)
     cause: dict[str, Any] | None = None
+    utc: str | None = None                    # wall time of the cycle's end (or of a maintenance), ISO 8601
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
+            "utc": self.utc,
             "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
             "threshold": finite_or_none(self.threshold),
             "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
@@ -131,11 +154,12 @@ class Advisory:
     covariate: str
     value: float
     learned: tuple[float, float]
+    utc: str | None = None                    # wall time of the cycle's end, ISO 8601
 
     def to_dict(self) -> dict[str, Any]:
         where = "outside" if self.state == "entered" else "back inside"
         return {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
-                "advisory": self.kind, "state": self.state, "covariate": self.covariate,
+                "utc": self.utc, "advisory": self.kind, "state": self.state, "covariate": self.covariate,
                 "value": finite_or_none(self.value), "learned": [finite_or_none(v) for v in self.learned],
                 "message": f"{self.covariate} {self.value:.3g} {where} the learned range "
                            f"{self.learned[0]:.3g} … {self.learned[1]:.3g}: operating condition, not wear"}
@@ -166,6 +190,7 @@ class Symptom:
     alarms: list[Alarm] = field(default_factory=list)
     advisories: list[Advisory] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict)
+    utc: str | None = None                    # wall time of the cycle's end from the frame timestamps, ISO 8601
 
     @property
     def alarm(self) -> bool:
@@ -174,7 +199,7 @@ class Symptom:
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint,
-                               "cycle": self.cycle, "t": self.t, "friction": self.friction}
+                               "cycle": self.cycle, "t": self.t, "utc": self.utc, "friction": self.friction}
         out.update(self.sections)
         out.update({"decisions": {q: d.to_dict() for q, d in self.decisions.items()}, "alarm": self.alarm,
                     "load": self.load, "skipped": self.skipped, "critical_wear": self.critical_wear})
@@ -187,7 +212,7 @@ class Symptom:
     def friction_record(self) -> dict[str, Any]:
         """The friction curve of the cycle as its own record (Zenoh key ``…/friction``)."""
         return {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
-                **self.friction}
+                "utc": self.utc, **self.friction}
 
 
 @dataclass(frozen=True)
@@ -196,9 +221,10 @@ class Health:
 
     robot: str
     counters: dict[str, Any]
+    utc: str | None = field(default_factory=utc_now)     # when the record was made (host clock)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"robot": self.robot, **self.counters}
+        return {"schema": SCHEMA_VERSION, "robot": self.robot, "utc": self.utc, **self.counters}
 
     def numbers(self) -> dict[str, float]:
         """The numeric top-level counters (for plotting)."""

@@ -10,7 +10,10 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
+import signal
 import sys
+import threading
 from contextlib import contextmanager
 from typing import Any, Iterator, TextIO
 
@@ -47,6 +50,29 @@ def add_verbosity_arguments(parser: argparse.ArgumentParser, *, after_command: b
                         help="errors only: no warnings, summary lines or progress bar")
 
 
+class UserHelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Help for users: the description keeps its paragraphs and examples; an option that stores a value
+    shows its default when it has a meaningful one (not None, not already said in its help)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        meaningful = action.default not in (None, "", []) and action.default is not argparse.SUPPRESS
+        if (type(action) is argparse._StoreAction and action.option_strings and meaningful
+                and not action.required and "default" not in text):
+            return f"{text} (default: %(default)s)"
+        return text
+
+
+_ROLE = re.compile(r":(?:mod|class|func|meth|data|attr):`~?([^`]+)`")
+
+
+def user_text(text: str | None) -> str | None:
+    """A docstring as help text: no reST markup (``code``, :role:`target`)."""
+    if text is None:
+        return None
+    return _ROLE.sub(lambda m: m.group(1).rsplit(".", 1)[-1], text).replace("``", "")
+
+
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     """The subcommand parsers of ``parser`` by name (empty without subcommands)."""
     for action in parser._actions:
@@ -59,6 +85,9 @@ def install_conventions(parser: argparse.ArgumentParser) -> None:
     """Verbosity options on ``parser`` and on every subcommand, exit codes in every ``--help``."""
     parser.epilog = parser.epilog or EXIT_CODES_HELP
     add_verbosity_arguments(parser)
+    for p in (parser, *subcommands(parser).values()):
+        p.formatter_class = UserHelpFormatter
+        p.description = user_text(p.description)
     for sub in subcommands(parser).values():
         add_verbosity_arguments(sub, after_command=True)
         sub.epilog = sub.epilog or EXIT_CODES_HELP
@@ -83,6 +112,15 @@ def usage_error(parser: argparse.ArgumentParser, message: str) -> int:
     parser.print_usage(sys.stderr)
     print(f"{parser.prog}: error: {message}", file=sys.stderr)
     return EXIT_USAGE
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (the normal end of a command that runs until stopped)."""
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, lambda *_: stop.set())
+    return stop
 
 
 def add_can_arguments(parser: argparse.ArgumentParser, link_help: str) -> None:

@@ -24,7 +24,8 @@ import can
 
 from protocol.pty_pair import PtyObserver, PtyPair
 
-__all__ = ["LINK_SCHEMES", "LOG_SUFFIXES", "NO_CAN_CONFIG", "LinkError", "NoCanConfigError", "PtyObserver", "PtyPair",
+__all__ = ["LINK_SCHEMES", "LOG_SUFFIXES", "NO_CAN_CONFIG", "LinkError", "LinkUsageError",
+           "NoCanConfigError", "PtyObserver", "PtyPair",
            "is_log_file", "open_bus", "open_log_reader", "open_log_writer", "parse_link", "vcan_available"]
 
 log = logging.getLogger(__name__)
@@ -37,7 +38,12 @@ class LinkError(ValueError):
     """A link could not be opened or is malformed; the message starts with the link."""
 
 
-class NoCanConfigError(LinkError):
+class LinkUsageError(LinkError):
+    """A link, interface name or log file name that cannot be right (a usage error, exit code 2), as
+    opposed to a valid one that fails to open (a runtime failure, exit code 1)."""
+
+
+class NoCanConfigError(LinkUsageError):
     """No link given and python-can's configuration names no interface: the message says what to do."""
 
 
@@ -58,7 +64,7 @@ def is_log_file(link: str | os.PathLike | None) -> bool:
 def open_log_reader(path: str | os.PathLike) -> Iterable[can.Message]:
     """python-can LogReader for an existing log file (format from the suffix)."""
     if not is_log_file(path):
-        raise LinkError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
+        raise LinkUsageError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
     if not Path(path).is_file():
         raise LinkError(f"{path}: log file not found")
     try:
@@ -70,7 +76,7 @@ def open_log_reader(path: str | os.PathLike) -> Iterable[can.Message]:
 def open_log_writer(path: str | os.PathLike) -> can.Listener:
     """python-can Logger writing a log file (format from the suffix); call ``.stop()`` to close."""
     if not is_log_file(path):
-        raise LinkError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
+        raise LinkUsageError(f"{path}: not a CAN log file; use one of {', '.join(LOG_SUFFIXES)}")
     try:
         return can.Logger(path)
     except Exception as error:  # noqa: BLE001
@@ -81,10 +87,10 @@ def parse_link(link: str) -> tuple[str, str]:
     """``"scheme:channel"`` -> (scheme, channel); raises LinkError naming the link."""
     scheme, sep, channel = str(link).partition(":")
     if not sep or scheme not in LINK_SCHEMES:
-        raise LinkError(f"{link}: unknown link; use socketcan:IFACE, slcan:DEVICE_OR_URL, virtual:NAME "
-                        "or a log file")
+        raise LinkUsageError(f"{link}: unknown link; use socketcan:IFACE, slcan:DEVICE_OR_URL, virtual:NAME "
+                             "or a log file")
     if not channel:
-        raise LinkError(f"{link}: missing channel after '{scheme}:'")
+        raise LinkUsageError(f"{link}: missing channel after '{scheme}:'")
     return scheme, channel
 
 
@@ -105,7 +111,7 @@ def open_bus(
     if link is None:
         return _open_configured(interface, channel, bitrate, receive_own_messages, kwargs)
     if is_log_file(link):
-        raise LinkError(f"{link}: a log file is not a bus; read it with open_log_reader()")
+        raise LinkUsageError(f"{link}: a log file is not a bus; read it with open_log_reader()")
     scheme, target = parse_link(link)
     options: dict[str, Any] = dict(kwargs)
     if bitrate is not None:
@@ -139,6 +145,9 @@ def _open_configured(
     described = f"interface={interface or '(config)'} channel={channel or '(config)'}"
     if interface is None and not _interface_configured(options.get("config_context")):
         raise NoCanConfigError(NO_CAN_CONFIG)
+    if interface is not None and interface not in can.interfaces.VALID_INTERFACES:
+        raise LinkUsageError(f"--interface {interface}: not a python-can interface; use one of "
+                             f"{', '.join(sorted(can.interfaces.VALID_INTERFACES))}")
     try:
         config = can.util.load_config(config={k: v for k, v in options.items()
                                               if k in ("interface", "channel", "bitrate")},

@@ -36,7 +36,7 @@ from protocol.console import (
     subcommands,
     verbosity,
 )
-from protocol.links import LinkError, NoCanConfigError, is_log_file
+from protocol.links import LinkError, LinkUsageError, is_log_file
 from sim_controller.config import (
     SimConfig,
     SimConfigError,
@@ -127,11 +127,12 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                    help="record: timestamp of tick 0 in s (default 0; e.g. a Unix time)")
     g.add_argument("--truth", metavar="PATH.jsonl",
                    help="write ground truth (one record per joint per cycle, then a fault summary)")
-    g.add_argument("--summary-json", action="store_true", help="print the run summary as JSON on stdout")
+    g.add_argument("--json", dest="summary_json", action="store_true", help="print the run summary as JSON on stdout")
+    g.add_argument("--summary-json", dest="summary_json", action="store_true", help=argparse.SUPPRESS)  # old name
     g.add_argument("--profile", default="native", metavar="native|cia402|dbc:MAPPING.toml",
-                   help="whose frames to send: ours (default), CiA 402 drives (canopen TPDOs of "
-                        "protocol/eds/cia402_drive.eds) or a DBC mapping's (e.g. dbc:protocol/mappings/"
-                        "foreign_robot.toml); docs/CONNECTING.md")
+                   help="whose frames to send: ours (default), CiA 402 drives (canopen TPDOs of the shipped "
+                        "CiA 402 EDS) or a DBC mapping's (e.g. dbc:foreign_robot, a shipped mapping, or a "
+                        "file); docs/CONNECTING.md")
 
 
 _FIELD_OF_OPTION = {"joints": "joints", "rate": "rate", "cycles": "cycles", "seed": "seed", "speeds": "speeds",
@@ -189,7 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
                             f"longer ones are cut to S seconds, with a log line (default {DEFAULT_MAX_PAUSE_S:g})")
     _add_common(p_run)
     p_rec = sub.add_parser("record", help="write frames to a python-can log file as fast as possible")
-    p_rec.add_argument("--out", required=True, metavar="FILE.{blf,log,asc}", help="log file (format from the suffix)")
+    p_rec.add_argument("-o", "--out", required=True, metavar="FILE.{blf,log,asc}",
+                       help="log file (format from the suffix)")
     _add_common(p_rec)
     install_conventions(parser)
     return parser
@@ -256,7 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
             summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args),
                           stop=_stop_on_sigterm().is_set, max_pause=args.max_pause, encoder=encoder)
-    except NoCanConfigError as exc:
+    except LinkUsageError as exc:        # a bad link, interface or log suffix, no CAN configured: exit 2
         usage_error(str(exc))
     except (LinkError, OSError) as exc:
         print(f"sim-controller: {exc}", file=sys.stderr)

@@ -33,7 +33,7 @@ import numpy as np
 from can.io import blf
 from can.util import channel2int
 
-from protocol.links import LinkError, is_log_file
+from protocol.links import LinkError, LinkUsageError, is_log_file
 from sim_controller.faults import FrameBlock
 
 #: zlib level of BLF containers: 1 (fastest) — level 6 (python-can's default) made compression
@@ -271,7 +271,7 @@ def open_block_writer(path: str | Path, **kwargs: Any) -> BlockWriter:
     """Writer for ``path`` by suffix; raises ``LinkError`` naming the path and the reason."""
     name = str(path).lower()
     if not is_log_file(path):
-        raise LinkError(f"{path}: not a CAN log file; use .blf, .log or .asc")
+        raise LinkUsageError(f"{path}: not a CAN log file; use .blf, .log or .asc")
     try:
         if name.endswith(".blf"):
             kwargs.setdefault("compression_level", BLF_COMPRESSION_LEVEL)

@@ -42,15 +42,17 @@ def cycle_torque(speed, rng, load=0.5, temperature=40.0, wear=0.0, noise=2e-3, i
 
 def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j, c: 0.0,
                 temperature=lambda c: 40.0, load=0.5, load_std=0.1, noise=2e-3, seed=0,
-                status=True, first_cycle=0, first_tick=0):
-    """Return (ids, data[n,8], dlc, timestamps) of ``n_cycles`` cycles, in transmission order.
+                status=True, first_cycle=0, first_tick=0, start_tick=0, start_time=0.0):
+    """Return (ids, data[n,8], dlc, timestamps) of ``n_cycles`` cycles, in transmission order; the
+    controller tick starts at ``start_tick`` (its 24-bit status field wraps) and timestamps at ``start_time`` s.
     ``first_cycle``/``first_tick``: where a stream made of several calls goes on (e.g. the ticks of
-    ``first_cycle`` earlier cycles: ``first_cycle * cycle_profile(speeds)[0].size``)."""
+    ``first_cycle`` earlier cycles: ``first_cycle * cycle_profile(speeds)[0].size``), ticks and
+    timestamps counted on from ``start_tick``/``start_time``."""
     rng = np.random.default_rng(seed)
     speed_ref, segment = cycle_profile(speeds)
     n_tick = speed_ref.size
     ids, rows, ts = [], [], []
-    tick0 = first_tick
+    tick0 = start_tick + first_tick
     status_counter = first_tick // 10
     for c in range(n_cycles):
         cyc = first_cycle + c
@@ -61,7 +63,7 @@ def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j,
             per_joint[j] = fr.encode_motor_state_block(j, ticks % 256, tau, speed_ref, np.zeros(n_tick))
         load_est = load + rng.normal(0, load_std)
         for i in range(n_tick):
-            t = (tick0 + i) / RATE
+            t = start_time + (tick0 - start_tick + i) / RATE
             if status and i % 10 == 0:
                 ids.append(fr.CONTROLLER_STATUS_ID)
                 rows.append(fr.encode_controller_status(status_counter % 16, fr.Mode.TEST_CYCLE, cyc % 65536,

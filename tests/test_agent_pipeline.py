@@ -4,6 +4,7 @@ without status frames, and persistence across a restart."""
 from __future__ import annotations
 
 import dataclasses
+from datetime import datetime, timezone
 
 import numpy as np
 import pytest
@@ -312,3 +313,32 @@ def test_a_stream_that_stops_inside_a_cycle_keeps_its_gathered_samples(frames, m
     assert gathered.keys() == unbatched.keys() == {0, 1}
     for joint in gathered:
         assert _numbers_close(gathered[joint], unbatched[joint]), joint
+
+
+def test_records_carry_utc_wall_time_from_the_frame_timestamps_across_a_tick_wrap():
+    """The controller's 24-bit tick wraps (every ≈ 9.3 h at 500 Hz) in the second cycle: the controller
+    time ``t`` goes on, and each record's ``utc`` is the timestamp of its cycle's last frame."""
+    start_time = 1_795_000_000.0                      # 2026-11-18T09:46:40Z
+    start_tick = (1 << 24) - 6000                     # the wrap falls into cycle 1 (cycles are 4850 ticks)
+    frames = make_frames(4, joints=(0,), speeds=SPEEDS, seed=3, start_tick=start_tick, start_time=start_time)
+    agent = Agent(small_config())
+    symptoms = [s.to_dict() for s in feed(agent, frames) + agent.finish()]
+    ids, ts = frames[0], frames[3]
+    status_rows = np.flatnonzero(ids == 0x080)
+    cycle_len = len(ids) // 4
+    assert [s["cycle"] for s in symptoms] == [0, 1, 2, 3]
+    assert symptoms[0]["t"] > (1 << 24) / 500 - 12                                 # the controller's own clock
+    assert np.diff([s["t"] for s in symptoms]) == pytest.approx([4850 / 500] * 3, abs=0.01)  # no jump at the wrap
+    for s in symptoms:
+        last_frame = ts[min((s["cycle"] + 1) * cycle_len, len(ts)) - 1]
+        expected = datetime.fromtimestamp(last_frame, tz=timezone.utc)
+        assert s["utc"].endswith("Z")
+        assert abs((datetime.fromisoformat(s["utc"].replace("Z", "+00:00")) - expected).total_seconds()) < 1e-3
+    assert status_rows.size and symptoms[-1]["utc"] > symptoms[0]["utc"]
+
+
+def test_records_without_wall_clock_timestamps_say_so_with_a_null_utc(frames):
+    """A log with relative time (ASC, a simulated clock at 0): the controller time only."""
+    agent = Agent(small_config())
+    symptoms = [s.to_dict() for s in feed(agent, frames) + agent.finish()]
+    assert symptoms and all(s["utc"] is None and s["t"] > 0 for s in symptoms)

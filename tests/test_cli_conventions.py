@@ -166,7 +166,7 @@ def test_bad_values_print_the_subcommands_usage(tmp_path, cmd, usage, message):
 def test_sim_run_takes_python_can_options_and_configuration(tmp_path, options, env, canrc):
     if canrc:
         (tmp_path / ".canrc").write_text("[default]\ninterface = virtual\nchannel = from-canrc\n")
-    done = cli(SIM, "run", *options, *FAST, "--speedup", "0", "--summary-json",
+    done = cli(SIM, "run", *options, *FAST, "--speedup", "0", "--json",
                env=env_without_can(HOME=str(tmp_path), **env), cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout)["frames_sent"] > 0

@@ -24,7 +24,7 @@ CYCLES, JOINTS = 3, (0, 1)
 
 
 def _keys(jsonl: Path) -> list[tuple[int, int]]:
-    return sorted((r["joint"], r["cycle"]) for r in map(json.loads, jsonl.read_text().splitlines()))
+    return sorted((r["joint"], r["cycle"]) for r in map(json.loads, jsonl.read_text().splitlines()) if "kind" not in r)
 
 
 def _write_log(path: Path, frames) -> None:
@@ -41,7 +41,7 @@ def _run_live(tmp_path: Path, name: str, frames, *extra: str) -> tuple[list[tupl
         agent = subprocess.Popen(
             [sys.executable, "-m", "edge_monitor.cli", "run", "--link", f"slcan:{pair.b}", "--config",
              str(tmp_path / "agent.toml"), "--no-zenoh", "--jsonl", str(jsonl), "--idle-stop", "3",
-             "--summary-json", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             "--json", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:   # frames sent before the agent opened its end would be discarded (a serial line)
             assert wait_until(lambda: pair.is_open(pair.b), 60), "the agent did not open its end of the link"
             send_frames(f"slcan:{pair.a}", frames)

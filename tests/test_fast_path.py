@@ -39,7 +39,7 @@ def test_cycle_mode_gives_the_frame_path_quantities(tmp_path: Path):
     jsonl = tmp_path / "frames.jsonl"
     subprocess.run([sys.executable, "-m", "edge_monitor.cli", "replay", str(log), "--config", str(config),
                     "--jsonl", str(jsonl)], check=True, capture_output=True, timeout=300)
-    framed = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    framed = [r for r in map(json.loads, jsonl.read_text().splitlines()) if "kind" not in r]
 
     agent_config = config_from_mapping({"model": {"enabled": False}, "kl": {"n_nominal_cycles": 2},
                                         "decision": {"n_nominal": 5, "density": "gauss", "density_joint": "gauss"}})

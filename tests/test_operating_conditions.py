@@ -14,14 +14,14 @@ from typing import Any
 
 import pytest
 
-pytestmark = pytest.mark.timeout(1800)      # ≈ 2 × 290 cycles of 2 joints: minutes on a loaded machine
-
 from edge_monitor.config import config_from_mapping
 from edge_monitor.offline.fast_path import run_cycles
 from edge_monitor.pipeline.agent import Agent
 from sim_controller.config import SimConfig, wear_profiles_from_ramps
 from sim_controller.cycle_mode import cycle_signals
 from sim_controller.timeline import PlantEvent
+
+pytestmark = pytest.mark.timeout(1800)      # ≈ 2 × 290 cycles of 2 joints: minutes on a loaded machine
 
 STEP, CYCLES = 170, 290
 SETTINGS = {"decision": {"settling_window": 80, "steady_nominal": 60}}

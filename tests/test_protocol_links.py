@@ -95,8 +95,7 @@ def test_two_processes_exchange_protected_frames_over_slcan_pty():
 
 
 def test_two_processes_exchange_protected_frames_over_slcan_tcp_hub():
-    hub_script = Path(__file__).resolve().parents[1] / "tools" / "slcan_hub.py"
-    hub = subprocess.Popen([sys.executable, str(hub_script), "--port", "0"],
+    hub = subprocess.Popen([str(Path(sys.executable).parent / "edge-monitor"), "slcan-hub", "--port", "0"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         banner = hub.stdout.readline().split()

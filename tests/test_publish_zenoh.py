@@ -174,7 +174,7 @@ def test_client_mode_through_router_subprocess():
 
 
 def _start_router(port: int) -> subprocess.Popen:
-    router = subprocess.Popen([sys.executable, str(REPO / "tools" / "zenoh_router.py"), "--port", str(port)],
+    router = subprocess.Popen([str(Path(sys.executable).parent / "edge-monitor"), "router", "--port", str(port)],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert router.stdout.readline().strip() == f"zenoh router listening on tcp/127.0.0.1:{port}"
     return router

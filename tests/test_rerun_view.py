@@ -285,7 +285,7 @@ def test_demo_sized_recording_is_compact_and_verifies(tmp_path):
     sizes, chunks = {}, {}
     for name, batching in (("blocks", SAVE_BATCHING), ("immediate", IMMEDIATE)):
         path = tmp_path / f"{name}.rrd"
-        sink = RerunSink.open(f"save:{path}", recording_id="demo", batching=batching)
+        sink = RerunSink.open(f"save:{path}", recording_id="demo", batching=batching, compact=False)
         for i, record in enumerate(records):
             sink.log_symptom(record)
             if i % 6 == 5:

@@ -12,8 +12,10 @@ import time
 from pathlib import Path
 
 import can
+import jsonschema
 import pytest
 
+from edge_monitor.schemas import load_schema
 from edge_monitor.sinks.loopback import free_loopback_port as free_port
 from edge_monitor.sinks.zenoh_publisher import SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
@@ -63,7 +65,7 @@ def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: P
         agent = subprocess.Popen(
             [sys.executable, "-m", "edge_monitor.cli", "run", "--link", f"slcan:{pair.b}", "--config", str(cfg),
              "--zenoh-listen", endpoint, "--jsonl", str(jsonl), "--state-dir", str(state),
-             "--allow-remote-maintenance", "--summary-json"],
+             "--allow-remote-maintenance", "--json"],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         session = open_session(ZenohOptions(mode="peer", connect=[endpoint]))
         try:
@@ -104,14 +106,16 @@ def test_symptoms_travel_from_can_to_an_independent_zenoh_subscriber(tmp_path: P
             sub.close()
             session.close()
     assert agent.returncode == 0, out
-    lines = [json.loads(x) for x in jsonl.read_text().splitlines()]
+    lines = [r for r in map(json.loads, jsonl.read_text().splitlines()) if "kind" not in r]
     assert {(r["joint"], r["cycle"]) for r in lines} == expected
     assert all(r["schema"] == 1 and r["robot"] == "cell7" for r in lines)
     saved = json.loads((state / "agent_state.json").read_text())
     assert saved["last_emitted"] == {"0": 2, "1": 2}
     health = sub.records("health")[-1]
     assert health["frames_total"] > 0 and health["crc_errors"] == 0
-    # --summary-json: the final counters as one JSON line on stdout
+    # --json: the run summary (replay's schema, with the last health record) as one JSON line on stdout
     summary = json.loads([line for line in out.splitlines() if line.startswith("{")][-1])
-    assert summary["robot"] == "cell7" and summary["frames_total"] >= health["frames_total"]
-    assert summary["symptoms"] == len(expected) and summary["queue_dropped"] == 0
+    jsonschema.validate(summary, load_schema("summary"))
+    jsonschema.validate(summary["health"], load_schema("health"))
+    assert summary["health"]["robot"] == "cell7" and summary["frames_total"] >= health["frames_total"]
+    assert summary["symptoms"] == len(expected) and summary["health"]["queue_dropped"] == 0

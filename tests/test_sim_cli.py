@@ -30,7 +30,7 @@ def read_truth(path: Path) -> tuple[list[dict], dict]:
 
 def test_record_cli_writes_log_and_truth(tmp_path, capsys):
     out, truth = tmp_path / "run.blf", tmp_path / "truth.jsonl"
-    code = main(["record", "--out", str(out), "--truth", str(truth), "--seed", "4", "--summary-json",
+    code = main(["record", "--out", str(out), "--truth", str(truth), "--seed", "4", "--json",
                  "--wear-ramp", "all:0:1:0:30", "--temperature-range", "35:45", *FAST])
     assert code == 0
     summary = json.loads(capsys.readouterr().out)
@@ -129,8 +129,9 @@ def test_unopenable_link_says_which_and_why(tmp_path):
 def test_unwritable_output_says_which_and_why(tmp_path, capsys):
     assert main(["record", "--out", str(tmp_path / "nodir" / "x.blf"), *FAST]) == 1
     assert "nodir/x.blf: cannot write log" in capsys.readouterr().err
-    assert main(["record", "--out", str(tmp_path / "x.txt"), *FAST]) == 1
-    assert "not a CAN log file" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exited:       # a file name no log format has: a usage error
+        main(["record", "--out", str(tmp_path / "x.txt"), *FAST])
+    assert exited.value.code == 2 and "not a CAN log file" in capsys.readouterr().err
 
 
 @contextmanager

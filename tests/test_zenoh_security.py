@@ -16,7 +16,6 @@ an allowed identity delivers (positive control in the same parametrised test).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import logging
 import signal
@@ -392,17 +391,19 @@ def test_usrpwd_identities_are_the_alternative_to_client_certificates(pki, tmp_p
 # -- router tool ---------------------------------------------------------------------------------------
 
 
-def _router_tool():
-    spec = importlib.util.spec_from_file_location("zenoh_router_tool", REPO / "tools" / "zenoh_router.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+EDGE = str(Path(sys.executable).parent / "edge-monitor")
+
+
+def _router(argv: list[str]) -> int:
+    """``edge-monitor router ARGV`` in this process (what the installed command runs)."""
+    from edge_monitor.cli import main
+    return main(["router", *argv])
 
 
 def test_router_tool_listens_on_tls_with_the_acl_config(pki):
     port = free_loopback_port()
     router = subprocess.Popen(
-        [sys.executable, str(REPO / "tools" / "zenoh_router.py"), "--config", str(ZENOH_DEFAULTS / "router_acl.json5"),
+        [EDGE, "router", "--config", str(ZENOH_DEFAULTS / "router_acl.json5"),
          "--tls-ca", str(pki.fleet.cert), "--tls-cert", str(pki.router.cert), "--tls-key", str(pki.router.key),
          "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -435,15 +436,15 @@ def test_router_tool_refuses_to_downgrade_tls_to_tcp(pki, tmp_path, capsys):
     tls = {"listen_certificate": str(pki.router.cert), "listen_private_key": str(pki.router.key)}
     config = _write(tmp_path / "tcp_with_tls.json5", json.dumps(
         {"listen": {"endpoints": ["tcp/127.0.0.1:7447"]}, "transport": {"link": {"tls": tls}}}))
-    assert _router_tool().main(["--config", config]) == 2
+    assert _router(["--config", config]) == 2
     assert "refusing to downgrade" in capsys.readouterr().err
 
 
 def test_router_tool_upgrades_host_and_port_to_tls_when_tls_is_configured(pki, tmp_path):
     tls = {"listen_certificate": str(pki.router.cert), "listen_private_key": str(pki.router.key)}
     config = _write(tmp_path / "tls.json5", json.dumps({"transport": {"link": {"tls": tls}}}))
-    tool = _router_tool()
-    _, endpoints = tool.build_config(tool.parse_args(["--config", config, "--port", "7999"]))
+    from edge_monitor.sinks.zenoh_router import RouterOptions, router_config
+    _, endpoints = router_config(RouterOptions(config=config, port=7999))
     assert endpoints == ["tls/127.0.0.1:7999"]
 
 
@@ -457,7 +458,7 @@ def test_router_tool_refuses_tls_it_cannot_honour(pki, tmp_path, capsys, args, m
     names = {"cert": str(pki.router.cert), "missing": str(tmp_path / "missing.key"),
              "tls_without_files": _write(tmp_path / "t.json5", '{listen: {endpoints: ["tls/127.0.0.1:7447"]}}'),
              "acl": str(ZENOH_DEFAULTS / "router_acl.json5")}
-    assert _router_tool().main([a.format(**names) for a in args]) == 2
+    assert _router([a.format(**names) for a in args]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and "\n" not in err
 

@@ -353,7 +353,7 @@ def fit_surrogate(path: Path, joint: int = 0) -> dict[str, list]:
     rows = []
     for line in path.read_text().splitlines():
         rec = json.loads(line)
-        if rec.get("joint") != joint:
+        if rec.get("joint") != joint or "kind" in rec:      # alarm events are marked "kind": "alarm"
             continue
         w, kr, kw = rec["wear"]["estimate"], rec["kl"]["raw"], rec["kl"]["weighted"]
         if None not in (w, kr, kw) and kr > 0 and kw > 0:

@@ -204,7 +204,8 @@ def load_run(d: Path) -> dict[int, JointSeries]:
     per_joint: dict[int, list[dict]] = {}
     for line in (d / "sym.jsonl").read_text().splitlines():
         r = json.loads(line)
-        per_joint.setdefault(r["joint"], []).append(r)
+        if "kind" not in r:                     # alarm events are marked "kind": "alarm"
+            per_joint.setdefault(r["joint"], []).append(r)
     out = {}
     for j, recs in sorted(per_joint.items()):
         recs.sort(key=lambda r: r["cycle"])

@@ -7,7 +7,7 @@ reconciled at the end (docs/RELIABILITY.md, "A real soak").
     .venv/bin/python tools/soak.py --duration 1800 --json --keep out/soak
 
 Processes: ``sim-controller run`` (paced at ``--speedup`` × real time, link faults), ``edge-monitor run``
-(state dir, JSONL, Zenoh client of the router), ``tools/zenoh_router.py`` on a free loopback port,
+(state dir, JSONL, Zenoh client of the router), ``edge-monitor router`` on a free loopback port,
 ``tools/soak_subscriber.py`` (writes every symptom it receives). The pty bridge runs in this process
 and reports where every byte went (tools/soak_link.py). Chaos (``--no-chaos`` to disable), one action at
 a time, each waiting until the agent has processed two cycle starts afterwards: kill -9 of the agent's
@@ -256,7 +256,7 @@ class Soak:
     # -- processes --------------------------------------------------------------------------
     def start_router(self) -> None:
         for attempt in range(20):
-            proc = Proc("router", [sys.executable, str(TOOLS / "zenoh_router.py"), "--port", str(self.port)],
+            proc = Proc("router", [str(Path(sys.executable).parent / "edge-monitor"), "router", "--port", str(self.port)],
                         self.work)
             if wait_for(lambda: "listening" in proc.output() or not proc.alive(), START_TIMEOUT_S, "the router"):
                 if proc.alive():
@@ -281,7 +281,7 @@ class Soak:
             sys.executable, "-m", "edge_monitor.cli", "run", "-v", "--link", self.agent_link,
             "--config", str(self.work / "agent.toml"), "--jsonl", str(self.work / "symptoms.jsonl"),
             "--state-dir", str(self.work / "state"), "--zenoh-mode", "client", "--zenoh-connect", self.endpoint,
-            "--summary-json"], self.work)
+            "--json"], self.work)
         self.lives.append(LifeRecord(len(self.lives), self.agent.pid, t0))
         assert self.health is not None
         health = self.health
@@ -300,7 +300,7 @@ class Soak:
             "--joints", str(self.args.joints), "--cycles", "1000000", "--seed", str(self.args.seed + index),
             "--speeds", ",".join(str(v) for v in SPEEDS), "--plateau-time", str(PLATEAU_TIME),
             "--speedup", str(self.args.speedup), "--faults", self.args.faults,
-            "--truth", str(self.work / f"truth{index}.jsonl"), "--summary-json"], self.work)
+            "--truth", str(self.work / f"truth{index}.jsonl"), "--json"], self.work)
 
     def stop_sim(self) -> None:
         """SIGTERM: the simulator finishes its frame block and writes its truth summary."""
@@ -324,7 +324,7 @@ class Soak:
         self.link_closed()
 
     def stop_agent(self) -> None:
-        """SIGTERM: the agent's normal end; its final counters come from --summary-json."""
+        """SIGTERM: the agent's normal end; its final counters come from --json."""
         assert self.agent is not None
         self.sample(force=True)
         rc = self.agent.stop(signal.SIGTERM, timeout=120.0)
@@ -332,7 +332,8 @@ class Soak:
         life.ended = time.time()
         summary = [line for line in self.agent.output().splitlines() if line.startswith("{")]
         if summary:
-            life.counters = json.loads(summary[-1])
+            final = json.loads(summary[-1])
+            life.counters = final.get("health", final)     # the run summary carries the last health record
         else:
             log.warning("agent life %d printed no summary (exit code %s)", life.index, rc)
         self.quiet_link()

@@ -26,7 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("data", type=Path, help="CSV with columns speed, temperature, load, friction")
     parser.add_argument("--base", type=Path,
                         help="TOML whose [friction] table gives alpha and the wear parameters (default: §1 table)")
-    parser.add_argument("--out", type=Path, help="write the [friction] TOML section here (default: stdout)")
+    parser.add_argument("-o", "--out", type=Path, help="write the [friction] TOML section here (default: stdout)")
     parser.add_argument("--report", type=Path, help="write the JSON report (estimates, std errors) here")
     parser.add_argument("--json", action="store_true", help="print the JSON report on stdout")
     parser.set_defaults(func=run)

@@ -5,14 +5,15 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from edge_monitor.config import AgentConfig, ConfigError, load_config, with_overrides
-from edge_monitor.errors import StateError
-from edge_monitor.pipeline.state_store import StateStore
 from edge_monitor.records import to_json
 from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, MODES, ZenohOptions
 from protocol.console import EXIT_FAILURE, EXIT_USAGE
+
+if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
+    from edge_monitor.config import AgentConfig
+    from edge_monitor.pipeline.state_store import StateStore
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +42,14 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh JSON5 config file; the flags above override it")
 
 
+def add_subscriber_arguments(parser: argparse.ArgumentParser, counted: str) -> None:
+    """``--no-history``, ``--duration S`` and ``--count N`` of a command that follows what agents publish."""
+    parser.add_argument("--no-history", action="store_true",
+                        help="only what is published from now on, not what the agents' publishers still cache")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    parser.add_argument("--count", type=int, default=None, metavar="N", help=f"stop after N {counted}")
+
+
 def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
     """The session the ``--zenoh-*`` flags describe (peer mode unless a config file says otherwise)."""
     config_file = getattr(args, "zenoh_config", None)
@@ -53,6 +62,7 @@ def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
 
 def load_agent_config(args: argparse.Namespace) -> AgentConfig:
     """Config file + command-line overrides; exits with a clear message on bad input."""
+    from edge_monitor.config import ConfigError, load_config, with_overrides
     try:
         cfg = load_config(args.config)
         cfg = with_overrides(cfg, robot=getattr(args, "robot", None), jsonl=getattr(args, "jsonl", None),
@@ -68,6 +78,8 @@ def load_agent_config(args: argparse.Namespace) -> AgentConfig:
 
 def open_state_store(cfg: AgentConfig) -> StateStore | None:
     """The state store of ``--state-dir``; exits with code 1 when it cannot be used (a runtime failure)."""
+    from edge_monitor.errors import StateError
+    from edge_monitor.pipeline.state_store import StateStore
     if not cfg.state_dir:
         return None
     try:
@@ -137,3 +149,12 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
     except ValueError as exc:       # MappingError and what the DBC/EDS parsers raise
         print(f"edge-monitor: mapping error: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_USAGE) from None
+
+
+def setup_failure(command: str, exc: ValueError) -> int:
+    """Report an output that could not be opened; the exit code by the README's rule: 1 when valid
+    options met a runtime failure (unreachable router, occupied port, unwritable recording), else 2."""
+    from edge_monitor.sinks.rerun_view import RerunUnavailable
+    from edge_monitor.sinks.zenoh_session import ZenohUnavailable
+    print(f"edge-monitor {command}: {exc}", file=sys.stderr)
+    return EXIT_FAILURE if isinstance(exc, (ZenohUnavailable, RerunUnavailable)) else EXIT_USAGE

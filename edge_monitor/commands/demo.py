@@ -22,7 +22,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import open_state_store, summary_table
+from edge_monitor.commands.common import open_state_store, setup_failure, summary_table
 from edge_monitor.errors import ConfigError
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
@@ -31,6 +31,7 @@ from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
+from edge_monitor.records import to_json
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
@@ -54,11 +55,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--speedup", type=float, default=8.0,
                    help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
     p.add_argument("--seed", type=int, default=7)
-    p.add_argument("--out", default="out/demo", help="directory for the recording, symptoms, truth and state")
+    p.add_argument("-o", "--out", default="out/demo", help="directory for the recording, symptoms, truth and state")
     p.add_argument("--rerun", default=None,
                    help="off | save:PATH | spawn (default: spawn with a display, else save:<out>/demo.rrd)")
     p.add_argument("--link", default="auto", help="auto | pty | vcan (auto: vcan0 if available, else pty)")
-    p.add_argument("--json-summary", metavar="PATH", help="write the run summary as JSON here")
+    p.add_argument("--json", action="store_true",
+                   help="print the run summary as JSON instead of the table (it is always written to "
+                        "<out>/summary.json; schema: edge-monitor schema summary)")
     p.add_argument("--nominal-cycles", type=int, default=60,
                    help="cycles the detectors learn from before monitoring (default 60, as the agent)")
     p.set_defaults(func=run)
@@ -125,15 +128,15 @@ def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     with ExitStack() as stack:
         sim_link, agent_link, link_desc = choose_link(args.link, stack)
-        print(f"demo: link {link_desc}; zenoh peer on {endpoint}; rerun {spec}; {args.cycles} cycles, "
-              f"{args.joints} joints, wear ramp on joint {WORN_JOINT}", flush=True)
+        if verbosity(args) >= 0 and not args.json:
+            print(f"demo: link {link_desc}; zenoh peer on {endpoint}; rerun {spec}; {args.cycles} cycles, "
+                  f"{args.joints} joints, wear ramp on joint {WORN_JOINT}", flush=True)
         try:
             app = build_app(cfg, Outputs(jsonl=cfg.jsonl, zenoh=ZenohOptions(mode="peer", listen=[endpoint]),
                                          rerun=spec, rerun_fallback=str(out / "demo.rrd"), maintenance=True),
                             stack, open_state_store(cfg), live=True)
         except ValueError as exc:      # ZenohSetupError, RerunSetupError: say what to fix
-            print(f"edge-monitor demo: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+            return setup_failure("demo", exc)
         agent = app.agent
         last = LastSymptomSink()
         agent.sinks.append(last)
@@ -165,27 +168,32 @@ def run(args: argparse.Namespace) -> int:
         published = app.symptoms_published()
         subscriber.wait_for(published, timeout=10.0)
         received = subscriber.count()
-    summary = {
-        "alarms": frames["alarms"], "symptoms_published": published, "symptoms_received": received,
-        "rrd": spec.partition(":")[2] if spec.startswith("save:") else None, "rerun": spec,
-        "frames": {k: frames[k] for k in ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated",
-                                          "unknown_id", "malformed")},
-        "frames_sent": _frames_sent(truth), "cycles": frames["cycles"], "simulator_exit_code": sim_rc,
-        "wall_s": round(time.monotonic() - started, 1), "arl0_cycles": cfg.decision.arl0,
-        "link": link_desc,
-        "jsonl": cfg.jsonl, "truth": str(truth),
-    }
-    print(summary_table(last.last, frames, cfg.decision))
-    print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
-          f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['wall_s']} s")
-    if summary["rrd"]:
-        print(f"recording: {summary['rrd']}  (open with: .venv/bin/rerun {summary['rrd']})")
-    if args.json_summary:
-        Path(args.json_summary).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json_summary).write_text(json.dumps(summary, indent=2))
+    rrd = spec.partition(":")[2] if spec.startswith("save:") else None
+    summary = {**frames, "demo": {
+        "symptoms_published": published, "symptoms_received": received, "rrd": rrd, "rerun": spec,
+        "frames_sent": _frames_sent(truth), "simulator_exit_code": sim_rc,
+        "wall_s": round(time.monotonic() - started, 1), "arl0_cycles": cfg.decision.arl0, "link": link_desc,
+        "jsonl": cfg.jsonl, "truth": str(truth)}}
+    (out / "summary.json").write_text(to_json(summary, indent=2) + "\n")
+    if args.json:
+        print(to_json(summary, indent=2))
+    elif verbosity(args) >= 0:              # -q: no summary
+        print(summary_table(last.last, frames, cfg.decision))
+        print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
+              f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['demo']['wall_s']} s")
+        if rrd:
+            print(f"recording: {rrd}  (open with: {rerun_command()} {rrd})")
     if interrupted:
         return EXIT_INTERRUPTED
     return 0 if sim_rc == 0 else EXIT_FAILURE
+
+
+def rerun_command() -> str:
+    """How to run the Rerun viewer of this installation: ``rerun`` when it is on PATH, else its full path."""
+    import shutil
+    beside = Path(sys.executable).parent / "rerun"
+    found = shutil.which("rerun")
+    return "rerun" if found and (not beside.exists() or Path(found).resolve() == beside.resolve()) else str(beside)
 
 
 def _frames_sent(truth: Path) -> int | None:

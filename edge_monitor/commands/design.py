@@ -31,7 +31,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--min-separation", type=float, default=5.0, help="minimum speed separation δ [rad/s]")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random optimiser starts (N ≥ 3)")
     parser.add_argument("--json", action="store_true", help="print the design as JSON")
-    parser.add_argument("--out", type=Path, help="also write the JSON to this file (for --speeds-from)")
+    parser.add_argument("-o", "--out", type=Path, help="also write the JSON to this file (for --speeds-from)")
     parser.set_defaults(func=run)
     return parser
 

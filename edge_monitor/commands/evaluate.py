@@ -81,7 +81,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                              "the test cycles, or none (the surrogate alone)")
     parser.add_argument("--quick", action="store_true",
                         help="small design (3 factors, few cycles): a few minutes, for CI and trying it out")
-    parser.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder (default ./evaluation)")
+    parser.add_argument("-o", "--out", type=Path, default=Path("evaluation"),
+                        help="output folder (default ./evaluation)")
     parser.add_argument("--json", action="store_true", help="print the JSON of all numbers on stdout")
     parser.set_defaults(func=run)
     return parser

@@ -1,9 +1,9 @@
 """``edge-monitor glr``: offline GLR test of a recorded quantity for a bias change.
 
-Reads a nominal CSV and a test CSV (header row; every numeric column is one dimension of the
-observation, text-only columns such as timestamps are ignored), fits the nominal density and tests
-the test rows for a shift of it. Exit code 0 when the test ran (alarm or not), 2 on bad input
-(bad option values also print the usage).
+Reads a nominal CSV and a test CSV (header row; the columns named by --columns, by default every
+numeric column, are the dimensions of one observation; text-only columns such as timestamps are
+ignored), fits the nominal density and tests the test rows for a shift of it. Exit code 0 when the
+test ran (alarm or not), 2 on bad input (bad option values also print the usage).
 """
 
 from __future__ import annotations
@@ -34,11 +34,12 @@ def _is_number(cell: str) -> bool:
     return True
 
 
-def read_observations(path: Path) -> tuple[list[str], np.ndarray]:
+def read_observations(path: Path, columns: list[str] | None = None) -> tuple[list[str], np.ndarray]:
     """Numeric columns of a CSV with a header row -> (column names, (n, d) array).
 
-    A column whose cells are all non-numeric is ignored; any other non-numeric, empty or
-    non-finite cell is an error naming the row (1-based line number in the file) and column.
+    ``columns``: the columns to take, by header name (each must exist); None: every column with a
+    number in it (a column whose cells are all non-numeric is ignored). A non-numeric, empty or
+    non-finite cell of a taken column is an error naming the row (1-based line number) and column.
     """
     try:
         with open(path, newline="", encoding="utf-8") as fh:
@@ -53,7 +54,14 @@ def read_observations(path: Path) -> tuple[list[str], np.ndarray]:
     for i, row in enumerate(rows[1:], start=2):
         if any(c.strip() for c in row) and len(row) != len(header):
             raise CsvInputError(f"{path}: row {i} has {len(row)} cells but the header has {len(header)}")
-    numeric = [j for j in range(len(header)) if any(_is_number(r[j].strip()) for r in body)]
+    if columns is not None:
+        missing = [c for c in columns if c not in header]
+        if missing:
+            raise CsvInputError(f"{path}: no column {', '.join(map(repr, missing))} (header: {header}); "
+                                "fix --columns")
+        numeric = [header.index(c) for c in columns]
+    else:
+        numeric = [j for j in range(len(header)) if any(_is_number(r[j].strip()) for r in body)]
     if not numeric:
         raise CsvInputError(f"{path}: no numeric column found (header: {header})")
     data = np.empty((len(body), len(numeric)))
@@ -75,8 +83,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--nominal", required=True, type=Path, help="CSV of nominal (healthy) observations")
     parser.add_argument("--test", required=True, type=Path, help="CSV of observations to test")
+    parser.add_argument("--columns", metavar="NAME,...",
+                        help="the columns that make up one observation, by header name (default: every column "
+                             "with numbers, e.g. a cycle number too; one column: a 1-D test)")
     parser.add_argument("--density", choices=DENSITY_KINDS, default="gce",
-                        help="nominal density model (default gce)")
+                        help="nominal density model")
     parser.add_argument("--pf", type=float, default=0.01, help="false-alarm probability of the test, in (0, 1)")
     parser.add_argument("--change-time", choices=("known", "unknown"), default="known",
                         help="known: the change starts at the first test row; unknown: max over start rows")
@@ -112,9 +123,12 @@ def _check_options(args: argparse.Namespace) -> float:
 
 def run(args: argparse.Namespace) -> int:
     pf = _check_options(args)
+    columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    if columns is not None and (not all(columns) or len(set(columns)) != len(columns)):
+        raise UsageError(f"--columns {args.columns!r}: give distinct header names separated by commas")
     try:
-        nominal_cols, nominal = read_observations(args.nominal)
-        test_cols, test = read_observations(args.test)
+        nominal_cols, nominal = read_observations(args.nominal, columns)
+        test_cols, test = read_observations(args.test, columns)
         if nominal.shape[1] != test.shape[1]:
             raise ValueError(f"dimension mismatch: nominal has {nominal.shape[1]} numeric column(s) "
                              f"{nominal_cols}, test has {test.shape[1]} {test_cols}; use the same columns")

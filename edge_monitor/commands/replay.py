@@ -15,6 +15,7 @@ import os
 import sys
 import time
 from contextlib import ExitStack
+from pathlib import Path
 from typing import Iterator
 
 from edge_monitor.app import Outputs, build_app
@@ -24,6 +25,7 @@ from edge_monitor.commands.common import (
     open_mapped_source,
     open_state_store,
     print_json,
+    setup_failure,
     summary_table,
 )
 from edge_monitor.pipeline.agent import Agent
@@ -38,10 +40,15 @@ log = logging.getLogger(__name__)
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("replay", help="run the agent over a python-can log (.blf/.log/.asc) or a trace "
-                                             "table (.csv/.parquet, with --mapping)", description=__doc__)
+                                             "table (.csv/.parquet, with --mapping)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", help="python-can log file, or a CSV/Parquet trace table (needs --mapping)")
     add_config_arguments(p)
-    p.add_argument("--json", action="store_true", help="print the run statistics as JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print the run summary as JSON instead of the table (schema: edge-monitor schema summary)")
+    p.add_argument("--rerun", default="off", metavar="SPEC",
+                   help="draw the run in Rerun: off (default), save:PATH (a recording, compacted when closed), spawn "
+                        "(a viewer; without a display: save:<log name>.rrd) or connect:URL")
     p.add_argument("--no-close", action="store_true",
                    help="leave the last cycle open at end of file (as if the stream continued)")
     p.set_defaults(func=run)
@@ -79,7 +86,12 @@ def run(args: argparse.Namespace) -> int:
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     last = LastSymptomSink()
     with ExitStack() as stack:
-        agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg), source=source).agent
+        try:
+            agent = build_app(cfg, Outputs(jsonl=cfg.jsonl, rerun=args.rerun,
+                                           rerun_fallback=Path(args.file).with_suffix(".rrd").name),
+                              stack, open_state_store(cfg), source=source).agent
+        except ValueError as exc:           # RerunSetupError: a bad --rerun, an unwritable recording
+            return setup_failure("replay", exc)
         agent.sinks.append(last)
         try:
             if is_trace_file(args.file):
@@ -98,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         stats = {**agent.run_statistics(), "log": report.to_dict()}
     if args.json:
         print_json(stats)
-    else:
+    elif verbosity(args) >= 0:              # -q: no summary
         print(summary_table(last.last, stats, cfg.decision))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "

@@ -4,8 +4,8 @@ Receives frames from a CAN link, publishes per-cycle symptoms over Zenoh (and op
 Rerun), persists learned models in ``--state-dir`` and shuts down cleanly on SIGINT/SIGTERM
 (state saved, Zenoh undeclared, Rerun flushed; exit code 0: the normal end of a monitor that runs
 until stopped). The status line (every ``status_interval_s``) is logged at INFO (``-v``); a final
-line says why it stopped; ``--summary-json`` also prints the final counters (the health record) as
-one JSON line on standard output.
+line says why it stopped; ``--json`` prints the run summary (the same as replay's, with the reason it
+stopped and the last health record) as one JSON line on standard output.
 """
 
 from __future__ import annotations
@@ -25,16 +25,15 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
+    setup_failure,
     zenoh_options,
 )
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
-from edge_monitor.sinks.zenoh_session import ZenohSetupError
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,
-    EXIT_USAGE,
     UsageError,
     add_can_arguments,
     can_options,
@@ -46,6 +45,7 @@ log = logging.getLogger(__name__)
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("run", help="monitor a live CAN link", description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter,
                               epilog=f"{EXIT_CODES_HELP}. Ctrl-C or SIGTERM is the normal end of a run: "
                                      "state saved, exit code 0")
     add_can_arguments(p, "socketcan:IFACE | slcan:DEVICE_OR_URL | virtual:NAME "
@@ -63,8 +63,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="at the end of the stream (--idle-stop) leave the last cycle open, as replay --no-close")
     p.add_argument("--maintenance", type=int, action="append", default=[], metavar="JOINT",
                    help="declare a gearbox replacement / service on JOINT at start: relearn its nominal models")
-    p.add_argument("--summary-json", action="store_true",
-                   help="at the end, print the final counters (the health record) as one JSON line on stdout")
+    p.add_argument("--json", action="store_true",
+                   help="at the end, print the run summary as one JSON line on stdout (schema: edge-monitor schema "
+                        "summary)")
+    p.add_argument("--summary-json", dest="json", action="store_true", help=argparse.SUPPRESS)   # its old name
     p.add_argument("--allow-remote-maintenance", action="store_true",
                    help="accept maintenance declarations put on Zenoh key edge/<robot>/<joint>/maintenance "
                         "(off by default; rate-limited; restrict who may put with a Zenoh ACL, docs/SECURITY.md)")
@@ -102,7 +104,7 @@ def final_line(runner: LiveRunner, args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from protocol.links import LinkError, NoCanConfigError, is_log_file, open_bus
+    from protocol.links import LinkError, LinkUsageError, is_log_file, open_bus
     if args.link and is_log_file(args.link):
         raise UsageError(f"--link {args.link} is a log file; use `edge-monitor replay {args.link}`")
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
@@ -116,9 +118,8 @@ def run(args: argparse.Namespace) -> int:
             outputs = Outputs(jsonl=cfg.jsonl, zenoh=None if args.no_zenoh else zenoh_options(args),
                               rerun=args.rerun or cfg.rerun, rerun_fallback="edge-monitor.rrd", maintenance=True)
             app = build_app(cfg, outputs, stack, store, live=True, source=source)
-        except (ZenohSetupError, ValueError) as exc:
-            print(f"edge-monitor run: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+        except ValueError as exc:         # ZenohSetupError, RerunSetupError, a bad robot name
+            return setup_failure("run", exc)
         agent = app.agent
         for joint in args.maintenance:
             try:
@@ -127,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError(f"--maintenance {joint}: {exc}") from None
         try:
             bus = open_bus(args.link, **can_options(args))
-        except NoCanConfigError as exc:
+        except LinkUsageError as exc:     # a bad link or interface name, no CAN configured: exit 2
             raise UsageError(str(exc)) from None
         except LinkError as exc:
             print(f"edge-monitor run: cannot open the CAN link: {exc}", file=sys.stderr)
@@ -144,8 +145,9 @@ def run(args: argparse.Namespace) -> int:
             agent.flush_source()
             agent.finish(close_open_cycle=True)
             runner.report()
-        if args.summary_json:
-            print(to_json(runner.health().to_dict()), flush=True)
+        if args.json:
+            print(to_json({**agent.run_statistics(), "stopped": stop_text(runner, args),
+                           "health": runner.health().to_dict()}), flush=True)
         if runner.link_failure:
             print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
             return EXIT_FAILURE

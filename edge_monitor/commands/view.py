@@ -9,17 +9,20 @@ from __future__ import annotations
 import argparse
 import logging
 import queue
-import signal
 import sys
-import threading
 import time
 
-from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
+from edge_monitor.commands.common import (
+    add_subscriber_arguments,
+    add_zenoh_arguments,
+    setup_failure,
+    zenoh_options,
+)
 from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
-from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSetupError, RerunSink
+from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import ZenohSetupError, open_session
-from protocol.console import EXIT_CODES_HELP
+from protocol.console import EXIT_CODES_HELP, stop_on_signals
 
 log = logging.getLogger(__name__)
 
@@ -37,10 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--rerun", default="spawn", metavar="SPEC",
                         help="save:PATH | spawn | connect[:URL] (default spawn; without a display: "
                              "save:edge-view.rrd)")
-    parser.add_argument("--no-history", action="store_true",
-                        help="do not recover the records the agents still cache")
-    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
-    parser.add_argument("--count", type=int, default=None, metavar="N", help="stop after N symptom records")
+    add_subscriber_arguments(parser, "symptom records")
     parser.set_defaults(func=run)
     return parser
 
@@ -62,21 +62,17 @@ def run(args: argparse.Namespace) -> int:
         options = zenoh_options(args)
         # a live display, also when saving: what arrived within a second is drawn as one block
         sink = RerunSink.open(args.rerun, fallback_save="edge-view.rrd", batching=LIVE_BATCHING)
-    except (ZenohSetupError, RerunSetupError, ValueError) as exc:
-        print(f"edge-monitor view: {exc}", file=sys.stderr)
-        return 2
+    except ValueError as exc:       # ZenohSetupError, RerunSetupError, a bad robot name
+        return setup_failure("view", exc)
     if sink.fallback_reason:
         print(f"edge-monitor view: {sink.fallback_reason}; drawing to {sink.spec}", file=sys.stderr)
     try:
         session = open_session(options)
     except ZenohSetupError as exc:
-        print(f"edge-monitor view: {exc}", file=sys.stderr)
         sink.close()
-        return 2
+        return setup_failure("view", exc)
 
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
+    stop = stop_on_signals()
     inbox: queue.Queue[ReceivedRecord] = queue.Queue(maxsize=QUEUE_SIZE)
     counts = _Counts()
 

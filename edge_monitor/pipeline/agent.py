@@ -8,6 +8,7 @@ plateau sequence (see :mod:`edge_monitor.pipeline.cycle_assembly`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -23,7 +24,7 @@ from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateStore
 from edge_monitor.pipeline.state_validation import validate_state
-from edge_monitor.records import Alarm, Health, Symptom
+from edge_monitor.records import Alarm, Health, Symptom, utc_now, utc_text
 from edge_monitor.sinks.base import Sink
 from edge_monitor.stats.sequential_detector import Calibrator
 
@@ -65,6 +66,7 @@ class Agent:
         self._restored_joint_states: dict[int, dict] = {}
         self._open_last_segment = -1              # highest segment seen in the open cycle
         self._complete_last_segment: int | None = None    # … in the last cycle that ended normally
+        self._last_frame_time: float | None = None   # timestamp of the last frame routed (bus or log) [s]
         self.lock = threading.RLock()     # processing vs. state queries from output threads
         if state_store is not None:
             self._restore(state_store.load())
@@ -94,13 +96,23 @@ class Agent:
         return self.ingest.c.frames_total
 
     def joint_state(self, joint: int) -> dict[str, Any]:
-        """Snapshot of one joint's models and detector state (for the read-only state queryable)."""
+        """Snapshot of one joint's models and detector state (for the read-only state queryable): also of
+        a joint restored from the saved state but not seen yet (``"restored": true``); ``"known": false``
+        for a joint with nothing seen or learned (e.g. configured, not on the bus yet)."""
         with self.lock:
             monitor = self.joints.get(joint)
-            if monitor is None:
-                return {"joint": joint, "known": False}
-            return {"joint": joint, "known": True, "last_cycle": self._last_emitted.get(joint),
-                    **monitor.state_dict()}
+            last = self._last_emitted.get(joint)
+            if monitor is not None:
+                return {"joint": joint, "known": True, "last_cycle": last, **monitor.state_dict()}
+            saved = self._restored_joint_states.get(joint)
+            if saved is not None:
+                return {"joint": joint, "known": True, "restored": True, "last_cycle": last, **saved}
+            return {"joint": joint, "known": False, "last_cycle": last}
+
+    def known_joints(self) -> list[int]:
+        """Joints the agent knows: seen on the bus, restored from the saved state, or configured."""
+        with self.lock:
+            return sorted(set(self.joints) | set(self._restored_joint_states) | set(self.config.joints or ()))
 
     def _route(self, block: IngestBlock) -> list[Symptom]:
         outputs: list[Symptom] = []
@@ -128,6 +140,8 @@ class Agent:
                     outputs += self._emit(symptom)
             for joint, status in run.joint_status.items():
                 self._monitor(joint).add_status(status.load_estimate, status.load_std, status.motor_temperature)
+            if run.last_time is not None:
+                self._last_frame_time = run.last_time
         return outputs
 
     def _monitor(self, joint: int) -> JointMonitor:
@@ -171,6 +185,10 @@ class Agent:
         return outputs
 
     def _emit(self, symptom: Symptom) -> list[Symptom]:
+        # the cycle ended with the last frame routed before the one that closes it (bus or log time)
+        symptom.utc = utc_text(self._last_frame_time)
+        symptom.alarms = [dataclasses.replace(alarm, utc=symptom.utc) for alarm in symptom.alarms]
+        symptom.advisories = [dataclasses.replace(a, utc=symptom.utc) for a in symptom.advisories]
         self._last_emitted[symptom.joint] = symptom.cycle
         self.stats.symptoms += 1
         for alarm in symptom.alarms:
@@ -246,7 +264,8 @@ class Agent:
             monitor = self._known_monitor(joint, "a maintenance declaration")
             joint = monitor.joint
             cycle = self._last_emitted.get(joint, -1)
-            cleared = monitor.declare_maintenance(cycle, self.config)
+            cleared = [dataclasses.replace(alarm, utc=utc_now())
+                       for alarm in monitor.declare_maintenance(cycle, self.config)]
             log.warning("joint %d: maintenance declared after cycle %d; nominal models are relearned", joint, cycle)
             for alarm in cleared:
                 for sink in self.sinks:
@@ -265,7 +284,7 @@ class Agent:
             monitor = self._known_monitor(joint, "an acknowledgement")
             cycle = self._last_emitted.get(monitor.joint, -1)
             result = monitor.acknowledge(cycle, quantities)
-            result = replace(result, alarms=tuple(replace(a, by=by, note=note) for a in result.alarms))
+            result = replace(result, alarms=tuple(replace(a, by=by, note=note, utc=utc_now()) for a in result.alarms))
             for alarm in result.alarms:
                 log.warning("joint %d: %s alarm ACKNOWLEDGED after cycle %d by %s: its statistic restarts on "
                             "the same nominal and threshold", alarm.joint, alarm.quantity, cycle, by or "(unnamed)")

@@ -91,7 +91,9 @@ class Ingest:
             motor &= keep
             jstatus &= keep
         ticks = self._unwrap_ticks(dec, motor, row_tick)
-        return IngestBlock(self._split_runs(dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen))
+        runs = self._split_runs(dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen)
+        _stamp_runs(runs, np.asarray(timestamps, dtype=float))
+        return IngestBlock(runs)
 
     # ------------------------------------------------------------------ internals
     def _count(self, dec, statuses: NDArray, lost: NDArray, usable: NDArray) -> None:
@@ -237,8 +239,16 @@ class Ingest:
                       for joint in np.unique(dec.joint[js]) for rows in (js[dec.joint[js] == joint],)}
             runs.append(CycleRun(cycle=None if cyc < 0 else cyc, samples=samples, joint_status=status,
                                  starts_at_boundary=first_seen.get(cyc),
-                                 previous_cut=cyc in self._restarted_into))
+                                 previous_cut=cyc in self._restarted_into, rows=int(e - s)))
         return runs
+
+
+def _stamp_runs(runs: list[CycleRun], timestamps: NDArray[np.float64]) -> None:
+    """Give each run the timestamp of its last frame (runs cover the block's rows in order)."""
+    end = 0
+    for run in runs:
+        end += run.rows
+        run.last_time = float(timestamps[end - 1]) if end else None
 
 
 def _tick_step(previous_raw: int, raw: int) -> int | None:

@@ -51,6 +51,8 @@ class CycleRun:
     starts_at_boundary: bool | None = None              # first run of a cycle: was its start seen?
     previous_cut: bool = False                          # entered by a controller restart: the cycle
                                                         # before it ended early (its end is unknown)
+    last_time: float | None = None                      # timestamp of the run's last frame (bus or log) [s]
+    rows: int = 0                                       # frames of the block in this run
 
 
 @dataclass

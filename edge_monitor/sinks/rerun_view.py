@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -43,6 +42,7 @@ import numpy as np
 from edge_monitor.records import Advisory, Alarm, Health, Symptom
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.rerun_blueprint import fleet_blueprint
+from edge_monitor.sinks.rerun_cli import compact_recording, rerun_executable, usage_reporting_off
 from edge_monitor.sinks.rerun_draw import DENSITY_HEIGHT, FRICTION_SCALE, Y_UP, Drawer, cycle_colors, wear_bounds
 from joint_model import CRITICAL_WEAR
 
@@ -73,7 +73,11 @@ IMMEDIATE = Batching(records=1, seconds=None)
 
 
 class RerunSetupError(ValueError):
-    """A Rerun sink could not be opened (bad spec, unwritable path)."""
+    """A Rerun sink spec that cannot work (``--rerun`` not off/save:PATH/spawn/connect:URL): a usage error."""
+
+
+class RerunUnavailable(RerunSetupError):
+    """A valid Rerun sink could not be opened (unwritable path, unreachable viewer): a runtime failure."""
 
 
 def _display_available() -> bool:
@@ -97,6 +101,7 @@ class RerunSink:
         self.spec = spec                    # effective sink after any fallback
         self.batching = batching
         self.fallback_reason: str | None = None
+        self.compact_on_close = False       # rewrite the closed file with its chunks compacted
         self.records_logged = 0
         self.alarms_logged = 0
         self.health_logged = 0
@@ -122,11 +127,13 @@ class RerunSink:
 
     @classmethod
     def open(cls, spec: str, app_id: str = APP_ID, recording_id: str | None = None,
-             fallback_save: str | None = None, batching: Batching | None = None) -> "RerunSink":
+             fallback_save: str | None = None, batching: Batching | None = None,
+             compact: bool | None = None) -> "RerunSink":
         """Open the sink named by ``spec``; ``spawn`` without a display falls back to
         ``save:<fallback_save>`` (or ``off``) with a warning. ``batching`` defaults to
-        :data:`SAVE_BATCHING` for a file and :data:`LIVE_BATCHING` for a viewer. Raises
-        :class:`RerunSetupError`."""
+        :data:`SAVE_BATCHING` for a file and :data:`LIVE_BATCHING` for a viewer. ``compact``: compact a
+        saved file when it is closed (default: when it was drawn in smaller blocks than
+        :data:`SAVE_BATCHING`'s, e.g. by ``view``). Raises :class:`RerunSetupError`."""
         kind, _, arg = spec.partition(":")
         if kind == "off":
             return cls(None, "off")
@@ -138,9 +145,10 @@ class RerunSink:
             reason = "no display (DISPLAY/WAYLAND_DISPLAY unset): cannot spawn the Rerun viewer"
             fallback = f"save:{fallback_save}" if fallback_save else "off"
             log.warning("%s; recording goes to %s instead", reason, fallback)
-            sink = cls.open(fallback, app_id, recording_id, batching=batching)
+            sink = cls.open(fallback, app_id, recording_id, batching=batching, compact=compact)
             sink.fallback_reason = reason
             return sink
+        usage_reporting_off()      # before the SDK loads or a viewer starts (docs/SECURITY.md)
         import rerun as rr  # lazy: the wheel is large and only needed when drawing
 
         rec = rr.RecordingStream(app_id, recording_id=recording_id)
@@ -154,11 +162,12 @@ class RerunSink:
             else:
                 rec.connect_grpc(_grpc_url(arg))
         except (OSError, RuntimeError) as exc:
-            raise RerunSetupError(f"--rerun {spec!r} failed: {exc}; choose a writable path or reachable "
+            raise RerunUnavailable(f"--rerun {spec!r} failed: {exc}; choose a writable path or reachable "
                                   "viewer, or use --rerun off") from exc
         if batching is None:
             batching = SAVE_BATCHING if kind == "save" else LIVE_BATCHING
         sink = cls(rec, spec, batching=batching)
+        sink.compact_on_close = kind == "save" and (batching != SAVE_BATCHING if compact is None else compact)
         sink._viewer = viewer
         return sink
 
@@ -236,6 +245,8 @@ class RerunSink:
             except Exception as exc:
                 self._fail("close", exc)
             self.rec = None
+        if self.compact_on_close:
+            compact_recording(self.spec.partition(":")[2])
 
     def stats(self) -> dict[str, Any]:
         return {"sink": self.spec, "records": self.records_logged, "alarms": self.alarms_logged,
@@ -340,7 +351,7 @@ class RerunSink:
 
 def _spawn_viewer(rec: Any) -> subprocess.Popen:
     """Start a native viewer whose gRPC server binds 127.0.0.1 only, then connect ``rec`` to it."""
-    executable = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
+    executable = rerun_executable()
     if executable is None:
         raise RuntimeError("the rerun executable is not installed")
     port = free_loopback_port(DEFAULT_VIEWER_PORT)

@@ -55,17 +55,20 @@ class SymptomPublisher:
     ``joints``: joint numbers known at start (others are declared on first use).
     ``cache_size``: samples kept per symptom/alarm publisher for late subscribers.
     ``state_provider(joint) -> dict``: answers ``edge/<robot>/<joint>/state`` queries; ``None``: no queryable.
+    ``joints_provider() -> joints``: every joint the agent knows, answered for before its first symptom too.
     """
 
     def __init__(self, session: zenoh.Session, robot: str, joints: Iterable[int],
                  cache_size: int = DEFAULT_CACHE_SIZE,
-                 state_provider: Callable[[int], dict] | None = None) -> None:
+                 state_provider: Callable[[int], dict] | None = None,
+                 joints_provider: Callable[[], Iterable[int]] | None = None) -> None:
         if cache_size < 1:
             raise ValueError(f"cache_size={cache_size} must be >= 1; fix the zenoh cache size")
         self.session = session
         self.robot = check_robot_name(robot)
         self.cache_size = int(cache_size)
         self.state_provider = state_provider
+        self.joints_provider = joints_provider
         self.published = {kind: 0 for kind in KINDS}
         self.undelivered = {kind: 0 for kind in KINDS}
         self.queries_answered = 0
@@ -186,7 +189,8 @@ class SymptomPublisher:
         """Reply with the state of every joint whose state key the query selects."""
         try:
             selector = zenoh.KeyExpr(str(query.key_expr))
-            for joint in self.joints:
+            known = set(self.joints_provider()) if self.joints_provider is not None else set()
+            for joint in sorted(known | set(self.joints)):
                 key = zenoh.KeyExpr(joint_key(self.robot, joint, STATE))
                 if key.intersects(selector):
                     state = self.state_provider(joint) if self.state_provider else {}

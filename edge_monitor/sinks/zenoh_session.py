@@ -36,7 +36,12 @@ _ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 
 
 class ZenohSetupError(ValueError):
-    """A Zenoh session could not be opened (occupied port, unreachable router, bad config)."""
+    """Zenoh options that cannot work (bad mode, endpoint or config file): a usage error."""
+
+
+class ZenohUnavailable(ZenohSetupError):
+    """The session could not be opened with valid options (occupied port, unreachable router): a runtime
+    failure."""
 
 
 @dataclass
@@ -144,7 +149,7 @@ def open_session(options: ZenohOptions | None = None) -> zenoh.Session:
     try:
         session = zenoh.open(config)
     except Exception as exc:
-        raise ZenohSetupError(_explain_open_failure(options, exc)) from exc
+        raise ZenohUnavailable(_explain_open_failure(options, exc)) from exc
     log.info("zenoh session open (%s)", options.describe())
     return session
 
@@ -156,5 +161,5 @@ def _explain_open_failure(options: ZenohOptions, exc: Exception) -> str:
                 f"choose another port with --zenoh-listen ({text.split(' at ')[0]})")
     if "Unable to connect" in text:
         return (f"no Zenoh router reachable at {', '.join(options.connect) or '(none given)'}: start one "
-                f"(python tools/zenoh_router.py --port PORT) or fix --zenoh-connect")
+                f"(edge-monitor router --port PORT) or fix --zenoh-connect")
     return f"cannot open the Zenoh session ({options.describe()}): {text}"

@@ -1,0 +1,144 @@
+"""edge-monitor listen: print what agents publish on Zenoh as JSON lines, for jq and scripts.
+
+Subscribes to edge/<robot>/<joint>/<kind> and prints one JSON object per record on standard output:
+the record as published, with "kind" (the key's last segment: symptom, alarm, friction, health, or a
+kind added later) and "key" in front. It first recovers what the agents' publishers still cache (off
+with --no-history), then follows live until Ctrl-C or SIGTERM, --duration or --count. With both
+--count and --duration it exits 1 when fewer than --count records came within --duration (a health
+check: --kind health --count 1 --duration 30).
+
+Examples:
+  edge-monitor listen --zenoh-mode client --zenoh-connect tcp/127.0.0.1:7447 --kind alarm
+  edge-monitor listen --zenoh-connect tcp/127.0.0.1:7448 --robot cell7 --joint 2 --kind symptom \\
+      | jq -c '{cycle, utc, wear: .wear.estimate}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import queue
+import sys
+import time
+from typing import Any
+
+from edge_monitor.commands.common import (
+    add_subscriber_arguments,
+    add_zenoh_arguments,
+    setup_failure,
+    zenoh_options,
+)
+from edge_monitor.records import to_json
+from edge_monitor.sinks.keys import PREFIX, check_robot_name
+from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
+from edge_monitor.sinks.zenoh_session import open_session
+from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals, verbosity
+
+log = logging.getLogger(__name__)
+
+POLL_S = 0.1              # how often the main thread looks at the stop conditions
+QUEUE_SIZE = 100_000      # bounded hand-over from Zenoh's thread; overflow is counted
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser("listen", help="print symptoms, alarms and health from Zenoh as JSON lines",
+                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                   epilog=f"{EXIT_CODES_HELP}. Ctrl-C or SIGTERM is the normal end: exit code 0")
+    add_zenoh_arguments(parser)
+    parser.add_argument("--robot", default=None, help="only this robot (default: every robot)")
+    parser.add_argument("--joint", type=int, action="append", default=[], metavar="N",
+                        help="only this joint (repeatable; agent-level records such as health have no joint "
+                             "and are left out)")
+    parser.add_argument("--kind", action="append", default=[], metavar="KIND",
+                        help="only records of this kind: symptom, alarm, friction, health, or any later kind "
+                             "(repeatable; default: every kind)")
+    add_subscriber_arguments(parser, "printed records")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def key_expression(robot: str | None, joints: list[int], kinds: list[str]) -> str:
+    """The narrowest key expression for the filters (several joints or kinds: a wildcard, then filtered)."""
+    joint = str(joints[0]) if len(joints) == 1 else "*"
+    kind = kinds[0] if len(kinds) == 1 else "*"
+    return f"{PREFIX}/{robot or '*'}/{joint}/{kind}"
+
+
+def selected(received: ReceivedRecord, joints: list[int], kinds: list[str]) -> bool:
+    return (not joints or received.joint in joints) and (not kinds or received.kind in kinds)
+
+
+def line_of(received: ReceivedRecord) -> str:
+    record: dict[str, Any] = {"kind": received.kind, "key": received.key}
+    record.update(received.record)
+    return to_json(record)
+
+
+def _check(args: argparse.Namespace) -> None:
+    if args.robot is not None:
+        try:
+            check_robot_name(args.robot)
+        except ValueError as exc:
+            raise UsageError(f"--robot: {exc}") from None
+    for joint in args.joint:
+        if not 0 <= joint <= 999:
+            raise UsageError(f"--joint {joint}: a joint number is 0 … 999")
+    for kind in args.kind:
+        if not kind or any(c in kind for c in "/*$?# "):
+            raise UsageError(f"--kind {kind!r}: one key segment such as symptom, alarm or health")
+    if args.count is not None and args.count < 1:
+        raise UsageError(f"--count {args.count}: must be ≥ 1")
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError(f"--duration {args.duration}: must be > 0 s")
+
+
+def run(args: argparse.Namespace) -> int:
+    _check(args)
+    try:
+        options = zenoh_options(args)
+        session = open_session(options)
+    except ValueError as exc:
+        return setup_failure("listen", exc)
+    key = key_expression(args.robot, args.joint, args.kind)
+    inbox: queue.Queue[ReceivedRecord] = queue.Queue(maxsize=QUEUE_SIZE)
+    dropped = 0
+
+    def enqueue(received: ReceivedRecord) -> None:
+        nonlocal dropped
+        if selected(received, args.joint, args.kind):
+            try:
+                inbox.put_nowait(received)
+            except queue.Full:
+                dropped += 1
+
+    stop = stop_on_signals()
+    subscriber = SymptomSubscriber(session, key, history=not args.no_history, callback=enqueue, keep=False)
+    if verbosity(args) > 0:
+        print(f"edge-monitor listen: subscribed to {key} ({options.describe()})", file=sys.stderr)
+    printed = 0
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        while not stop.is_set() and (args.count is None or printed < args.count):
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            try:
+                received = inbox.get(timeout=POLL_S)
+            except queue.Empty:
+                continue
+            sys.stdout.write(line_of(received) + "\n")
+            sys.stdout.flush()
+            printed += 1
+    except BrokenPipeError:          # the reader went away (e.g. `| head`): a normal end
+        sys.stderr.close()
+    finally:
+        subscriber.close()
+        session.close()
+    if verbosity(args) >= 0 and not sys.stderr.closed:
+        print(f"edge-monitor listen: {printed} records printed; missed {subscriber.misses}, "
+              f"undecodable {subscriber.decode_errors}, dropped {dropped}", file=sys.stderr)
+    if args.count is not None and args.duration is not None and printed < args.count and not stop.is_set() \
+            and not sys.stderr.closed:
+        print(f"edge-monitor listen: {printed} of --count {args.count} records within --duration "
+              f"{args.duration:g} s", file=sys.stderr)
+        return EXIT_FAILURE
+    return 0
