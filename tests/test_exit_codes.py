@@ -78,6 +78,14 @@ CASES = [
     ("edge", ["listen", "--kind", "health", "--count", "1", "--duration", "0.5", "--no-history"], 1),  # no agent
     ("edge", ["schema", "nosuchkind"], 2),
     ("edge", ["schema", "symptom", "-o", f"{MISSING}/symptom.json"], 1),
+    # operator requests
+    ("edge", ["acknowledge", "--robot", "r1"], 2),
+    ("edge", ["acknowledge", "--robot", "r1", "--joint", "0", "--zenoh-mode", "client", "--zenoh-connect",
+              "tcp/127.0.0.1:{closed}", "--timeout", "2"], 1),
+    # other controllers
+    ("edge", ["check-mapping", f"{MISSING}/c.log", "--mapping", f"{MISSING}/m.toml"], 2),
+    ("edge", ["check-mapping", f"{MISSING}/c.log"], 1),
+    ("edge", ["export-trace", f"{MISSING}/run.blf", "--out", f"{MISSING}/x.csv"], 1),
     # the infrastructure
     ("edge", ["router", "--tls-cert", "x.pem"], 2),
     ("edge", ["router", "--config", f"{MISSING}/router.json5"], 2),
