@@ -79,7 +79,7 @@ def test_real_records_are_valid_against_the_shipped_schemas(alarm_run):
         for alarm in symptom.alarms:
             validate("alarm", alarm.to_dict())
     for line in alarm_run["lines"]:
-        validate("alarm" if line.get("kind") == "alarm" else "symptom", line)
+        validate(line.get("kind", "symptom"), line)
     for alarm in alarm_run["cleared"]:
         validate("alarm", alarm.to_dict())
     validate("health", alarm_run["health"])

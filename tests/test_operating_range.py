@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import json
 
+import jsonschema
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from edge_monitor.pipeline.operating_range import OperatingRange
 from edge_monitor.records import Advisory
+from edge_monitor.schemas import load_schema
 
 
 def _learned(loads: list[float], temperatures: list[float]) -> OperatingRange:
@@ -62,7 +65,11 @@ def test_any_saved_state_restores_without_error(state: dict) -> None:
     OperatingRange.from_state({"learned": state, "collecting": state, "outside": list(state)})
 
 
-def test_the_advisory_says_what_it_is() -> None:
-    record = Advisory("r1", 2, 700, "operating_range", "entered", "load", 0.93, (0.3, 0.7)).to_dict()
+def test_the_advisory_says_what_it_is_and_fits_its_shipped_schema() -> None:
+    record = Advisory("r1", 2, 700, "operating_range", "entered", "load", 0.93, (0.3, 0.7),
+                      utc="2026-11-26T10:00:00Z").to_dict()
     assert record["advisory"] == "operating_range" and record["state"] == "entered"
     assert "not wear" in record["message"] and record["learned"] == [0.3, 0.7]
+    jsonschema.validate(record, load_schema("advisory"))
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({**record, "state": "raised"}, load_schema("advisory"))
