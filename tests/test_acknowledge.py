@@ -33,7 +33,9 @@ QUANTITIES = ("wear", "kl_raw", "kl_weighted")
 
 
 def small_bank() -> DetectorBank:
-    config = DecisionConfig(n_nominal=20, density="gauss", calibration_draws=16, calibration_steps=400,
+    # 20 learning values: the asymptotic threshold at Pf = 1e-3 (a calibrated one for 10⁴ from 20 values
+    # is far higher, and these tests are about acknowledging, not calibrating)
+    config = DecisionConfig(n_nominal=20, density="gauss", pf=1e-3, pf_joint=1e-3,
                             quantities=QUANTITIES, steady_relearn=False)
     return DetectorBank(config, {})
 
@@ -71,7 +73,7 @@ def test_a_latched_alarm_is_acknowledged_and_the_statistic_restarts_on_the_same_
     threshold = bank.detectors["wear"].threshold
     result = bank.acknowledge("r1", 2, 65)
     assert [a.to_dict() for a in result.alarms] == [
-        {"schema": 1, "robot": "r1", "joint": 2, "cycle": 65, "quantity": "wear", "state": "acknowledged",
+        {"schema": 1, "robot": "r1", "joint": 2, "cycle": 65, "utc": None, "quantity": "wear", "state": "acknowledged",
          "statistic": None, "threshold": threshold, "miss_probability": None, "change_cycle": None}]
     assert result.not_latched == ("kl_raw", "kl_weighted")       # asked for (all), nothing latched: no-op
     decisions, raised = feed(bank, rng, range(66, 67))

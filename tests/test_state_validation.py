@@ -109,7 +109,7 @@ def _find(node: Any, key: str) -> list[dict[str, Any]]:
 
 
 JOINT_ATTACKS = {   # each breaks one model of joint 0 only; sizes that would allocate gigabytes first
-    "kde n_grid 1e9": ("n_grid", 10 ** 9, "mass"),
+    "kde n_grid 1e9": ("n_grid", 10 ** 9, "slices"),      # the load-compensated capture of a KL channel
     "glr window 1e9": ("window", 10 ** 9, "density"),
     "threshold a string": ("threshold", "x", "density"),
     "density covariance zero": ("cov", [[0.0]], "means"),
