@@ -39,8 +39,19 @@ def test_a_load_beyond_the_margin_enters_and_leaves_once() -> None:
     assert [e.state for e in rng.update({"load": 0.6, "motor_temperature": 41.0}, False, False)] == ["left"]
 
 
+def test_detectors_that_fit_one_after_the_other_learn_one_range() -> None:
+    """The wear detector fits first, the KL ones a few cycles later: the range is the whole period."""
+    rng = OperatingRange()
+    loads = [0.31, 0.69, 0.5, 0.45, 0.52, 0.48]
+    for k, load in enumerate(loads):
+        rng.update({"load": load, "motor_temperature": 40.0}, collecting=True, fitted=k in (3, 5))
+    rng.update({"load": 0.5, "motor_temperature": 40.0}, collecting=False, fitted=False)
+    assert rng.section({})["learned"]["load"] == [0.31, 0.69]
+
+
 def test_a_new_nominal_replaces_the_range_and_a_reset_forgets_it() -> None:
     rng = _learned([0.3, 0.7], [30.0, 35.0])
+    rng.update({"load": 0.5, "motor_temperature": 40.0}, collecting=False, fitted=False)   # monitoring
     for k, temp in enumerate([50.0, 52.0, 51.0]):          # the steady nominal, learned warm
         rng.update({"load": 0.5, "motor_temperature": temp}, collecting=True, fitted=k == 2)
     events = rng.update({"load": 0.5, "motor_temperature": 33.0}, False, False)     # cold after a stop
@@ -56,7 +67,7 @@ def test_unknown_covariates_are_ignored_and_the_state_round_trips() -> None:
     again = OperatingRange.from_state(json.loads(json.dumps(rng.state_dict())))
     assert again.state_dict() == rng.state_dict()
     assert OperatingRange.from_state({"learned": {"load": ["x", 1]}, "outside": ["load"]}).state_dict() == {
-        "learned": {}, "collecting": {}, "outside": []}
+        "learned": {}, "collecting": {}, "outside": [], "was_collecting": False}
 
 
 @given(st.dictionaries(st.text(max_size=12), st.one_of(st.none(), st.floats(), st.lists(st.floats(), max_size=3),

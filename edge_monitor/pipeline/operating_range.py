@@ -60,16 +60,23 @@ class OperatingRange:
     learned: dict[str, _Span] = field(default_factory=dict)
     collecting: dict[str, _Span] = field(default_factory=dict)
     outside: set[str] = field(default_factory=set)
+    was_collecting: bool = False
 
     def update(self, values: dict[str, float | None], collecting: bool, fitted: bool) -> list[RangeEvent]:
         """One cycle's covariates; ``collecting``: its values went into a nominal being learned;
-        ``fitted``: a nominal was fitted this cycle (the collected range becomes the learned one)."""
+        ``fitted``: a nominal was fitted this cycle. The detectors of a joint learn together but fit
+        one after the other (their inputs start at different cycles), so a learning period — the
+        cycles while any detector collects — is one range, and every fit in it makes that range, as
+        collected so far, the learned one; a new period (after a pause) starts a new range."""
         known = {k: float(v) for k, v in values.items() if v is not None and math.isfinite(v) and k in MARGINS}
+        if collecting and not self.was_collecting:
+            self.collecting = {}
+        self.was_collecting = collecting
         if collecting:
             for name, value in known.items():
                 self.collecting.setdefault(name, _Span()).add(value)
         if fitted and self.collecting:
-            self.learned, self.collecting = self.collecting, {}
+            self.learned = {name: _Span(span.lo, span.hi) for name, span in self.collecting.items()}
         events = []
         for name, value in known.items():
             span = self.learned.get(name)
@@ -90,12 +97,12 @@ class OperatingRange:
 
     def reset(self) -> None:
         """A declared maintenance: the nominals are learned again, and so is their range."""
-        self.learned, self.collecting, self.outside = {}, {}, set()
+        self.learned, self.collecting, self.outside, self.was_collecting = {}, {}, set(), False
 
     def state_dict(self) -> dict[str, Any]:
         return {"learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
                 "collecting": {k: [s.lo, s.hi] for k, s in self.collecting.items() if not s.empty},
-                "outside": sorted(self.outside)}
+                "outside": sorted(self.outside), "was_collecting": self.was_collecting}
 
     @classmethod
     def from_state(cls, state: Any) -> "OperatingRange":
@@ -111,6 +118,7 @@ class OperatingRange:
         outside = state.get("outside")
         if isinstance(outside, list):
             out.outside = {name for name in outside if name in out.learned}
+        out.was_collecting = state.get("was_collecting") is True
         return out
 
 
