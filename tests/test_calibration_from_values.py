@@ -122,7 +122,7 @@ def test_the_setting_is_validated_saved_with_a_pending_job_and_left_out_of_defau
     with pytest.raises(DetectorConfigError, match="steady_simulate_from"):
         DetectorConfig(steady_simulate_from="data")
     assert "steady_simulate_from" not in DecisionConfig().fingerprint()
-    assert DecisionConfig(steady_simulate_from="model").fingerprint()["steady_simulate_from"] == "model"
+    assert DecisionConfig(steady_simulate_from="values").fingerprint()["steady_simulate_from"] == "values"
     job = CalibrationJob(((0.0,), (1.0,), (2.0,)), "gauss", 20, 100.0, 0.6, 1.0, "recursive",
                          CalibrationBudget(), simulate_from="values")
     assert CalibrationJob.from_dict(job.to_dict()) == job

@@ -27,7 +27,8 @@ def test_learning_then_monitoring_with_the_decision_record_fields() -> None:
     record = decisions[-1].to_dict()
     assert set(record) == RECORD_FIELDS and record["state"] == "monitoring"
     assert record["threshold"] == pytest.approx(det.calibration.threshold)
-    assert record["calibration"] == {"arl0": DEFAULT_ARL0, "at": "boundary", "stage": "warm-up", "method": det.calibration.method}
+    assert record["calibration"] == {"arl0": DEFAULT_ARL0, "at": "boundary", "stage": "warm-up",
+                                     "method": det.calibration.method, "h_se": det.calibration.h_se}
     assert json.loads(json.dumps(record)) == record
     assert record["change_cycle"] >= 119
 
@@ -51,31 +52,38 @@ def test_alarm_on_a_three_sigma_change_is_latched_until_reset() -> None:
 
 
 @pytest.mark.slow
-def test_calibrated_threshold_gives_the_stated_mean_run_length_and_still_detects() -> None:
-    """Both sides, Gaussian nominal data, the product's learning (60 values) and window (100).
+def test_calibrated_threshold_gives_the_stated_false_alarm_rate_and_still_detects() -> None:
+    """Both sides, Gaussian nominal data, the product's learning (60 values) and window (100), calibrated
+    at the nominal (the warm-up default, at the allowance boundary, is by design quieter on nominal data).
 
-    Quiet side: 60 runs, each learning a fresh nominal and calibrating for ARL0 = 100 cycles, then
-    monitoring nominal data until its first alarm (at most 20·ARL0 cycles; the censored exponential
-    estimate counts the cut runs). Run lengths over learned nominals have a coefficient of variation of
-    1.2 … 2.3 (docs/DETECTION.md), so the mean of 60 has a standard error of at most 0.3·ARL0: the
-    issue's acceptance band 0.5 … 2 × ARL0 is ≥ 1.7 standard errors below and ≥ 3 above the target.
+    Quiet side: 60 detectors, each learning a fresh nominal and calibrating for ARL0 = 100 cycles, then
+    watching 1,000 cycles of nominal data; after an alarm the detector starts again from its learned
+    state, as after an acknowledgement. The stated ARL0 is the fleet's (cycles per false alarm over all
+    detectors): exposure / alarms. The per-nominal rate has a coefficient of variation of about 1 … 1.5
+    across learned nominals (docs/DETECTION.md), so the fleet rate of 60 has a standard error of at most
+    0.2 of itself: the acceptance band 0.5 … 2 × ARL0 is ≥ 2.5 standard errors from the target.
+    (The mean of first run lengths is not this rate: by Jensen it exceeds it when nominals differ.)
     Alarm side: a 2σ shift after the learning raises the alarm in ≥ 54 of the 60 runs within 100 cycles.
     """
     rng = np.random.default_rng(2)
-    arl0, cap = 100.0, 2000
-    config = DetectorConfig(arl0=arl0, calibration_draws=32, calibration_steps=1200)
+    arl0, watch = 100.0, 1000
+    config = DetectorConfig(arl0=arl0, calibration_draws=32, calibration_steps=1200, calibrate_at="nominal")
     exposure, alarms, detected = 0, 0, 0
     for _ in range(60):
-        quiet = SequentialDetector(config)
+        learner = SequentialDetector(config)
         for i, v in enumerate(rng.normal(size=60)):
-            quiet.update(v, i)
-        shifted = SequentialDetector.from_state(config, quiet.state_dict())     # same learning, same threshold
-        run = next((t for t in range(1, cap + 1) if quiet.update(rng.normal(), 60 + t).alarm), None)
-        exposure += cap if run is None else run
-        alarms += run is not None
+            learner.update(v, i)
+        learned = json.loads(json.dumps(learner.state_dict()))
+        quiet = SequentialDetector.from_state(config, learned)
+        for t in range(1, watch + 1):
+            if quiet.update(rng.normal(), 60 + t).alarm:
+                alarms += 1
+                quiet = SequentialDetector.from_state(config, learned)
+        exposure += watch
+        shifted = SequentialDetector.from_state(config, learned)                 # same learning, same threshold
         detected += any(shifted.update(rng.normal() + 2.0, 60 + t).alarm for t in range(1, 101))
-    measured = exposure / alarms
-    print(f"measured ARL0 {measured:.0f} for {arl0:.0f}; detected {detected}/60")
+    measured = exposure / max(alarms, 1)
+    print(f"measured ARL0 {measured:.0f} for {arl0:.0f} ({alarms} alarms); detected {detected}/60")
     assert 0.5 * arl0 <= measured <= 2.0 * arl0, measured
     assert detected >= 54, detected
 
@@ -94,7 +102,7 @@ def test_non_finite_values_are_skipped_counted_and_do_not_touch_state() -> None:
     d = det.update("abc", 101)  # type: ignore[arg-type]
     assert "expected 1 number" in d.reason
     after = det.state_dict()
-    assert after["counters"] == {"skipped_nonfinite": 3, "skipped_bad_shape": 2, "resets": 0}
+    assert after["counters"] == {"skipped_nonfinite": 3, "skipped_bad_shape": 2, "resets": 0, "fits": 1}
     after["counters"] = json.loads(before)["counters"]
     assert json.dumps(after, sort_keys=True) == before
 
@@ -131,7 +139,7 @@ def test_state_round_trip_during_learning() -> None:
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"n_nominal": 3}, "needs 10"),
+    ({"n_nominal": 3, "density": "kde"}, "needs 5"),
     ({"density": "parzen"}, "choose one of"),
     ({"pf": 0.0}, "between 0 and 1"),
     ({"window": 0}, "window"),

@@ -95,7 +95,7 @@ def test_a_monitoring_detector_learns_its_steady_nominal_while_still_deciding() 
     """Warm-up nominal N(0, 1) at the boundary; settled at cycle 40; the next 20 values (N(5, 1), a
     warmer joint) are the steady nominal: meanwhile the warm-up threshold still decides (a 5 σ jump
     would alarm it, so it may not see those values), afterwards the detector is steady, calibrated
-    at the nominal, and quiet on values like its steady nominal."""
+    for the healthy drift after learning (the default steady_at), and quiet on values like its steady nominal."""
     rng = np.random.default_rng(5)
     det = _detector()
     for i, v in enumerate(rng.normal(size=40)):
@@ -105,8 +105,8 @@ def test_a_monitoring_detector_learns_its_steady_nominal_while_still_deciding() 
     during = [det.update(v, 40 + i) for i, v in enumerate(rng.normal(0.2, 1.0, 19))]
     assert all(d.state == "monitoring" and d.calibration["stage"] == "warm-up" for d in during)
     switched = det.update(0.1, 59)
-    assert switched.calibration == {"arl0": 100, "at": "nominal", "stage": "steady",
-                                    "method": det.calibration.method}
+    assert switched.calibration == {"arl0": 100, "at": "healthy_drift", "stage": "steady",
+                                    "method": det.calibration.method, "h_se": det.calibration.h_se}
     assert det.threshold is not None and not det.alarmed
     det.begin_steady()                                         # a no-op once steady
     assert det.stage == "steady" and det._steady_values is None
@@ -168,7 +168,7 @@ def test_the_bank_starts_the_steady_stage_of_every_detector_when_the_joint_settl
             settled_at = cycle
     assert settled_at is not None and settled_at >= 60
     assert {d.stage for d in bank.detectors.values()} == {"steady"}
-    assert {d.calibration["at"] for d in decisions.values()} == {"nominal"}
+    assert {d.calibration["at"] for d in decisions.values()} == {"healthy_drift"}   # the agent's steady default
     state = json.loads(json.dumps(bank.state_dict()))
     assert state[SETTLING_KEY]["settled"] is True
     restored = DetectorBank(config, {})

@@ -46,10 +46,20 @@ OUT = ROOT / "edge_monitor" / "stats" / "data" / "gaussian_thresholds.json"
 
 
 def shipped_settings(config: DecisionConfig | None = None) -> list[GaussianSettings]:
-    """The warm-up and steady settings of the agent's scalar detectors."""
+    """The warm-up and steady settings of the agent's scalar detectors (one per distinct healthy drift)."""
     c = config or DecisionConfig()
-    return [GaussianSettings(n0, c.window, c.gamma0, c.rho, c.direction, float(c.allowance), float(c.clip_sigma), at)
-            for n0, at in ((c.n_nominal, c.calibrate_at), (c.steady_nominal, c.steady_calibrate_at))]
+    out: list[GaussianSettings] = []
+    for quantity in ("wear", "kl_raw", "kl_weighted"):
+        d = c.detector_config(quantity)
+        for n0, at, mean, sd in ((d.n_nominal, d.calibrate_at, d.drift_mean, d.drift_sd),
+                                 (d.steady_nominal, d.steady_at, d.steady_drift_mean, d.steady_drift_sd)):
+            settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
+                                        float(d.clip_sigma), at, tuple(mean), tuple(sd))
+            if settings not in out:
+                out.append(settings)
+    steady_nominal = GaussianSettings(c.steady_nominal, c.window, c.gamma0, c.rho, c.direction, float(c.allowance),
+                                      float(c.clip_sigma), "nominal")      # the option without drift
+    return out + ([steady_nominal] if steady_nominal not in out else [])
 
 
 def entry(settings: GaussianSettings, budget: GaussianBudget) -> dict[str, object]:
@@ -69,10 +79,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--nominals", type=int, default=8192)
     parser.add_argument("--steps", type=int, default=10_000)
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--recompute", action="store_true", help="recompute settings the table already holds")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     budget = GaussianBudget(nominals=args.nominals, streams=4, steps=args.steps)
-    entries = [entry(s, budget) for s in shipped_settings()]
+    kept = {}
+    if args.out.exists() and not args.recompute:          # entries of settings already tabulated stay
+        for e in json.loads(args.out.read_text()).get("entries", []):
+            e["settings"] = {**e["settings"], "drift_mean": tuple(e["settings"].get("drift_mean", ())),
+                             "drift_sd": tuple(e["settings"].get("drift_sd", ()))}
+            kept[GaussianSettings(**e["settings"])] = e
+    entries = [kept.get(s) or entry(s, budget) for s in shipped_settings()]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"command": "python tools/threshold_table.py "
                                                f"--nominals {args.nominals} --steps {args.steps}",

@@ -47,6 +47,13 @@ PARTIAL_REASON = "partial cycle: not used by the detectors"
 #: (docs/DETECTION.md, ``tools/warmup_drift_study.py``; simulator defaults).
 HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.41), "kl_raw": (0.30, 0.23),
                                                   "kl_weighted": (0.28, 0.17)}
+#: The same once warm: (mean, sd) over joints of how far each input sits, after its steady nominal is
+#: learned, from that nominal (in its learned standard deviations, beyond the learning error the
+#: calibration simulates itself). Measured on 8 healthy default robots (seeds 101–108, steady cycles;
+#: docs/DETECTION.md, "The steady stage's healthy drift"): the KL distances keep creeping up with the
+#: last warming, the wear score does not.
+STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.10, 0.09),
+                                                "kl_weighted": (0.10, 0.09)}
 
 
 @dataclass(frozen=True)
@@ -91,7 +98,8 @@ class DecisionConfig:
     calibrate_at: str = "boundary"
     healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
     steady_relearn: bool = True
-    steady_calibrate_at: str = "nominal"
+    steady_calibrate_at: str = "healthy_drift"
+    steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
@@ -112,6 +120,7 @@ class DecisionConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", _healthy_drift(self.healthy_drift))
+        object.__setattr__(self, "steady_drift", _healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
         for name in ("calibrate_at", "steady_calibrate_at"):
             require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
                     f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
@@ -141,7 +150,8 @@ class DecisionConfig:
     def detector_config(self, quantity: str) -> DetectorConfig:
         spec = QUANTITIES[quantity]
         vector = spec.dim > 1
-        drifting = "healthy_drift" in (self.calibrate_at, self.steady_calibrate_at)
+        drifting = self.calibrate_at == "healthy_drift"
+        steady_drifting = self.steady_calibrate_at == "healthy_drift"
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
@@ -154,12 +164,15 @@ class DecisionConfig:
                               steady_simulate_from=self.steady_simulate_from,
                               transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs),
                               drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
-                              drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting))
+                              drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting),
+                              steady_drift_mean=tuple(self.steady_drift[q][0] for q in spec.inputs if steady_drifting),
+                              steady_drift_sd=tuple(self.steady_drift[q][1] for q in spec.inputs if steady_drifting))
 
     def fingerprint(self) -> dict[str, Any]:
         out = {**asdict(self), "quantities": list(self.quantities),
-               "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())}}
-        if self.calibrate_at == "boundary" and self.steady_calibrate_at != "healthy_drift":
+               "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())},
+               "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())}}
+        if self.calibrate_at == "boundary":
             del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
         steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform",
                   "steady_simulate_from")
@@ -171,17 +184,18 @@ class DecisionConfig:
         return out
 
 
-def _healthy_drift(given: Any) -> dict[str, tuple[float, float]]:
-    """``decision.healthy_drift``: the defaults, overridden per input by ``given`` (input → [mean, sd])."""
-    require(isinstance(given, Mapping), "decision.healthy_drift", f"expected a table, got {given!r}")
-    out = dict(HEALTHY_DRIFT)
+def _healthy_drift(given: Any, key: str = "healthy_drift",
+                   defaults: Mapping[str, tuple[float, float]] = HEALTHY_DRIFT) -> dict[str, tuple[float, float]]:
+    """``decision.healthy_drift`` (or ``key``): the defaults, overridden per input by ``given`` (input →
+    [mean, sd])."""
+    require(isinstance(given, Mapping), f"decision.{key}", f"expected a table, got {given!r}")
+    out = dict(defaults)
     for name, pair in given.items():
-        require(name in HEALTHY_DRIFT, f"decision.healthy_drift.{name}",
-                f"unknown input; known: {sorted(HEALTHY_DRIFT)}")
+        require(name in defaults, f"decision.{key}.{name}", f"unknown input; known: {sorted(defaults)}")
         ok = (isinstance(pair, (list, tuple)) and len(pair) == 2
               and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair))
         require(ok and -MAX_DRIFT <= pair[0] <= MAX_DRIFT and 0 <= pair[1] <= MAX_DRIFT,
-                f"decision.healthy_drift.{name}", f"expected [mean, sd] in standard deviations (mean "
+                f"decision.{key}.{name}", f"expected [mean, sd] in standard deviations (mean "
                 f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g}), got {pair!r}")
         out[name] = (float(pair[0]), float(pair[1]))
     return out

@@ -32,7 +32,7 @@ DEFAULT_STEADY_NOMINAL = 240
 #: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
 #: fingerprint, so that states saved before the steady stage existed still match (a saved steady
 #: nominal without a transform is watched untransformed, as it was learned).
-STEADY_DEFAULTS = ("nominal", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson", "model")
+STEADY_DEFAULTS = ("healthy_drift", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson", "model")
 #: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
 MAX_NOMINAL = 10_000
 #: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
@@ -53,7 +53,8 @@ class DetectorConfig:
     not used). ``calibration_draws``/``calibration_steps``: simulation budget of the calibration;
     ``calibrate_at``, ``drift_mean``/``drift_sd`` [σ of the nominal values, one per dimension]: which
     healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`);
-    ``steady_at``, ``steady_nominal`` [cycles]: how the nominal learned once the temperature has settled
+    ``steady_at``, ``steady_drift_mean``/``steady_drift_sd`` [σ, per dimension; empty: none],
+    ``steady_nominal`` [cycles]: how the nominal learned once the temperature has settled
     is calibrated, and from how many values (more than ``n_nominal``: a margin against its learning error);
     ``steady_density``: its density family, fitted after ``steady_transform`` ("yeo-johnson": per-axis
     :class:`~edge_monitor.stats.normalising_transform.YeoJohnson` learned from the same values, on the
@@ -77,7 +78,9 @@ class DetectorConfig:
     calibrate_at: str = "boundary"
     drift_mean: tuple[float, ...] = ()
     drift_sd: tuple[float, ...] = ()
-    steady_at: str = "nominal"
+    steady_at: str = "healthy_drift"
+    steady_drift_mean: tuple[float, ...] = ()
+    steady_drift_sd: tuple[float, ...] = ()
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
@@ -122,8 +125,13 @@ class DetectorConfig:
             for name in ("calibrate_at", "steady_at"):
                 require(getattr(self, name) in CALIBRATE_AT, name,
                         f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
-            if "healthy_drift" in (self.calibrate_at, self.steady_at):
-                bounds = (("drift_mean", self.drift_mean, -MAX_DRIFT), ("drift_sd", self.drift_sd, 0.0))
+            bounds = []
+            if self.calibrate_at == "healthy_drift":
+                bounds += [("drift_mean", self.drift_mean, -MAX_DRIFT), ("drift_sd", self.drift_sd, 0.0)]
+            if self.steady_at == "healthy_drift":
+                bounds += [("steady_drift_mean", self.steady_drift_mean or (0.0,) * self.dim, -MAX_DRIFT),
+                           ("steady_drift_sd", self.steady_drift_sd or (0.0,) * self.dim, 0.0)]
+            if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
                                                             for v in values), name,
@@ -144,6 +152,7 @@ class DetectorConfig:
 
     def fingerprint(self) -> dict[str, Any]:
         out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd),
+               "steady_drift_mean": list(self.steady_drift_mean), "steady_drift_sd": list(self.steady_drift_sd),
                "transform_axes": list(self.transform_axes)}
         if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
             for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before

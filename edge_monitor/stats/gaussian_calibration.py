@@ -13,8 +13,10 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
 1. ``nominals`` nominal sets of N0 values from N(0, R), each fitted (mean, covariance with ddof = 1,
    its null box and winsorising range) as the agent fits its own — the learning error;
 2. ``streams`` detectors per nominal on independent streams from N(0, R) moved by the calibration
-   point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up), ``steps``
-   cycles each;
+   point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
+   ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
+   stratified normal quantiles in a fixed random order — a fleet whose joints drift after learning),
+   ``steps`` cycles each;
 3. per nominal g and candidate threshold h its false-alarm rate from its first passages (e/X, events
    over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(rate);
 4. h where that run length is the target: interpolated where at least :data:`MIN_EVENTS_DIRECT`
@@ -33,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import norm
 
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 
@@ -65,7 +68,9 @@ class GaussianSettings:
     direction: str
     allowance: float
     clip_sigma: float
-    at: str                        # "nominal" | "boundary"
+    at: str                        # "nominal" | "boundary" | "healthy_drift"
+    drift_mean: tuple[float, ...] = ()     # "healthy_drift": each nominal's streams moved by drift_mean +
+    drift_sd: tuple[float, ...] = ()       # drift_sd·z (standard units, one z per nominal, per axis)
 
 
 @dataclass(frozen=True)
@@ -156,11 +161,13 @@ def simulate(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], bu
     rng = np.random.default_rng(SEED)
     grid = np.arange(H_STEP, H_MAX, H_STEP)
     per_chunk = max(1, CHUNK // budget.streams)
+    shifts = _shifts(settings, budget.nominals, r.shape[0])
     events, exposure = [], []
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
         glr = _detectors(settings, rng.standard_normal((g, settings.n0, r.shape[0])) @ lower_chol.T, budget.streams)
-        passage = _passages(glr, settings, lower_chol, budget.steps, grid, rng)
+        shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
+        passage = _passages(glr, shift, lower_chol, budget.steps, grid, rng)
         alarmed = passage < budget.steps
         shape = (g, budget.streams, grid.size)
         events.append(alarmed.reshape(shape).sum(axis=1))
@@ -189,11 +196,23 @@ def _detectors(settings: GaussianSettings, samples: NDArray[np.float64], streams
                             (rep(lower), rep(upper)), (rep(clip[0]), rep(clip[1])))
 
 
-def _passages(glr: GaussianBatchGLR, settings: GaussianSettings, lower_chol: NDArray[np.float64], steps: int,
+def _shifts(settings: GaussianSettings, nominals: int, d: int) -> NDArray[np.float64]:
+    """Where each nominal's streams sit (nominals × d), in standard units (step 2 of the module docstring)."""
+    if settings.at == "boundary":
+        return np.full((nominals, d), settings.allowance)
+    if settings.at != "healthy_drift":
+        return np.zeros((nominals, d))
+    z = np.random.default_rng([SEED, 3]).permutation(norm.ppf((np.arange(nominals) + 0.5) / nominals))
+    mean = np.broadcast_to(np.asarray(settings.drift_mean or (0.0,), dtype=float), (d,))
+    sd = np.broadcast_to(np.asarray(settings.drift_sd or (0.0,), dtype=float), (d,))
+    return mean[None, :] + z[:, None] * sd[None, :]
+
+
+def _passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], lower_chol: NDArray[np.float64], steps: int,
               grid: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:
-    """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never."""
+    """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never;
+    detector b's stream moved by ``shift[b]`` (standard units)."""
     b, d = glr.means.shape
-    shift = settings.allowance if settings.at == "boundary" else 0.0
     first = np.full((b, grid.size), steps, dtype=np.int64)
     running = np.zeros(b)
     for start in range(0, steps, SEGMENT):

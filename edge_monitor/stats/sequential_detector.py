@@ -143,6 +143,13 @@ class SequentialDetector:
     def _calibrate_at(self) -> str:
         return self.config.steady_at if self.stage == "steady" else self.config.calibrate_at
 
+    @property
+    def _drift(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The healthy drift the calibration of the current stage assumes (σ units, per dimension)."""
+        if self.stage == "steady":
+            return tuple(self.config.steady_drift_mean), tuple(self.config.steady_drift_sd)
+        return tuple(self.config.drift_mean), tuple(self.config.drift_sd)
+
     def begin_steady(self) -> None:
         """The joint's temperature has settled: learn the nominal again from the next ``steady_nominal``
         values and calibrate it at ``steady_at``. No-op once steady, while relearning, or with an alarm."""
@@ -231,7 +238,7 @@ class SequentialDetector:
                                        float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
                                        float(self.config.clip_sigma), self._calibrate_at,
-                                       tuple(self.config.drift_mean), tuple(self.config.drift_sd),
+                                       *self._drift,
                                        self.config.steady_simulate_from if self.stage == "steady" else "model")
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()

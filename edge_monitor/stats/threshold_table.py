@@ -27,7 +27,8 @@ RESOURCE = "gaussian_thresholds.json"
 
 def key(settings: GaussianSettings) -> str:
     """The table key of ``settings`` (exact values: a table holds only what was computed)."""
-    return json.dumps(asdict(settings), sort_keys=True)
+    return json.dumps({k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()},
+                      sort_keys=True)
 
 
 @functools.lru_cache(maxsize=1)
@@ -36,8 +37,12 @@ def _table() -> dict[str, dict[str, Any]]:
         text = resources.files("edge_monitor.stats").joinpath("data", RESOURCE).read_text(encoding="utf-8")
     except (FileNotFoundError, OSError):
         return {}
-    entries = json.loads(text).get("entries", [])
-    return {key(GaussianSettings(**e["settings"])): e for e in entries}
+    out = {}
+    for e in json.loads(text).get("entries", []):
+        settings = {**e["settings"], "drift_mean": tuple(e["settings"].get("drift_mean", ())),
+                    "drift_sd": tuple(e["settings"].get("drift_sd", ()))}
+        out[key(GaussianSettings(**settings))] = e
+    return out
 
 
 def lookup(settings: GaussianSettings, arl0: float) -> GaussianThreshold | None:
