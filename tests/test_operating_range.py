@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from edge_monitor.pipeline.operating_range import OperatingRange
+from edge_monitor.pipeline.operating_range import RETURN_CYCLES, OperatingRange
 from edge_monitor.records import Advisory
 from edge_monitor.schemas import load_schema
 
@@ -36,7 +36,21 @@ def test_a_load_beyond_the_margin_enters_and_leaves_once() -> None:
     assert [(e.covariate, e.state, e.learned) for e in events] == [("load", "entered", (0.3, 0.7))]
     assert rng.update({"load": 0.95, "motor_temperature": 41.0}, False, False) == []    # still outside: no new event
     assert rng.section({"load": 0.95})["outside"] == ["load"]
+    for _ in range(RETURN_CYCLES - 1):                       # back inside: said once it stays there
+        assert rng.update({"load": 0.6, "motor_temperature": 41.0}, False, False) == []
+    assert rng.section({"load": 0.6})["outside"] == []       # the cycle itself is inside
     assert [e.state for e in rng.update({"load": 0.6, "motor_temperature": 41.0}, False, False)] == ["left"]
+
+
+def test_a_new_load_range_that_overlaps_the_learned_one_is_one_advisory_not_a_flapping_one() -> None:
+    """Learned at 0.3 … 0.7, then 0.6 … 1.0: a quarter of the cycles fall inside again; one "entered"
+    and no "left" while the new range lasts, one "left" once the old one is back for good."""
+    rng = _learned([0.3, 0.5, 0.7], [40.0, 42.0, 41.0])
+    new_range = [0.6 + 0.4 * ((k * 0.618) % 1.0) for k in range(200)]
+    states = [e.state for load in new_range for e in rng.update({"load": load, "motor_temperature": 41.0}, False, False)]
+    assert states == ["entered"]
+    states = [e.state for _ in range(RETURN_CYCLES) for e in rng.update({"load": 0.5}, False, False)]
+    assert states == ["left"]
 
 
 def test_detectors_that_fit_one_after_the_other_learn_one_range() -> None:
@@ -67,7 +81,7 @@ def test_unknown_covariates_are_ignored_and_the_state_round_trips() -> None:
     again = OperatingRange.from_state(json.loads(json.dumps(rng.state_dict())))
     assert again.state_dict() == rng.state_dict()
     assert OperatingRange.from_state({"learned": {"load": ["x", 1]}, "outside": ["load"]}).state_dict() == {
-        "learned": {}, "collecting": {}, "outside": [], "was_collecting": False}
+        "learned": {}, "collecting": {}, "outside": [], "inside_run": {}, "was_collecting": False}
 
 
 @given(st.dictionaries(st.text(max_size=12), st.one_of(st.none(), st.floats(), st.lists(st.floats(), max_size=3),

@@ -8,7 +8,9 @@ an extrapolation of the model, so the agent says so: per joint it keeps, for eac
 of the cycles its current nominals were learned from (:meth:`OperatingRange.update` with
 ``collecting`` while a detector collects nominal values, ``fitted`` when one fits its nominal), and
 reports each cycle's covariates, which of them lie outside the learned range widened by a margin, and
-an advisory when a covariate leaves the range or comes back. The detectors keep monitoring (their
+an advisory when a covariate leaves the range ("entered", at once) or is back for good ("left", after
+:data:`RETURN_CYCLES` cycles in a row inside: a new load range that overlaps the learned one would
+otherwise flap between the two every few cycles). The detectors keep monitoring (their
 quantities are compensated, and holding them would blind the agent to wear during a new regime);
 every alarm carries the covariates next to the learned range.
 
@@ -28,6 +30,8 @@ from typing import Any
 MARGINS: dict[str, float] = {"load": 0.02, "motor_temperature": 2.0}
 #: Margin as a fraction of the learned span (the larger of the two applies).
 RELATIVE_MARGIN = 0.1
+#: Cycles in a row inside the learned range before an advisory says the covariate is back.
+RETURN_CYCLES = 20
 
 
 @dataclass
@@ -59,8 +63,10 @@ class OperatingRange:
 
     learned: dict[str, _Span] = field(default_factory=dict)
     collecting: dict[str, _Span] = field(default_factory=dict)
-    outside: set[str] = field(default_factory=set)
+    outside: set[str] = field(default_factory=set)        # covariates with an open advisory
+    inside_run: dict[str, int] = field(default_factory=dict)   # of those: cycles in a row back inside
     was_collecting: bool = False
+    now_outside: set[str] = field(default_factory=set)     # covariates outside in the last cycle
 
     def update(self, values: dict[str, float | None], collecting: bool, fitted: bool) -> list[RangeEvent]:
         """One cycle's covariates; ``collecting``: its values went into a nominal being learned;
@@ -75,34 +81,51 @@ class OperatingRange:
         if collecting:
             for name, value in known.items():
                 self.collecting.setdefault(name, _Span()).add(value)
-        if fitted and self.collecting:
+        refit = fitted and bool(self.collecting)
+        if refit:
             self.learned = {name: _Span(span.lo, span.hi) for name, span in self.collecting.items()}
-        events = []
-        for name, value in known.items():
-            span = self.learned.get(name)
-            if span is None or span.empty:
-                continue
-            margin = max(MARGINS[name], RELATIVE_MARGIN * (span.hi - span.lo))
-            out = not span.lo - margin <= value <= span.hi + margin
-            if out != (name in self.outside):
-                events.append(RangeEvent(name, "entered" if out else "left", value, (span.lo, span.hi)))
-                (self.outside.add if out else self.outside.discard)(name)
-        return events
+        self.now_outside = {name for name, value in known.items() if self._beyond(name, value)}
+        return [event for name, value in known.items() if (event := self._advise(name, value, refit)) is not None]
+
+    def _beyond(self, name: str, value: float) -> bool:
+        span = self.learned.get(name)
+        if span is None or span.empty:
+            return False
+        margin = max(MARGINS[name], RELATIVE_MARGIN * (span.hi - span.lo))
+        return not span.lo - margin <= value <= span.hi + margin
+
+    def _advise(self, name: str, value: float, refit: bool) -> RangeEvent | None:
+        """The advisory event of ``name`` this cycle, if any; a new learned range (``refit``) that holds
+        the value closes an open advisory at once."""
+        span = self.learned.get(name)
+        if name in self.now_outside and name not in self.outside:
+            self.outside.add(name)
+            self.inside_run[name] = 0
+            return RangeEvent(name, "entered", value, (span.lo, span.hi)) if span else None
+        if name in self.outside:
+            self.inside_run[name] = 0 if name in self.now_outside else self.inside_run.get(name, 0) + 1
+            if self.inside_run[name] >= RETURN_CYCLES or span is None or (refit and self.inside_run[name]):
+                self.outside.discard(name)
+                self.inside_run.pop(name, None)
+                return RangeEvent(name, "left", value, (span.lo, span.hi)) if span else None
+        return None
 
     def section(self, values: dict[str, float | None]) -> dict[str, Any]:
         """The symptom's ``operating`` section: the covariates, the learned ranges, those outside."""
         return {"covariates": {k: v for k, v in values.items() if k in MARGINS},
                 "learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
-                "outside": sorted(self.outside)}
+                "outside": sorted(self.now_outside)}
 
     def reset(self) -> None:
         """A declared maintenance: the nominals are learned again, and so is their range."""
         self.learned, self.collecting, self.outside, self.was_collecting = {}, {}, set(), False
+        self.inside_run, self.now_outside = {}, set()
 
     def state_dict(self) -> dict[str, Any]:
         return {"learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
                 "collecting": {k: [s.lo, s.hi] for k, s in self.collecting.items() if not s.empty},
-                "outside": sorted(self.outside), "was_collecting": self.was_collecting}
+                "outside": sorted(self.outside), "inside_run": dict(self.inside_run),
+                "was_collecting": self.was_collecting}
 
     @classmethod
     def from_state(cls, state: Any) -> "OperatingRange":
@@ -118,6 +141,10 @@ class OperatingRange:
         outside = state.get("outside")
         if isinstance(outside, list):
             out.outside = {name for name in outside if name in out.learned}
+        runs = state.get("inside_run")
+        if isinstance(runs, dict):
+            out.inside_run = {name: n for name, n in runs.items()
+                              if name in out.outside and isinstance(n, int) and 0 <= n < RETURN_CYCLES}
         out.was_collecting = state.get("was_collecting") is True
         return out
 
