@@ -65,7 +65,7 @@ def _jsonl(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) ->
     if not outputs.jsonl:
         return None
     from edge_monitor.sinks.jsonl import JsonlSink
-    return JsonlSink(outputs.jsonl)
+    return JsonlSink(outputs.jsonl, rotation=config.jsonl_rotation(), strict=True)
 
 
 def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) -> Sink | None:
@@ -103,7 +103,8 @@ def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: St
               live: bool = False) -> App:
     """The agent and every sink ``outputs`` asks for. Opening failures raise
     :class:`~edge_monitor.sinks.zenoh_session.ZenohSetupError` or
-    :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix.
+    :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix, or
+    :class:`~edge_monitor.sinks.jsonl.JsonlOpenError` (an ``OSError``: the JSONL file cannot be used).
     ``live``: detectors calibrate their thresholds in a worker process, so frames keep flowing
     (replay calibrates inline: deterministic)."""
     calibrator = None

@@ -5,7 +5,9 @@ short is reported and its last cycle is left open (not published; a later replay
 publishes it). Both are in the summary and in ``--json`` under ``"log"``.
 
 Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO line every 5 s (``-v``).
-A log that cannot be found or read exits with code 1."""
+Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device), the
+``--jsonl`` file cannot be opened, or records or the state could not be written (a full disk:
+``sink_errors``, ``state_save_errors``; the statistics are printed first)."""
 
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from edge_monitor.commands.common import (
     add_config_arguments,
     load_agent_config,
     open_state_store,
+    output_failures,
     print_json,
     summary_table,
 )
@@ -29,6 +32,7 @@ from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import FrameArrays
 from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
 from edge_monitor.sinks.base import LastSymptomSink
+from edge_monitor.sinks.jsonl import JsonlOpenError
 from protocol.console import EXIT_FAILURE, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
@@ -76,8 +80,13 @@ def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, ba
 def run(args: argparse.Namespace) -> int:
     cfg = load_agent_config(args)
     last = LastSymptomSink()
+    store = open_state_store(cfg)
     with ExitStack() as stack:
-        agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, open_state_store(cfg)).agent
+        try:
+            agent = build_app(cfg, Outputs(jsonl=cfg.jsonl), stack, store).agent
+        except JsonlOpenError as exc:
+            print(f"edge-monitor replay: {exc}", file=sys.stderr)
+            return EXIT_FAILURE
         agent.sinks.append(last)
         try:
             report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
@@ -97,4 +106,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"log: {report.skipped} unreadable record(s) skipped"
                   + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
                      else ""))
-    return 0
+    problems = output_failures(agent, store)      # after the exit stack: the final state save included
+    for problem in problems:
+        print(f"edge-monitor replay: {problem}", file=sys.stderr)
+    return EXIT_FAILURE if problems else 0
