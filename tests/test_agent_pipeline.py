@@ -245,17 +245,19 @@ def test_the_last_cycle_is_partial_when_the_stream_stops_inside_it(frames):
 
 def test_a_controller_restart_is_seen_by_its_tick_even_when_the_cycle_number_looks_like_progress():
     """Restart near the counter's wrap (64600 → 0 is 936 steps 'forward') or into the same cycle number:
-    the controller tick going backward tells."""
-    from edge_monitor.pipeline.ingest import Ingest
+    the controller tick going backward tells, once the next status frames continue the new tick."""
+    from edge_monitor.pipeline.cycle_numbering import CONFIRMATIONS, CycleNumbering
 
     for before, after in ((64_600, 0), (5, 5)):
-        ingest = Ingest()
-        assert ingest._update_cycle(before, 3, {}, tick_raw=900_000) == before
-        assert ingest._update_cycle(after, 0, {}, tick_raw=10) == before + 1     # restart: numbering goes on
-        assert ingest._restarted_into == {before + 1}
-    ingest = Ingest()                                  # ordinary progress: no restart
-    ingest._update_cycle(7, 5, {}, tick_raw=1000)
-    assert ingest._update_cycle(8, 0, {}, tick_raw=9000) == 8 and not ingest._restarted_into
+        numbering = CycleNumbering()
+        assert numbering.update(before, 3, 900_000, {}) == before
+        pending = [numbering.update(after, 0, 10 + 10 * k, {}) for k in range(CONFIRMATIONS)]
+        assert pending == [None] * CONFIRMATIONS                  # not yet confirmed
+        assert numbering.update(after, 0, 10 + 10 * CONFIRMATIONS, {}) == before + 1   # numbering goes on
+        assert numbering.restarted and numbering.taken_back == CONFIRMATIONS and numbering.restarts == 1
+    numbering = CycleNumbering()                      # ordinary progress: no restart
+    numbering.update(7, 5, 1000, {})
+    assert numbering.update(8, 0, 1010, {}) == 8 and not numbering.restarted and numbering.jumps == 0
 
 
 def _numbers_close(a, b, rel: float = 1e-7, atol: float = 1e-12, spread=None) -> bool:
