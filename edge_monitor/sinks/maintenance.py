@@ -4,7 +4,8 @@ relearn that joint's nominal models (gearbox replaced or serviced) and to clear 
 Authentication belongs to the Zenoh router (mTLS + access control, docs/SECURITY.md); the agent adds a
 local defence that does not depend on the router being configured well, :class:`MaintenanceGate`:
 remote declarations are refused unless explicitly allowed, only exact keys ``edge/<this robot>/<joint>/
-maintenance`` count (no wildcards), each joint accepts at most ``max_per_joint`` declarations per
+maintenance`` count (no wildcards), a joint the robot cannot have (≥ ``MAX_JOINTS``) or the agent does
+not monitor is refused (``unknown_joint``), each joint accepts at most ``max_per_joint`` declarations per
 ``window_s`` seconds, and every decision is logged with the key, the source information Zenoh carries
 and the (truncated) payload; refusals are counted and their logging is rate-limited.
 """
@@ -21,6 +22,7 @@ from typing import Any, Callable
 
 from edge_monitor.errors import ConfigError
 from edge_monitor.sinks.keys import MAINTENANCE, check_robot_name, joint_key, parse_key
+from protocol.frames import MAX_JOINTS
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +66,7 @@ class MaintenanceDecision:
 
     accepted: bool
     joint: int | None
-    reason: str          # "accepted" | "disabled" | "bad_key" | "rate_limited"
+    reason: str          # "accepted" | "disabled" | "bad_key" | "unknown_joint" | "rate_limited"
 
 
 def _printable(text: str, limit: int) -> str:
@@ -130,7 +132,7 @@ class MaintenanceGate:
         self.payload_chars = int(payload_chars)
         self.log = logger or log
         self.clock = clock
-        self.counts = {"accepted": 0, "disabled": 0, "bad_key": 0, "rate_limited": 0}
+        self.counts = {"accepted": 0, "disabled": 0, "bad_key": 0, "unknown_joint": 0, "rate_limited": 0}
         self._accepted_at: dict[int, deque[float]] = {}
         self._last_log: dict[tuple[str, int | None], tuple[float, int]] = {}   # → (time, suppressed since)
         self._lock = threading.Lock()
@@ -151,6 +153,8 @@ class MaintenanceGate:
                 reason = "bad_key"
             elif not self.allow:
                 reason = "disabled"
+            elif joint >= MAX_JOINTS:
+                reason = "unknown_joint"
             elif self._rate_limited(joint, now):
                 reason = "rate_limited"
             else:
@@ -178,7 +182,10 @@ class MaintenanceGate:
             try:
                 decision = self.decide_sample(sample)
                 if decision.accepted and decision.joint is not None:
-                    declare(decision.joint)
+                    try:
+                        declare(decision.joint)
+                    except ValueError as exc:           # a joint the agent does not monitor: refused after all
+                        self._refuse_after_all(decision.joint, str(getattr(sample, "key_expr", "?")), str(exc))
             except Exception as exc:
                 self.log.error("maintenance declaration on %s not applied: %s", getattr(sample, "key_expr", "?"), exc)
 
@@ -189,6 +196,19 @@ class MaintenanceGate:
         with self._lock:
             return {("maintenance_accepted" if reason == "accepted" else f"maintenance_refused_{reason}"): n
                     for reason, n in self.counts.items()}
+
+    def _refuse_after_all(self, joint: int, key: str, why: str) -> None:
+        """An accepted declaration the agent could not apply (it does not monitor ``joint``): counted as
+        refused (``unknown_joint``), not accepted, and it does not use up the joint's rate limit."""
+        with self._lock:
+            self.counts["accepted"] -= 1
+            self.counts["unknown_joint"] += 1
+            times = self._accepted_at.get(joint)
+            if times:
+                times.pop()
+                if not times:
+                    del self._accepted_at[joint]
+        self.log.warning("maintenance declaration on %r refused (%s)", key, why)
 
     # -- internals ---------------------------------------------------------------------------------
 
@@ -229,6 +249,9 @@ class MaintenanceGate:
         elif reason == "disabled":
             self.log.warning("maintenance declaration refused (remote declarations are disabled; enable them "
                              "explicitly or use --maintenance at start): %s%s", details, more)
+        elif reason == "unknown_joint":
+            self.log.warning("maintenance declaration refused (joint %d: this robot has joints 0 … %d): %s%s",
+                             joint, MAX_JOINTS - 1, details, more)
         elif reason == "bad_key":
             self.log.warning("maintenance declaration refused (key is not exactly edge/%s/<joint>/maintenance; "
                              "wildcards are never accepted): %s%s", self.robot, details, more)
