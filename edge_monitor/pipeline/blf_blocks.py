@@ -145,6 +145,23 @@ def _inflate(method: int, payload: bytes, claimed: int) -> tuple[bytes | None, s
     return data, None
 
 
+def _sane_length(data: bytes, start: int) -> int | None:
+    """Where, walking the objects from ``start`` as python-can does, an object says it is smaller than
+    an object header (bytes from ``start``), or None. python-can's parser loops forever on such an
+    object (its next position is its own)."""
+    header = blf.OBJ_HEADER_BASE_STRUCT
+    pos = start
+    while pos + header.size <= len(data):
+        found = data.find(b"LOBJ", pos, pos + 8)
+        if found < 0:
+            return None
+        size = header.unpack_from(data, found)[3]
+        if size < header.size:
+            return found - start
+        pos = found + size
+    return None
+
+
 def _read_objects(reader: Any, data: bytes, at: int, start: float, resync: bool, pending: list[Arrays],
                   add_messages: Callable[[list[can.Message]], None], skip: SkipCallback) -> tuple[bytes, bool]:
     """The objects of one container's ``data`` (the previous container's tail first) into ``pending``:
@@ -162,8 +179,13 @@ def _read_objects(reader: Any, data: bytes, at: int, start: float, resync: bool,
             pending.append(objects_to_arrays(data, pos, run, start))
             pos += run * _SIZE
             continue
+        sane = _sane_length(data, pos)
         try:      # another object type, padding, damage, an object cut by the container: python-can's way
-            return _parse_rest(reader, data[pos:], add_messages), False
+            if sane is None:
+                return _parse_rest(reader, data[pos:], add_messages), False
+            _parse_rest(reader, data[pos:pos + sane], add_messages)
+            reader._pos = sane
+            raise blf.BLFParseError(f"object size below {blf.OBJ_HEADER_BASE_STRUCT.size} bytes")
         except Exception as exc:          # a damaged object: what came before it is kept; on at the next one
             failed_at = pos + int(reader._pos)
             skip(f"container at byte {at}: unreadable object at offset {failed_at} ({exc or type(exc).__name__})", 1)
