@@ -116,12 +116,14 @@ class JsonlSink:
         self.recent: list[dict[str, Any]] = []        # symptom records of the tail found at opening
         self._seen: set[tuple[str, int, int]] = set()
         self._fd: int | None = None
+        self._opened = False              # opened (and its tail checked) once
         self._reopen_requested = False    # set from a signal handler: a plain flag, no lock
         self._lock = threading.Lock()
         if self.path == "-":
             return
         try:
             self._fd = self._open(recover=True)
+            self._opened = True
         except OSError as exc:
             message = f"JSONL output {self.path}: {exc.strerror or exc}"
             if strict:
@@ -245,10 +247,12 @@ class JsonlSink:
             log.error("JSONL output to standard output failed (%s)", exc)
 
     def _retry_open(self) -> bool:
+        """Open the path again (after a failure, a rotation or a reopen); checked as at first if it never opened."""
         try:
-            self._fd = self._open(recover=False)
+            self._fd = self._open(recover=not self._opened)
         except OSError:
             return False
+        self._opened = True
         return True
 
     def _reopen_file(self) -> None:
