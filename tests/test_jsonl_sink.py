@@ -273,3 +273,22 @@ def test_any_tail_opens_cleanly_or_is_refused(tmp_path: Path, tail: bytes, recor
     data = path.read_bytes()
     assert data.endswith(b"\n") and json.loads(data.splitlines()[-1])["cycle"] == 1000
     assert stat_module.S_ISREG(path.stat().st_mode)
+
+
+def test_sighup_makes_the_agents_jsonl_output_reopen(tmp_path: Path) -> None:
+    """`edge-monitor run` installs the handler: SIGHUP asks every JSONL output to reopen its path."""
+    from edge_monitor.commands.run import install_reopen_on_hangup
+
+    sink = JsonlSink(tmp_path / "s.jsonl")
+    app = type("App", (), {"sinks": [sink]})()
+    previous = signal.getsignal(signal.SIGHUP)
+    try:
+        install_reopen_on_hangup(app)
+        os.replace(tmp_path / "s.jsonl", tmp_path / "s.jsonl.1")      # logrotate: rename, then signal
+        os.kill(os.getpid(), signal.SIGHUP)
+        sink.on_symptom(symptom(0, 0))
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+        sink.close()
+    assert sink.reopens == 1 and [r["cycle"] for r in lines(tmp_path / "s.jsonl")] == [0]
+    assert (tmp_path / "s.jsonl.1").read_bytes() == b""
