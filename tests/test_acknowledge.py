@@ -225,14 +225,17 @@ def test_random_json_objects_are_parsed_or_refused_with_a_message(data):
     assert parse_request(request.to_payload()) == request            # what the CLI puts parses the same
 
 
+class Sample:
+    """A Zenoh sample as the gate reads it (duck typing)."""
+
+    def __init__(self, key: str, payload: bytes) -> None:
+        self.key_expr, self.payload, self.attachment, self.source_info = key, payload, None, None
+
+
 def test_the_acknowledge_gate_refuses_a_bad_payload_without_spending_the_rate_limit(caplog):
     gate = ControlGate("r1", "acknowledge", allow=True, max_per_joint=1, parse=parse_request)
     applied: list[tuple[int, AcknowledgeRequest]] = []
     callback = gate.callback(lambda joint, request: applied.append((joint, request)))
-
-    class Sample:
-        def __init__(self, key: str, payload: bytes) -> None:
-            self.key_expr, self.payload, self.attachment, self.source_info = key, payload, None, None
 
     with caplog.at_level(logging.WARNING, logger="edge_monitor.sinks.acknowledge"):
         for key, payload in (("edge/r1/2/acknowledge", b'{"quantities": ["gearbox"]}'),
@@ -262,10 +265,6 @@ def test_the_acknowledge_gate_refuses_joints_the_agent_does_not_monitor_and_give
     def acknowledge(joint: int, request: AcknowledgeRequest) -> None:
         agent.acknowledge(joint, request.quantities, by=request.by)
         acknowledged.append(joint)
-
-    class Sample:
-        def __init__(self, key: str, payload: bytes) -> None:
-            self.key_expr, self.payload, self.attachment, self.source_info = key, payload, None, None
 
     callback = gate.callback(acknowledge)
     with caplog.at_level(logging.WARNING, logger="edge_monitor.sinks.acknowledge"):
