@@ -68,7 +68,8 @@ def _jsonl(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) ->
     if not outputs.jsonl:
         return None
     from edge_monitor.sinks.jsonl import JsonlSink
-    return JsonlSink(outputs.jsonl, include_alarms=True)     # alarm raised/cleared events too ("kind": "alarm")
+    # alarm raised/cleared events too ("kind": "alarm"); strict: a failed write is counted (sink_errors)
+    return JsonlSink(outputs.jsonl, include_alarms=True, rotation=config.jsonl_rotation(), strict=True)
 
 
 def _zenoh(config: AgentConfig, outputs: Outputs, app: App, stack: ExitStack) -> Sink | None:
@@ -114,7 +115,8 @@ def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: St
               live: bool = False, source: Any = None) -> App:
     """The agent and every sink ``outputs`` asks for. Opening failures raise
     :class:`~edge_monitor.sinks.zenoh_session.ZenohSetupError` or
-    :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix.
+    :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix, or
+    :class:`~edge_monitor.sinks.jsonl.JsonlOpenError` (an ``OSError``: the JSONL file cannot be used).
     ``live``: detectors calibrate their thresholds in a worker process, so frames keep flowing
     (replay calibrates inline: deterministic). ``source``: a foreign sample source (pipeline.sources);
     None: our frames."""

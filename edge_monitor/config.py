@@ -20,6 +20,7 @@ from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
+from edge_monitor.files import NotARegularFile, read_regular
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
@@ -134,21 +135,33 @@ _TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
 EXAMPLE_CONFIG = Path(__file__).resolve().parent / "defaults" / "agent.toml"
 
 
+#: Largest config file read [bytes]: the shipped example is ≈ 8 kB.
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def load_config(path: str | Path | None) -> AgentConfig:
-    """Load a TOML config file; ``None`` gives the embedded defaults."""
+    """Load a TOML config file; ``None`` gives the embedded defaults. Only a regular file of at most
+    :data:`MAX_CONFIG_BYTES` is read (a FIFO or a device never blocks or floods memory); tables nested
+    too deeply for the parser are a :class:`ConfigError` like any other invalid TOML."""
     if path is None:
         return AgentConfig()
     p = Path(path)
+    fix = "pass a readable UTF-8 TOML file (example: edge_monitor/defaults/agent.toml)"
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        text = read_regular(p, MAX_CONFIG_BYTES).decode("utf-8")
+        data = tomllib.loads(text)
     except FileNotFoundError:
         raise ConfigError(f"config file {p} not found; pass an existing TOML file "
                           f"(the example with every key: {EXAMPLE_CONFIG})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {p}: invalid TOML: {exc}") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except NotARegularFile as exc:
+        raise ConfigError(f"config file {p}: {exc.reason}; {fix}") from None
+    except RecursionError:
+        raise ConfigError(f"config file {p}: invalid TOML: tables or arrays nested too deeply; {fix}") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"config file {p}: cannot read it ({getattr(exc, 'strerror', None) or exc}); "
-                          "pass a readable UTF-8 TOML file") from None
+                          f"{fix}") from None
     return config_from_mapping(data)
 
 

@@ -13,6 +13,10 @@ class ConfigError(ValueError):
     field (``section.key``) and what is expected."""
 
 
+class UnknownJointError(ValueError):
+    """A request names a joint the agent does not monitor (not configured, or nothing learned for it)."""
+
+
 class StateError(ValueError):
     """A saved state cannot be used (unreadable, wrong version, another robot, out of bounds)."""
 

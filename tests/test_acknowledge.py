@@ -3,6 +3,7 @@ restart) and the request payload (validated, size-capped; never a traceback)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 
@@ -26,6 +27,7 @@ from edge_monitor.sinks.acknowledge import (
 )
 from edge_monitor.sinks.control_gate import ControlGate
 from edge_monitor.sinks.maintenance import MaintenanceConfig
+from protocol.frames import MAX_JOINTS
 
 from synthetic_frames import make_frames
 
@@ -223,14 +225,17 @@ def test_random_json_objects_are_parsed_or_refused_with_a_message(data):
     assert parse_request(request.to_payload()) == request            # what the CLI puts parses the same
 
 
+class Sample:
+    """A Zenoh sample as the gate reads it (duck typing)."""
+
+    def __init__(self, key: str, payload: bytes) -> None:
+        self.key_expr, self.payload, self.attachment, self.source_info = key, payload, None, None
+
+
 def test_the_acknowledge_gate_refuses_a_bad_payload_without_spending_the_rate_limit(caplog):
     gate = ControlGate("r1", "acknowledge", allow=True, max_per_joint=1, parse=parse_request)
     applied: list[tuple[int, AcknowledgeRequest]] = []
     callback = gate.callback(lambda joint, request: applied.append((joint, request)))
-
-    class Sample:
-        def __init__(self, key: str, payload: bytes) -> None:
-            self.key_expr, self.payload, self.attachment, self.source_info = key, payload, None, None
 
     with caplog.at_level(logging.WARNING, logger="edge_monitor.sinks.acknowledge"):
         for key, payload in (("edge/r1/2/acknowledge", b'{"quantities": ["gearbox"]}'),
@@ -240,11 +245,42 @@ def test_the_acknowledge_gate_refuses_a_bad_payload_without_spending_the_rate_li
             callback(Sample(key, payload))
     assert applied == [(2, AcknowledgeRequest(("wear",), "alice"))]
     assert gate.stats() == {"acknowledge_accepted": 1, "acknowledge_refused_disabled": 0,
-                            "acknowledge_refused_bad_key": 2, "acknowledge_refused_bad_payload": 1,
-                            "acknowledge_refused_rate_limited": 1}
+                            "acknowledge_refused_bad_key": 2, "acknowledge_refused_unknown_joint": 0,
+                            "acknowledge_refused_bad_payload": 1, "acknowledge_refused_rate_limited": 1}
     lines = [r.getMessage() for r in caplog.records]
     assert any("acknowledgement refused for joint 2 (quantities: unknown 'gearbox'" in line for line in lines)
     assert any(line.startswith("acknowledgement ACCEPTED for joint 2") for line in lines)
+
+
+def test_the_acknowledge_gate_refuses_joints_the_agent_does_not_monitor_and_gives_back_the_rate_limit(caplog):
+    """Joint 64 (beyond MAX_JOINTS) is refused at the gate; joint 3, which the agent has not learned, and a
+    quantity joint 0 does not watch are refused after all (the agent's ValueError): neither counts as
+    accepted nor uses up the joint's rate limit, so the operator's corrected request still gets through."""
+    config = small_config()
+    agent = Agent(dataclasses.replace(config, decision=dataclasses.replace(config.decision, quantities=("wear",))))
+    feed_frames(agent, make_frames(6, joints=(0,), seed=9))
+    gate = ControlGate("r1", "acknowledge", allow=True, max_per_joint=1, parse=parse_request)
+    acknowledged: list[int] = []
+
+    def acknowledge(joint: int, request: AcknowledgeRequest) -> None:
+        agent.acknowledge(joint, request.quantities, by=request.by)
+        acknowledged.append(joint)
+
+    callback = gate.callback(acknowledge)
+    with caplog.at_level(logging.WARNING, logger="edge_monitor.sinks.acknowledge"):
+        for key, payload in (("edge/r1/64/acknowledge", b""), ("edge/r1/3/acknowledge", b""),
+                             ("edge/r1/3/acknowledge", b""), ("edge/r1/0/acknowledge", b'{"quantities": ["kl_raw"]}'),
+                             ("edge/r1/0/acknowledge", b'{"quantities": ["wear"]}')):
+            callback(Sample(key, payload))
+    assert acknowledged == [0]
+    assert gate.stats() == {"acknowledge_accepted": 1, "acknowledge_refused_disabled": 0,
+                            "acknowledge_refused_bad_key": 0, "acknowledge_refused_unknown_joint": 3,
+                            "acknowledge_refused_bad_payload": 1, "acknowledge_refused_rate_limited": 0}
+    lines = [r.getMessage() for r in caplog.records]
+    assert any(f"joint 64: this robot has joints 0 … {MAX_JOINTS - 1}" in line for line in lines)
+    assert any("'edge/r1/3/acknowledge' refused after all (joint 3: nothing learned yet" in line for line in lines)
+    assert any("'edge/r1/0/acknowledge' refused after all (joint 0: quantity 'kl_raw' is not watched" in line
+               for line in lines)
 
 
 def test_remote_acknowledgements_are_off_by_default_and_configured_in_their_own_table(tmp_path):

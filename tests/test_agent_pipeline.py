@@ -4,6 +4,7 @@ without status frames, and persistence across a restart."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from datetime import datetime, timezone
 
 import numpy as np
@@ -247,32 +248,99 @@ def test_the_last_cycle_is_partial_when_the_stream_stops_inside_it(frames):
 
 def test_a_controller_restart_is_seen_by_its_tick_even_when_the_cycle_number_looks_like_progress():
     """Restart near the counter's wrap (64600 → 0 is 936 steps 'forward') or into the same cycle number:
-    the controller tick going backward tells."""
-    from edge_monitor.pipeline.ingest import Ingest
+    the controller tick going backward tells, once the next status frames continue the new tick."""
+    from edge_monitor.pipeline.cycle_numbering import CONFIRMATIONS, CycleNumbering
 
     for before, after in ((64_600, 0), (5, 5)):
-        ingest = Ingest()
-        assert ingest._update_cycle(before, 3, {}, tick_raw=900_000) == before
-        assert ingest._update_cycle(after, 0, {}, tick_raw=10) == before + 1     # restart: numbering goes on
-        assert ingest._restarted_into == {before + 1}
-    ingest = Ingest()                                  # ordinary progress: no restart
-    ingest._update_cycle(7, 5, {}, tick_raw=1000)
-    assert ingest._update_cycle(8, 0, {}, tick_raw=9000) == 8 and not ingest._restarted_into
+        numbering = CycleNumbering()
+        assert numbering.update(before, 3, 900_000, {}) == before
+        pending = [numbering.update(after, 0, 10 + 10 * k, {}) for k in range(CONFIRMATIONS)]
+        assert pending == [None] * CONFIRMATIONS                  # not yet confirmed
+        assert numbering.update(after, 0, 10 + 10 * CONFIRMATIONS, {}) == before + 1   # numbering goes on
+        assert numbering.restarted and numbering.taken_back == CONFIRMATIONS and numbering.restarts == 1
+    numbering = CycleNumbering()                      # ordinary progress: no restart
+    numbering.update(7, 5, 1000, {})
+    assert numbering.update(8, 0, 1010, {}) == 8 and not numbering.restarted and numbering.jumps == 0
 
 
-def _numbers_close(a, b, rel: float = 1e-7, atol: float = 1e-12) -> bool:
+def _numbers_close(a, b, rel: float = 1e-7, atol: float = 1e-12, spread=None) -> bool:
     """Equal records, floats to within ``rel`` or, near zero (density grids), ``atol``: the summation
-    order differs with the block size."""
+    order differs with the block size. ``spread`` (a record of the same shape, or None) adds to each
+    float's tolerance how far that number moves when the wear optimiser's answer moves within its own
+    convergence tolerance (see ``_optimiser_slack``)."""
     if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_numbers_close(a[k], b[k], rel, atol) for k in a)
+        return a.keys() == b.keys() and all(
+            _numbers_close(a[k], b[k], rel, atol, spread.get(k) if isinstance(spread, dict) else None) for k in a)
     if isinstance(a, list) and isinstance(b, list):
-        return len(a) == len(b) and all(_numbers_close(x, y, rel, atol) for x, y in zip(a, b))
+        spreads = spread if isinstance(spread, list) and len(spread) == len(a) else [None] * len(a)
+        return len(a) == len(b) and all(_numbers_close(x, y, rel, atol, s) for x, y, s in zip(a, b, spreads))
     if isinstance(a, float) and isinstance(b, float):
-        return a == b or abs(a - b) <= rel * max(abs(a), abs(b)) + atol
+        slack = spread if isinstance(spread, float) else 0.0
+        return a == b or abs(a - b) <= rel * max(abs(a), abs(b)) + atol + slack
     return a == b
 
 
+def _add_difference(total, a, b):
+    """``total`` (a record of the same shape, floats or None) plus |a − b| field by field."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        total = total if isinstance(total, dict) else {}
+        return {k: _add_difference(total.get(k), a[k], b.get(k)) for k in a}
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        total = total if isinstance(total, list) and len(total) == len(a) else [None] * len(a)
+        return [_add_difference(t, x, y) for t, x, y in zip(total, a, b)]
+    if isinstance(a, float) and isinstance(b, float):
+        return (total if isinstance(total, float) else 0.0) + abs(a - b)
+    return total
+
+
+def _nudged_wear_optimiser(monkeypatch, which: int, calls: list[float]):
+    """Replace the wear estimator's bounded Brent search by one whose ``which``-th answer (counted
+    from 0 in ``calls``) is moved by the distance scipy promises it to be within of the optimum,
+    |x − x*| ≤ 2·(√ε·|x| + xatol/3) with the xatol the estimator itself passes: what a CPU with
+    other rounding may return."""
+    import edge_monitor.features.wear_estimation as wear_estimation
+
+    brent = wear_estimation.minimize_scalar
+
+    def nudged(*args, **kwargs):
+        fit = brent(*args, **kwargs)
+        xatol = kwargs.get("options", {}).get("xatol", 1e-5)        # scipy's default when none is given
+        bound = 2.0 * (math.sqrt(np.finfo(float).eps) * abs(float(fit.x)) + xatol / 3.0)
+        if len(calls) == which:
+            fit.x = float(fit.x) + bound
+        calls.append(bound)
+        return fit
+
+    monkeypatch.setattr(wear_estimation, "minimize_scalar", nudged)
+
+
 _SAMPLE_LEVEL: dict[tuple, list[dict]] = {}     # the reference runs, once per segmentation mode
+_SLACK: dict[tuple, list[dict]] = {}            # how far they may move within the optimiser's tolerance
+
+
+def _optimiser_slack(symptoms, monkeypatch) -> list[dict]:
+    """First-order bound, field by field, on how far the records move when every wear optimiser
+    answer moves anywhere within its tolerance: Σᵢ |record(answer i nudged) − record|, doubled (the
+    reference and the run compared with it may each land anywhere)."""
+    base, slack, which, n_calls = symptoms(2500, 512), None, 0, 1
+    while which < n_calls:
+        calls: list[float] = []
+        with monkeypatch.context() as nudging:
+            _nudged_wear_optimiser(nudging, which, calls)
+            nudged = symptoms(2500, 512)
+        n_calls, which = len(calls), which + 1
+        assert n_calls, "the wear estimator no longer calls minimize_scalar: derive the tolerance anew"
+        slack = [_add_difference(s, a, b) for s, a, b in zip(slack or [None] * len(base), base, nudged)]
+    return [_scaled(s, 2.0) for s in slack or []]
+
+
+def _scaled(record, factor: float):
+    """``record`` with every float multiplied by ``factor``."""
+    if isinstance(record, dict):
+        return {k: _scaled(v, factor) for k, v in record.items()}
+    if isinstance(record, list):
+        return [_scaled(v, factor) for v in record]
+    return record * factor if isinstance(record, float) else record
 
 
 @pytest.mark.parametrize("speeds", [SPEEDS, ()], ids=["configured speeds", "levels from segment codes"])
@@ -281,7 +349,14 @@ def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, bl
     """Live, a block is whatever arrived in ``LiveSource.batch_s``; a joint gathers samples into
     batches before its sample-level work (joint_monitor.SAMPLE_BATCH). The symptoms, learning and
     monitoring cycles alike, equal those of a sample-level pass over blocks of 7 frames without that
-    gathering, in both segmentation modes (the shipped default is levels from segment codes)."""
+    gathering, in both segmentation modes (the shipped default is levels from segment codes).
+
+    "Equal" is to rounding, plus what the wear estimator promises: its bounded Brent search stops
+    within a tolerance, and another summation order (another block size, another CPU's SIMD) may land
+    anywhere inside it (0.35 µ-wear on one Xeon: 3e-7 relative). So each number may also differ by
+    its first-order movement when the optimiser's answers move within that tolerance (the wear
+    estimate, the temperature at it and the KL quantities compensated with that temperature move;
+    the friction curve and the rest do not)."""
     import edge_monitor.pipeline.joint_monitor as joint_monitor
 
     def symptoms(size, batch):
@@ -291,11 +366,15 @@ def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, bl
 
     if speeds not in _SAMPLE_LEVEL:
         _SAMPLE_LEVEL[speeds] = symptoms(7, 1)
+        _SLACK[speeds] = _optimiser_slack(symptoms, monkeypatch)
     reference, grouped = _SAMPLE_LEVEL[speeds], symptoms(block, 512)
-    assert len(reference) == len(grouped) == 8
+    assert len(reference) == len(grouped) == len(_SLACK[speeds]) == 8
     assert {s["decisions"]["wear"]["state"] for s in reference} == {"learning", "monitoring"}
-    for a, b in zip(reference, grouped):
-        assert _numbers_close(a, b), (a["joint"], a["cycle"])
+    for a, b, slack in zip(reference, grouped, _SLACK[speeds]):
+        assert _numbers_close(a, b, spread=slack), (a["joint"], a["cycle"])
+    # The slack is the optimiser's, not a blanket: the wear estimate gets ≈ 4·xatol/3, the friction none.
+    assert 0 < max(s["wear"]["estimate"] for s in _SLACK[speeds]) < 1e-5
+    assert all(s["friction"]["torque"] == [0.0] * len(s["friction"]["torque"]) for s in _SLACK[speeds])
 
 
 def test_a_stream_that_stops_inside_a_cycle_keeps_its_gathered_samples(frames, monkeypatch):

@@ -203,20 +203,26 @@ def test_ctrl_c_during_sim_record_exits_130(tmp_path):
 
 
 def test_ctrl_c_during_edge_replay_exits_130(tmp_path):
-    fifo = tmp_path / "live.log"
-    os.mkfifo(fifo)
-    proc = subprocess.Popen([EDGE, "replay", str(fifo)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env_without_can())
+    """replay reads only regular files (a FIFO would block it): a long recording, interrupted once the
+    agent has seen its first joint (its INFO line with -v)."""
+    log = tmp_path / "long.blf"
+    subprocess.run([SIM, "record", "--out", str(log), "--joints", "1", "--cycles", "60"], check=True,
+                   capture_output=True, env=env_without_can(), timeout=600)
+    proc = subprocess.Popen([EDGE, "-v", "replay", str(log)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env_without_can())
     try:
-        with open(fifo, "w") as writer:       # returns once replay has opened the log: it waits for lines
-            writer.write("(0.000000) can0 123#0000000000000000\n")
-            writer.flush()
-            proc.send_signal(signal.SIGINT)
-            _, err = proc.communicate(timeout=120)
+        seen = []
+        for line in proc.stderr:               # at work: the first frames reached the agent
+            seen.append(line)
+            if "monitoring started" in line:
+                break
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 130, err
+    err = "".join(seen) + err
+    assert proc.returncode == 130, err[-3000:]
     assert "edge-monitor replay: interrupted" in err and "Traceback" not in err
 
 

@@ -68,3 +68,18 @@ def test_any_text_as_a_config_file_loads_or_is_refused(tmp_path, text):
         load_config(path)
     except ConfigError as exc:
         assert str(path) in str(exc) or ":" in str(exc)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(depth=st.integers(1, 6000), kind=st.sampled_from(["array", "table", "dotted"]))
+def test_a_config_nested_to_any_depth_loads_or_is_a_config_error(tmp_path, depth, kind):
+    """5,000 levels was a RecursionError (exit 1, not a configuration error)."""
+    import hostile_files
+    text = ("[" + ".".join(["a"] * depth) + "]\nb = 1\n" if kind == "dotted"
+            else hostile_files.deep_toml(depth, kind))
+    path = tmp_path / "deep.toml"
+    path.write_text(text)
+    try:
+        load_config(path)
+    except ConfigError as exc:
+        assert "\n" not in str(exc)

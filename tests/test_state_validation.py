@@ -7,6 +7,8 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +73,8 @@ WHOLE_FILE_ATTACKS = {
     "joint outside 0 … 63": lambda s: json.dumps({**s, "joints": {"99": {}}}),
     "nesting 100 000 deep": lambda s: _nested(100_000),
     "a list of 10⁶ numbers": lambda s: json.dumps({**s, "extra": [0] * 1_000_000}),
+    "a 5,000-digit integer": lambda s: json.dumps(s).replace('"last_emitted": {', '"last_emitted": {"9": '
+                                                              + "9" * 5000 + ", ", 1),    # stopped the agent
 }
 
 
@@ -222,3 +226,52 @@ def test_two_rejections_in_one_second_keep_both_files(tmp_path):
         (tmp_path / STATE_FILE).write_text(text)
         assert StateStore(tmp_path).load() is None
     assert sorted(p.read_text() for p in tmp_path.glob(f"{STATE_FILE}.rejected-*")) == ["first", "second"]
+
+
+# -- issue 28: a state path that lies ------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["symlink to /dev/zero", "symlink to /dev/urandom", "FIFO", "700 MB sparse file",
+                                  "directory"])
+def test_a_state_path_that_is_no_regular_file_or_too_large_is_moved_aside_unread(tmp_path, kind):
+    """A symlink to /dev/zero or /dev/urandom, or a 700 MB file, took more than 1.5 GB; a FIFO blocked
+    forever. Now each is moved aside after one fstat, and the agent learns afresh."""
+    path = tmp_path / STATE_FILE
+    if kind.startswith("symlink"):
+        path.symlink_to(kind.split()[-1])
+    elif kind == "FIFO":
+        os.mkfifo(path)
+    elif kind == "directory":
+        path.mkdir()
+    else:
+        with open(path, "wb") as fh:
+            fh.truncate(700 << 20)
+    tracemalloc.start()
+    store = StateStore(tmp_path)
+    assert store.load() is None
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert store.rejected == 1 and peak < 8 << 20
+    assert not os.path.lexists(path) and len(list(tmp_path.glob(f"{STATE_FILE}.rejected-*"))) == 1
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_any_bytes_in_the_state_file_leave_an_agent_that_starts(saved, tmp_path_factory, data):
+    """Byte-level fuzz of a real state file (bytes replaced, cut, inserted): the agent starts, with the
+    state or without it (moved aside and counted) — never an exception."""
+    raw = bytearray(json.dumps(saved).encode())
+    for _ in range(data.draw(st.integers(1, 6))):
+        at = data.draw(st.integers(0, len(raw) - 1))
+        action = data.draw(st.sampled_from(["replace", "cut", "insert"]))
+        if action == "replace":
+            raw[at] = data.draw(st.integers(0, 255))
+        elif action == "cut":
+            del raw[at:at + data.draw(st.integers(1, 200))]
+        else:
+            raw[at:at] = data.draw(st.sampled_from([b"9" * 40, b"[", b"{", b"NaN", b"\xff", b"1e400", b'"', b"\\"]))
+    folder = tmp_path_factory.mktemp("bytes")
+    (folder / STATE_FILE).write_bytes(bytes(raw))
+    agent = Agent(small_config(), state_store=StateStore(folder))
+    assert agent.stats.states_rejected in (0, 1)
+    assert agent.health().counters["states_rejected"] == agent.stats.states_rejected
+    agent.close()                      # and it saves a state it can read again
+    assert StateStore(folder).load() is not None

@@ -282,7 +282,8 @@ def test_gate_on_the_agent_refuses_what_the_acl_lets_through(pki, router, sessio
             assert wait_until(lambda: {"wildcard", "first", "second"} <= set(inbox.payloads()), WAIT_S)
         assert inbox.declared == [1]
         assert gate.stats() == {"maintenance_accepted": 1, "maintenance_refused_disabled": 0,
-                                "maintenance_refused_bad_key": 1, "maintenance_refused_rate_limited": 1}
+                                "maintenance_refused_bad_key": 1, "maintenance_refused_unknown_joint": 0,
+                                "maintenance_refused_rate_limited": 1}
         accepted = [r.getMessage() for r in caplog.records if "ACCEPTED" in r.getMessage()]
         assert len(accepted) == 1 and "payload='first'" in accepted[0] and "operator=alice" in accepted[0]
     finally:
@@ -544,7 +545,15 @@ def test_gate_rate_limit_per_joint_and_sliding_window():
     clock.t += 1.0
     assert [gate.decide(key(1)).accepted for _ in range(3)] == [True, True, False]
     assert gate.stats() == {"maintenance_accepted": 5, "maintenance_refused_disabled": 0,
-                            "maintenance_refused_bad_key": 0, "maintenance_refused_rate_limited": 3}
+                            "maintenance_refused_bad_key": 0, "maintenance_refused_unknown_joint": 0,
+                            "maintenance_refused_rate_limited": 3}
+
+
+def test_gate_refuses_joints_the_robot_cannot_have():
+    """Joints 64 and 999 (beyond MAX_JOINTS): refused at the gate and counted, never accepted."""
+    gate, _ = make_gate(allow=True, max_per_joint=1)
+    assert [gate.decide(f"edge/r1/{j}/maintenance").reason for j in (64, 999)] == ["unknown_joint"] * 2
+    assert gate.stats()["maintenance_refused_unknown_joint"] == 2 and gate.stats()["maintenance_accepted"] == 0
 
 
 @pytest.mark.parametrize("key", ["edge/*/1/maintenance", "edge/**/maintenance", "edge/r1/*/maintenance",
@@ -582,12 +591,17 @@ def test_gate_callback_declares_accepted_joints_and_never_raises(caplog):
         declared.append(joint)
 
     callback = gate.callback(declare)
-    with caplog.at_level(logging.ERROR, logger="test.gate"):
-        for key in ("edge/r1/3/maintenance", "edge/r1/3/maintenance", "edge/r1/5/maintenance", "edge/r2/3/maintenance"):
+    with caplog.at_level(logging.WARNING, logger="test.gate"):
+        for key in ("edge/r1/3/maintenance", "edge/r1/3/maintenance", "edge/r1/5/maintenance", "edge/r2/3/maintenance",
+                    "edge/r1/5/maintenance"):
             callback(FakeSample(key, b""))
     assert declared == [3]
     assert any("edge/r1/5/maintenance" in r.getMessage() and "nothing learned" in r.getMessage()
-               for r in caplog.records if r.levelno == logging.ERROR)
+               for r in caplog.records if r.levelno == logging.WARNING)
+    # a joint the agent does not monitor is refused after all: not accepted, its rate limit not used up
+    assert gate.stats() == {"maintenance_accepted": 1, "maintenance_refused_disabled": 0,
+                            "maintenance_refused_bad_key": 1, "maintenance_refused_unknown_joint": 2,
+                            "maintenance_refused_rate_limited": 1}
     assert describe_source(FakeSample("k", b"")) == "unknown"
 
 

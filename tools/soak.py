@@ -49,6 +49,7 @@ from soak_report import (  # noqa: E402
     read_symptom_lines,
     resource_report,
     symptom_report,
+    write_samples,
 )
 
 from edge_monitor.sinks.keys import HEALTH, agent_key  # noqa: E402
@@ -90,6 +91,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="seconds an agent or router stays dead, or the bus silent (default 2)")
     ap.add_argument("--sample-interval", type=float, default=2.0, help="seconds between RSS/CPU samples")
     ap.add_argument("--warmup", type=float, default=10.0, help="seconds of each agent life left out of the RSS slope")
+    ap.add_argument("--slope-last", type=float, default=3600.0,
+                    help="also the RSS slope over the last this many seconds, for runs at least twice as long "
+                         "(default 3600: the last hour of a 2-hour run)")
     ap.add_argument("--keep", metavar="DIR", help="keep logs, truth, JSONL and state here (default: a temp dir)")
     ap.add_argument("-v", "--verbose", action="store_true")
     return ap.parse_args(argv)
@@ -427,6 +431,7 @@ class Soak:
         if now - self._last_status >= STATUS_EVERY_S:
             self._last_status = now
             log.info(self.status_line())
+            write_samples(self.lives, self.work / "resources.csv")     # so far: an interrupted soak leaves it
 
     def sample(self, force: bool = False) -> None:
         now = time.monotonic()
@@ -504,7 +509,8 @@ class Soak:
         out: dict[str, Any] = {"link": self.link_text, "duration_s": round(wall, 1)}
         out.update(frame_report(self.ledger, self.lives, self.sims))
         out.update(fault_report(self.ledger, self.lives, self.sims))
-        out.update(resource_report(self.lives, wall, self.args.warmup))
+        out.update(resource_report(self.lives, wall, self.args.warmup, self.args.slope_last))
+        write_samples(self.lives, self.work / "resources.csv")
         out.update(symptom_report(self.ledger, self.lives, self.sims, self.args.joints,
                                   self.work / "symptoms.jsonl", self.work / "received.jsonl", ROBOT))
         out["restarts"] = {**self.counts.restarts, "total": sum(self.counts.restarts.values())}
@@ -531,7 +537,7 @@ def _interrupt(_signum: int, _frame: Any) -> None:
 
 def clear_work(work: Path) -> None:
     """Remove what an earlier soak left in ``work`` (a fresh agent state is part of the rules)."""
-    for pattern in ("*.jsonl", "*.out", "*.log", "*.params.json", "state/*"):
+    for pattern in ("*.jsonl", "*.jsonl.*", "*.out", "*.log", "*.params.json", "resources.csv", "state/*"):
         for path in work.glob(pattern):
             path.unlink()
 

@@ -24,9 +24,8 @@ from typing import Any
 import can
 import numpy as np
 
-from edge_monitor.pipeline.ingest import MAX_CYCLE_STEP
 from protocol.e2e import E2EReceiver, E2EStatus, usable
-from protocol.frames import CYCLE_MODULUS, DecodeErrorKind, FrameKind, decode_block
+from protocol.frames import DecodeErrorKind, FrameKind, decode_block
 
 log = logging.getLogger("soak.link")
 
@@ -189,11 +188,9 @@ class LinkLedger:
             t = switches.get(run)
             if t is None or t.last_status is None or run - 1 not in offsets:
                 continue
-            last = t.last_status[1]
-            before = last + offsets[run - 1]
-            step = (t.key[1] - last) % CYCLE_MODULUS
-            after = before + (step if 0 < step <= MAX_CYCLE_STEP else 0 if step == 0 else 1)
-            offsets[run] = after - t.key[1]
+            # a new simulator process starts its tick at 0: the agent sees the tick go back, a controller
+            # restart, and numbers on from the last cycle + 1 (edge_monitor.pipeline.cycle_numbering)
+            offsets[run] = t.last_status[1] + offsets[run - 1] + 1 - t.key[1]
         return offsets
 
     def current(self) -> Key | None:

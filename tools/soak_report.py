@@ -183,19 +183,38 @@ def _time_mismatches(records: dict[tuple[int, int], dict], origin: dict[tuple[in
     return bad
 
 
-def resource_report(lives: list[LifeRecord], wall_s: float, warmup_s: float) -> dict[str, Any]:
+def resource_report(lives: list[LifeRecord], wall_s: float, warmup_s: float,
+                    last_s: float = 3600.0) -> dict[str, Any]:
     """RSS at start and end, its slope (least squares within each agent life after ``warmup_s``, lives
-    pooled: restarts do not count as growth), CPU of the agent's process groups over the wall time."""
+    pooled: restarts do not count as growth) over the whole run and over its last ``last_s`` seconds
+    (when the run is at least twice that long: the caches have filled by then), CPU of the agent's
+    process groups over the wall time."""
     kept = [[s for s in life.samples if s.t - life.started >= warmup_s] for life in lives]
     flat = [s for group in kept for s in group]
     every = [s for life in lives for s in life.samples]
     cpu = sum(life.samples[-1].cpu_s for life in lives if life.samples)
     slope = _pooled_slope(kept)
-    return {"rss_mb_start": round((flat or every)[0].rss_mb, 1) if every else None,
-            "rss_mb_end": round(every[-1].rss_mb, 1) if every else None,
-            "rss_slope_mb_per_hour": None if slope is None else round(slope * 3600.0, 2),
-            "cpu_percent": round(100.0 * cpu / wall_s, 1) if wall_s > 0 else None,
-            "resource_samples": len(every)}
+    out = {"rss_mb_start": round((flat or every)[0].rss_mb, 1) if every else None,
+           "rss_mb_end": round(every[-1].rss_mb, 1) if every else None,
+           "rss_slope_mb_per_hour": None if slope is None else round(slope * 3600.0, 2),
+           "cpu_percent": round(100.0 * cpu / wall_s, 1) if wall_s > 0 else None,
+           "resource_samples": len(every)}
+    if every and every[-1].t - every[0].t >= 2 * last_s:
+        since = every[-1].t - last_s
+        late = _pooled_slope([[s for s in group if s.t >= since] for group in kept])
+        out["rss_slope_last_s"] = last_s
+        out["rss_slope_last_mb_per_hour"] = None if late is None else round(late * 3600.0, 2)
+        out["rss_mb_last_start"] = round(min((s for s in flat if s.t >= since), key=lambda s: s.t).rss_mb, 1)
+    return out
+
+
+def write_samples(lives: list[LifeRecord], path: Path) -> None:
+    """The RSS/CPU samples as CSV: wall time, seconds since the first sample, agent life, RSS [MB], CPU [s]."""
+    every = [(life.index, s) for life in lives for s in life.samples]
+    t0 = every[0][1].t if every else 0.0
+    rows = ["t,elapsed_s,life,rss_mb,cpu_s"] + [f"{s.t:.3f},{s.t - t0:.1f},{i},{s.rss_mb:.2f},{s.cpu_s:.2f}"
+                                                 for i, s in every]
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 def _pooled_slope(groups: list[list[Sample]]) -> float | None:

@@ -13,6 +13,7 @@ from protocol.console import EXIT_FAILURE, EXIT_USAGE
 
 if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
     from edge_monitor.config import AgentConfig
+    from edge_monitor.pipeline.agent import Agent
     from edge_monitor.pipeline.state_store import StateStore
 
 log = logging.getLogger(__name__)
@@ -22,6 +23,11 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", help="agent TOML config (default: embedded defaults)")
     parser.add_argument("--robot", help="robot name used in symptom records and Zenoh keys")
     parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
+    parser.add_argument("--jsonl-max-bytes", type=int, metavar="N",
+                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes; "
+                             "0: never, the default)")
+    parser.add_argument("--jsonl-keep", type=int, metavar="K",
+                        help="rotated JSONL files kept, PATH.1 … PATH.K (config jsonl_keep; default 5)")
     parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")
     parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
     parser.add_argument("--mapping", metavar="MAPPING.toml",
@@ -66,7 +72,9 @@ def load_agent_config(args: argparse.Namespace) -> AgentConfig:
     try:
         cfg = load_config(args.config)
         cfg = with_overrides(cfg, robot=getattr(args, "robot", None), jsonl=getattr(args, "jsonl", None),
-                             state_dir=getattr(args, "state_dir", None))
+                             state_dir=getattr(args, "state_dir", None),
+                             jsonl_max_bytes=getattr(args, "jsonl_max_bytes", None),
+                             jsonl_keep=getattr(args, "jsonl_keep", None))
         if getattr(args, "pf", None) is not None:
             import dataclasses
             cfg = with_overrides(cfg, decision=dataclasses.replace(cfg.decision, pf=args.pf))
@@ -87,6 +95,17 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
     except StateError as exc:
         print(f"edge-monitor: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_FAILURE) from None
+
+
+def output_failures(agent: Agent, store: StateStore | None) -> list[str]:
+    """What the agent could not write (each makes ``run``/``replay`` exit with code 1)."""
+    problems = []
+    if agent.sink_errors():
+        problems.append(f"{agent.sink_errors()} record(s) could not be written to an output (sink_errors; "
+                        "e.g. a full disk under the JSONL file)")
+    if store is not None and store.last_save_error:
+        problems.append(f"the last state save failed ({store.last_save_error}); the previous state file is kept")
+    return problems
 
 
 def print_json(obj: Any) -> None:
@@ -151,10 +170,11 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
         raise SystemExit(EXIT_USAGE) from None
 
 
-def setup_failure(command: str, exc: ValueError) -> int:
+def setup_failure(command: str, exc: Exception) -> int:
     """Report an output that could not be opened; the exit code by the README's rule: 1 when valid
-    options met a runtime failure (unreachable router, occupied port, unwritable recording), else 2."""
+    options met a runtime failure (unreachable router, occupied port, unwritable recording, a JSONL
+    file that cannot be opened: an ``OSError``), else 2."""
     from edge_monitor.sinks.rerun_view import RerunUnavailable
     from edge_monitor.sinks.zenoh_session import ZenohUnavailable
     print(f"edge-monitor {command}: {exc}", file=sys.stderr)
-    return EXIT_FAILURE if isinstance(exc, (ZenohUnavailable, RerunUnavailable)) else EXIT_USAGE
+    return EXIT_FAILURE if isinstance(exc, (OSError, ZenohUnavailable, RerunUnavailable)) else EXIT_USAGE

@@ -33,6 +33,7 @@ from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
 from edge_monitor.sinks.base import LastSymptomSink
+from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
 from protocol.console import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, verbosity
@@ -135,6 +136,9 @@ def run(args: argparse.Namespace) -> int:
             app = build_app(cfg, Outputs(jsonl=cfg.jsonl, zenoh=ZenohOptions(mode="peer", listen=[endpoint]),
                                          rerun=spec, rerun_fallback=str(out / "demo.rrd"), maintenance=True),
                             stack, open_state_store(cfg), live=True)
+        except JsonlOpenError as exc:   # the output folder's symptoms.jsonl cannot be used
+            print(f"edge-monitor demo: {exc}", file=sys.stderr)
+            return EXIT_FAILURE
         except ValueError as exc:      # ZenohSetupError, RerunSetupError: say what to fix
             return setup_failure("demo", exc)
         agent = app.agent

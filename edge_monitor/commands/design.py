@@ -36,7 +36,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     return parser
 
 
+#: Most speed levels a design may have (a test cycle holds a few; segment codes allow < 200).
+MAX_POINTS = 100
+
+
 def run(args: argparse.Namespace) -> int:
+    if not 1 <= args.points <= MAX_POINTS:
+        raise UsageError(f"--points {args.points}: give 1 … {MAX_POINTS} speed levels")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: give an integer ≥ 0")
     try:
         result = design_speeds(args.points, temperature=args.temperature, wear=args.wear,
                                load_mean=args.load_mean, load_std=args.load_std, noise_std=args.noise_std,

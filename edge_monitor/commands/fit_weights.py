@@ -9,12 +9,17 @@ the simulator; ``--write-csv`` writes them out).
 
 Output (stdout or ``-o/--out``): JSON ``{"alpha", "beta", "index_weights", "speeds", ...}``; alpha
 and beta go into the agent configuration of the weighted KL channel.
+
+Memory stays bounded whatever the options or files say: a CSV must be a regular file of at most
+:data:`MAX_CSV_BYTES`, and cycles × samples per cycle at most :data:`MAX_CELLS` (--cycles, a sample
+index); options outside their physical range are usage errors (exit code 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.features.disturbance_weights import WeightFitError, fit_index_weights, fit_weight_function
-from joint_model import CRITICAL_WEAR, DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, friction
+from edge_monitor.files import NotARegularFile, require_regular
+from joint_model import CRITICAL_WEAR, DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, WEAR_MAX, friction
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError
+
+#: Largest CSV read [bytes].
+MAX_CSV_BYTES = 512 << 20
+#: Largest cycles × samples-per-cycle matrix [numbers] (128 MiB; the fit holds a few such).
+MAX_CELLS = 1 << 24
 
 
 class CycleDataError(ValueError):
@@ -104,28 +115,41 @@ def read_cycles_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64
     """Read ``cycle,sample,speed,torque`` rows (any column order, header required) into
     (torque [n_cycles, n_samples], speed [n_samples]). Incomplete cycles are skipped with a note."""
     try:
+        require_regular(path)
+        if path.stat().st_size > MAX_CSV_BYTES:
+            raise CycleDataError(f"{path}: larger than {MAX_CSV_BYTES} bytes")
         with open(path) as fh:
-            header = [name.strip() for name in fh.readline().split(",")]
+            header = [name.strip() for name in fh.readline(4096).split(",")]
             missing = {"cycle", "sample", "speed", "torque"} - set(header)
             if missing:
                 raise CycleDataError(f"{path}: missing column(s) {sorted(missing)}; "
                                      "header must name cycle,sample,speed,torque")
             data = np.loadtxt(fh, delimiter=",", ndmin=2)
+    except NotARegularFile as exc:
+        raise CycleDataError(f"{path}: {exc.reason}; give a CSV file") from None
     except OSError as exc:
         raise CycleDataError(f"{path}: cannot read ({exc})") from None
     except ValueError as exc:
         raise CycleDataError(f"{path}: not numeric CSV ({exc})") from None
-    col = {name: data[:, header.index(name)] for name in ("cycle", "sample", "speed", "torque")}
     if data.shape[0] == 0:
         raise CycleDataError(f"{path}: no rows")
+    if data.shape[1] != len(header):
+        raise CycleDataError(f"{path}: rows have {data.shape[1]} cells, the header {len(header)}")
+    col = {name: data[:, header.index(name)] for name in ("cycle", "sample", "speed", "torque")}
     cycles = np.unique(col["cycle"])
-    sample = col["sample"].astype(int)
+    sample = col["sample"]
+    if not (np.all(np.isfinite(sample)) and np.all(sample == np.round(sample)) and sample.min() >= 0):
+        raise CycleDataError(f"{path}: column sample must hold integers ≥ 0 (the index within the cycle)")
     n_samples = int(sample.max()) + 1
+    if cycles.size * n_samples > MAX_CELLS or not np.all(np.isfinite(cycles)):
+        raise CycleDataError(f"{path}: {cycles.size} cycles × {n_samples} samples (sample index up to "
+                             f"{n_samples - 1}) is more than {MAX_CELLS} values; check the sample column")
+    index = sample.astype(np.int64)
     torque = np.full((cycles.size, n_samples), np.nan)
-    torque[np.searchsorted(cycles, col["cycle"]), sample] = col["torque"]
+    torque[np.searchsorted(cycles, col["cycle"]), index] = col["torque"]
     first = col["cycle"] == cycles[0]
     speed = np.full(n_samples, np.nan)
-    speed[sample[first]] = col["speed"][first]
+    speed[index[first]] = col["speed"][first]
     complete = np.all(np.isfinite(torque), axis=1)
     if not complete.all():
         print(f"{path}: skipping {int((~complete).sum())} incomplete cycle(s)", file=sys.stderr)
@@ -176,19 +200,47 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def check_simulation(args: argparse.Namespace) -> None:
+    """Usage errors for --simulate options outside their range (before anything is allocated)."""
+    samples = CycleModel().speed_profile()[0].size
+    if not 2 <= args.cycles <= MAX_CELLS // samples:
+        raise UsageError(f"--cycles {args.cycles}: give 2 … {MAX_CELLS // samples} cycles per class "
+                         f"({samples} samples each)")
+    low, high = args.temperature
+    if not (math.isfinite(low) and math.isfinite(high) and -40.0 <= low < high <= 150.0):
+        raise UsageError(f"--temperature {low:g} {high:g}: give LO < HI within -40 … 150 °C")
+    if args.load is not None and not (all(math.isfinite(x) for x in args.load)
+                                      and -10.0 <= args.load[0] <= args.load[1] <= 10.0):
+        raise UsageError(f"--load {args.load[0]:g} {args.load[1]:g}: give LO ≤ HI within -10 … 10")
+    if not (math.isfinite(args.wear) and 0.0 <= args.wear <= WEAR_MAX):
+        raise UsageError(f"--wear {args.wear:g}: give 0 … {WEAR_MAX:g}")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: give an integer ≥ 0")
+
+
+def _write_csvs(folder: Path, healthy: NDArray[np.float64], faulty: NDArray[np.float64],
+                speed: NDArray[np.float64]) -> None:
+    """healthy.csv and faulty.csv in ``folder`` (made if missing); OSError if it cannot be written."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_cycles_csv(folder / "healthy.csv", healthy, speed)
+    write_cycles_csv(folder / "faulty.csv", faulty, speed)
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         if args.simulate:
-            if args.cycles < 2:
-                raise UsageError("--cycles: need >= 2 cycles per class")
+            check_simulation(args)
             rng = np.random.default_rng(args.seed)
             load = None if args.load is None else (args.load[0], args.load[1])
             healthy, speed, _ = simulate_cycles(args.cycles, 0.0, tuple(args.temperature), rng, gravity=load)
             faulty, _, _ = simulate_cycles(args.cycles, args.wear, tuple(args.temperature), rng, gravity=load)
             if args.write_csv:
-                args.write_csv.mkdir(parents=True, exist_ok=True)
-                write_cycles_csv(args.write_csv / "healthy.csv", healthy, speed)
-                write_cycles_csv(args.write_csv / "faulty.csv", faulty, speed)
+                try:
+                    _write_csvs(args.write_csv, healthy, faulty, speed)
+                except OSError as exc:
+                    print(f"edge-monitor fit-weights: --write-csv: cannot write to {args.write_csv}: "
+                          f"{exc.strerror or exc}", file=sys.stderr)
+                    return EXIT_FAILURE
         else:
             if args.healthy is None or args.faulty is None:
                 raise UsageError("give --healthy and --faulty CSV files, or --simulate")

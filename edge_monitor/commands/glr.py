@@ -4,6 +4,12 @@ Reads a nominal CSV and a test CSV (header row; the columns named by --columns, 
 numeric column, are the dimensions of one observation; text-only columns such as timestamps are
 ignored), fits the nominal density and tests the test rows for a shift of it. Exit code 0 when the
 test ran (alarm or not), 2 on bad input (bad option values also print the usage).
+
+Memory and time stay bounded whatever the files and options ask for: a CSV must be a regular file of
+at most :data:`MAX_CSV_BYTES`; the density fit and every rows × components matrix hold at most
+:data:`MAX_CELLS` numbers; the unknown-change search and the bootstrap do at most :data:`MAX_WORK`
+component evaluations. A request past a limit is a usage error naming the option that brings it
+within (``--window``, fewer rows or draws, ``--density gauss``).
 """
 
 from __future__ import annotations
@@ -17,9 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_monitor.files import NotARegularFile, require_regular
 from edge_monitor.stats.densities import DENSITY_KINDS, fit_density
 from edge_monitor.stats.glr import GLRResult, bootstrap_threshold, check_pf, glr_known_change, glr_unknown_change
 from protocol.console import EXIT_USAGE, UsageError
+
+#: Largest CSV read [bytes].
+MAX_CSV_BYTES = 256 << 20
+#: Largest matrix of rows × mixture components (or nominal rows² for the GCE fit) [numbers]: 256 MiB.
+MAX_CELLS = 1 << 25
+#: Largest number of component evaluations of the unknown-change search or the bootstrap (≈ 1 µs each).
+MAX_WORK = 10 ** 8
+MAX_DRAWS = 1_000_000
 
 
 class CsvInputError(ValueError):
@@ -42,10 +57,17 @@ def read_observations(path: Path, columns: list[str] | None = None) -> tuple[lis
     non-finite cell of a taken column is an error naming the row (1-based line number) and column.
     """
     try:
+        require_regular(path)
+        if path.stat().st_size > MAX_CSV_BYTES:
+            raise CsvInputError(f"{path}: larger than {MAX_CSV_BYTES} bytes; test a shorter span of data")
         with open(path, newline="", encoding="utf-8") as fh:
             rows = list(csv.reader(fh))
+    except NotARegularFile as exc:
+        raise CsvInputError(f"{path}: {exc.reason}; give a CSV file") from None
     except OSError as exc:
         raise CsvInputError(f"{path}: cannot read ({exc.strerror})") from exc
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise CsvInputError(f"{path}: not a UTF-8 CSV file ({exc})") from None
     if not rows:
         raise CsvInputError(f"{path}: empty file; expected a header row and data rows")
     header, body = [h.strip() for h in rows[0]], [r for r in rows[1:] if any(c.strip() for c in r)]
@@ -118,7 +140,36 @@ def _check_options(args: argparse.Namespace) -> float:
         raise UsageError(f"--window {args.window} must be ≥ 1 row")
     if args.threshold == "bootstrap" and args.change_time != "known":
         raise UsageError("--threshold bootstrap is available for --change-time known only")
+    if not 1 <= args.bootstrap_draws <= MAX_DRAWS:
+        raise UsageError(f"--bootstrap-draws {args.bootstrap_draws}: give 1 … {MAX_DRAWS} draws")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: give an integer ≥ 0")
     return pf
+
+
+def check_size(args: argparse.Namespace, n_nominal: int, n_test: int, dim: int, components: int | None) -> None:
+    """UsageError when the test would pass :data:`MAX_CELLS` or :data:`MAX_WORK` (``components``:
+    None before the fit, then a KDE has one per nominal row and a GCE at most that many)."""
+    k = components if components is not None else (1 if args.density == "gauss" else n_nominal)
+    if args.density == "gce" and components is None and n_nominal * n_nominal * dim > MAX_CELLS:
+        raise UsageError(f"--density gce on {n_nominal} nominal rows needs {n_nominal}² × {dim} numbers "
+                         f"(limit {MAX_CELLS}); give fewer nominal rows or --density gauss")
+    if (n_test + n_nominal) * k > MAX_CELLS:
+        raise UsageError(f"--density {args.density}: {n_nominal + n_test} rows × {k} components is more than "
+                         f"{MAX_CELLS} numbers; give fewer rows or --density gauss")
+    if args.change_time == "unknown":
+        starts = min(args.window or n_test, n_test)
+        if starts * n_test * k > MAX_WORK:
+            raise UsageError(f"--change-time unknown over {n_test} rows ({starts} change times × {n_test} rows × "
+                             f"{k} components) is more than {MAX_WORK:g} evaluations; give --window W with "
+                             f"W × {n_test} × {k} ≤ {MAX_WORK:g} or fewer rows"
+                             + ("" if k == 1 else ", or --density gauss"))
+    if args.threshold == "bootstrap":
+        cells = args.bootstrap_draws * (n_test + n_nominal)       # one Gaussian: all draws at once
+        work, limit = (cells, MAX_CELLS) if k == 1 else (cells * k, MAX_WORK)
+        if work > limit:
+            raise UsageError(f"--bootstrap-draws {args.bootstrap_draws} × {n_test + n_nominal} rows × {k} "
+                             f"component(s) is more than {limit:g}; give fewer draws")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,7 +187,9 @@ def run(args: argparse.Namespace) -> int:
         if flat:
             raise ValueError(f"{args.nominal}: nominal column(s) {flat} are constant; a density cannot be "
                              "fitted to constant data (drop the column or record more varied nominal data)")
+        check_size(args, len(nominal), len(test), nominal.shape[1], None)
         density = fit_density(nominal, args.density)
+        check_size(args, len(nominal), len(test), nominal.shape[1], density.n_components)
         threshold = None
         if args.threshold == "bootstrap":
             threshold = bootstrap_threshold(nominal, density, len(test), pf, args.bootstrap_draws, args.seed)

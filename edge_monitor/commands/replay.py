@@ -5,7 +5,9 @@ short is reported and its last cycle is left open (not published; a later replay
 publishes it). Both are in the summary and in ``--json`` under ``"log"``.
 
 Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO line every 5 s (``-v``).
-A log that cannot be found or read exits with code 1."""
+Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device), the
+``--jsonl`` file cannot be opened, or records or the state could not be written (a full disk:
+``sink_errors``, ``state_save_errors``; the statistics are printed first)."""
 
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
+    output_failures,
     print_json,
     setup_failure,
     summary_table,
@@ -33,6 +36,7 @@ from edge_monitor.pipeline.frame_source import FrameArrays
 from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
 from edge_monitor.pipeline.trace_source import TraceError, is_trace_file, replay_trace
 from edge_monitor.sinks.base import LastSymptomSink
+from edge_monitor.sinks.jsonl import JsonlOpenError
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
@@ -85,12 +89,13 @@ def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, ba
 def run(args: argparse.Namespace) -> int:
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     last = LastSymptomSink()
+    store = open_state_store(cfg)
     with ExitStack() as stack:
         try:
             agent = build_app(cfg, Outputs(jsonl=cfg.jsonl, rerun=args.rerun,
                                            rerun_fallback=Path(args.file).with_suffix(".rrd").name),
-                              stack, open_state_store(cfg), source=source).agent
-        except ValueError as exc:           # RerunSetupError: a bad --rerun, an unwritable recording
+                              stack, store, source=source).agent
+        except (ValueError, JsonlOpenError) as exc:   # a bad --rerun, an unwritable recording or JSONL file
             return setup_failure("replay", exc)
         agent.sinks.append(last)
         try:
@@ -119,4 +124,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"log: {report.skipped} unreadable record(s) skipped"
                   + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
                      else ""))
-    return 0
+    problems = output_failures(agent, store)      # after the exit stack: the final state save included
+    for problem in problems:
+        print(f"edge-monitor replay: {problem}", file=sys.stderr)
+    return EXIT_FAILURE if problems else 0

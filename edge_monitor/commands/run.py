@@ -3,9 +3,12 @@
 Receives frames from a CAN link, publishes per-cycle symptoms over Zenoh (and optionally JSONL and
 Rerun), persists learned models in ``--state-dir`` and shuts down cleanly on SIGINT/SIGTERM
 (state saved, Zenoh undeclared, Rerun flushed; exit code 0: the normal end of a monitor that runs
-until stopped). The status line (every ``status_interval_s``) is logged at INFO (``-v``); a final
-line says why it stopped; ``--json`` prints the run summary (the same as replay's, with the reason it
-stopped and the last health record) as one JSON line on standard output.
+until stopped, 1 if records could not be written meanwhile: a full disk under the JSONL file or the
+state, counted in ``sink_errors`` and ``state_save_errors`` while monitoring went on). SIGHUP makes
+the JSONL output reopen its path (logrotate). The status line (every ``status_interval_s``) is
+logged at INFO (``-v``); a final line says why it stopped; ``--json`` prints the run summary (the
+same as replay's, with the reason it stopped and the last health record) as one JSON line on
+standard output.
 """
 
 from __future__ import annotations
@@ -13,24 +16,27 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import signal
 import sys
 import threading
 from contextlib import ExitStack
 
-from edge_monitor.app import Outputs, build_app
+from edge_monitor.app import App, Outputs, build_app
 from edge_monitor.commands.common import (
     add_config_arguments,
     add_zenoh_arguments,
     load_agent_config,
     open_mapped_source,
     open_state_store,
+    output_failures,
     setup_failure,
     zenoh_options,
 )
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
+from edge_monitor.sinks.jsonl import JsonlOpenError
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,
@@ -41,6 +47,9 @@ from protocol.console import (
 )
 
 log = logging.getLogger(__name__)
+
+#: Longest --duration / --idle-stop accepted [s] (about 31 years).
+MAX_SECONDS = 1e9
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -103,10 +112,32 @@ def final_line(runner: LiveRunner, args: argparse.Namespace) -> str:
             f"{h['cycles']} cycles, {h['symptoms']} symptoms, {h['alarms']} alarms")
 
 
+def check_limits(args: argparse.Namespace) -> None:
+    """``--duration``/``--idle-stop`` finite and > 0, ``--max-cycles`` ≥ 1 (else UsageError)."""
+    for name in ("duration", "idle_stop"):
+        value = getattr(args, name)
+        if value is not None and not (math.isfinite(value) and 0 < value <= MAX_SECONDS):
+            raise UsageError(f"--{name.replace('_', '-')} {value}: give a number of seconds in (0, {MAX_SECONDS:g}]")
+    if args.max_cycles is not None and args.max_cycles < 1:
+        raise UsageError(f"--max-cycles {args.max_cycles}: give a number of cycles ≥ 1")
+
+
+def install_reopen_on_hangup(app: App) -> None:
+    """SIGHUP (logrotate's postrotate): the JSONL output reopens its path before its next record."""
+    from edge_monitor.sinks.jsonl import JsonlSink
+    sinks = [s for s in app.sinks if isinstance(s, JsonlSink)]
+    if sinks and hasattr(signal, "SIGHUP") and threading.current_thread() is threading.main_thread():
+        def handler(_signum, _frame):
+            for sink in sinks:
+                sink.request_reopen()
+        signal.signal(signal.SIGHUP, handler)
+
+
 def run(args: argparse.Namespace) -> int:
     from protocol.links import LinkError, LinkUsageError, is_log_file, open_bus
     if args.link and is_log_file(args.link):
         raise UsageError(f"--link {args.link} is a log file; use `edge-monitor replay {args.link}`")
+    check_limits(args)
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     if args.allow_remote_maintenance:
         cfg = dataclasses.replace(cfg, maintenance=dataclasses.replace(cfg.maintenance, remote=True))
@@ -118,9 +149,10 @@ def run(args: argparse.Namespace) -> int:
             outputs = Outputs(jsonl=cfg.jsonl, zenoh=None if args.no_zenoh else zenoh_options(args),
                               rerun=args.rerun or cfg.rerun, rerun_fallback="edge-monitor.rrd", maintenance=True)
             app = build_app(cfg, outputs, stack, store, live=True, source=source)
-        except ValueError as exc:         # ZenohSetupError, RerunSetupError, a bad robot name
-            return setup_failure("run", exc)
+        except (ValueError, JsonlOpenError) as exc:   # ZenohSetupError, RerunSetupError, a bad robot name,
+            return setup_failure("run", exc)          # a JSONL file that cannot be opened
         agent = app.agent
+        install_reopen_on_hangup(app)
         for joint in args.maintenance:
             try:
                 agent.declare_maintenance(joint)
@@ -153,4 +185,7 @@ def run(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
         if verbosity(args) >= 0:
             print(final_line(runner, args), file=sys.stderr, flush=True)
-    return 0
+    problems = output_failures(app.agent, store)       # after the exit stack: the final state save included
+    for problem in problems:
+        print(f"edge-monitor run: {problem}", file=sys.stderr)
+    return EXIT_FAILURE if problems else 0

@@ -26,10 +26,14 @@ from edge_monitor.features.wear_information import crlb_wear, marginal_fisher_we
 from joint_model.friction import (
     DEFAULT_PARAMS,
     FRICTION_NOISE_STD,
+    WEAR_MAX,
     FrictionParams,
     jacobian_temperature_wear,
     load_sensitivity,
 )
+
+#: Highest motor speed a design may use [rad/s] (motors turn at most a few hundred rad/s).
+MAX_SPEED = 10_000.0
 
 
 class DesignError(ValueError):
@@ -128,12 +132,15 @@ def _validate(n_points: int, point: DesignPoint, speed_min: float, speed_max: fl
     for name, value in values.items():
         if not math.isfinite(value):
             raise DesignError(f"{name}: must be finite, got {value!r}")
-    if point.noise_std <= 0:
-        raise DesignError(f"--noise-std: must be > 0, got {point.noise_std}")
-    if point.load_std < 0 or point.wear < 0 or min_separation < 0:
-        raise DesignError("--load-std, --wear and --min-separation must be ≥ 0")
-    if not 0 < speed_min < speed_max:
-        raise DesignError(f"--speed-min/--speed-max: need 0 < min < max, got {speed_min}, {speed_max}")
+    ranges = {"--temperature": (point.temperature, -40.0, 150.0), "--wear": (point.wear, 0.0, WEAR_MAX),
+              "--load-mean": (point.load_mean, 0.0, 10.0), "--load-std": (point.load_std, 0.0, 10.0),
+              "--noise-std": (point.noise_std, 1e-6, 1.0), "--min-separation": (min_separation, 0.0, MAX_SPEED)}
+    for name, (value, low, high) in ranges.items():      # physical ranges: beyond them the model is meaningless
+        if not low <= value <= high:
+            raise DesignError(f"{name}: must be {low:g} … {high:g}, got {value!r}")
+    if not 0 < speed_min < speed_max <= MAX_SPEED:
+        raise DesignError(f"--speed-min/--speed-max: need 0 < min < max ≤ {MAX_SPEED:g} rad/s, "
+                          f"got {speed_min}, {speed_max}")
     if (n_points - 1) * min_separation > speed_max - speed_min:
         raise DesignError(f"--min-separation: {n_points} speeds {min_separation} rad/s apart do not fit in "
                           f"[{speed_min}, {speed_max}]; lower --points or --min-separation")

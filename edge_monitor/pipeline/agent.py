@@ -17,12 +17,12 @@ from typing import Any, Callable, Iterable, Sequence
 
 from numpy.typing import NDArray
 
-from edge_monitor.errors import StateError
+from edge_monitor.errors import StateError, UnknownJointError
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import Acknowledgement
 from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
-from edge_monitor.pipeline.state_store import StateStore
+from edge_monitor.pipeline.state_store import StateSaveError, StateStore
 from edge_monitor.pipeline.state_validation import validate_state
 from edge_monitor.records import Alarm, Health, Symptom, utc_now, utc_text
 from edge_monitor.sinks.base import Sink
@@ -211,6 +211,11 @@ class Agent:
                     self._deliver(on_advisory, advisory)
         return [symptom]
 
+    def sink_errors(self) -> int:
+        """Records a sink failed to take: exceptions caught here plus the sinks' own count of records
+        they could not write (``failures``, e.g. the JSONL file on a full disk)."""
+        return self.stats.sink_errors + sum(int(getattr(sink, "failures", 0)) for sink in self.sinks)
+
     def _deliver(self, fn: Callable[[Any], None], record: Any) -> None:
         try:
             fn(record)
@@ -247,13 +252,14 @@ class Agent:
 
     def _known_monitor(self, joint: int, what: str) -> JointMonitor:
         """The monitor of a joint the agent monitors (seen on the bus or restored from the state) for
-        ``what`` an operator asks; ``ValueError`` naming the fix otherwise."""
+        ``what`` an operator asks; :class:`UnknownJointError` (a ``ValueError``) naming the fix otherwise."""
         joint = int(joint)
         if self.config.joints is not None and joint not in self.config.joints:
-            raise ValueError(f"joint {joint}: not monitored (configured joints: {list(self.config.joints)})")
+            raise UnknownJointError(f"joint {joint}: not monitored "
+                                    f"(configured joints: {list(self.config.joints)})")
         if joint not in self.joints and joint not in self._restored_joint_states:
-            raise ValueError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
-                             f"{what} is only needed for a joint with learned models")
+            raise UnknownJointError(f"joint {joint}: nothing learned yet (not seen on the bus, no saved state); "
+                                    f"{what} is only needed for a joint with learned models")
         return self._monitor(joint)
 
     def declare_maintenance(self, joint: int) -> list[Alarm]:
@@ -317,7 +323,8 @@ class Agent:
             h.update({
                 "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
                 "alarms": len(self.stats.alarms), "advisories": self.stats.advisories,
-                "sink_errors": self.stats.sink_errors,
+                "sink_errors": self.sink_errors(),
+                "state_save_errors": 0 if self.store is None else self.store.save_errors,
                 "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
                 "partial_cycles": self.stats.partial_cycles,
                 "states_rejected": self.stats.states_rejected,
@@ -352,10 +359,20 @@ class Agent:
                     "last_emitted": {str(j): c for j, c in self._last_emitted.items()},
                     "ingest": self.ingest.state_dict(), "joints": joints}
 
-    def save_state(self) -> None:
-        if self.store is not None:
-            with self.lock:            # one snapshot at a time, in order
+    def save_state(self) -> bool:
+        """Persist the state; False (logged, counted in ``state_save_errors``, the previous file kept)
+        when it cannot be written, e.g. on a full disk: monitoring goes on."""
+        if self.store is None:
+            return True
+        with self.lock:            # one snapshot at a time, in order
+            try:
                 self.store.save(self.state_dict())
+            except StateSaveError as exc:
+                if self.store.save_errors in (1, 10, 100) or self.store.save_errors % 1000 == 0:
+                    log.error("%s (failure #%d, logged at 1, 10, 100, every 1000; monitoring goes on)",
+                              exc, self.store.save_errors)
+                return False
+        return True
 
     def _restore(self, state: dict[str, Any] | None) -> None:
         if not state:

@@ -20,6 +20,7 @@ from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.detectors import SCHEDULE_KEYS, DecisionConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
+from edge_monitor.sinks.jsonl import Rotation
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import DEFAULT_PARAMS, FrictionParams
 from protocol.frames import MAX_JOINTS
@@ -55,6 +56,8 @@ class AgentConfig:
     status_interval_s: float = 10.0            # periodic status line / health publication [s]
     state_dir: str | None = None
     jsonl: str | None = None
+    jsonl_max_bytes: int = 0                   # rotate the JSONL file before it passes this size (0: never)
+    jsonl_keep: int = 5                        # rotated JSONL files kept: PATH.1 … PATH.<keep>
     rerun: str = "off"
     zenoh: Mapping[str, Any] = field(default_factory=dict)
 
@@ -80,6 +83,11 @@ class AgentConfig:
                 f"must be 1 … {MAX_BLOCK} frames, got {self.block_size}")
         require(math.isfinite(self.status_interval_s) and 0.1 <= self.status_interval_s <= 86_400,
                 "status_interval_s", f"must be 0.1 … 86400 s, got {self.status_interval_s}")
+        self.jsonl_rotation()           # validates jsonl_max_bytes and jsonl_keep
+
+    def jsonl_rotation(self) -> Rotation:
+        """The JSONL file's rotation settings."""
+        return Rotation(self.jsonl_max_bytes, self.jsonl_keep)
 
     def friction_for(self, joint: int) -> FrictionParams:
         """The friction parameters of ``joint``: its own table if configured, else the common one."""

@@ -14,14 +14,18 @@ arrays of :func:`protocol.frames.messages_to_arrays` directly — the same value
   remote frame (whose ``Message`` has no data).
 
 Anything else (other object types, a padding, another header version, a damaged object) is handed to
-python-can's own parser (``BLFReader._parse_data``) from that object on, so the frames, their order
-and the errors raised on damage are python-can's. The container walk is python-can's ``__iter__``
-(same reads, same errors). Used only while python-can has the private parts used here
-(:func:`supported`); otherwise :mod:`edge_monitor.pipeline.log_source` iterates ``LogReader``.
+python-can's own parser (``BLFReader._parse_data``) from that object on, so the frames and their order
+are python-can's. The container walk is python-can's ``__iter__`` made robust (file hostile, memory
+bounded): a damaged container is skipped and counted and the next one read, a container never
+inflates past :data:`MAX_CONTAINER_BYTES`, and an object size the file cannot hold ends the walk as
+truncation (:class:`BLFDamage`) instead of swallowing the rest of the file. Used only while
+python-can has the private parts used here (:func:`supported`); otherwise
+:mod:`edge_monitor.pipeline.log_source` iterates ``LogReader``.
 """
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from typing import Any, Callable, Iterator
@@ -103,58 +107,164 @@ def _parse_rest(reader: Any, data: bytes, out: Callable[[list[can.Message]], Non
     return data[reader._pos:]
 
 
-def container_arrays(reader: Any) -> Iterator[Arrays]:
+class BLFDamage(ValueError):
+    """The container walk cannot go on: a damaged object header (bad signature or an object size the
+    file cannot hold). What came before it was read; the rest of the file is lost (truncation)."""
+
+
+#: Largest inflated container accepted [bytes]; loggers write ≈ 128 KiB. A larger one (a zlib bomb:
+#: 2 MB of file inflating to GiB) is skipped and counted, never inflated past this.
+MAX_CONTAINER_BYTES = 16 << 20
+#: Largest object read into memory [bytes]; a larger one is skipped unread (seek) and counted.
+MAX_OBJECT_BYTES = 64 << 20
+
+#: ``on_skip(reason, frames)``: a container or object skipped, with an estimate of the frames it held.
+SkipCallback = Callable[[str, int], None]
+
+
+def _estimated_frames(inflated_bytes: int) -> int:
+    """Frames a container of ``inflated_bytes`` held, estimated at one fixed-layout CAN object each 48 bytes."""
+    return max(int(inflated_bytes) // _SIZE, 1)
+
+
+def _inflate(method: int, payload: bytes, claimed: int) -> tuple[bytes | None, str | None]:
+    """A container's data, or (None, why it is skipped): unknown method, damaged zlib stream, or a
+    stream that inflates past :data:`MAX_CONTAINER_BYTES`."""
+    if method == blf.NO_COMPRESSION:
+        return payload, None
+    if method != blf.ZLIB_DEFLATE:
+        return None, f"unknown compression method {method}"
+    inflater = zlib.decompressobj()
+    try:
+        data = inflater.decompress(payload, MAX_CONTAINER_BYTES)
+    except zlib.error as exc:
+        return None, f"damaged zlib data ({exc})"
+    if inflater.unconsumed_tail:
+        return None, (f"inflates past {MAX_CONTAINER_BYTES} bytes (its header says {claimed}): "
+                      "not inflated further")
+    return data, None
+
+
+def _sane_length(data: bytes, start: int) -> int | None:
+    """Where, walking the objects from ``start`` as python-can does, an object says it is smaller than
+    an object header (bytes from ``start``), or None. python-can's parser loops forever on such an
+    object (its next position is its own)."""
+    header = blf.OBJ_HEADER_BASE_STRUCT
+    pos = start
+    while pos + header.size <= len(data):
+        found = data.find(b"LOBJ", pos, pos + 8)
+        if found < 0:
+            return None
+        size = header.unpack_from(data, found)[3]
+        if size < header.size:
+            return found - start
+        pos = found + size
+    return None
+
+
+def _read_objects(reader: Any, data: bytes, at: int, start: float, resync: bool, pending: list[Arrays],
+                  add_messages: Callable[[list[can.Message]], None], skip: SkipCallback) -> tuple[bytes, bool]:
+    """The objects of one container's ``data`` (the previous container's tail first) into ``pending``:
+    fixed-layout runs with numpy, the rest python-can's way. A damaged object is skipped (counted) and
+    reading resumes at the next object signature; after a skipped container (``resync``) it begins
+    there too. Returns the unparsed tail (an object the container cut) and whether to resync next."""
+    pos = 0
+    if resync:
+        pos = data.find(b"LOBJ")
+        if pos < 0:
+            return b"", True
+    while pos < len(data):
+        run = _object_run(data, pos)
+        if run:
+            pending.append(objects_to_arrays(data, pos, run, start))
+            pos += run * _SIZE
+            continue
+        sane = _sane_length(data, pos)
+        try:      # another object type, padding, damage, an object cut by the container: python-can's way
+            if sane is None:
+                return _parse_rest(reader, data[pos:], add_messages), False
+            _parse_rest(reader, data[pos:pos + sane], add_messages)
+            reader._pos = sane
+            raise blf.BLFParseError(f"object size below {blf.OBJ_HEADER_BASE_STRUCT.size} bytes")
+        except Exception as exc:          # a damaged object: what came before it is kept; on at the next one
+            failed_at = pos + int(reader._pos)
+            skip(f"container at byte {at}: unreadable object at offset {failed_at} ({exc or type(exc).__name__})", 1)
+            pos = data.find(b"LOBJ", failed_at + 1)
+            if pos < 0:
+                return b"", True
+    return b"", False
+
+
+def container_arrays(reader: Any, on_skip: SkipCallback | None = None) -> Iterator[Arrays]:
     """Frame arrays of a BLF file, in file order, one or more per container (python-can's container
-    walk; its parser for whatever is not a fixed-layout CAN_MESSAGE)."""
+    walk; its parser for whatever is not a fixed-layout CAN_MESSAGE).
+
+    Damage inside a container (undecodable zlib data, a container inflating past
+    :data:`MAX_CONTAINER_BYTES`) skips that container, a damaged object inside one skips that object:
+    ``on_skip`` is told, and reading goes on at the next object signature. Damage to the walk itself (an
+    object header without its signature, an object size smaller than a header) raises
+    :class:`BLFDamage` after the frames before it; an object larger than what is left of the file
+    (a file cut short, or a damaged size) is read as far as the file goes, then the same."""
     base_size = blf.OBJ_HEADER_BASE_STRUCT.size
     unpack_base = blf.OBJ_HEADER_BASE_STRUCT.unpack
     unpack_container = blf.LOG_CONTAINER_STRUCT.unpack_from
     container_size = blf.LOG_CONTAINER_STRUCT.size
     start = float(reader.start_timestamp)
     pending: list[Arrays] = []
+    skip = on_skip or (lambda reason, frames: None)
 
     def add_messages(messages: list[can.Message]) -> None:
         if messages:
             pending.append(messages_to_arrays(messages))
 
-    tail = b""
-    read = reader.file.read
+    tail, resync = b"", False       # resync: a container was skipped, the next one may begin mid-object
+    file = reader.file
+    file_size = os.fstat(file.fileno()).st_size
     while True:
-        header = read(base_size)
+        at = file.tell()
+        header = file.read(base_size)
         if not header:
             break
+        if len(header) < base_size:
+            raise BLFDamage(f"object header at byte {at} cut short ({len(header)} of {base_size} bytes)")
         signature, _, _, obj_size, obj_type = unpack_base(header)
         if signature != b"LOBJ":
-            raise blf.BLFParseError()
-        obj_data = read(obj_size - base_size)
-        read(obj_size % 4)
-        if obj_type != blf.LOG_CONTAINER:
+            raise BLFDamage(f"no object signature at byte {at}")
+        if obj_size < base_size:
+            raise BLFDamage(f"object at byte {at} says it has {obj_size} bytes, less than its header")
+        left = file_size - at
+        cut = None      # an object the file cannot hold: read what is there (a file cut short), then stop
+        if obj_size > left:
+            cut = f"object at byte {at} says it has {obj_size} bytes; {left} are left"
+            obj_size = left
+        body = obj_size - base_size
+        if body > MAX_OBJECT_BYTES:
+            file.seek(body + obj_size % 4, os.SEEK_CUR)
+            if obj_type == blf.LOG_CONTAINER:
+                skip(f"container at byte {at}: {obj_size} bytes, more than {MAX_OBJECT_BYTES}: skipped unread",
+                     _estimated_frames(body))
+                tail, resync = b"", True
+            if cut:
+                raise BLFDamage(cut)
             continue
-        method, _ = unpack_container(obj_data)
-        payload = obj_data[container_size:]
-        if method == blf.NO_COMPRESSION:
-            chunk = payload
-        elif method == blf.ZLIB_DEFLATE:
-            chunk = zlib.decompressobj().decompress(payload)
-        else:
-            blf.LOG.warning("Unknown compression method (%d)", method)
+        obj_data = file.read(body)
+        file.read(obj_size % 4)
+        if obj_type != blf.LOG_CONTAINER or len(obj_data) < container_size:
+            if cut:
+                raise BLFDamage(cut)
+            continue
+        method, claimed = unpack_container(obj_data)
+        chunk, why = _inflate(method, obj_data[container_size:], claimed)
+        if chunk is None:
+            skip(f"container at byte {at}: {why}", _estimated_frames(min(claimed, MAX_CONTAINER_BYTES)))
+            tail, resync = b"", True
+            if cut:
+                raise BLFDamage(cut)
             continue
         data = tail + chunk if tail else chunk
-        pos = 0
-        while True:
-            run = _object_run(data, pos)
-            if not run:
-                break
-            pending.append(objects_to_arrays(data, pos, run, start))
-            pos += run * _SIZE
-        error: BaseException | None = None
-        try:      # the rest (another object type, padding, damage, an object cut by the container) python-can's way
-            tail = _parse_rest(reader, data[pos:], add_messages) if pos < len(data) else b""
-        except Exception as exc:     # damage: what came before it first, then python-can's error
-            error = exc
+        tail, resync = _read_objects(reader, data, at, start, resync, pending, add_messages, skip)
         yield from pending
         pending.clear()
-        if error is not None:
-            raise error
+        if cut:
+            raise BLFDamage(cut)
     reader.stop()
-

@@ -4,8 +4,10 @@ Works on numpy blocks of frames (``ids``, ``data`` (n, 8), ``dlc``, ``timestamps
 the live loop and in replay. Frames failing decoding or E2E checks are excluded and counted,
 never averaged in. The motor-state counter (controller tick mod 256) is unwrapped per joint into a
 monotone controller tick; controller time = tick / rate. Every sample is labelled with the cycle and
-segment of the controller status frame in force when it arrived (stream order). Its output is the
-sample interface of :mod:`edge_monitor.pipeline.samples`, which every source produces.
+segment of the controller status frame in force when it arrived (stream order); which status frames
+may change the cycle (progress, a confirmed controller restart, not a jump of a reordered or replayed
+stream) is :mod:`edge_monitor.pipeline.cycle_numbering`. Its output is the sample interface of
+:mod:`edge_monitor.pipeline.samples`, which every source produces.
 """
 
 from __future__ import annotations
@@ -15,22 +17,20 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from edge_monitor.pipeline.cycle_numbering import MAX_CYCLE_STEP, CycleNumbering, tick_step
 from edge_monitor.pipeline.samples import CycleRun, IngestBlock, JointSamples, JointStatusBlock
 from protocol.e2e import E2EReceiver, E2EStatus
 from protocol.frames import (
-    CYCLE_MODULUS,
     MOTOR_COUNTER_MODULUS,
-    STATUS_TICK_MODULUS,
     DecodeErrorKind,
     FrameKind,
     decode_block,
 )
 
-__all__ = ["CycleRun", "Ingest", "IngestBlock", "IngestCounters", "JointSamples", "JointStatusBlock"]
+__all__ = ["MAX_CYCLE_STEP", "CycleRun", "Ingest", "IngestBlock", "IngestCounters", "JointSamples",
+           "JointStatusBlock"]
 
 _USABLE = (int(E2EStatus.OK), int(E2EStatus.OK_SOME_LOST))
-#: Largest forward jump of the cycle counter taken as progress; larger or backward: controller restart.
-MAX_CYCLE_STEP = 1000
 
 
 @dataclass
@@ -44,6 +44,8 @@ class IngestCounters:
     unknown_id: int = 0
     malformed: int = 0
     joint_filtered: int = 0
+    cycle_jumps: int = 0            # status frames whose cycle or tick jumped implausibly: not followed
+    controller_restarts: int = 0    # controller restarts taken (confirmed by the next status frame)
 
 
 class Ingest:
@@ -55,19 +57,17 @@ class Ingest:
         self.joints = None if joints is None else frozenset(joints)
         self.e2e = e2e or E2EReceiver()
         self.c = IngestCounters()
-        self._cycle: int | None = None        # unwrapped cycle in force
-        self._cycle_raw: int | None = None
+        self.numbering = CycleNumbering(rate_hz)
         self._segment = -1                    # segment in force
         self._restarted_into: set[int] = set()     # cycles of this block entered by a controller restart
-        self._cycle_tick_raw: int | None = None    # status tick of the last status frame (restart check)
         self._status_tick: int | None = None  # last controller tick from the status frame (unwrapped)
         self._status_tick_raw: int | None = None
-        self._anchored = False                # a status frame was seen by this instance
         self._last_counter: dict[int, int] = {}
         self._last_tick: dict[int, int] = {}
 
     # ------------------------------------------------------------------ public
     def counters(self) -> dict[str, int]:
+        self.c.cycle_jumps, self.c.controller_restarts = self.numbering.jumps, self.numbering.restarts
         return dict(self.c.__dict__)
 
     def update(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> IngestBlock:
@@ -109,20 +109,33 @@ class Ingest:
         c.counter_lost += int(lost[lost > 0].sum())
 
     def _label_rows(self, dec, usable: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64], dict[int, bool]]:
-        """Forward-fill the cycle (unwrapped) and segment of the usable status frames over all rows
-        (-1 where none is known yet)."""
+        """Forward-fill the cycle (unwrapped) and segment of the usable status frames the cycle
+        numbering takes over all rows (-1 where none is known yet). A restart confirmed in this block
+        takes effect from its first status frame."""
         n = len(dec)
-        status_rows = np.flatnonzero(usable & (dec.kind == FrameKind.CONTROLLER_STATUS))
-        cycles = np.empty(status_rows.size, dtype=np.int64)
         first_seen: dict[int, bool] = {}
         self._restarted_into.clear()
-        in_force = -1 if self._cycle is None else self._cycle      # before this block's status frames
-        for i, r in enumerate(status_rows):           # a few status frames per block: Python is fine
-            cycles[i] = self._update_cycle(int(dec.cycle[r]), int(dec.segment[r]), first_seen,
-                                           int(dec.status_tick[r]))
+        numbering = self.numbering
+        in_force = -1 if numbering.cycle is None else numbering.cycle      # before this block's status frames
+        taken: list[int] = []
+        cycles: list[int] = []
+        waiting: list[int] = []                       # rows not taken since the last one taken
+        for r in np.flatnonzero(usable & (dec.kind == FrameKind.CONTROLLER_STATUS)).tolist():
+            cycle = numbering.update(int(dec.cycle[r]), int(dec.segment[r]), int(dec.status_tick[r]), first_seen)
+            if cycle is None:                         # a jump, or a discontinuity to be confirmed
+                waiting.append(r)
+                continue
+            if numbering.restarted:
+                self._restarted_into.add(cycle)
+            back = waiting[len(waiting) - numbering.taken_back:] if numbering.taken_back else []
+            taken += back + [r]                       # a confirmed discontinuity: from its first frame on
+            cycles += [cycle] * (len(back) + 1)
+            waiting = []
+        status_rows = np.asarray(taken, dtype=np.int64)
+        cycle_of = np.asarray(cycles, dtype=np.int64)
         at, known = _forward_index(n, status_rows)
         segments = dec.segment[status_rows].astype(np.int64)
-        row_cycle = np.where(known, cycles[at] if cycles.size else -1, in_force)
+        row_cycle = np.where(known, cycle_of[at] if cycle_of.size else -1, in_force)
         row_segment = np.where(known, segments[at] if segments.size else -1, self._segment)
         if status_rows.size:
             self._segment = int(segments[-1])
@@ -138,41 +151,12 @@ class Ingest:
         at, known = _forward_index(len(dec), rows)
         return np.where(known, ticks[at] if ticks.size else -1, carry).astype(np.int64)
 
-    def _update_cycle(self, raw: int, segment: int, first_seen: dict[int, bool], tick_raw: int) -> int:
-        """Unwrap the 16-bit cycle counter; return the unwrapped cycle in force. Steps of 1 …
-        MAX_CYCLE_STEP are progress (lost status frames of whole cycles included); anything else, or
-        a controller tick that went backward (a restart near the counter's wrap, or into the same
-        cycle number), is a controller restart: numbering goes on from the last cycle + 1, so
-        published cycle numbers stay unique and increasing."""
-        tick_back = self._cycle_tick_raw is not None and _tick_step(self._cycle_tick_raw, tick_raw) is None
-        self._cycle_tick_raw = tick_raw
-        if self._cycle_raw is None or self._cycle is None:     # first status frame, no restored state
-            cycle = raw
-            first_seen[raw] = segment <= 1                      # its start seen: segment 0 or 1
-        elif raw != self._cycle_raw or tick_back:
-            step = (raw - self._cycle_raw) % CYCLE_MODULUS
-            restart = tick_back or not 0 < step <= MAX_CYCLE_STEP
-            cycle = self._cycle + (1 if restart else step)
-            if restart:
-                self._restarted_into.add(cycle)
-            # after a restart (state restored, no status frame seen yet) the controller may be anywhere
-            # in the cycle: its start was seen only if this is the cycle's first segment
-            first_seen[cycle] = self._anchored or segment <= 1
-        else:
-            cycle = self._cycle
-            if not self._anchored:                              # restored state, same cycle: mid-cycle
-                first_seen[cycle] = False
-        self._cycle = cycle
-        self._anchored = True
-        self._cycle_raw = raw
-        return cycle
-
     def _update_status_tick(self, raw: int) -> int:
         """Unwrap the 24-bit controller tick of the status frame (a backward step is a restart)."""
         if self._status_tick is None or self._status_tick_raw is None:
             full = raw
         else:
-            step = _tick_step(self._status_tick_raw, raw)
+            step = tick_step(self._status_tick_raw, raw)
             full = raw if step is None else self._status_tick + step
         self._status_tick_raw, self._status_tick = raw, full
         return full
@@ -206,15 +190,13 @@ class Ingest:
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict:
         """Cycle and tick unwrapping state: a restarted agent keeps its cycle numbering."""
-        return {"cycle": self._cycle, "cycle_raw": self._cycle_raw, "status_tick": self._status_tick,
+        return {**self.numbering.state_dict(), "status_tick": self._status_tick,
                 "status_tick_raw": self._status_tick_raw}
 
     def load_state(self, state: dict) -> None:
-        self._cycle = state.get("cycle")
-        self._cycle_raw = state.get("cycle_raw")
+        self.numbering.load_state(state)
         self._status_tick = state.get("status_tick")
         self._status_tick_raw = state.get("status_tick_raw")
-        self._anchored = False
 
     def _split_runs(self, dec, motor, ticks, jstatus, row_cycle, row_segment, first_seen) -> list[CycleRun]:
         n = len(dec)
@@ -249,13 +231,6 @@ def _stamp_runs(runs: list[CycleRun], timestamps: NDArray[np.float64]) -> None:
     for run in runs:
         end += run.rows
         run.last_time = float(timestamps[end - 1]) if end else None
-
-
-def _tick_step(previous_raw: int, raw: int) -> int | None:
-    """Forward step of the 24-bit controller tick from ``previous_raw`` to ``raw``, or None when it
-    went backward (more than half the counter's range: a controller restart)."""
-    step = (raw - previous_raw) % STATUS_TICK_MODULUS
-    return step if step < STATUS_TICK_MODULUS // 2 else None
 
 
 def _forward_index(n: int, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:

@@ -1,11 +1,23 @@
 """Frame blocks from a python-can log file (.blf, .asc, .log, …), robust to damaged files.
 
-python-can's readers stop at the first record they cannot parse. A replay should not: a bad line in
-a text log (.asc, .log) is skipped and counted and reading goes on with the next line; an unreadable
-record in a binary log (.blf) ends the file there. A log cut short (a BLF smaller than its header
-says or never finalised, an .asc without its closing ``End TriggerBlock``, a .log whose last line has
-no line end) is reported as truncated, so that its cut last cycle is not published as complete.
-What was skipped and why the file ended are in :class:`LogReport`.
+python-can's readers stop at the first record they cannot parse. A replay should not, and it reads
+the file as hostile (memory and time bounded by the file's size, whatever it holds):
+
+* only a regular file is read (a FIFO would block, a device never ends): :class:`LogReadError`;
+* a text log (.asc, .log) is read line by line as bytes, each line decoded alone: a line with an
+  undecodable byte, a line python-can cannot parse or a line longer than :data:`MAX_LINE_BYTES` is
+  skipped and counted, and reading goes on with the next line, so each costs at most its own frame;
+* a BLF container that cannot be read (damaged zlib data, one inflating past its cap, a damaged
+  object inside) is skipped, counted with an estimate of its frames, and the next one is read
+  (:mod:`edge_monitor.pipeline.blf_blocks`); an object header or size the file cannot hold ends the
+  walk there: truncation.
+
+A log cut short (a BLF smaller than its header says or never finalised, or whose walk ended on
+damage, an .asc without its closing ``End TriggerBlock``, a .log whose last line has no line end) is
+reported as truncated, so that its cut last cycle is not published as complete. A file whose first
+:data:`MAX_CONSECUTIVE_SKIPS` records are all unreadable is not a log (:class:`LogReadError`). What
+was skipped (records, and an upper bound of the frames in them) and why the file ended are in
+:class:`LogReport`.
 """
 
 from __future__ import annotations
@@ -24,6 +36,7 @@ from can.io.asc import ASCReader
 from can.io.blf import BLFReader
 from can.io.canutils import CanutilsLogReader
 
+from edge_monitor.files import NotARegularFile, require_regular
 from edge_monitor.pipeline import blf_blocks
 from edge_monitor.pipeline.frame_source import FrameArrays
 from protocol.frames import messages_to_arrays
@@ -35,8 +48,10 @@ _DAMAGE = (ValueError, IndexError, KeyError, struct.error, zlib.error, EOFError,
            can.io.blf.BLFParseError)
 #: Text readers whose iteration can go on after a bad line (each line is one record).
 _LINE_READERS = (ASCReader, CanutilsLogReader)
-#: More skipped records than this in a row: the file is not a log of this format.
+#: This many unreadable records before the first frame: the file is not a log of this format.
 MAX_CONSECUTIVE_SKIPS = 1000
+#: Longest line of a text log read [bytes]; a longer one is skipped in pieces (a frame line is < 200).
+MAX_LINE_BYTES = 4096
 
 
 class LogReadError(ValueError):
@@ -50,17 +65,58 @@ class LogReport:
 
     frames: int = 0
     skipped: int = 0
+    frames_skipped: int = 0       # at most this many frames were in the skipped records (estimate for BLF)
     truncated: str | None = None
     examples: list[str] = field(default_factory=list)
 
-    def skip(self, reason: str) -> None:
+    def skip(self, reason: str, frames: int = 1) -> None:
+        """One record skipped that held at most ``frames`` frames; no frame read yet and too many
+        skipped: :class:`LogReadError`."""
         self.skipped += 1
+        self.frames_skipped += frames
         if len(self.examples) < 5:
             self.examples.append(reason)
+        if self.frames == 0 and self.skipped >= MAX_CONSECUTIVE_SKIPS:
+            raise LogReadError(f"not a readable log: its first {self.skipped} records are unreadable "
+                               f"(first: {self.examples[0]})")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"frames": self.frames, "skipped_records": self.skipped, "truncated": self.truncated,
-                "skip_examples": list(self.examples)}
+        return {"frames": self.frames, "skipped_records": self.skipped, "frames_skipped": self.frames_skipped,
+                "truncated": self.truncated, "skip_examples": list(self.examples)}
+
+
+class _TextLines:
+    """The lines of a text log for python-can's reader (its ``file``): read as bytes and decoded one
+    at a time, so an undecodable byte costs its own line only; a line longer than
+    :data:`MAX_LINE_BYTES` is skipped in pieces. Both are counted in ``report``."""
+
+    def __init__(self, path: Path, report: LogReport) -> None:
+        self._raw = open(path, "rb")
+        self.report = report
+
+    def __iter__(self) -> _TextLines:
+        return self
+
+    def __next__(self) -> str:
+        while True:
+            line = self._raw.readline(MAX_LINE_BYTES + 1)
+            if not line:
+                raise StopIteration
+            if len(line) > MAX_LINE_BYTES:
+                while line and not line.endswith(b"\n"):
+                    line = self._raw.readline(MAX_LINE_BYTES)
+                self.report.skip(f"line after frame {self.report.frames}: longer than {MAX_LINE_BYTES} bytes")
+                continue
+            try:
+                return line.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                self.report.skip(f"line after frame {self.report.frames}: undecodable byte ({exc.reason})")
+
+    def fileno(self) -> int:
+        return self._raw.fileno()
+
+    def close(self) -> None:
+        self._raw.close()
 
 
 def log_blocks(path: str | Path, block_size: int = 4096) -> Iterator[FrameArrays]:
@@ -78,9 +134,16 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"log file {p} not found")
+    try:
+        require_regular(p)
+    except NotARegularFile as exc:
+        raise LogReadError(f"cannot read {p}: {exc.reason}; give a log file") from None
     report = report if report is not None else LogReport()
     try:
         reader = can.LogReader(str(p))
+        if isinstance(reader, _LINE_READERS) and p.suffix.lower() in (".asc", ".log"):
+            reader.file.close()
+            reader.file = _TextLines(p, report)     # type: ignore[assignment]  # duck-typed line source
     except (*_DAMAGE, OSError) as exc:
         raise LogReadError(f"cannot read {p} as a {p.suffix or 'CAN'} log: {exc or type(exc).__name__}") from exc
     with reader:
@@ -88,7 +151,7 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
             yield from _blf_blocks(reader, block_size, report)
         else:
             yield from _message_blocks(reader, block_size, report)
-    report.truncated = report.truncated or _cut_short(p, reader)
+    report.truncated = _cut_short(p, reader) or report.truncated     # the file's own account first
     if report.skipped:
         log.warning("%s: %d unreadable record(s) skipped (first: %s)", p, report.skipped, report.examples[0])
     if report.truncated:
@@ -113,7 +176,7 @@ def _blf_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tup
     parts: list[FrameArrays] = []
     held = 0
     try:
-        for arrays in blf_blocks.container_arrays(reader):
+        for arrays in blf_blocks.container_arrays(reader, report.skip):
             report.frames += len(arrays[0])
             parts.append(arrays)
             held += len(arrays[0])
@@ -122,6 +185,8 @@ def _blf_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tup
                 yield _slice(joined, 0, block_size), _bytes_read(reader)
                 parts = [_slice(joined, block_size, held)] if held > block_size else []
                 held -= block_size
+    except LogReadError:
+        raise
     except _DAMAGE as exc:
         report.truncated = f"unreadable data after frame {report.frames}: {exc or type(exc).__name__}"
     if held:
@@ -143,22 +208,21 @@ def _slice(arrays: FrameArrays, start: int, stop: int) -> FrameArrays:
 def _messages(reader: Any, report: LogReport) -> Iterator[can.Message]:
     """The reader's messages; a bad line of a text log is skipped, other damage ends the file."""
     it = iter(reader)
-    in_a_row = 0
     while True:
         try:
             msg = next(it)
         except StopIteration:
             return
+        except LogReadError:
+            raise
         except _DAMAGE as exc:
             where = f"after frame {report.frames}"
-            if not isinstance(reader, _LINE_READERS) or in_a_row >= MAX_CONSECUTIVE_SKIPS:
+            if not isinstance(reader, _LINE_READERS):
                 report.truncated = f"unreadable data {where}: {exc or type(exc).__name__}"
                 return
             report.skip(f"line {where}: {exc}")
-            in_a_row += 1
             it = _resume(reader)
             continue
-        in_a_row = 0
         report.frames += 1
         yield msg
 

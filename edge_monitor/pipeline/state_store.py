@@ -1,8 +1,14 @@
 """Atomic JSON persistence of the agent state (no pickle).
 
 The state file is written to a temporary file in the same directory, flushed and fsynced, then
-renamed over the old one, so a crash leaves either the old or the new state, never a torn file.
-NaN and infinities are stored as ``null`` (strict JSON).
+renamed over the old one, so a crash leaves either the old or the new state, never a torn file. A
+save that fails (a full disk: ENOSPC) removes its temporary file, keeps the previous state file,
+is counted (``save_errors``) and raises :class:`StateSaveError`. NaN and infinities are stored as
+``null`` (strict JSON).
+
+Reading treats the file as hostile: only a regular file is read (a FIFO, a device or a symlink to
+one is moved aside unread), at most :data:`MAX_STATE_BYTES`, and integers of more than
+:data:`MAX_INT_DIGITS` digits are refused before Python converts them.
 """
 
 from __future__ import annotations
@@ -16,12 +22,28 @@ from pathlib import Path
 from typing import Any
 
 from edge_monitor.errors import StateError
+from edge_monitor.files import read_regular
 from edge_monitor.records import to_json
 
 log = logging.getLogger(__name__)
 
 STATE_FILE = "agent_state.json"
 STATE_VERSION = 1
+#: Largest state file read [bytes]. A 6-joint state is ≈ 0.1 MB; the largest the validation bounds
+#: allow (8 joints, 65 536-point KDE grids, 10 000-cycle GLR windows) is ≈ 40 MB.
+MAX_STATE_BYTES = 64 << 20
+#: Longest integer literal accepted (the validation bounds numbers to ±10¹⁵ anyway).
+MAX_INT_DIGITS = 32
+
+
+class StateSaveError(OSError):
+    """The state could not be written (e.g. the disk is full); the previous state file is kept."""
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"an integer of {len(text)} digits")
+    return int(text)
 
 
 class StateStore:
@@ -41,15 +63,18 @@ class StateStore:
             raise StateError(f"state file {self.path} is not readable and writable by this user; fix its "
                              f"permissions (the learned models in it are kept) or pass another --state-dir")
         self.rejected = 0         # state files moved aside as unusable
+        self.save_errors = 0      # saves that failed (the previous state file was kept)
+        self.last_save_error: str | None = None     # why the latest save failed; None once one succeeds
 
     def load(self) -> dict[str, Any] | None:
         """The saved state, or None when there is none or it is unusable (then it is moved aside by
         :meth:`reject`, and the agent relearns)."""
-        if not self.path.exists():
+        if not os.path.lexists(self.path):
             return None
         try:
-            state = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            text = read_regular(self.path, MAX_STATE_BYTES).decode("utf-8")
+            state = json.loads(text, parse_int=_bounded_int)
+        except (OSError, ValueError, RecursionError) as exc:      # UnicodeDecodeError, JSONDecodeError: ValueError
             self.reject(f"unreadable ({exc})")
             return None
         version = state.get("version") if isinstance(state, dict) else None
@@ -74,17 +99,28 @@ class StateStore:
         return aside
 
     def save(self, state: dict[str, Any]) -> None:
-        payload = to_json({"version": STATE_VERSION, **state})
-        fd, tmp = tempfile.mkstemp(prefix=".agent_state.", suffix=".tmp", dir=self.dir)
+        """Write ``state`` atomically; :class:`StateSaveError` (the previous file kept) if it cannot."""
+        payload = to_json({"version": STATE_VERSION, **state}).encode("utf-8")
+        tmp: str | None = None
         try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fd, tmp = tempfile.mkstemp(prefix=".agent_state.", suffix=".tmp", dir=self.dir)
+            with os.fdopen(fd, "wb") as fh:
                 fh.write(payload)
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, self.path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+            tmp = None
+        except OSError as exc:
+            self.save_errors += 1
+            self.last_save_error = f"{exc.strerror or exc}"
+            error = StateSaveError(f"state not saved to {self.path}: {exc.strerror or exc}; "
+                                   "the previous state file is kept")
+            error.errno = exc.errno
+            raise error from None
+        finally:
+            if tmp is not None:
+                try:
+                    os.unlink(tmp)
+                except OSError:
+                    pass
+        self.last_save_error = None

@@ -4,7 +4,8 @@ relearn the joint; ``acknowledge``: a latched alarm was false) asks the agent to
 Authentication belongs to the Zenoh router (mTLS + access control, docs/SECURITY.md); the agent adds a
 local defence that does not depend on the router being configured well, :class:`ControlGate`: remote
 requests are refused unless explicitly allowed, only exact keys ``edge/<this robot>/<joint>/<action>``
-count (no wildcards), a payload the action cannot parse is refused, each joint accepts at most
+count (no wildcards), a joint the robot cannot have (≥ ``MAX_JOINTS``) or the agent does not monitor
+is refused (``unknown_joint``), a payload the action cannot parse is refused, each joint accepts at most
 ``max_per_joint`` requests per ``window_s`` seconds, and every decision is logged with the key, the
 source information Zenoh carries and the (truncated) payload; refusals are counted and their logging is
 rate-limited. :class:`RemoteConfig` is the config table of one action.
@@ -20,8 +21,9 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
-from edge_monitor.errors import ConfigError
+from edge_monitor.errors import ConfigError, UnknownJointError
 from edge_monitor.sinks.keys import check_robot_name, joint_key, parse_key
+from protocol.frames import MAX_JOINTS
 
 DEFAULT_LOG_INTERVAL_S = 60.0                      # at most one refusal log line per reason and joint per this
 PAYLOAD_LOG_CHARS = 200                            # payload characters kept in log lines
@@ -65,7 +67,7 @@ class GateDecision:
 
     accepted: bool
     joint: int | None
-    reason: str          # "accepted" | "disabled" | "bad_key" | "bad_payload" | "rate_limited"
+    reason: str          # "accepted" | "disabled" | "bad_key" | "unknown_joint" | "bad_payload" | "rate_limited"
     request: Any = None
     problem: str = ""
 
@@ -116,6 +118,8 @@ class ControlGate:
     window of ``window_s`` seconds; the excess is refused and counted.
     ``parse(payload bytes) -> request``: validates the payload (``ValueError``: refused as "bad_payload",
     not counted against the rate limit); without it any payload is accepted as free text.
+    A joint ≥ ``MAX_JOINTS`` is refused as "unknown_joint"; so is, after all, an accepted request whose
+    action raises ``ValueError`` because the agent does not monitor the joint (:meth:`callback`).
     ``log_interval_s``: per (reason, joint), refusals are logged at most once per interval; the next
     line says how many were not logged. Accepted requests are always logged (to ``logger``, default
     ``edge_monitor.sinks.<action>``).
@@ -146,7 +150,8 @@ class ControlGate:
         self.payload_chars = int(payload_chars)
         self.log = logger or logging.getLogger(f"edge_monitor.sinks.{action}")
         self.clock = clock
-        reasons = ("accepted", "disabled", "bad_key") + (("bad_payload",) if parse else ()) + ("rate_limited",)
+        reasons = (("accepted", "disabled", "bad_key", "unknown_joint") + (("bad_payload",) if parse else ())
+                   + ("rate_limited",))
         self.counts = dict.fromkeys(reasons, 0)
         self._accepted_at: dict[int, deque[float]] = {}
         self._last_log: dict[tuple[str, int | None], tuple[float, int]] = {}   # → (time, suppressed since)
@@ -164,7 +169,7 @@ class ControlGate:
         parts = parse_key(key)
         joint = parts.joint if parts is not None and parts.robot == self.robot and parts.kind == self.action else None
         request, problem = None, ""
-        if joint is not None and self.allow and self.parse is not None:
+        if joint is not None and joint < MAX_JOINTS and self.allow and self.parse is not None:
             try:
                 request = self.parse(payload_bytes(payload))
             except ValueError as exc:
@@ -174,6 +179,8 @@ class ControlGate:
                 reason = "bad_key"
             elif not self.allow:
                 reason = "disabled"
+            elif joint >= MAX_JOINTS:
+                reason = "unknown_joint"
             elif problem:
                 reason = "bad_payload"
             elif self._rate_limited(joint, now):
@@ -200,17 +207,21 @@ class ControlGate:
 
     def callback(self, apply: Callable[..., Any]) -> Callable[[Any], None]:
         """A Zenoh subscriber callback: gate each sample, then ``apply(joint)`` when accepted
-        (``apply(joint, request)`` for a gate with a parser). Never raises into Zenoh's thread; a
+        (``apply(joint, request)`` for a gate with a parser). An ``apply`` that raises ``ValueError``
+        refuses the request after all (:meth:`refuse_after_all`). Never raises into Zenoh's thread; a
         failing ``apply`` is logged with the key."""
 
         def on_sample(sample: Any) -> None:
             try:
                 decision = self.decide_sample(sample)
                 if decision.accepted and decision.joint is not None:
-                    if self.parse is None:
-                        apply(decision.joint)
-                    else:
-                        apply(decision.joint, decision.request)
+                    try:
+                        if self.parse is None:
+                            apply(decision.joint)
+                        else:
+                            apply(decision.joint, decision.request)
+                    except ValueError as exc:     # e.g. a joint the agent does not monitor
+                        self.refuse_after_all(decision.joint, str(getattr(sample, "key_expr", "?")), exc)
             except Exception as exc:
                 self.log.error("%s on %s not applied: %s", self.noun, getattr(sample, "key_expr", "?"), exc)
 
@@ -221,6 +232,28 @@ class ControlGate:
         with self._lock:
             return {(f"{self.action}_accepted" if reason == "accepted" else f"{self.action}_refused_{reason}"): n
                     for reason, n in self.counts.items()}
+
+    def refuse_after_all(self, joint: int, key: str, exc: ValueError) -> None:
+        """An accepted request the agent could not apply: counted as refused, not accepted, and it gives
+        back its slot of the joint's rate limit (nothing was done). ``unknown_joint`` when the agent does
+        not monitor the joint (:class:`~edge_monitor.errors.UnknownJointError`, or any ``ValueError`` of
+        a gate without a parser), else ``bad_payload`` (e.g. a quantity the joint does not watch)."""
+        unknown = isinstance(exc, UnknownJointError) or self.parse is None
+        reason = "unknown_joint" if unknown else "bad_payload"
+        with self._lock:
+            self.counts["accepted"] -= 1
+            self.counts[reason] += 1
+            times = self._accepted_at.get(joint)
+            if times:
+                times.pop()
+                if not times:
+                    del self._accepted_at[joint]
+            suppressed = self._log_budget(reason, joint, self.clock())
+        if suppressed is not None:
+            more = (f" ({suppressed} similar refusal(s) not logged in the last {self.log_interval_s:g} s)"
+                    if suppressed else "")
+            self.log.warning("%s on %r refused after all (%s)%s", self.noun, key,
+                             _printable(str(exc), self.payload_chars), more)
 
     # -- internals ---------------------------------------------------------------------------------
 
@@ -261,6 +294,9 @@ class ControlGate:
         elif reason == "bad_key":
             self.log.warning("%s refused (key is not exactly edge/%s/<joint>/%s; wildcards are never accepted): "
                              "%s%s", self.noun, self.robot, self.action, details, more)
+        elif reason == "unknown_joint":
+            self.log.warning("%s refused (joint %d: this robot has joints 0 … %d): %s%s", self.noun, joint,
+                             MAX_JOINTS - 1, details, more)
         elif reason == "bad_payload":
             self.log.warning("%s refused for joint %d (%s): %s%s", self.noun, joint, problem, details, more)
         else:

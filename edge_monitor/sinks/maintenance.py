@@ -2,8 +2,9 @@
 relearn that joint's nominal models (gearbox replaced or serviced) and to clear its alarms.
 
 Gated like every operator request (:mod:`edge_monitor.sinks.control_gate`): off by default, exact keys
-only, at most one accepted per joint per ten minutes, every decision logged; the payload is free text
-(logged, escaped and truncated).
+only, a joint the robot cannot have (≥ ``MAX_JOINTS``) or the agent does not monitor refused
+(``unknown_joint``), at most one accepted per joint per ten minutes, every decision logged; the payload
+is free text (logged, escaped and truncated).
 """
 
 from __future__ import annotations
