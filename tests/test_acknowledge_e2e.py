@@ -32,8 +32,10 @@ pytestmark = pytest.mark.slow
 SPEEDS = (8.7, 41.7, 133.5)
 TICKS = cycle_profile(SPEEDS)[0].size
 #: test_run_e2e's agent, plus: small calibrations, no joint-model learning, no steady relearning (the
-#: detectors decide from the 4th cycle on and keep their nominal), status every 0.5 s.
+#: detectors decide from the 4th cycle on and keep their nominal), status every 0.5 s; the
+#: asymptotic threshold (a calibration from 3 values honestly says the one for 10⁴ is far higher).
 CONFIG = RUN_CONFIG.replace("status_interval_s = 1.0", "status_interval_s = 0.5") + """\
+pf = 1e-3
 calibration_draws = 16
 calibration_steps = 400
 steady_relearn = false
