@@ -51,10 +51,11 @@ def shipped_settings(config: DecisionConfig | None = None) -> list[GaussianSetti
     out: list[GaussianSettings] = []
     for quantity in ("wear", "kl_raw", "kl_weighted"):
         d = c.detector_config(quantity)
-        for n0, at, mean, sd in ((d.n_nominal, d.calibrate_at, d.drift_mean, d.drift_sd),
-                                 (d.steady_nominal, d.steady_at, d.steady_drift_mean, d.steady_drift_sd)):
+        for n0, at, mean, sd, wander in ((d.n_nominal, d.calibrate_at, d.drift_mean, d.drift_sd, ()),
+                                         (d.steady_nominal, d.steady_at, d.steady_drift_mean, d.steady_drift_sd,
+                                          d.steady_wander)):
             settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
-                                        float(d.clip_sigma), at, tuple(mean), tuple(sd))
+                                        float(d.clip_sigma), at, tuple(mean), tuple(sd), tuple(wander))
             if settings not in out:
                 out.append(settings)
     steady_nominal = GaussianSettings(c.steady_nominal, c.window, c.gamma0, c.rho, c.direction, float(c.allowance),

@@ -54,6 +54,11 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.41), "kl
 #: last warming, the wear score does not.
 STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.10, 0.09),
                                                 "kl_weighted": (0.10, 0.09)}
+#: And how they wander once warm: the fraction of each input's variance in a slow AR(1) component
+#: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_calibration.WANDER_COEFFICIENT`), from the
+#: variance ratios of k-cycle means of the same joints: the log KL distances 1.19, 1.32, 1.39 at k = 5,
+#: 10, 30 (iid: 1), the wear score ≤ 1 (docs/DETECTION.md, "The steady stage's healthy drift").
+STEADY_WANDER: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.09, "kl_weighted": 0.09}
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,7 @@ class DecisionConfig:
     steady_relearn: bool = True
     steady_calibrate_at: str = "healthy_drift"
     steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
+    steady_wander: Mapping[str, float] = field(default_factory=lambda: dict(STEADY_WANDER))
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
@@ -121,6 +127,7 @@ class DecisionConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", _healthy_drift(self.healthy_drift))
         object.__setattr__(self, "steady_drift", _healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
+        object.__setattr__(self, "steady_wander", _steady_wander(self.steady_wander))
         for name in ("calibrate_at", "steady_calibrate_at"):
             require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
                     f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
@@ -166,12 +173,14 @@ class DecisionConfig:
                               drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
                               drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting),
                               steady_drift_mean=tuple(self.steady_drift[q][0] for q in spec.inputs if steady_drifting),
-                              steady_drift_sd=tuple(self.steady_drift[q][1] for q in spec.inputs if steady_drifting))
+                              steady_drift_sd=tuple(self.steady_drift[q][1] for q in spec.inputs if steady_drifting),
+                              steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
 
     def fingerprint(self) -> dict[str, Any]:
         out = {**asdict(self), "quantities": list(self.quantities),
                "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())},
-               "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())}}
+               "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())},
+               "steady_wander": dict(sorted(self.steady_wander.items()))}
         if self.calibrate_at == "boundary":
             del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
         steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform",
@@ -198,6 +207,19 @@ def _healthy_drift(given: Any, key: str = "healthy_drift",
                 f"decision.{key}.{name}", f"expected [mean, sd] in standard deviations (mean "
                 f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g}), got {pair!r}")
         out[name] = (float(pair[0]), float(pair[1]))
+    return out
+
+
+def _steady_wander(given: Any) -> dict[str, float]:
+    """``decision.steady_wander``: the defaults, overridden per input by ``given`` (input → variance fraction)."""
+    require(isinstance(given, Mapping), "decision.steady_wander", f"expected a table, got {given!r}")
+    out = dict(STEADY_WANDER)
+    for name, value in given.items():
+        require(name in STEADY_WANDER, f"decision.steady_wander.{name}",
+                f"unknown input; known: {sorted(STEADY_WANDER)}")
+        require(isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value < 1.0,
+                f"decision.steady_wander.{name}", f"expected a variance fraction 0 … <1, got {value!r}")
+        out[name] = float(value)
     return out
 
 

@@ -133,12 +133,13 @@ class Calibration:
 
 def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, gamma0: float, rho: float,
                         budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
-                        at: str, drift: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())) -> Calibration:
+                        at: str, drift: tuple[tuple[float, ...], tuple[float, ...]] = ((), ()),
+                        wander: tuple[float, ...] = ()) -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
     tabulated for the shipped scalar settings, else simulated (cached) with ``GAUSSIAN_DRAW_FACTOR`` ×
     ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
     settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
-                                float(clip_sigma), at, *drift)
+                                float(clip_sigma), at, *drift, wander)
     found = threshold_table.lookup(settings, arl0) if values.shape[1] == 1 else None
     if found is None:
         detectors = GAUSSIAN_DRAW_FACTOR * budget.draws
@@ -157,7 +158,7 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
               mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
               clip_sigma: float = 0.0, at: str = "boundary", drift_mean: ArrayLike = (),
-              drift_sd: ArrayLike = (), simulate_from: str = "model") -> Calibration:
+              drift_sd: ArrayLike = (), simulate_from: str = "model", wander: ArrayLike = ()) -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
@@ -165,8 +166,10 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     bootstrap detector from its own nominal set. ``at`` says where the simulated streams sit
     (:func:`stream_shifts`): ``"boundary"`` (the agent's default), ``"healthy_drift"`` or ``"nominal"``;
     ``drift_mean``/``drift_sd`` (one per dimension, in standard deviations of the nominal values)
-    describe the healthy drift for ``"healthy_drift"``. ``simulate_from``: ``"model"`` (p̂0) or
-    ``"values"`` (:class:`SmoothedBootstrap` of ``nominal``), see the module docstring."""
+    describe the healthy drift for ``"healthy_drift"``, ``wander`` (per dimension, a variance fraction)
+    its slow serial wander (Gaussian nominals only, :mod:`~edge_monitor.stats.gaussian_calibration`).
+    ``simulate_from``: ``"model"`` (p̂0) or ``"values"`` (:class:`SmoothedBootstrap` of ``nominal``), see
+    the module docstring."""
     if at not in CALIBRATE_AT:
         raise ValueError(f"at = {at!r}; choose one of {CALIBRATE_AT}")
     if simulate_from not in SIMULATE_FROM:
@@ -177,7 +180,7 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
         drift = (tuple(float(x) for x in np.ravel(drift_mean)), tuple(float(x) for x in np.ravel(drift_sd))) \
             if at == "healthy_drift" else ((), ())
         return _calibrate_gaussian(values, window, arl0, gamma0, rho, budget, direction, allowance, clip_sigma, at,
-                                   drift)
+                                   drift, tuple(float(x) for x in np.ravel(wander)) if at == "healthy_drift" else ())
     seed = FIXED_SEED if seed is None else seed
     rng = np.random.default_rng(seed)
     model = fit_density(values, kind)
@@ -357,17 +360,18 @@ class CalibrationJob:
     drift_mean: tuple[float, ...] = ()
     drift_sd: tuple[float, ...] = ()
     simulate_from: str = "model"
+    wander: tuple[float, ...] = ()
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
                          "exact" if self.mode == "exact" else "recursive", self.budget,
                          direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma,
                          at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd,
-                         simulate_from=self.simulate_from)
+                         simulate_from=self.simulate_from, wander=self.wander)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget),
-                "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd)}
+                "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd), "wander": list(self.wander)}
 
     @classmethod
     def from_dict(cls, state: dict[str, Any]) -> "CalibrationJob":
@@ -378,4 +382,5 @@ class CalibrationJob:
                    clip_sigma=float(state.get("clip_sigma", 0.0)), at=str(state.get("at", "boundary")),
                    drift_mean=tuple(float(x) for x in state.get("drift_mean", ())),
                    drift_sd=tuple(float(x) for x in state.get("drift_sd", ())),
-                   simulate_from=str(state.get("simulate_from", "model")))
+                   simulate_from=str(state.get("simulate_from", "model")),
+                   wander=tuple(float(x) for x in state.get("wander", ())))

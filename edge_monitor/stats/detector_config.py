@@ -54,6 +54,7 @@ class DetectorConfig:
     ``calibrate_at``, ``drift_mean``/``drift_sd`` [σ of the nominal values, one per dimension]: which
     healthy data the target is for (:func:`~edge_monitor.stats.calibration.stream_shifts`);
     ``steady_at``, ``steady_drift_mean``/``steady_drift_sd`` [σ, per dimension; empty: none],
+    ``steady_wander`` [variance fraction of a slow AR(1) wander, per dimension; empty: none],
     ``steady_nominal`` [cycles]: how the nominal learned once the temperature has settled
     is calibrated, and from how many values (more than ``n_nominal``: a margin against its learning error);
     ``steady_density``: its density family, fitted after ``steady_transform`` ("yeo-johnson": per-axis
@@ -81,6 +82,7 @@ class DetectorConfig:
     steady_at: str = "healthy_drift"
     steady_drift_mean: tuple[float, ...] = ()
     steady_drift_sd: tuple[float, ...] = ()
+    steady_wander: tuple[float, ...] = ()
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
     steady_transform: str = "yeo-johnson"
@@ -131,6 +133,9 @@ class DetectorConfig:
             if self.steady_at == "healthy_drift":
                 bounds += [("steady_drift_mean", self.steady_drift_mean or (0.0,) * self.dim, -MAX_DRIFT),
                            ("steady_drift_sd", self.steady_drift_sd or (0.0,) * self.dim, 0.0)]
+            require(self.steady_wander == () or (len(self.steady_wander) == self.dim and all(
+                isinstance(v, (int, float)) and 0.0 <= v < 1.0 for v in self.steady_wander)), "steady_wander",
+                f"needs none or {self.dim} variance fraction(s) in 0 … <1, got {self.steady_wander!r}")
             if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
@@ -153,6 +158,7 @@ class DetectorConfig:
     def fingerprint(self) -> dict[str, Any]:
         out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd),
                "steady_drift_mean": list(self.steady_drift_mean), "steady_drift_sd": list(self.steady_drift_sd),
+               "steady_wander": list(self.steady_wander),
                "transform_axes": list(self.transform_axes)}
         if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
             for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before

@@ -16,7 +16,9 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
    point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
    ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
    stratified normal quantiles in a fixed random order — a fleet whose joints drift after learning),
-   ``steps`` cycles each;
+   ``steps`` cycles each; with ``wander`` (per axis, a fraction f of the variance), each value is
+   √(1 − f)·e + √f·a with a a unit AR(1) process of coefficient :data:`WANDER_COEFFICIENT` — the slow
+   wander of a warm joint's quantities, which makes consecutive values, learning sets included, dependent;
 3. per nominal g and candidate threshold h its false-alarm rate from its first passages (e/X, events
    over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(rate);
 4. h where that run length is the target: interpolated where at least :data:`MIN_EVENTS_DIRECT`
@@ -55,6 +57,10 @@ CHUNK = 512
 SEGMENT = 2000
 #: Top of the threshold grid [nats].
 H_MAX = 60.0
+#: Lag-1 coefficient of the slow wander's AR(1) component (``GaussianSettings.wander``): fitted to the
+#: variance ratios k·var(k-cycle mean)/var = 1.19, 1.32, 1.39 at k = 5, 10, 30 of the log KL distances
+#: of 48 warm healthy joints (docs/DETECTION.md).
+WANDER_COEFFICIENT = 0.7
 
 
 @dataclass(frozen=True)
@@ -71,6 +77,11 @@ class GaussianSettings:
     at: str                        # "nominal" | "boundary" | "healthy_drift"
     drift_mean: tuple[float, ...] = ()     # "healthy_drift": each nominal's streams moved by drift_mean +
     drift_sd: tuple[float, ...] = ()       # drift_sd·z (standard units, one z per nominal, per axis)
+    wander: tuple[float, ...] = ()         # per axis: the variance fraction of the slow AR(1) wander
+
+    def __post_init__(self) -> None:
+        if not any(self.wander):               # no wander on any axis: one setting, one table key
+            object.__setattr__(self, "wander", ())
 
 
 @dataclass(frozen=True)
@@ -165,9 +176,10 @@ def simulate(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], bu
     events, exposure = [], []
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
-        glr = _detectors(settings, rng.standard_normal((g, settings.n0, r.shape[0])) @ lower_chol.T, budget.streams)
+        noise = _Noise(lower_chol, settings.wander, rng)
+        glr = _detectors(settings, noise.sequence(g, settings.n0), budget.streams)
         shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
-        passage = _passages(glr, shift, lower_chol, budget.steps, grid, rng)
+        passage = _passages(glr, shift, noise, budget.steps, grid)
         alarmed = passage < budget.steps
         shape = (g, budget.streams, grid.size)
         events.append(alarmed.reshape(shape).sum(axis=1))
@@ -208,18 +220,54 @@ def _shifts(settings: GaussianSettings, nominals: int, d: int) -> NDArray[np.flo
     return mean[None, :] + z[:, None] * sd[None, :]
 
 
-def _passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], lower_chol: NDArray[np.float64], steps: int,
-              grid: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:
+class _Noise:
+    """Values in standard units with correlation R across axes: iid, or with a slow AR(1) wander
+    carrying ``wander`` of each axis's variance (step 2 of the module docstring)."""
+
+    def __init__(self, lower_chol: NDArray[np.float64], wander: tuple[float, ...], rng: np.random.Generator) -> None:
+        d = lower_chol.shape[0]
+        self.chol, self.rng = lower_chol, rng
+        f = np.broadcast_to(np.asarray(wander or (0.0,), dtype=float), (d,))
+        self.slow, self.fast = np.sqrt(f), np.sqrt(1.0 - f)
+        self.wanders = bool(np.any(f > 0))
+        self.phi = WANDER_COEFFICIENT
+        self.state: NDArray[np.float64] | None = None
+
+    def _draw(self, shape: tuple[int, ...]) -> NDArray[np.float64]:
+        return self.rng.standard_normal((*shape, self.chol.shape[0])) @ self.chol.T
+
+    def start(self, b: int) -> None:
+        """``b`` streams, their wander drawn from its stationary law."""
+        self.state = self._draw((b,)) if self.wanders else None
+
+    def step(self, b: int) -> NDArray[np.float64]:
+        """The next value of each of the ``b`` streams (b, d)."""
+        if self.state is None:
+            return self._draw((b,))
+        self.state = self.phi * self.state + math.sqrt(1.0 - self.phi ** 2) * self._draw((b,))
+        return self.fast * self._draw((b,)) + self.slow * self.state
+
+    def sequence(self, g: int, n: int) -> NDArray[np.float64]:
+        """``g`` sequences of ``n`` consecutive values (g, n, d): learning sets."""
+        if not self.wanders:
+            return self._draw((g, n))
+        self.start(g)
+        return np.stack([self.step(g) for _ in range(n)], axis=1)
+
+
+def _passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: _Noise, steps: int,
+              grid: NDArray[np.float64]) -> NDArray[np.int64]:
     """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never;
     detector b's stream moved by ``shift[b]`` (standard units)."""
     b, d = glr.means.shape
+    noise.start(b)
     first = np.full((b, grid.size), steps, dtype=np.int64)
     running = np.zeros(b)
     for start in range(0, steps, SEGMENT):
         length = min(SEGMENT, steps - start)
         stats = np.empty((b, length))
         for t in range(length):
-            stats[:, t] = glr.update(rng.standard_normal((b, d)) @ lower_chol.T + shift)
+            stats[:, t] = glr.update(noise.step(b) + shift)
         stats[:, 0] = np.maximum(stats[:, 0], running)
         np.maximum.accumulate(stats, axis=1, out=stats)
         running = stats[:, -1]

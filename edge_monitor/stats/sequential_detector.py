@@ -239,7 +239,8 @@ class SequentialDetector:
                                        self.config.direction, float(self.config.allowance),
                                        float(self.config.clip_sigma), self._calibrate_at,
                                        *self._drift,
-                                       self.config.steady_simulate_from if self.stage == "steady" else "model")
+                                       self.config.steady_simulate_from if self.stage == "steady" else "model",
+                                       tuple(self.config.steady_wander) if self.stage == "steady" else ())
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""

@@ -40,7 +40,8 @@ def _table() -> dict[str, dict[str, Any]]:
     out = {}
     for e in json.loads(text).get("entries", []):
         settings = {**e["settings"], "drift_mean": tuple(e["settings"].get("drift_mean", ())),
-                    "drift_sd": tuple(e["settings"].get("drift_sd", ()))}
+                    "drift_sd": tuple(e["settings"].get("drift_sd", ())),
+                    "wander": tuple(e["settings"].get("wander", ()))}
         out[key(GaussianSettings(**settings))] = e
     return out
 
