@@ -47,7 +47,7 @@ def test_agent_arl_runs_the_agents_detectors_with_the_chosen_calibration() -> No
 
 
 def test_agent_arl_reports_the_steady_stage_once_the_motor_temperature_settles() -> None:
-    """With a flat motor temperature the joint settles once the test's 120-cycle window is full; every
+    """With a flat motor temperature the joint settles once the test's 240-cycle window is full; every
     detector then learns its steady nominal (240 cycles), calibrated for the healthy drift after learning,
     and the rows split into the two stages. A
     steady-stage alarm is acknowledged (the statistic restarts on the same nominal), so there every
@@ -64,6 +64,6 @@ def test_agent_arl_reports_the_steady_stage_once_the_motor_temperature_settles()
     assert {r["quantity"] for r in steady} == {"wear", "kl_raw", "kl_weighted", "joint"}
     for r in steady:
         assert r["calibrate_at"] == "healthy_drift" and r["runs"] == 1 + r["false_alarms"]
-        assert 0 < r["monitored_cycles"] <= n - 119 - 240
+        assert 0 < r["monitored_cycles"] <= n - 239 - 240
     warm = {r["quantity"]: r for r in out if r["stage"] == "warm-up"}
     assert all(warm[q]["monitored_cycles"] > 0 for q in warm)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 
 _TOOL = Path(__file__).resolve().parents[1] / "tools" / "healthy_fleet_study.py"
 
@@ -49,18 +49,19 @@ def test_healthy_joint_stays_quiet_and_a_wearing_joint_alarms_under_default_drif
 
 
 def test_after_warm_up_the_steady_detectors_stay_quiet_and_still_find_wear() -> None:
-    """The same promise once the joints are warm (docs/DETECTION.md, "Two stages"): 800 cycles, the
+    """The same promise once the joints are warm (docs/DETECTION.md, "Two stages"): 1 150 cycles, the
     lubricant settling near 58 °C; each joint's detectors learn their steady nominal once its motor
-    temperature has settled (cycle ≈ 300 + 240 learning cycles) and from then on run at the stated
+    temperature has settled (cycle ≈ 500–700 + 240 learning cycles) and from then on run at the stated
     ARL0 = 10⁴ cycles. The healthy joint is watched for ≈ 4 × 250 steady detector-cycles (expected
-    false alarms ≈ 0.1) plus its warm-up; joint 1's wear ramps 0 → 60 from cycle 650, after its steady
-    stage began, and must be found then, not before."""
+    false alarms ≈ 0.1) plus its warm-up; joint 1's wear ramps 0 → 60 from cycle 1 000, after its
+    steady stage began, and must be found then, not before."""
     study = _study()
-    run = study.run_robot(study.RunSpec(seed=3, cycles=800, joints=2, wear_ramps=("1:650:800:0:60",), progress=0))
+    run = study.run_robot(study.RunSpec(seed=3, cycles=1150, joints=2, wear_ramps=("1:1000:1150:0:60",),
+                                        progress=0))
     for joint in ("0", "1"):
         steady = run["steady_from"][joint]
         assert set(steady) == {"wear", "kl_raw", "kl_weighted", "joint"}, run["steady_from"]
-        assert max(steady.values()) < 600, run["steady_from"]
+        assert max(steady.values()) < 950, run["steady_from"]
     assert [a for a in run["alarms"] if a["joint"] == 0] == []
     worn = [a for a in run["alarms"] if a["joint"] == 1]
-    assert worn and min(a["cycle"] for a in worn) > 650, worn
+    assert worn and min(a["cycle"] for a in worn) > 1000, worn

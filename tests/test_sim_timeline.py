@@ -147,8 +147,8 @@ def test_command_line_events_merge_over_the_scenario_timeline(tmp_path):
 def test_packaged_scenarios_load_by_name_and_describe_the_plant_week():
     assert packaged_scenarios() == ["load_step", "mild_load_step", "plant_week"]
     step = SimConfig(**load_scenario("load_step"))
-    assert step.conditions(619).load_range == (0.3, 0.7) and step.conditions(620).load_range == (0.6, 1.0)
-    assert SimConfig(**load_scenario("mild_load_step.toml")).conditions(700).load_range == (0.4, 0.8)
+    assert step.conditions(999).load_range == (0.3, 0.7) and step.conditions(1000).load_range == (0.6, 1.0)
+    assert SimConfig(**load_scenario("mild_load_step.toml")).conditions(1000).load_range == (0.4, 0.8)
     week = SimConfig(**load_scenario("plant_week"))
     stops = {e.cycle: e.stop_hours for e in week.timeline if e.stop_hours}
     assert week.cycles == 4400
@@ -163,8 +163,8 @@ def test_packaged_scenarios_load_by_name_and_describe_the_plant_week():
 def test_a_study_config_puts_seed_and_length_over_the_scenario():
     config = scenario_config("load_step", {"seed": 7, "joints": 3, "cycles": None}, fallback={"cycles": 200},
                              wear_ramps=("2:100:200:0:60",))
-    assert (config.seed, config.joints, config.cycles) == (7, 3, 900)
-    assert config.conditions(620).load_range == (0.6, 1.0) and config.wear_profile(2).wear(200) == 60.0
+    assert (config.seed, config.joints, config.cycles) == (7, 3, 1300)
+    assert config.conditions(1000).load_range == (0.6, 1.0) and config.wear_profile(2).wear(200) == 60.0
     assert scenario_config(None, {"seed": 1}, fallback={"cycles": 200}).cycles == 200
 
 
