@@ -50,7 +50,7 @@ def test_settled_holds_through_noise_and_ends_when_the_joint_clearly_warms_again
     tracker = ThermalSettling()
     rng = np.random.default_rng(2)
     states = [tracker.update(40.0 + rng.normal(0.0, NOISE)) for _ in range(2000)]
-    assert all(states[SettlingConfig().window:])             # 1 880 noisy flat cycles: never flickers
+    assert all(states[SettlingConfig().window:])             # 1 760 noisy flat cycles: never flickers
     ramp = [tracker.update(40.0 + 0.3 * i + rng.normal(0.0, NOISE)) for i in range(200)]
     assert not ramp[-1]                                       # 0.3 °C per cycle: warming again
 
