@@ -6,7 +6,8 @@ Rows (each a fresh ``calibrate()`` call, CPU time of this process with ``time.pr
 cleared before each so nothing is reused):
 
 * scalar Gaussian, warm-up (60 values, at the allowance boundary) and steady (240 values, for the
-  healthy drift after learning of the wear score and of the KL distances): read from the shipped table (:mod:`edge_monitor.stats.threshold_table`);
+  healthy drift and wander after learning of the wear score and of the KL distances): read from the
+  shipped table (:mod:`edge_monitor.stats.threshold_table`);
 * scalar Gaussian with settings outside the table (50 values): simulated in standard units;
 * joint vector (3-d Gaussian, 240 values with the correlations of a healthy joint's inputs):
   simulated in standard units for its correlation matrix;
@@ -61,13 +62,14 @@ CASES: list[tuple[str, Callable[[], Any]]] = [
      lambda: calibrate(_values(60, 1), "gauss", at="boundary", **COMMON)),
     ("scalar, steady wear (Gaussian, 240 values, healthy drift 0.00 ± 0.08 σ): table",
      lambda: calibrate(_values(240, 1), "gauss", at="healthy_drift", drift_mean=(0.0,), drift_sd=(0.08,), **COMMON)),
-    ("scalar, steady KL (Gaussian, 240 values, healthy drift 0.10 ± 0.09 σ): table",
-     lambda: calibrate(_values(240, 1), "gauss", at="healthy_drift", drift_mean=(0.1,), drift_sd=(0.09,), **COMMON)),
+    ("scalar, steady KL (Gaussian, 240 values, healthy drift 0.10 ± 0.09 σ, wander 9 %): table",
+     lambda: calibrate(_values(240, 1), "gauss", at="healthy_drift", drift_mean=(0.1,), drift_sd=(0.09,),
+                       wander=(0.09,), **COMMON)),
     ("scalar outside the table (Gaussian, 50 values): simulated",
      lambda: calibrate(_values(50, 1), "gauss", at="boundary", **COMMON)),
-    ("joint vector, steady (Gaussian 3-d, 240 values, healthy drift): simulated",
+    ("joint vector, steady (Gaussian 3-d, 240 values, healthy drift and wander): simulated",
      lambda: calibrate(_values(240, 3), "gauss", at="healthy_drift", drift_mean=(0.0, 0.1, 0.1),
-                       drift_sd=(0.08, 0.09, 0.09), **COMMON)),
+                       drift_sd=(0.08, 0.09, 0.09), wander=(0.0, 0.09, 0.09), **COMMON)),
     ("joint vector, warm-up (Gaussian 3-d, 60 values, boundary): simulated",
      lambda: calibrate(_values(60, 3), "gauss", at="boundary", **COMMON)),
     ("before: scalar warm-up (GCE, 60 values, boundary, 48 detectors)",
