@@ -52,9 +52,9 @@ Parts (all with fixed seeds; select with --part, default all):
   allowance: healthy joints run longer there) and any ``--at-boundary`` rows (``runs``: detector
   runs over all joints, each started by a learning phase or, in the steady stage, an acknowledged
   false alarm; monitored cycles are those whose value the statistic tested). ``--quick``: 2 robots
-  (seeds 1, 2) of 2 joints × 1 200 cycles (≈ 660 steady cycles per joint: the joints settle at
-  ≈ 300 and learn for 240), the agent's 48 bootstrap detectors per calibration, in parallel
-  processes (≈ 4 min on 2 cores); default 4 robots of 6 joints × 2000 cycles. ``--scenario FILE|NAME``
+  (seeds 1, 2) of 2 joints × 1 600 cycles (≈ 750 steady cycles per joint: the joints settle at
+  ≈ 500–700 and learn for 240), the agent's 48 bootstrap detectors per calibration, in parallel
+  processes (≈ 10 min on 2 cores, the fast path most of it); default 4 robots of 6 joints × 2000 cycles. ``--scenario FILE|NAME``
   runs every robot in a simulator scenario (its plant timeline: load steps, stops, ``plant_week``;
   seeds, joints and cycles as given here). ``--at-boundary`` adds warm-up rows
   (``"at_boundary": true``) where each detector's
@@ -790,7 +790,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _agent_main(args: argparse.Namespace) -> int:
     robots = args.robots or (2 if args.quick else 4)
-    cycles = args.cycles or (1200 if args.quick else 2000)
+    cycles = args.cycles or (1600 if args.quick else 2000)
     joints, draws = (2, 48) if args.quick else (6, 48)
     workers = max(1, min(os.cpu_count() or 1, 8))
     started = time.monotonic()
