@@ -54,12 +54,14 @@ def test_a_load_step_on_healthy_warm_joints_raises_no_alarm_only_an_advisory(loa
     alarms = [a for r in records for a in r["alarms"]]
     assert alarms == []
     entered = {(a["joint"], a["covariate"]) for r in records for a in r["advisories"] if a["state"] == "entered"}
-    if load_range[1] >= 0.9:       # well outside 0.3–0.7: both joints say so, on the load only
-        assert entered == {(0, "load"), (1, "load")}
+    assert all(r["cycle"] >= STEP for r in records if r["advisories"])      # nothing before the step
+    # the step's load, and later the motor temperature it raises (a heavier load heats the motor: 71–73 °C
+    # 70–100 cycles after the step to 0.6–1.0, learned 53–68 °C), are operating conditions, never alarms
+    assert {covariate for _, covariate in entered} <= {"load", "motor_temperature"}
+    if load_range[1] >= 0.9:       # well outside 0.3–0.7: both joints say so
+        assert {(0, "load"), (1, "load")} <= entered
         after = [r for r in records if r["cycle"] >= STEP + 5]
         assert sum("load" in r["operating"]["outside"] for r in after) > len(after) / 2
-    else:                          # the mild step: load mostly within the margin of the learned range
-        assert all(covariate == "load" for _, covariate in entered)
 
 
 @pytest.mark.slow
