@@ -4,6 +4,7 @@ static), wear bounds, friction sign."""
 
 from __future__ import annotations
 
+import logging
 import math
 import shutil
 import subprocess
@@ -192,7 +193,8 @@ def test_off_does_not_import_rerun():
 
 
 def test_spawn_without_display_falls_back(tmp_path, monkeypatch, caplog):
-    monkeypatch.delenv("DISPLAY", raising=False)
+    caplog.set_level(logging.WARNING, logger="edge_monitor.sinks.rerun_view")   # whatever levels earlier
+    monkeypatch.delenv("DISPLAY", raising=False)                                 # tests' CLI runs left
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     path = tmp_path / "fallback.rrd"
     sink = RerunSink.open("spawn", fallback_save=str(path))
