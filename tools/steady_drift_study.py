@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ def variance_ratio(z: np.ndarray, k: int) -> float:
     return float(k * z[:n * k].reshape(n, k).mean(axis=1).var() / z.var())
 
 
-def joint_numbers(cycles: np.ndarray, values: np.ndarray, learn_from: int) -> dict[str, object] | None:
+def joint_numbers(cycles: np.ndarray, values: np.ndarray, learn_from: int) -> dict[str, Any] | None:
     learn = values[(cycles >= learn_from) & (cycles < learn_from + STEADY_NOMINAL)]
     watch = values[cycles >= learn_from + STEADY_NOMINAL]
     if learn.size < 0.8 * STEADY_NOMINAL or watch.size < 2 * max(BLOCKS):
