@@ -76,10 +76,11 @@ def test_agent_beside_a_foreign_controller_listens_only(tmp_path: Path, profile:
                 agent.kill()
                 agent.wait()
     assert agent.returncode == 0, err
-    health = json.loads(out.strip().splitlines()[-1])
+    summary = json.loads(out.strip().splitlines()[-1])
+    health = {**summary, **summary["health"]}          # the run summary, and its last health record
     assert health["frames_total"] > 10_000 and health["unknown_id"] == 0 and health["queue_dropped"] == 0
     assert health["cycle_finding"]["cycles_found"] == CYCLES, (health, err)
-    records = [json.loads(line) for line in jsonl.open()]
+    records = [r for r in map(json.loads, jsonl.open()) if "kind" not in r]      # symptoms, not alarm events
     assert {(r["joint"], r["cycle"]) for r in records} == {(j, c) for j in (0, 1) for c in range(CYCLES)}
     # receive timestamps jitter on a loaded machine: a plateau may be cut short now and then (counted)
     measured = sum(len(r["friction"]["torque"]) for r in records)

@@ -32,7 +32,8 @@ quantities = ["wear", "kl_raw"]
 
 
 def _symptoms(path: Path) -> list[dict]:
-    return [json.loads(line) for line in path.open()]
+    """The symptom records of a JSONL output (alarm and advisory events carry a "kind")."""
+    return [r for r in map(json.loads, path.open()) if "kind" not in r]
 
 
 def _replay(tmp: Path, file: Path, *extra: str) -> tuple[dict, list[dict]]:
