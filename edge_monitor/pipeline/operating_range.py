@@ -63,8 +63,7 @@ class OperatingRange:
 
     learned: dict[str, _Span] = field(default_factory=dict)
     collecting: dict[str, _Span] = field(default_factory=dict)
-    outside: set[str] = field(default_factory=set)        # covariates with an open advisory
-    inside_run: dict[str, int] = field(default_factory=dict)   # of those: cycles in a row back inside
+    advised: dict[str, int] = field(default_factory=dict)  # open advisories: cycles in a row back inside
     was_collecting: bool = False
     now_outside: set[str] = field(default_factory=set)     # covariates outside in the last cycle
 
@@ -98,16 +97,15 @@ class OperatingRange:
         """The advisory event of ``name`` this cycle, if any; a new learned range (``refit``) that holds
         the value closes an open advisory at once."""
         span = self.learned.get(name)
-        if name in self.now_outside and name not in self.outside:
-            self.outside.add(name)
-            self.inside_run[name] = 0
+        if name not in self.advised:
+            if name not in self.now_outside:
+                return None
+            self.advised[name] = 0
             return RangeEvent(name, "entered", value, (span.lo, span.hi)) if span else None
-        if name in self.outside:
-            self.inside_run[name] = 0 if name in self.now_outside else self.inside_run.get(name, 0) + 1
-            if self.inside_run[name] >= RETURN_CYCLES or span is None or (refit and self.inside_run[name]):
-                self.outside.discard(name)
-                self.inside_run.pop(name, None)
-                return RangeEvent(name, "left", value, (span.lo, span.hi)) if span else None
+        back = self.advised[name] = 0 if name in self.now_outside else self.advised[name] + 1
+        if back >= RETURN_CYCLES or span is None or (refit and back):
+            del self.advised[name]
+            return RangeEvent(name, "left", value, (span.lo, span.hi)) if span else None
         return None
 
     def section(self, values: dict[str, float | None]) -> dict[str, Any]:
@@ -118,13 +116,13 @@ class OperatingRange:
 
     def reset(self) -> None:
         """A declared maintenance: the nominals are learned again, and so is their range."""
-        self.learned, self.collecting, self.outside, self.was_collecting = {}, {}, set(), False
-        self.inside_run, self.now_outside = {}, set()
+        self.learned, self.collecting, self.advised, self.was_collecting = {}, {}, {}, False
+        self.now_outside = set()
 
     def state_dict(self) -> dict[str, Any]:
         return {"learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
                 "collecting": {k: [s.lo, s.hi] for k, s in self.collecting.items() if not s.empty},
-                "outside": sorted(self.outside), "inside_run": dict(self.inside_run),
+                "outside": sorted(self.advised), "inside_run": dict(self.advised),
                 "was_collecting": self.was_collecting}
 
     @classmethod
@@ -138,13 +136,11 @@ class OperatingRange:
             if isinstance(spans, dict):
                 getattr(out, key).update({name: _Span(float(v[0]), float(v[1])) for name, v in spans.items()
                                           if name in MARGINS and _pair(v)})
-        outside = state.get("outside")
-        if isinstance(outside, list):
-            out.outside = {name for name in outside if name in out.learned}
-        runs = state.get("inside_run")
-        if isinstance(runs, dict):
-            out.inside_run = {name: n for name, n in runs.items()
-                              if name in out.outside and isinstance(n, int) and 0 <= n < RETURN_CYCLES}
+        outside, runs = state.get("outside"), state.get("inside_run")
+        if isinstance(outside, list):            # a state saved before "inside_run" has no counts: 0
+            runs = runs if isinstance(runs, dict) else {}
+            out.advised = {name: n if isinstance(n := runs.get(name, 0), int) and 0 <= n < RETURN_CYCLES else 0
+                           for name in outside if name in out.learned}
         out.was_collecting = state.get("was_collecting") is True
         return out
 
