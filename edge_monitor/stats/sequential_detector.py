@@ -144,11 +144,14 @@ class SequentialDetector:
         return self.config.steady_at if self.stage == "steady" else self.config.calibrate_at
 
     @property
-    def _drift(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """The healthy drift the calibration of the current stage assumes (σ units, per dimension)."""
+    def _healthy_data(self) -> dict[str, Any]:
+        """What the calibration of the current stage assumes of healthy data after learning: the drift
+        (σ units, per dimension), the slow wander (variance fractions) and what it simulates from."""
+        c = self.config
         if self.stage == "steady":
-            return tuple(self.config.steady_drift_mean), tuple(self.config.steady_drift_sd)
-        return tuple(self.config.drift_mean), tuple(self.config.drift_sd)
+            return {"drift_mean": tuple(c.steady_drift_mean), "drift_sd": tuple(c.steady_drift_sd),
+                    "wander": tuple(c.steady_wander), "simulate_from": c.steady_simulate_from}
+        return {"drift_mean": tuple(c.drift_mean), "drift_sd": tuple(c.drift_sd)}
 
     def begin_steady(self) -> None:
         """The joint's temperature has settled: learn the nominal again from the next ``steady_nominal``
@@ -237,10 +240,7 @@ class SequentialDetector:
             self._job = CalibrationJob(tuple(map(tuple, nominal.tolist())), self._density_kind, self.window,
                                        float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
-                                       float(self.config.clip_sigma), self._calibrate_at,
-                                       *self._drift,
-                                       self.config.steady_simulate_from if self.stage == "steady" else "model",
-                                       tuple(self.config.steady_wander) if self.stage == "steady" else ())
+                                       float(self.config.clip_sigma), self._calibrate_at, **self._healthy_data)
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""
