@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
@@ -193,34 +193,45 @@ class DecisionConfig:
         return out
 
 
-def _healthy_drift(given: Any, key: str = "healthy_drift",
-                   defaults: Mapping[str, tuple[float, float]] = HEALTHY_DRIFT) -> dict[str, tuple[float, float]]:
-    """``decision.healthy_drift`` (or ``key``): the defaults, overridden per input by ``given`` (input →
-    [mean, sd])."""
+T = TypeVar("T")
+
+
+def _per_input(given: Any, key: str, defaults: Mapping[str, T], parse: Callable[[Any], T | None],
+               expected: str) -> dict[str, T]:
+    """``decision.<key>``: the defaults, overridden per detector input by ``given`` (input → value), each
+    value read by ``parse`` (None: not valid, a ConfigError saying ``expected``)."""
     require(isinstance(given, Mapping), f"decision.{key}", f"expected a table, got {given!r}")
     out = dict(defaults)
-    for name, pair in given.items():
+    for name, value in given.items():
         require(name in defaults, f"decision.{key}.{name}", f"unknown input; known: {sorted(defaults)}")
-        ok = (isinstance(pair, (list, tuple)) and len(pair) == 2
-              and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair))
-        require(ok and -MAX_DRIFT <= pair[0] <= MAX_DRIFT and 0 <= pair[1] <= MAX_DRIFT,
-                f"decision.{key}.{name}", f"expected [mean, sd] in standard deviations (mean "
-                f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g}), got {pair!r}")
-        out[name] = (float(pair[0]), float(pair[1]))
+        parsed = parse(value)
+        if parsed is None:
+            raise ConfigError(f"decision.{key}.{name}: expected {expected}, got {value!r}")
+        out[name] = parsed
     return out
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _drift_pair(pair: Any) -> tuple[float, float] | None:
+    ok = isinstance(pair, (list, tuple)) and len(pair) == 2 and all(_number(v) for v in pair)
+    return (float(pair[0]), float(pair[1])) if ok and -MAX_DRIFT <= pair[0] <= MAX_DRIFT \
+        and 0 <= pair[1] <= MAX_DRIFT else None
+
+
+def _healthy_drift(given: Any, key: str = "healthy_drift",
+                   defaults: Mapping[str, tuple[float, float]] = HEALTHY_DRIFT) -> dict[str, tuple[float, float]]:
+    """``decision.healthy_drift`` (or ``key``): input → [mean, sd] [σ]."""
+    return _per_input(given, key, defaults, _drift_pair, f"[mean, sd] in standard deviations (mean "
+                      f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g})")
 
 
 def _steady_wander(given: Any) -> dict[str, float]:
-    """``decision.steady_wander``: the defaults, overridden per input by ``given`` (input → variance fraction)."""
-    require(isinstance(given, Mapping), "decision.steady_wander", f"expected a table, got {given!r}")
-    out = dict(STEADY_WANDER)
-    for name, value in given.items():
-        require(name in STEADY_WANDER, f"decision.steady_wander.{name}",
-                f"unknown input; known: {sorted(STEADY_WANDER)}")
-        require(isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value < 1.0,
-                f"decision.steady_wander.{name}", f"expected a variance fraction 0 … <1, got {value!r}")
-        out[name] = float(value)
-    return out
+    """``decision.steady_wander``: input → variance fraction of the slow wander."""
+    return _per_input(given, "steady_wander", STEADY_WANDER,
+                      lambda v: float(v) if _number(v) and 0.0 <= v < 1.0 else None, "a variance fraction 0 … <1")
 
 
 def _log_or_nan(x: float) -> float:
