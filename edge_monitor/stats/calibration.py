@@ -133,13 +133,13 @@ class Calibration:
 
 def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, gamma0: float, rho: float,
                         budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
-                        at: str, drift: tuple[tuple[float, ...], tuple[float, ...]] = ((), ()),
+                        at: str, drift_mean: tuple[float, ...] = (), drift_sd: tuple[float, ...] = (),
                         wander: tuple[float, ...] = ()) -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
     tabulated for the shipped scalar settings, else simulated (cached) with ``GAUSSIAN_DRAW_FACTOR`` ×
     ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
     settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
-                                float(clip_sigma), at, *drift, wander)
+                                float(clip_sigma), at, drift_mean, drift_sd, wander)
     found = threshold_table.lookup(settings, arl0) if values.shape[1] == 1 else None
     if found is None:
         detectors = GAUSSIAN_DRAW_FACTOR * budget.draws
@@ -177,10 +177,11 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     started = time.process_time()
     values = as_observations(nominal, name="nominal data")
     if kind == "gauss" and simulate_from == "model" and mode == "recursive":
-        drift = (tuple(float(x) for x in np.ravel(drift_mean)), tuple(float(x) for x in np.ravel(drift_sd))) \
-            if at == "healthy_drift" else ((), ())
+        def per_axis(given: ArrayLike) -> tuple[float, ...]:      # only a healthy-drift calibration uses them
+            return tuple(float(x) for x in np.ravel(given)) if at == "healthy_drift" else ()
+
         return _calibrate_gaussian(values, window, arl0, gamma0, rho, budget, direction, allowance, clip_sigma, at,
-                                   drift, tuple(float(x) for x in np.ravel(wander)) if at == "healthy_drift" else ())
+                                   per_axis(drift_mean), per_axis(drift_sd), per_axis(wander))
     seed = FIXED_SEED if seed is None else seed
     rng = np.random.default_rng(seed)
     model = fit_density(values, kind)

@@ -39,10 +39,8 @@ def _table() -> dict[str, dict[str, Any]]:
         return {}
     out = {}
     for e in json.loads(text).get("entries", []):
-        settings = {**e["settings"], "drift_mean": tuple(e["settings"].get("drift_mean", ())),
-                    "drift_sd": tuple(e["settings"].get("drift_sd", ())),
-                    "wander": tuple(e["settings"].get("wander", ()))}
-        out[key(GaussianSettings(**settings))] = e
+        per_axis = {name: tuple(e["settings"].get(name, ())) for name in ("drift_mean", "drift_sd", "wander")}
+        out[key(GaussianSettings(**{**e["settings"], **per_axis}))] = e
     return out
 
 
