@@ -90,6 +90,9 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
     sections = {"segmentation": PlateauConfig, "model": ModelConfig, "wear": WearConfig, "kl": KLConfig,
                 "decision": DecisionConfig,
                 "maintenance": MaintenanceConfig, "acknowledge": AcknowledgeConfig}
+    decision = dict(data.get("decision", {})) if isinstance(data.get("decision", {}), Mapping) else {}
+    if isinstance(data.get("joints"), list) and data["joints"] and "joints_per_robot" not in decision:
+        data["decision"] = {**decision, "joints_per_robot": len(data["joints"])}  # the budget's split
     for name, cls in sections.items():
         if name in data:
             kwargs[name] = _section(cls, data.pop(name), name)

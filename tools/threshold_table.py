@@ -87,8 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     kept = {}
     if args.out.exists() and not args.recompute:          # entries of settings already tabulated stay
         for e in json.loads(args.out.read_text()).get("entries", []):
-            e["settings"] = {**e["settings"], "drift_mean": tuple(e["settings"].get("drift_mean", ())),
-                             "drift_sd": tuple(e["settings"].get("drift_sd", ()))}
+            e["settings"] = {k: tuple(v) if isinstance(v, list) else v for k, v in e["settings"].items()}
             kept[GaussianSettings(**e["settings"])] = e
     entries = [kept.get(s) or entry(s, budget) for s in shipped_settings()]
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -44,8 +44,10 @@ log = logging.getLogger(__name__)
 #: design point (ξ' = 40 °C, ϖ' = 35), rounded to 0.1 rad/s.
 DEMO_SPEEDS = (31.6, 36.6, 41.6, 46.6)
 DEMO_JOINTS = 2
-DEMO_CYCLES = 130
+DEMO_CYCLES = 160
 WORN_JOINT = 1
+#: Cycles the worn joint's wear takes from 0 to 60 (critical: 35): a medium ramp, 0.5 per cycle.
+RAMP_CYCLES = 120
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -82,13 +84,14 @@ def demo_config(out: Path, nominal_cycles: int) -> AgentConfig:
 
 def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
     """The simulator at its default individual variation (±8 % per joint) and thermal drift; the wear
-    ramp starts 5 cycles after the agent has learned the joint's model and its nominal behaviour."""
+    ramp (0 → 60 over ``RAMP_CYCLES``) starts 5 cycles after the agent has learned the joint's model and
+    its nominal behaviour."""
     wear_start = min(ModelConfig().learning_cycles + args.nominal_cycles + 5, args.cycles - 1)
     return [sys.executable, "-m", "sim_controller.cli", "run", "--link", link,
             "--joints", str(args.joints), "--cycles", str(args.cycles), "--seed", str(args.seed),
             "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
             "--speedup", str(args.speedup),
-            "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{args.cycles}:0:60",
+            "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{wear_start + RAMP_CYCLES}:0:60",
             "--truth", str(truth), *(["-q"] if verbosity(args) < 0 else [])]
 
 

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from edge_monitor.errors import StateError, UnknownJointError
 from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.cycle_rate import BudgetRate
 from edge_monitor.pipeline.detectors import Acknowledgement
 from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
@@ -58,6 +59,7 @@ class Agent:
         # the sample source (docs/ARCHITECTURE.md): our frames, or a mapping's (pipeline.sources)
         self.ingest = source if source is not None else Ingest(rate_hz=config.rate_hz, joints=config.joints)
         self.joints: dict[int, JointMonitor] = {}
+        self.budget = BudgetRate(config.decision)       # the cycle rate the false-alarm budget is for
         self.stats = RunStats()
         self._open_cycle: int | None = None
         self._last_emitted: dict[int, int] = {}
@@ -148,6 +150,7 @@ class Agent:
         monitor = self.joints.get(joint)
         if monitor is None:
             monitor = self._restored_monitor(joint) or JointMonitor(joint, self.config, self.calibrator)
+            monitor.retarget(self.budget.arl0)          # no-op unless the measured rate moved the target
             self.joints[joint] = monitor
             log.info("joint %d: monitoring started", joint)
         return monitor
@@ -182,6 +185,10 @@ class Agent:
             if partial:
                 self.stats.partial_cycles += 1
             outputs += self._emit(symptom)
+        arl0 = self.budget.update(self._last_frame_time)
+        if arl0 is not None:
+            for monitor in self.joints.values():
+                monitor.retarget(arl0)
         return outputs
 
     def _emit(self, symptom: Symptom) -> list[Symptom]:
@@ -335,6 +342,7 @@ class Agent:
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
                 "e2e": dict(self.ingest.e2e.stats),
                 "no_new_data": self.ingest.e2e.stats["no_new_data"],
+                **self.budget.counters(),
             })
             h.update(extra or {})
             return Health(self.config.robot, h)
@@ -357,7 +365,7 @@ class Agent:
             joints.update({str(j): s for j, s in self._restored_joint_states.items()})
             return {"robot": self.config.robot,
                     "last_emitted": {str(j): c for j, c in self._last_emitted.items()},
-                    "ingest": self.ingest.state_dict(), "joints": joints}
+                    "ingest": self.ingest.state_dict(), "joints": joints, "cycle_rate": self.budget.state_dict()}
 
     def save_state(self) -> bool:
         """Persist the state; False (logged, counted in ``state_save_errors``, the previous file kept)
@@ -386,6 +394,8 @@ class Agent:
         if state.get("ingest"):
             self.ingest.load_state(state["ingest"])
         self._last_emitted = {int(j): c for j, c in state.get("last_emitted", {}).items()}
+        if state.get("cycle_rate"):
+            self.budget.load_state(state["cycle_rate"])
         self._restored_joint_states = {int(j): s for j, s in state.get("joints", {}).items()}
         log.info("restored state of joints %s (last cycles %s)", sorted(self._restored_joint_states),
                  self._last_emitted)

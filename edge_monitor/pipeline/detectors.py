@@ -20,7 +20,7 @@ from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.calibration import CALIBRATE_AT, DEFAULT_ARL0, MAX_DRIFT, CalibrationBudget
+from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MAX_DRIFT, CalibrationBudget
 from edge_monitor.stats.detector_config import (
     DEFAULT_NOMINAL,
     DEFAULT_STEADY_NOMINAL,
@@ -42,6 +42,14 @@ SETTLING_KEY = "_thermal_settling"
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
 
+#: The periods a false-alarm budget may be stated per [days].
+BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
+#: Test cycles a day the thresholds are derived for until the agent has measured its own rate.
+DEFAULT_CYCLES_PER_DAY = 300.0
+#: Joints the robot's budget is split over unless the config lists the joints (a six-axis arm).
+DEFAULT_JOINTS_PER_ROBOT = 6
+MAX_JOINTS_PER_ROBOT = 64
+
 #: Healthy drift of each detector input after warm-up: (mean, sd) over joints of the shift from what
 #: its detector learned, in standard deviations of the learned values, in the units it watches
 #: (docs/DETECTION.md, ``tools/warmup_drift_study.py``; simulator defaults).
@@ -52,8 +60,8 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.41), "kl
 #: calibration simulates itself). Measured on 8 healthy default robots (seeds 101–108, steady cycles;
 #: docs/DETECTION.md, "The steady stage's healthy drift"): the KL distances keep creeping up with the
 #: last warming, the wear score does not.
-STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.10, 0.09),
-                                                "kl_weighted": (0.10, 0.09)}
+STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.04, 0.03),
+                                                "kl_weighted": (0.04, 0.03)}
 #: And how they wander once warm: the fraction of each input's variance in a slow AR(1) component
 #: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_calibration.WANDER_COEFFICIENT`), from the
 #: variance ratios of k-cycle means of the same joints: the log KL distances 1.19, 1.32, 1.39 at k = 5,
@@ -65,10 +73,12 @@ STEADY_WANDER: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.09, "kl_weight
 class DecisionConfig:
     """Sequential GLR decision layer settings (the ``[decision]`` table), validated once, here.
 
-    False alarms are stated as the mean run length to a false alarm of each detector,
-    ``arl0_cycles`` [cycles], or as ``false_alarms_per_year`` with ``cycles_per_day``; every detector
-    calibrates its threshold for it at the end of learning (docs/DETECTION.md). ``pf``/``pf_joint``
-    (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
+    False alarms are stated per robot: ``false_alarms_per_robot`` per ``budget_period`` (day, week,
+    month or year; default one a year), split evenly (Bonferroni) over the robot's detectors —
+    ``joints_per_robot`` × the watched quantities — at ``cycles_per_day`` test cycles a day; expert
+    option: ``arl0_cycles``, the mean run length to a false alarm of each detector [cycles], directly.
+    Every detector calibrates its threshold for :attr:`arl0` at the end of learning (docs/DETECTION.md).
+    ``pf``/``pf_joint`` (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
     the scalar / vector quantities. ``density`` applies to scalar quantities, ``density_joint`` to the
     vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
     ``calibrate_at``: where the calibration simulates each detector (default at the drift allowance);
@@ -85,9 +95,11 @@ class DecisionConfig:
     n_nominal: int = DEFAULT_NOMINAL
     density: str = "gauss"
     density_joint: str = "gauss"
-    arl0_cycles: float = DEFAULT_ARL0
-    false_alarms_per_year: float | None = None
-    cycles_per_day: float | None = None
+    false_alarms_per_robot: float = 1.0
+    budget_period: str = "year"
+    cycles_per_day: float = DEFAULT_CYCLES_PER_DAY
+    joints_per_robot: int = DEFAULT_JOINTS_PER_ROBOT
+    arl0_cycles: float | None = None
     pf: float | None = None
     pf_joint: float | None = None
     window: int = DEFAULT_WINDOW
@@ -118,11 +130,30 @@ class DecisionConfig:
         return SettlingConfig(window=self.settling_window, max_rate=self.settling_max_rate)
 
     @property
+    def detectors_per_robot(self) -> int:
+        """How many detectors the robot's false-alarm budget is split over."""
+        return self.joints_per_robot * len(self.quantities)
+
+    @property
     def arl0(self) -> float:
         """The mean run length to false alarm per detector [cycles] the thresholds are calibrated for."""
-        if self.false_alarms_per_year is not None and self.cycles_per_day is not None:
-            return 365.25 * self.cycles_per_day / self.false_alarms_per_year
-        return float(self.arl0_cycles)
+        return self.arl0_for(self.cycles_per_day)
+
+    def arl0_for(self, cycles_per_day: float) -> float:
+        """:attr:`arl0` at ``cycles_per_day`` test cycles a day (``arl0_cycles`` if given: fixed)."""
+        if self.arl0_cycles is not None:
+            return float(self.arl0_cycles)
+        days = BUDGET_PERIODS[self.budget_period]
+        return cycles_per_day * days * self.detectors_per_robot / self.false_alarms_per_robot
+
+    @property
+    def budget_text(self) -> str:
+        """The false-alarm budget as a person reads it."""
+        if self.arl0_cycles is not None:
+            return f"mean run length to a false alarm {self.arl0:.3g} cycles per detector"
+        return (f"{self.false_alarms_per_robot:g} false alarm(s) per robot-{self.budget_period} "
+                f"({self.detectors_per_robot} detectors at {self.cycles_per_day:g} cycles a day: "
+                f"{self.arl0:.3g} cycles per detector)")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", _healthy_drift(self.healthy_drift))
@@ -134,12 +165,7 @@ class DecisionConfig:
         require(isinstance(self.steady_relearn, bool), "decision.steady_relearn",
                 f"must be true or false, got {self.steady_relearn!r}")
         _ = self.settling                                         # validates the settling keys
-        require((self.false_alarms_per_year is None) == (self.cycles_per_day is None),
-                "decision.false_alarms_per_year",
-                "give it together with decision.cycles_per_day (or use decision.arl0_cycles)")
-        for name in ("false_alarms_per_year", "cycles_per_day"):
-            value = getattr(self, name)
-            require(value is None or 0 < value <= 1e6, f"decision.{name}", f"must be > 0, got {value!r}")
+        self._check_budget()
         unknown = [q for q in self.quantities if q not in QUANTITIES]
         require(not unknown, "decision.quantities", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
         require(len(set(self.quantities)) == len(self.quantities), "decision.quantities",
@@ -153,6 +179,21 @@ class DecisionConfig:
                     field = {"pf": "pf_joint", "density": "density_joint"}.get(field, field)
                 field = {"arl0": "arl0_cycles"}.get(field, field)
                 raise ConfigError(f"decision.{field} (quantity '{quantity}'): {message}") from None
+
+    def _check_budget(self) -> None:
+        require(self.budget_period in BUDGET_PERIODS, "decision.budget_period",
+                f"{self.budget_period!r}; choose one of {sorted(BUDGET_PERIODS)}")
+        for name in ("false_alarms_per_robot", "cycles_per_day"):
+            value = getattr(self, name)
+            require(isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value <= 1e6,
+                    f"decision.{name}", f"must be a number > 0 and ≤ 1e6, got {value!r}")
+        require(isinstance(self.joints_per_robot, int) and not isinstance(self.joints_per_robot, bool)
+                and 1 <= self.joints_per_robot <= MAX_JOINTS_PER_ROBOT, "decision.joints_per_robot",
+                f"must be 1 … {MAX_JOINTS_PER_ROBOT}, got {self.joints_per_robot!r}")
+        if self.arl0_cycles is None:
+            require(10 <= self.arl0 <= MAX_ARL0, "decision.false_alarms_per_robot",
+                    f"{self.budget_text} is outside 10 … {MAX_ARL0:g} cycles per detector; state a "
+                    f"budget a {self.budget_period} of {self.cycles_per_day:g} cycles can deliver")
 
     def detector_config(self, quantity: str) -> DetectorConfig:
         spec = QUANTITIES[quantity]
@@ -275,6 +316,14 @@ class DetectorBank:
     def keep_settling(self, previous: "DetectorBank") -> None:
         """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled)."""
         self.settling = ThermalSettling.from_state(self.config.settling, previous.settling.state_dict())
+        for quantity, detector in self.detectors.items():           # and the budget's current target
+            if quantity in previous.detectors:
+                detector.retarget(previous.detectors[quantity].arl0)
+
+    def retarget(self, arl0: float) -> int:
+        """Re-derive every threshold for the mean run length ``arl0`` [cycles] on the same nominals (the
+        robot's cycle rate changed, :mod:`~edge_monitor.pipeline.cycle_rate`); calibrations started."""
+        return sum(detector.retarget(arl0) for detector in self.detectors.values())
 
     def watched(self, values: dict[str, float]) -> dict[str, float]:
         """Feature values in the units the detectors watch (log of the log-scale quantities; NaN for a

@@ -90,6 +90,10 @@ class JointMonitor:
         if previous is not None:
             self.detectors.keep_settling(previous)
 
+    def retarget(self, arl0: float) -> int:
+        """Every detector's threshold re-derived for ``arl0`` [cycles] (:meth:`DetectorBank.retarget`)."""
+        return self.detectors.retarget(arl0)
+
     @property
     def model_ready(self) -> bool:
         return self.model is None or self.model.learned

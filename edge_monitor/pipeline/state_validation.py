@@ -34,7 +34,8 @@ MAX_JOINT = 64
 MAX_STRING = 4096
 
 _SECTIONS: dict[str, type | tuple[type, ...]] = {
-    "version": int, "robot": str, "last_emitted": dict, "ingest": (dict, type(None)), "joints": dict}
+    "version": int, "robot": str, "last_emitted": dict, "ingest": (dict, type(None)), "joints": dict,
+    "cycle_rate": dict}
 
 
 def validate_state(state: Any, robot: str, joints: tuple[int, ...] | None = None) -> dict[str, Any]:

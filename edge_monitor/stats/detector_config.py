@@ -160,6 +160,7 @@ class DetectorConfig:
                "steady_drift_mean": list(self.steady_drift_mean), "steady_drift_sd": list(self.steady_drift_sd),
                "steady_wander": list(self.steady_wander),
                "transform_axes": list(self.transform_axes)}
+        del out["arl0"]          # the target is not what was learned: a changed one is re-derived (retarget)
         if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
             for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
                 del out[key]                                           # these settings existed still match

@@ -45,6 +45,7 @@ from edge_monitor.stats.detector_config import (  # noqa: F401  (re-exported: th
     DetectorConfig,
     DetectorConfigError,
 )
+from edge_monitor.stats.detector_state import saved_steady_values, saved_target, saved_transform
 from edge_monitor.stats.glr import GLRError, WindowedGLR, threshold_from_pf
 from edge_monitor.stats.glr_batch import clip_range, null_box
 from edge_monitor.stats.normalising_transform import TransformError, YeoJohnson
@@ -77,6 +78,7 @@ class SequentialDetector:
         self.skipped_bad_shape = 0
         self.resets = 0
         self.fits = 0                      # nominals fitted so far (warm-up, steady, after resets)
+        self.arl0 = float(config.arl0)     # the target [cycles]; :meth:`retarget` changes it
         self._clear()
 
     def _clear(self) -> None:
@@ -87,6 +89,7 @@ class SequentialDetector:
         self._learning_note = ""
         self.calibration: Calibration | None = None
         self._job: CalibrationJob | None = None
+        self._done: CalibrationJob | None = None      # the job of the threshold in use (for :meth:`retarget`)
         self._pending: Pending | None = None
         self._waiting_max = 0.0            # largest statistic while the calibration was under way
         self.stage = "warm-up"             # "warm-up" | "steady" (see the module docstring)
@@ -122,7 +125,8 @@ class SequentialDetector:
         """How the threshold is set, for every decision: the ARL0 target and the method, or the Pf."""
         if self.config.pf is not None:
             return {"method": "asymptotic", "pf": self.config.pf}
-        out: dict[str, Any] = {"arl0": self.config.arl0, "at": self._calibrate_at, "stage": self.stage}
+        out: dict[str, Any] = {"arl0": self.calibration.arl0 if self.calibration is not None else self.arl0,
+                               "at": self._calibrate_at, "stage": self.stage}
         if self.calibration is not None:
             out["method"] = self.calibration.method
             if self.calibration.h_se is not None:
@@ -191,6 +195,21 @@ class SequentialDetector:
         self._latched, self._steady_values = None, None
         self._cycles = [None] * self.window
 
+    def retarget(self, arl0: float) -> bool:
+        """Re-derive the threshold for another mean run length ``arl0`` [cycles] on the same nominal (the
+        budget's cycle rate changed); the current threshold decides until the new one arrives. Whether
+        a calibration was started (a learning detector only takes the new target)."""
+        arl0 = float(arl0)
+        if self.config.pf is not None or arl0 == self.arl0:
+            return False
+        self.arl0 = arl0
+        job = self._job or self._done
+        if self._glr is None or job is None:
+            return False
+        self._job, self._waiting_max = replace(job, arl0=arl0), 0.0
+        self._pending = self.calibrator.submit(self._job)
+        return True
+
     def counters(self) -> dict[str, int]:
         return {"skipped_nonfinite": self.skipped_nonfinite, "skipped_bad_shape": self.skipped_bad_shape,
                 "resets": self.resets, "fits": self.fits}
@@ -238,7 +257,7 @@ class SequentialDetector:
             return Decision("learning", reason=self._learning_note, calibration=self.calibration_record())
         if self.config.pf is None:
             self._job = CalibrationJob(tuple(map(tuple, nominal.tolist())), self._density_kind, self.window,
-                                       float(self.config.arl0), self.gamma0, self.rho, self.mode, self.config.budget,
+                                       self.arl0, self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
                                        float(self.config.clip_sigma), self._calibrate_at, **self._healthy_data)
             self._pending = self.calibrator.submit(self._job)
@@ -260,11 +279,11 @@ class SequentialDetector:
             calibration = self._pending.result()
         except (CalibrationError, DensityError, ValueError) as exc:    # degenerate nominal: asymptotic fallback
             log.warning("threshold calibration failed (%s); using the asymptotic threshold for Pf = 1e-9", exc)
-            calibration = Calibration(threshold_from_pf(1e-9, self.dim), float(self.config.arl0), "fallback",
+            calibration = Calibration(threshold_from_pf(1e-9, self.dim), self.arl0, "fallback",
                                       0, 0, 0, None, 0.0)
         if calibration is None:
             return
-        self.calibration, self._pending, self._job = calibration, None, None
+        self.calibration, self._pending, self._job, self._done = calibration, None, None, self._job
         self._glr.threshold = calibration.threshold
         log.info("threshold %.3f for ARL0 %.0f cycles (%s, %d × %d simulated cycles, %.1f s CPU)",
                  calibration.threshold, calibration.arl0, calibration.method, calibration.draws,
@@ -334,7 +353,8 @@ class SequentialDetector:
                 "nominal": [list(v) for v in self._nominal],
                 "glr": None if self._glr is None else self._glr.state_dict(),
                 "calibration": None if self.calibration is None else self.calibration.to_dict(),
-                "calibration_job": None if self._job is None else self._job.to_dict(),
+                "calibration_job": None if self._job is None else self._job.to_dict(), "arl0": self.arl0,
+                "calibrated_job": None if self._done is None else self._done.to_dict(),
                 "waiting_max": self._waiting_max,
                 "cycles": list(self._cycles), "latched": None if self._latched is None else dict(self._latched),
                 "learning_note": self._learning_note, "counters": self.counters(), "stage": self.stage,
@@ -346,12 +366,18 @@ class SequentialDetector:
                    calibrator: Calibrator | None = None) -> "SequentialDetector":
         """Restore a detector learned with ``config``; :class:`StateMismatch` if it was learned with
         another. A calibration that was under way is started again (it is deterministic)."""
+        saved = state.get("config")          # states saved with the target in it: a target is no longer
+        if isinstance(saved, dict):          # what was learned (it is re-derived, :meth:`retarget`)
+            state = {**state, "config": {k: v for k, v in saved.items() if k != "arl0"}}
         check_learned_with("detector", state, config.fingerprint())
         det = cls(config, calibrator)
+        det.arl0 = saved_target(state.get("arl0", config.arl0))
         det._nominal = [list(map(float, v)) for v in state["nominal"]]
         det._glr = None if state["glr"] is None else WindowedGLR.from_state(state["glr"])
         if state.get("calibration") is not None:
             det.calibration = Calibration.from_dict(state["calibration"])
+        if state.get("calibrated_job") is not None and det._glr is not None:
+            det._done = CalibrationJob.from_dict(state["calibrated_job"])
         if state.get("calibration_job") is not None and det._glr is not None:
             det._job = CalibrationJob.from_dict(state["calibration_job"])
             det._pending = det.calibrator.submit(det._job)
@@ -360,39 +386,11 @@ class SequentialDetector:
         det._latched = None if state["latched"] is None else dict(state["latched"])
         det._learning_note = state.get("learning_note", "")
         det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
-        det._steady_values = _steady_values(state.get("steady_values"), det)
-        det._transform = _transform(state.get("transform"), det)
+        det._steady_values = saved_steady_values(state.get("steady_values"), det)
+        det._transform = saved_transform(state.get("transform"), det)
         counters = state.get("counters", {})
         det.skipped_nonfinite = int(counters.get("skipped_nonfinite", 0))
         det.skipped_bad_shape = int(counters.get("skipped_bad_shape", 0))
         det.resets = int(counters.get("resets", 0))
         det.fits = int(counters.get("fits", 0))
         return det
-
-
-def _transform(saved: Any, det: SequentialDetector) -> YeoJohnson | None:
-    """A saved transform, checked: only a monitoring steady detector with the transform on has one, of its
-    dimension, with λ = 1 on the axes it does not select."""
-    if saved is None:
-        return None
-    transform = YeoJohnson.from_state(saved)          # TransformError is a ValueError: a damaged state
-    selected = det.config.transform_axes or (True,) * det.dim
-    fits = (det.config.steady_transform != "none" and transform.dim == det.dim == len(selected)
-            and all(on or lam == 1.0 for on, lam in zip(selected, transform.lambdas)))
-    if det.stage != "steady" or det._glr is None or not fits:
-        raise ValueError("saved detector state: a transform that no detector could have learned")
-    return transform
-
-
-def _steady_values(saved: Any, det: SequentialDetector) -> list[list[float]] | None:
-    """A saved steady collection, checked: only a monitoring warm-up detector collects, fewer than
-    ``steady_nominal`` values of ``dim`` finite numbers each; anything else is a damaged state."""
-    if saved is None:
-        return None
-    values = [list(map(float, v)) for v in saved]
-    ok = (det.stage == "warm-up" and det._glr is not None and len(values) < det.config.steady_nominal
-          and all(len(v) == det.dim and all(map(math.isfinite, v)) for v in values))
-    if not ok:
-        raise ValueError("saved detector state: steady values that no detector could have collected")
-    return values
-
