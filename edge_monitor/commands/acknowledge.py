@@ -205,11 +205,12 @@ def _acknowledge(session: Any, robot: str, joint: int, request: AcknowledgeReque
               "control or the agent's gate refused the request (see the agent's log)", file=sys.stderr)
         return EXIT_FAILURE
     for record in records:
-        fault = f"fault {record['fault']} " if record.get("fault") else ""
-        still_open = " (the fault stays open: other detectors of it are still latched)" if record.get("open") else ""
-        print(f"{where}: {fault}{', '.join(_named(record))} alarm acknowledged after cycle {record.get('cycle')}"
-              f"{' by ' + str(record['by']) if record.get('by') else ''}; the statistics restart on the same "
-              f"nominal and threshold{still_open}")
+        named = _named(record)
+        still = ", still open" if record.get("open") else ""
+        fault = f" (fault {record['fault']}{still})" if record.get("fault") else ""
+        print(f"{where}: {', '.join(named)} alarm{'s' if len(named) > 1 else ''} acknowledged after cycle "
+              f"{record.get('cycle')}{fault}{' by ' + str(record['by']) if record.get('by') else ''}; the "
+              f"statistics restart on the same nominal and threshold")
     left = sorted(set(latched or ()) - {q for r in records for q in _named(r)})
     if left:
         print(f"{where}: no acknowledgement of {', '.join(left)} within {timeout:g} s (no longer latched?)")

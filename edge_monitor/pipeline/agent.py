@@ -297,9 +297,9 @@ class Agent:
             result = monitor.acknowledge(cycle, quantities)
             result = replace(result, alarms=tuple(replace(a, by=by, note=note, utc=utc_now()) for a in result.alarms))
             for alarm in result.alarms:
-                log.warning("joint %d: fault %s ACKNOWLEDGED after cycle %d by %s (%s): the statistics restart on "
-                            "the same nominal and threshold", alarm.joint, alarm.fault, cycle, by or "(unnamed)",
-                            ", ".join(d["quantity"] for d in alarm.detectors or ()))
+                log.warning("joint %d: %s alarm ACKNOWLEDGED (fault %s) after cycle %d by %s: the statistics "
+                            "restart on the same nominal and threshold", alarm.joint, ", ".join(
+                                d["quantity"] for d in alarm.detectors or ()), alarm.fault, cycle, by or "(unnamed)")
                 self.stats.acknowledged += 1
                 for sink in self.sinks:
                     self._deliver(sink.on_alarm, alarm)

@@ -62,8 +62,8 @@ def alarm_text(record: dict) -> str:
         f"{_number(d.get('threshold')):.4g}, change at cycle {d.get('change_cycle')}, miss probability "
         f"{_number(d.get('miss_probability')):.3g}" if state in ALERTING else str(d.get("quantity"))
         for d in detectors if isinstance(d, dict))
-    fault = record.get("fault") or f"{record.get('quantity')} alarm"
-    return f"cycle {record.get('cycle')}: fault {fault} {state} — {evidence}"
+    what = f"fault {record['fault']}" if record.get("fault") else f"{record.get('quantity')} alarm"
+    return f"cycle {record.get('cycle')}: {what} {state} — {evidence}"
 
 
 def _number(value: Any) -> float:
