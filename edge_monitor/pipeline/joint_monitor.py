@@ -240,6 +240,7 @@ class JointMonitor:
             self.config = config
             self.assembler = CycleAssembler(self.joint, config.segmentation, config.rate_hz)
             self.assembler.load_state(counters)
+        self.faults.config = self.config.alarms
         self.model = JointModelLearner(self.config.model, self.config.friction_for(self.joint),
                                        self.config.wear.default_load_mean) if self.config.model.enabled else None
         self._build()
