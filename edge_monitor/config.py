@@ -23,6 +23,7 @@ from edge_monitor.features.wear import WearConfig
 from edge_monitor.files import NotARegularFile, read_regular
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import DecisionConfig
+from edge_monitor.pipeline.fault_grouping import AlarmConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import FrictionParams
@@ -88,7 +89,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
     data = dict(data)
     kwargs: dict[str, Any] = {}
     sections = {"segmentation": PlateauConfig, "model": ModelConfig, "wear": WearConfig, "kl": KLConfig,
-                "decision": DecisionConfig,
+                "decision": DecisionConfig, "alarms": AlarmConfig,
                 "maintenance": MaintenanceConfig, "acknowledge": AcknowledgeConfig}
     decision = dict(data.get("decision", {})) if isinstance(data.get("decision", {}), Mapping) else {}
     if isinstance(data.get("joints"), list) and data["joints"] and "joints_per_robot" not in decision:
@@ -130,8 +131,8 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
 
 #: Plain keys at the top of the TOML file (the structured fields have tables of their own).
 _TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
-    "friction", "joint_friction", "segmentation", "model", "wear", "kl", "decision", "maintenance", "acknowledge",
-    "zenoh"}
+    "friction", "joint_friction", "segmentation", "model", "wear", "kl", "decision", "alarms", "maintenance",
+    "acknowledge", "zenoh"}
 
 
 #: The shipped example config, where this installation has it (every key with its default and meaning).

@@ -108,17 +108,26 @@ class Decision:
         return out
 
 
+#: States of a published alarm record (one fault of one joint; :mod:`edge_monitor.pipeline.fault_grouping`).
+ALARM_STATES = ("raised", "updated", "chattering", "acknowledged", "cleared")
+
+
 @dataclass(frozen=True)
 class Alarm:
-    """An alarm event on one quantity of one joint: "raised" (a threshold crossing), "cleared" (a
-    declared maintenance: the detector relearns) or "acknowledged" (judged false by an operator: the
-    statistic restarts on the same nominal and threshold); ``by``/``note`` say who acknowledged and why."""
+    """An alarm event. A detector's own crossing (what :class:`~edge_monitor.pipeline.detectors.DetectorBank`
+    reports) has ``fault`` None; a published record is about one fault of one joint
+    (:mod:`edge_monitor.pipeline.fault_grouping`): "raised" (its first crossing), "updated" (more detectors
+    agree), "chattering" (a crossing soon after an acknowledgement), "acknowledged" (judged false by an
+    operator: the statistics restart on the same nominal and threshold; ``by``/``note`` say who and why)
+    or "cleared" (a declared maintenance: the detectors relearn). ``quantity`` is the detector that raised
+    the fault; ``detectors`` the evidence of every detector the record names; ``open`` whether the fault
+    is still open after it."""
 
     robot: str
     joint: int
     cycle: int
     quantity: str
-    state: str                                # "raised" | "cleared" | "acknowledged"
+    state: str                                # one of ALARM_STATES
     statistic: float | None = None
     threshold: float | None = None
     miss_probability: float | None = None
@@ -129,6 +138,9 @@ class Alarm:
     #: operating conditions then against the learned ones (:mod:`edge_monitor.pipeline.operating_range`)
     cause: dict[str, Any] | None = None
     utc: str | None = None                    # wall time of the cycle's end (or of a maintenance), ISO 8601
+    fault: str | None = None                  # "<robot>/<joint>/<cycle it was raised>"
+    detectors: tuple[dict[str, Any], ...] | None = None
+    open: bool | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -137,8 +149,17 @@ class Alarm:
             "quantity": self.quantity, "state": self.state, "statistic": finite_or_none(self.statistic),
             "threshold": finite_or_none(self.threshold),
             "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
-        out.update({k: v for k, v in (("by", self.by), ("note", self.note), ("cause", self.cause)) if v is not None})
+        out.update({k: v for k, v in (("by", self.by), ("note", self.note), ("cause", self.cause),
+                                      ("fault", self.fault), ("open", self.open)) if v is not None})
+        if self.detectors is not None:
+            out["detectors"] = to_strict(list(self.detectors))
         return out
+
+    def evidence(self) -> dict[str, Any]:
+        """This detector crossing as one entry of a fault's ``detectors``: what crossed, when, by how much."""
+        return {"quantity": self.quantity, "cycle": self.cycle, "statistic": finite_or_none(self.statistic),
+                "threshold": finite_or_none(self.threshold), "miss_probability": finite_or_none(self.miss_probability),
+                "change_cycle": self.change_cycle, "cause": self.cause}
 
 
 @dataclass(frozen=True)

@@ -42,12 +42,14 @@ def cycle_torque(speed, rng, load=0.5, temperature=40.0, wear=0.0, noise=2e-3, i
 
 def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j, c: 0.0,
                 temperature=lambda c: 40.0, load=0.5, load_std=0.1, noise=2e-3, seed=0,
-                status=True, first_cycle=0, first_tick=0, start_tick=0, start_time=0.0):
+                status=True, first_cycle=0, first_tick=0, start_tick=0, start_time=0.0,
+                motor_temperature=lambda c: 45.0):
     """Return (ids, data[n,8], dlc, timestamps) of ``n_cycles`` cycles, in transmission order; the
     controller tick starts at ``start_tick`` (its 24-bit status field wraps) and timestamps at ``start_time`` s.
     ``first_cycle``/``first_tick``: where a stream made of several calls goes on (e.g. the ticks of
     ``first_cycle`` earlier cycles: ``first_cycle * cycle_profile(speeds)[0].size``), ticks and
-    timestamps counted on from ``start_tick``/``start_time``."""
+    timestamps counted on from ``start_tick``/``start_time``. ``motor_temperature(cycle)``: what the
+    joint status frames report [°C] (an operating condition only: the torque does not depend on it)."""
     rng = np.random.default_rng(seed)
     speed_ref, segment = cycle_profile(speeds)
     n_tick = speed_ref.size
@@ -71,7 +73,7 @@ def make_frames(n_cycles, joints=(0,), speeds=(8.7, 41.7, 133.5), wear=lambda j,
                 ts.append(t)
                 for j in joints:
                     ids.append(fr.JOINT_STATUS_BASE_ID + j)
-                    rows.append(fr.encode_joint_status(j, status_counter % 16, load_est, load_std, 45.0))
+                    rows.append(fr.encode_joint_status(j, status_counter % 16, load_est, load_std, motor_temperature(cyc)))
                     ts.append(t)
                 status_counter += 1
             for j in joints:

@@ -144,13 +144,15 @@ def test_the_agent_acknowledges_sends_the_event_and_a_restart_does_not_bring_the
     sink = AlarmSink()
     agent = Agent(small_config(), sinks=[sink], state_store=StateStore(tmp_path))
     feed_frames(agent, frames)
-    assert "wear" in {a["quantity"] for a in sink.alarms if a["state"] == "raised"}
+    [raised] = [a for a in sink.alarms if a["state"] == "raised"]          # one fault, however many detectors
+    assert "wear" in {d["quantity"] for d in raised["detectors"]}
     with pytest.raises(ValueError, match="joint 3: nothing learned yet"):
         agent.acknowledge(3)
     result = agent.acknowledge(0, ["wear"], by="alice", note="probe knocked the arm")
     event = [a for a in sink.alarms if a["state"] == "acknowledged"]
     assert event == [a.to_dict() for a in result.alarms] and len(event) == 1
-    assert event[0]["quantity"] == "wear" and event[0]["by"] == "alice" and event[0]["note"] == "probe knocked the arm"
+    assert [d["quantity"] for d in event[0]["detectors"]] == ["wear"] and event[0]["fault"] == raised["fault"]
+    assert event[0]["by"] == "alice" and event[0]["note"] == "probe knocked the arm"
     assert event[0]["cycle"] == 12                     # the last cycle published (cycle 13 is still open)
     assert agent.health().counters["alarms_acknowledged"] == 1
     # the state was saved by the acknowledgement itself (no cycle closed since): a restart keeps it
@@ -159,8 +161,11 @@ def test_the_agent_acknowledges_sends_the_event_and_a_restart_does_not_bring_the
     assert saved["acknowledgements"] == 1 and saved["detectors"]["wear"]["latched"] is None
     still = sorted(q for q in ("kl_raw", "kl_weighted") if agent.joints[0].detectors.detectors[q].alarmed)
     assert still                                   # the other side: what was not acknowledged stays latched
+    assert event[0]["open"] is True                # … so the fault stays open
     again = restarted.acknowledge(0)
-    assert sorted(a.quantity for a in again.alarms) == still and "wear" in again.not_latched
+    [record] = again.alarms                        # one record of the same fault (kept across the restart)
+    assert sorted(d["quantity"] for d in record.detectors or ()) == still and "wear" in again.not_latched
+    assert record.fault == raised["fault"] and record.open is False
 
 
 # -- the request payload and the gate ----------------------------------------------------------------

@@ -138,8 +138,11 @@ def test_values_and_colours_read_back(tmp_path):
     records = [symptom("r1", 0, c) for c in range(10)]
     sink = RerunSink.open(f"save:{path}")
     sink.log_symptoms(records)
+    kl_raw = {"quantity": "kl_raw", "cycle": 6, "statistic": 13.0, "threshold": 11.3, "miss_probability": 0.1,
+              "change_cycle": 4, "cause": None, "crossings": 1}
     sink.log_alarm({"schema": 1, "robot": "r1", "joint": 0, "cycle": 9, "quantity": "kl_raw", "state": "cleared",
-                    "statistic": 3.0, "threshold": 11.3, "miss_probability": None, "change_cycle": None})
+                    "statistic": None, "threshold": None, "miss_probability": None, "change_cycle": None,
+                    "fault": "r1/0/6", "open": False, "detectors": [kl_raw, {**kl_raw, "quantity": "wear"}]})
     sink.close()
     values = _values(path)
     upper = np.array(values["/robot/r1/joint/0/wear/upper:Scalars:scalars"]).ravel()
@@ -158,7 +161,7 @@ def test_values_and_colours_read_back(tmp_path):
     colors = values["/robot/r1/joint/0/friction/curve:Points2D:colors"]
     assert colors[0] != colors[-1] and len(set(colors[0])) == 1   # one colour per cycle, changing with cycle
     (text,) = values["/robot/r1/joint/0/alarms:TextLog:text"]
-    assert text[0].startswith("cycle 9: kl_raw alarm cleared")
+    assert text[0] == "cycle 9: fault r1/0/6 cleared — kl_raw; wear"
 
 
 def _values(path: Path, static: bool = False) -> dict[str, list]:

@@ -127,7 +127,7 @@ class _Acknowledged:
     def wait_for(self, quantities: set[str] | None, deadline: float) -> list[dict[str, Any]]:
         """Wait until records of all ``quantities`` (None: any one) arrived, or ``deadline``; the records."""
         def done() -> bool:
-            got = {r.get("quantity") for r in self.records}
+            got = {q for r in self.records for q in _named(r)}
             return bool(got) if quantities is None else quantities <= got
 
         with self._changed:
@@ -136,6 +136,14 @@ class _Acknowledged:
 
     def close(self) -> None:
         self._subscriber.undeclare()
+
+
+def _named(record: dict[str, Any]) -> list[str]:
+    """The detectors an alarm record names: those of its fault it is about (``detectors``), else its quantity."""
+    detectors = record.get("detectors")
+    if isinstance(detectors, list) and detectors:
+        return [str(d.get("quantity")) for d in detectors if isinstance(d, dict)]
+    return [str(record.get("quantity"))]
 
 
 def _joint_state(session: Any, robot: str, joint: int, deadline: float) -> dict[str, Any] | None:
@@ -197,10 +205,13 @@ def _acknowledge(session: Any, robot: str, joint: int, request: AcknowledgeReque
               "control or the agent's gate refused the request (see the agent's log)", file=sys.stderr)
         return EXIT_FAILURE
     for record in records:
-        print(f"{where}: {record.get('quantity')} alarm acknowledged after cycle {record.get('cycle')}"
-              f"{' by ' + str(record['by']) if record.get('by') else ''}; its statistic restarts on the same "
-              f"nominal and threshold ({record.get('threshold')})")
-    left = sorted(set(latched or ()) - {r.get("quantity") for r in records})
+        named = _named(record)
+        still = ", still open" if record.get("open") else ""
+        fault = f" (fault {record['fault']}{still})" if record.get("fault") else ""
+        print(f"{where}: {', '.join(named)} alarm{'s' if len(named) > 1 else ''} acknowledged after cycle "
+              f"{record.get('cycle')}{fault}{' by ' + str(record['by']) if record.get('by') else ''}; the "
+              f"statistics restart on the same nominal and threshold")
+    left = sorted(set(latched or ()) - {q for r in records for q in _named(r)})
     if left:
         print(f"{where}: no acknowledgement of {', '.join(left)} within {timeout:g} s (no longer latched?)")
     return EXIT_OK

@@ -21,6 +21,7 @@ from edge_monitor.errors import StateError, UnknownJointError
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_rate import BudgetRate
 from edge_monitor.pipeline.detectors import Acknowledgement
+from edge_monitor.pipeline.fault_grouping import new_crossings
 from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateSaveError, StateStore
@@ -36,7 +37,9 @@ log = logging.getLogger(__name__)
 class RunStats:
     cycles: int = 0
     symptoms: int = 0
-    alarms: list[dict[str, Any]] = field(default_factory=list)
+    alarms: list[dict[str, Any]] = field(default_factory=list)   # detector crossings, each with its fault
+    faults: int = 0                   # faults raised (one alarm per fault)
+    chattering: int = 0               # crossings soon after an acknowledgement (the same fault, again)
     advisories: int = 0
     duplicate_cycles_skipped: int = 0
     partial_cycles: int = 0
@@ -199,11 +202,13 @@ class Agent:
         self._last_emitted[symptom.joint] = symptom.cycle
         self.stats.symptoms += 1
         for alarm in symptom.alarms:
-            self.stats.alarms.append({"joint": alarm.joint, "cycle": alarm.cycle, "quantity": alarm.quantity})
-            log.warning("ALARM robot %s joint %d cycle %d: %s statistic %.3g > threshold %.3g",
-                        alarm.robot, alarm.joint, alarm.cycle, alarm.quantity,
-                        alarm.statistic if alarm.statistic is not None else float("nan"),
-                        alarm.threshold if alarm.threshold is not None else float("nan"))
+            crossed = new_crossings(alarm)
+            self.stats.alarms += crossed
+            self.stats.faults += alarm.state == "raised"
+            self.stats.chattering += alarm.state == "chattering"
+            log.warning("ALARM robot %s joint %d cycle %d: fault %s %s by %s (%d detector(s) agree)", alarm.robot,
+                        alarm.joint, alarm.cycle, alarm.fault, alarm.state, ", ".join(c["quantity"] for c in crossed),
+                        len(alarm.detectors or ()))
         for advisory in symptom.advisories:
             self.stats.advisories += 1
             log.warning("advisory robot %s joint %d cycle %d: %s", advisory.robot, advisory.joint, advisory.cycle,
@@ -270,8 +275,8 @@ class Agent:
         return self._monitor(joint)
 
     def declare_maintenance(self, joint: int) -> list[Alarm]:
-        """Gearbox replaced or serviced: relearn the joint's nominal models; raised alarms are cleared
-        (one "cleared" alarm record per quantity, returned and sent to the sinks). Thread-safe.
+        """Gearbox replaced or serviced: relearn the joint's nominal models; the open fault is cleared
+        (one "cleared" alarm record naming its latched detectors, returned and sent to the sinks). Thread-safe.
         Only for a joint the agent monitors (seen on the bus or restored from the state)."""
         with self.lock:
             monitor = self._known_monitor(joint, "a maintenance declaration")
@@ -289,8 +294,8 @@ class Agent:
     def acknowledge(self, joint: int, quantities: Sequence[str] | None = None, by: str | None = None,
                     note: str | None = None) -> Acknowledgement:
         """An operator judged the latched alarms of ``joint`` (``quantities``, default all) false: each
-        restarts its statistic on the same nominal and threshold; one "acknowledged" alarm record per
-        cleared alarm (``by``/``note`` in it), returned and sent to the sinks; the state is saved at once
+        restarts its statistic on the same nominal and threshold; one "acknowledged" alarm record of
+        their fault naming them (``by``/``note`` in it), returned and sent to the sinks; the state is saved at once
         (a restart does not bring the alarm back). Quantities without a latched alarm are a no-op, named
         in the result. Thread-safe. ``ValueError`` for a joint or quantity not monitored."""
         with self.lock:
@@ -299,8 +304,9 @@ class Agent:
             result = monitor.acknowledge(cycle, quantities)
             result = replace(result, alarms=tuple(replace(a, by=by, note=note, utc=utc_now()) for a in result.alarms))
             for alarm in result.alarms:
-                log.warning("joint %d: %s alarm ACKNOWLEDGED after cycle %d by %s: its statistic restarts on "
-                            "the same nominal and threshold", alarm.joint, alarm.quantity, cycle, by or "(unnamed)")
+                log.warning("joint %d: %s alarm ACKNOWLEDGED (fault %s) after cycle %d by %s: the statistics "
+                            "restart on the same nominal and threshold", alarm.joint, ", ".join(
+                                d["quantity"] for d in alarm.detectors or ()), alarm.fault, cycle, by or "(unnamed)")
                 self.stats.acknowledged += 1
                 for sink in self.sinks:
                     self._deliver(sink.on_alarm, alarm)
@@ -329,14 +335,14 @@ class Agent:
             h: dict[str, Any] = self.ingest.counters()
             h.update({
                 "cycles": self.stats.cycles, "symptoms": self.stats.symptoms,
-                "alarms": len(self.stats.alarms), "advisories": self.stats.advisories,
+                "alarms": len(self.stats.alarms), "faults": self.stats.faults, "advisories": self.stats.advisories,
                 "sink_errors": self.sink_errors(),
                 "state_save_errors": 0 if self.store is None else self.store.save_errors,
                 "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
                 "partial_cycles": self.stats.partial_cycles,
                 "states_rejected": self.stats.states_rejected,
                 "joint_states_rejected": self.stats.joint_states_rejected,
-                "alarms_acknowledged": self.stats.acknowledged,
+                "alarms_acknowledged": self.stats.acknowledged, "alarms_chattering": self.stats.chattering,
                 "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
                 "segmentation": {str(j): m.counters()["segmentation"] for j, m in self.joints.items()},
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
@@ -352,7 +358,8 @@ class Agent:
         h = self.health().counters
         keys = ("frames_total", "frames_ok", "crc_errors", "counter_lost", "repeated", "unknown_id", "malformed")
         out = {k: h[k] for k in keys}
-        out.update({"cycles": self.stats.cycles, "symptoms": self.stats.symptoms, "alarms": list(self.stats.alarms),
+        out.update({"cycles": self.stats.cycles, "symptoms": self.stats.symptoms, "faults": self.stats.faults,
+                    "alarms": list(self.stats.alarms), "alarms_chattering": self.stats.chattering,
                     "advisories": self.stats.advisories,
                     "frames_per_second": h["frames_per_second"], "wall_s": h["wall_s"]})
         out["details"] = {k: v for k, v in h.items() if k not in out and k not in ("e2e", "no_new_data")}

@@ -19,6 +19,7 @@ from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.detectors import SCHEDULE_KEYS, DecisionConfig
+from edge_monitor.pipeline.fault_grouping import AlarmConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.jsonl import Rotation
 from edge_monitor.sinks.maintenance import MaintenanceConfig
@@ -48,6 +49,7 @@ class AgentConfig:
     wear: WearConfig = field(default_factory=WearConfig)
     kl: KLConfig = field(default_factory=KLConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
+    alarms: AlarmConfig = field(default_factory=AlarmConfig)
     maintenance: MaintenanceConfig = field(default_factory=MaintenanceConfig)
     acknowledge: AcknowledgeConfig = field(default_factory=AcknowledgeConfig)
     on_config_change: str = "relearn"          # relearn | keep (what was learned with another config)

@@ -31,6 +31,7 @@ from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import Acknowledgement, DetectorBank
+from edge_monitor.pipeline.fault_grouping import FaultTracker
 from edge_monitor.pipeline.operating_range import OperatingRange
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Advisory, Alarm, Decision, Symptom, finite_or_none
@@ -75,6 +76,7 @@ class JointMonitor:
         self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean) \
             if config.model.enabled else None
         self.operating = OperatingRange()
+        self.faults = FaultTracker(config.alarms, config.robot, joint)   # one alarm record per fault
         self._build()
         self.maintenances = 0
         self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
@@ -216,6 +218,7 @@ class JointMonitor:
             advisories = [Advisory(robot, self.joint, cycle.cycle, "operating_range", e.state, e.covariate, e.value,
                                    e.learned) for e in events]
             alarms = [replace(a, cause=self._cause(decisions[a.quantity], covariates)) for a in alarms]
+            alarms = self.faults.crossings(alarms, cycle.cycle)
         sections["operating"] = self.operating.section(covariates)
         return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
                        friction=cycle.friction.to_record(), sections=sections, decisions=decisions,
@@ -231,16 +234,17 @@ class JointMonitor:
                 "change_cycle": decision.change_cycle, "operating": self.operating.section(covariates)}
 
     def declare_maintenance(self, cycle: int, config: AgentConfig | None = None) -> list[Alarm]:
-        """Gearbox replaced or serviced: relearn the nominal models; one "cleared" alarm per raised one.
+        """Gearbox replaced or serviced: relearn the nominal models; one "cleared" record closes the open fault.
         With ``config`` (the agent's current one) the relearned models use it, e.g. after models learned
         with a previous config were kept."""
         self._process_pending()
-        cleared = self.detectors.reset(self.config.robot, self.joint, cycle)
+        cleared = self.faults.cleared(self.detectors.reset(self.config.robot, self.joint, cycle), cycle)
         if config is not None and config != self.config:
             counters = self.assembler.state_dict()
             self.config = config
             self.assembler = CycleAssembler(self.joint, config.segmentation, config.rate_hz)
             self.assembler.load_state(counters)
+        self.faults.config = self.config.alarms
         self.model = JointModelLearner(self.config.model, self.config.friction_for(self.joint),
                                        self.config.wear.default_load_mean) if self.config.model.enabled else None
         self._build()
@@ -251,9 +255,12 @@ class JointMonitor:
 
     def acknowledge(self, cycle: int, quantities: Sequence[str] | None = None) -> Acknowledgement:
         """An operator judged the latched alarms of ``quantities`` (default: all) false: those detectors
-        restart their statistic on the same nominal and threshold (:meth:`DetectorBank.acknowledge`)."""
+        restart their statistic on the same nominal and threshold (:meth:`DetectorBank.acknowledge`); one
+        "acknowledged" record of their fault (:meth:`FaultTracker.acknowledged`)."""
         self._process_pending()
         result = self.detectors.acknowledge(self.config.robot, self.joint, cycle, quantities)
+        latched = [q for q, d in self.detectors.detectors.items() if d.alarmed]
+        result = replace(result, alarms=tuple(self.faults.acknowledged(result.alarms, cycle, latched)))
         self.acknowledgements += len(result.alarms)
         return result
 
@@ -271,7 +278,8 @@ class JointMonitor:
                 "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
-                "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict()}
+                "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
+                "faults": self.faults.state_dict()}
 
     @classmethod
     def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any],
@@ -303,6 +311,8 @@ class JointMonitor:
         for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
             log.warning("%s", message)
         monitor.operating = OperatingRange.from_state(state.get("operating"))
+        monitor.faults = FaultTracker.from_state(config.alarms, config.robot, joint, state.get("faults"))
+        monitor.faults.reconcile([q for q, d in monitor.detectors.detectors.items() if d.alarmed])
         monitor._report_model(" (learned before the restart)")
         return monitor
 

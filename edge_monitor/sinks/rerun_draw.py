@@ -46,6 +46,26 @@ def wear_bounds(block: list[dict]) -> tuple[np.ndarray, np.ndarray]:
             upper.append(min(estimate + 2 * std, WEAR_MAX))
             lower.append(max(estimate - 2 * std, 0.0))
     return np.array(upper, float), np.array(lower, float)
+#: Alarm states a person must act on (drawn as warnings; acknowledged and cleared ones as information).
+ALERTING = ("raised", "updated", "chattering")
+
+
+def alarm_text(record: dict) -> str:
+    """One line of a joint's alarm log: the fault, what happened, and the evidence of the detectors named
+    (``cycle 118: fault r1/2/118 raised — wear statistic 14.2 vs threshold 11.3, change at cycle 96, …``)."""
+    state = record.get("state", "raised")
+    detectors = record.get("detectors")
+    if not isinstance(detectors, list) or not detectors:       # a record of one detector (older agents)
+        detectors = [record]
+    evidence = "; ".join(
+        f"{d.get('quantity')} statistic {_number(d.get('statistic')):.4g} vs threshold "
+        f"{_number(d.get('threshold')):.4g}, change at cycle {d.get('change_cycle')}, miss probability "
+        f"{_number(d.get('miss_probability')):.3g}" if state in ALERTING else str(d.get("quantity"))
+        for d in detectors if isinstance(d, dict))
+    what = f"fault {record['fault']}" if record.get("fault") else f"{record.get('quantity')} alarm"
+    return f"cycle {record.get('cycle')}: {what} {state} — {evidence}"
+
+
 def _number(value: Any) -> float:
     """float(value), NaN for None / non-numbers."""
     try:
@@ -215,11 +235,8 @@ class Drawer:
         texts, levels = [], []
         for record in block:
             state = record.get("state", "raised")
-            texts.append(f"cycle {record.get('cycle')}: {record.get('quantity')} alarm {state}"
-                         f" — statistic {_number(record.get('statistic')):.4g} vs threshold "
-                         f"{_number(record.get('threshold')):.4g}, change at cycle {record.get('change_cycle')}, "
-                         f"miss probability {_number(record.get('miss_probability')):.3g}")
-            levels.append(rr.TextLogLevel.WARN if state == "raised" else rr.TextLogLevel.INFO)
+            texts.append(alarm_text(record))
+            levels.append(rr.TextLogLevel.WARN if state in ALERTING else rr.TextLogLevel.INFO)
         cycles = np.array([int(r["cycle"]) for r in block], dtype=np.int64)
         times = np.array([_number(r.get("t")) for r in block])
         self.rec.send_columns(f"{joint_path(robot, joint)}/alarms", indexes=self._indexes(cycles, times),
