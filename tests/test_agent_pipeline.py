@@ -129,19 +129,42 @@ def test_a_config_change_after_a_restart_takes_effect_or_is_kept_and_is_reported
     first.close()
     assert first.joints[0].detectors.detectors["wear"].state == "monitoring"
     changed = small_config(on_config_change=on_change)
-    changed = dataclasses.replace(changed, decision=dataclasses.replace(changed.decision, arl0_cycles=500.0))
+    changed = dataclasses.replace(changed, decision=dataclasses.replace(changed.decision, allowance=0.5))
     with caplog.at_level("WARNING"):
         second = Agent(changed, state_store=StateStore(tmp_path))
         outs = feed(second, frames, start=split)
     detector = second.joints[0].detectors.detectors["wear"]
-    if on_change == "relearn":   # the new ARL0 takes effect: the detector learns again, and says why
-        assert detector.config.arl0 == 500.0 and outs[0].decisions["wear"].state == "learning"
-        assert any("arl0 10000.0 → 500.0" in r.getMessage() and "relearning" in r.getMessage() for r in caplog.records)
-    else:                        # the learned detector is kept, with the ARL0 it was learned with; reported
-        assert detector.config.arl0 == 10_000 and outs[-1].decisions["wear"].state == "monitoring"
+    if on_change == "relearn":   # the new allowance takes effect: the detector learns again, and says why
+        assert detector.config.allowance == 0.5 and outs[0].decisions["wear"].state == "learning"
+        assert any("allowance 0.75 → 0.5" in r.getMessage() and "relearning" in r.getMessage()
+                   for r in caplog.records)
+    else:                        # the learned detector is kept, with the allowance it was learned with; reported
+        assert detector.config.allowance == 0.75 and outs[-1].decisions["wear"].state == "monitoring"
         assert any("keeping the models learned with the previous decision" in r.getMessage() for r in caplog.records)
         second.declare_maintenance(0)       # a maintenance declaration adopts the current config
-        assert second.joints[0].detectors.detectors["wear"].config.arl0 == 500.0
+        assert second.joints[0].detectors.detectors["wear"].config.allowance == 0.5
+
+
+def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_without_relearning(tmp_path):
+    """The ARL0 target is not what a detector learned: a restart with another budget keeps the nominals
+    and re-derives every threshold for the new target (tests/test_false_alarm_budget.py has the maths)."""
+    frames = make_frames(8, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=3)
+    split = len(frames[0]) * 6 // 8 + 123
+    calibrated = small_config()
+    calibrated = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, pf=None,
+                                                                             arl0_cycles=1e4))
+    first = Agent(calibrated, state_store=StateStore(tmp_path))
+    feed(first, frames, stop=split)
+    first.close()
+    before = first.joints[0].detectors.detectors["wear"]
+    assert before.state == "monitoring" and before.threshold is not None
+    changed = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, arl0_cycles=500.0))
+    second = Agent(changed, state_store=StateStore(tmp_path))
+    outs = feed(second, frames, start=split) + second.finish()
+    after = second.joints[0].detectors.detectors["wear"]
+    assert outs[-1].decisions["wear"].state == "monitoring"              # not relearned
+    assert after.arl0 == 500.0 and after.calibration is not None and after.calibration.arl0 == 500.0
+    assert after.threshold is not None and after.threshold < before.threshold    # a shorter run length
 
 
 def test_config_errors_name_the_field():

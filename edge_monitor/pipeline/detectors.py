@@ -12,15 +12,22 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any, TypeVar
+from typing import Any
 
 from edge_monitor.errors import ConfigError, StateMismatch, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
+from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: the decision tables live there)
+    HEALTHY_DRIFT,
+    STEADY_DRIFT,
+    STEADY_WANDER,
+    healthy_drift,
+    steady_wander,
+)
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MAX_DRIFT, CalibrationBudget
+from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, CalibrationBudget
 from edge_monitor.stats.detector_config import (
     DEFAULT_NOMINAL,
     DEFAULT_STEADY_NOMINAL,
@@ -50,23 +57,6 @@ DEFAULT_CYCLES_PER_DAY = 300.0
 DEFAULT_JOINTS_PER_ROBOT = 6
 MAX_JOINTS_PER_ROBOT = 64
 
-#: Healthy drift of each detector input after warm-up: (mean, sd) over joints of the shift from what
-#: its detector learned, in standard deviations of the learned values, in the units it watches
-#: (docs/DETECTION.md, ``tools/warmup_drift_study.py``; simulator defaults).
-HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.41), "kl_raw": (0.30, 0.23),
-                                                  "kl_weighted": (0.28, 0.17)}
-#: The same once warm: (mean, sd) over joints of how far each input sits, after its steady nominal is
-#: learned, from that nominal (in its learned standard deviations, beyond the learning error the
-#: calibration simulates itself). Measured on 8 healthy default robots (seeds 101–108, steady cycles;
-#: docs/DETECTION.md, "The steady stage's healthy drift"): the KL distances keep creeping up with the
-#: last warming, the wear score does not.
-STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.04, 0.03),
-                                                "kl_weighted": (0.04, 0.03)}
-#: And how they wander once warm: the fraction of each input's variance in a slow AR(1) component
-#: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_calibration.WANDER_COEFFICIENT`), from the
-#: variance ratios of k-cycle means of the same joints: the log KL distances 1.19, 1.32, 1.39 at k = 5,
-#: 10, 30 (iid: 1), the wear score ≤ 1 (docs/DETECTION.md, "The steady stage's healthy drift").
-STEADY_WANDER: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.09, "kl_weighted": 0.09}
 
 
 @dataclass(frozen=True)
@@ -156,9 +146,9 @@ class DecisionConfig:
                 f"{self.arl0:.3g} cycles per detector)")
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "healthy_drift", _healthy_drift(self.healthy_drift))
-        object.__setattr__(self, "steady_drift", _healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
-        object.__setattr__(self, "steady_wander", _steady_wander(self.steady_wander))
+        object.__setattr__(self, "healthy_drift", healthy_drift(self.healthy_drift))
+        object.__setattr__(self, "steady_drift", healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
+        object.__setattr__(self, "steady_wander", steady_wander(self.steady_wander))
         for name in ("calibrate_at", "steady_calibrate_at"):
             require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
                     f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
@@ -232,47 +222,6 @@ class DecisionConfig:
         for key in SCHEDULE_KEYS:
             del out[key]
         return out
-
-
-T = TypeVar("T")
-
-
-def _per_input(given: Any, key: str, defaults: Mapping[str, T], parse: Callable[[Any], T | None],
-               expected: str) -> dict[str, T]:
-    """``decision.<key>``: the defaults, overridden per detector input by ``given`` (input → value), each
-    value read by ``parse`` (None: not valid, a ConfigError saying ``expected``)."""
-    require(isinstance(given, Mapping), f"decision.{key}", f"expected a table, got {given!r}")
-    out = dict(defaults)
-    for name, value in given.items():
-        require(name in defaults, f"decision.{key}.{name}", f"unknown input; known: {sorted(defaults)}")
-        parsed = parse(value)
-        if parsed is None:
-            raise ConfigError(f"decision.{key}.{name}: expected {expected}, got {value!r}")
-        out[name] = parsed
-    return out
-
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _drift_pair(pair: Any) -> tuple[float, float] | None:
-    ok = isinstance(pair, (list, tuple)) and len(pair) == 2 and all(_number(v) for v in pair)
-    return (float(pair[0]), float(pair[1])) if ok and -MAX_DRIFT <= pair[0] <= MAX_DRIFT \
-        and 0 <= pair[1] <= MAX_DRIFT else None
-
-
-def _healthy_drift(given: Any, key: str = "healthy_drift",
-                   defaults: Mapping[str, tuple[float, float]] = HEALTHY_DRIFT) -> dict[str, tuple[float, float]]:
-    """``decision.healthy_drift`` (or ``key``): input → [mean, sd] [σ]."""
-    return _per_input(given, key, defaults, _drift_pair, f"[mean, sd] in standard deviations (mean "
-                      f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g})")
-
-
-def _steady_wander(given: Any) -> dict[str, float]:
-    """``decision.steady_wander``: input → variance fraction of the slow wander."""
-    return _per_input(given, "steady_wander", STEADY_WANDER,
-                      lambda v: float(v) if _number(v) and 0.0 <= v < 1.0 else None, "a variance fraction 0 … <1")
 
 
 def _log_or_nan(x: float) -> float:
