@@ -446,3 +446,31 @@ def test_records_without_wall_clock_timestamps_say_so_with_a_null_utc(frames):
     agent = Agent(small_config())
     symptoms = [s.to_dict() for s in feed(agent, frames) + agent.finish()]
     assert symptoms and all(s["utc"] is None and s["t"] > 0 for s in symptoms)
+
+
+@pytest.mark.parametrize("hours", [0.0, 60.0])
+def test_the_agent_measures_its_cycle_rate_and_rederives_the_thresholds(hours):
+    """Both sides: frames over seconds never show a day, the thresholds stay for the configured 300
+    cycles a day; the same frames stretched over 60 hours show a few cycles a day, far outside ±25 %,
+    and every learned detector re-derives its threshold for the measured rate (health says so)."""
+    ids, data, dlc, ts = make_frames(10, joints=(0,), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=5)
+    if hours:
+        ts = ts[0] + (ts - ts[0]) * (hours * 3600.0 / float(ts[-1] - ts[0]))
+    config = small_config()
+    config = dataclasses.replace(config, decision=dataclasses.replace(config.decision, pf=None))
+    agent = Agent(config)
+    feed(agent, (ids, data, dlc, ts))
+    agent.finish()
+    health = agent.health().counters
+    detector = agent.joints[0].detectors.detectors["wear"]
+    assert detector.state == "monitoring" and detector.calibration is not None
+    if not hours:
+        assert health["cycles_per_day_measured"] is None and health["threshold_rederivations"] == 0
+        assert detector.calibration.arl0 == config.decision.arl0
+    else:
+        measured = health["cycles_per_day_measured"]
+        assert measured is not None and abs(measured / 300.0 - 1.0) > 0.25
+        basis = health["cycles_per_day"]                  # the rate re-derived for: within ±25 % of now
+        assert health["threshold_rederivations"] >= 1 and abs(measured / basis - 1.0) <= 0.25
+        assert detector.calibration.arl0 == pytest.approx(config.decision.arl0_for(basis))
+        assert health["arl0_cycles"] == pytest.approx(config.decision.arl0_for(basis))
