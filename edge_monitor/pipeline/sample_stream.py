@@ -9,10 +9,10 @@ and the release is counted). Samples before the first cycle found are dropped an
 A sample no robot can give is dropped and counted in ``samples_dropped`` by reason: ``not_finite``
 (speed or torque NaN or infinite: an empty trace cell, an overflowing scale), ``out_of_range`` (beyond
 :data:`PLAUSIBLE`: a wrong unit, scale or reference torque), ``bad_time`` (a time that is not finite or
-more than :data:`MAX_SPAN_S` from the first), ``time_backwards`` (earlier than the joint's last sample:
-a shuffled or concatenated trace) and ``pending_full`` (more than 4 × ``max_pending_s`` of samples
-waiting for a label: times that do not advance). So memory and work per sample stay bounded whatever
-the times.
+beyond :data:`MAX_TIME_S`, or more than :data:`MAX_SPAN_S` from the first), ``time_backwards``
+(earlier than the joint's last sample: a shuffled or concatenated trace) and ``pending_full`` (more
+than 4 × ``max_pending_s`` of samples waiting for a label: times that do not advance). So memory and
+work per sample stay bounded whatever the times.
 """
 
 from __future__ import annotations
@@ -30,10 +30,16 @@ from edge_monitor.pipeline.samples import CycleRun, DecodedSamples, IngestBlock,
 #: Values beyond these are taken as a wrong unit, scale or reference torque (speed [rad/s, motor side],
 #: torque and load [fraction of T_ref], temperature [°C]).
 PLAUSIBLE = {"speed": 2000.0, "torque": 3.0, "load": 3.0, "temperature": 200.0}
-#: The longest time span a stream may cover [s] (ticks stay exact integers at any rate).
-MAX_SPAN_S = 1e9
+#: The longest time span a stream may cover [s] (ticks stay exact integers at any rate), and the
+#: largest time any clock gives [s] (Unix time in ms read as s is 1.8e12): the first time within it is t₀.
+MAX_SPAN_S, MAX_TIME_S = 1e9, 1e13
 BAD_TICK = np.iinfo(np.int64).min
 DROP_REASONS = ("not_finite", "out_of_range", "bad_time", "time_backwards", "pending_full")
+
+
+def _usable(time: NDArray[np.float64]) -> NDArray[np.bool_]:
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(time) & (np.abs(time) <= MAX_TIME_S)
 
 
 @dataclass
@@ -95,13 +101,13 @@ class SampleStream:
         become :data:`BAD_TICK` (callers drop them)."""
         time = np.asarray(time, dtype=float)
         if self._t0 is None:
-            usable = time[np.isfinite(time)]
+            usable = time[_usable(time)]
             if usable.size:
                 self._t0 = float(usable[0])
         t0 = self._t0 if self._t0 is not None else 0.0
         with np.errstate(invalid="ignore", over="ignore"):
             span = time - t0
-            good = np.isfinite(span) & (np.abs(span) <= MAX_SPAN_S)
+            good = _usable(time) & np.isfinite(span) & (np.abs(span) <= MAX_SPAN_S)
         return np.where(good, np.rint(np.where(good, span, 0.0) * self.rate_hz).astype(np.int64), BAD_TICK)
 
     def _valid_time(self, key: int, tick: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -126,7 +132,7 @@ class SampleStream:
 
     def update(self, decoded: DecodedSamples) -> IngestBlock:
         times = [c.time for c in decoded.joints.values()] + [c.time for c in decoded.status.values()]
-        firsts = [float(t[np.isfinite(t)][0]) for t in times if np.isfinite(t).any()]
+        firsts = [float(t[_usable(t)][0]) for t in times if _usable(t).any()]
         if firsts and self._t0 is None:
             self._t0 = min(firsts)
         ref_tick, ref_speed = np.empty(0, np.int64), np.empty(0)
