@@ -20,13 +20,13 @@ from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
-from edge_monitor.files import NotARegularFile, read_regular
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.pipeline.fault_grouping import AlarmConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import FrictionParams
+from protocol.files import NotARegularFile, read_regular
 from protocol.frames import MAX_JOINTS
 
 __all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "ModelConfig", "PlateauConfig", "WearConfig",

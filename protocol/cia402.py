@@ -15,16 +15,21 @@ Objects (CiA 402): 6041h statusword, 6064h position actual value [inc], 606Ch ve
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from protocol.bitfields import BitField
+from protocol.files import NotARegularFile, read_regular
+from protocol.signal_mapping import UnreadableFile
 
 STATUSWORD, POSITION, VELOCITY, RATED_TORQUE, TORQUE, ENCODER = 0x6041, 0x6064, 0x606C, 0x6076, 0x6077, 0x608F
 #: Statusword bits 0–3, 5, 6 read "operation enabled" (CiA 402 state machine).
 OPERATION_ENABLED_MASK, OPERATION_ENABLED = 0x006F, 0x0027
 SYNC_ID = 0x080
+#: The largest EDS/DCF read (a drive's is ≈ 10–500 kB; canopen parses it whole).
+MAX_EDS_BYTES = 4 << 20
 #: Standard objects for a TPDO mapping written in the mapping file: (bits, signed).
 STANDARD_OBJECTS: dict[int, tuple[int, bool]] = {STATUSWORD: (16, False), POSITION: (32, True),
                                                  VELOCITY: (32, True), TORQUE: (16, True)}
@@ -68,16 +73,38 @@ class DriveLayout:
 def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     """A canopen node from ``eds`` on an unconnected network, its TPDOs read from the object dictionary."""
     import canopen
-    if not eds.exists():
-        raise Cia402Error(f"node {node_id}: EDS file {eds} not found")
+    text = read_eds(node_id, eds)
     network = canopen.Network()                      # never connected: nothing is ever sent from here
     try:
-        node = (canopen.LocalNode if local else canopen.RemoteNode)(node_id, str(eds))
+        node = (canopen.LocalNode if local else canopen.RemoteNode)(node_id, canopen.import_od(text, node_id))
+        network.add_node(node)
+        node.tpdo.read(from_od=True)
     except Exception as exc:  # noqa: BLE001 — canopen's EDS parser raises configparser/KeyError/ValueError
-        raise Cia402Error(f"node {node_id}: cannot read EDS {eds}: {type(exc).__name__}: {exc}") from None
-    network.add_node(node)
-    node.tpdo.read(from_od=True)
+        first = (str(exc).strip().splitlines() or [""])[0][:300]
+        raise Cia402Error(f"node {node_id}: cannot read EDS {eds}: {type(exc).__name__}: {first}") from None
     return node
+
+
+def read_eds(node_id: int, eds: Path) -> io.StringIO:
+    """The EDS/DCF as text for canopen (named like the file, which tells canopen its format): a regular
+    file of at most :data:`MAX_EDS_BYTES`, UTF-8 or else Latin-1 (CiA 306 files are ASCII; vendors'
+    comments are often Latin-1). Cia402Error if it is not such a file, UnreadableFile on an I/O error."""
+    try:
+        raw = read_regular(eds, MAX_EDS_BYTES)
+    except FileNotFoundError:
+        raise Cia402Error(f"node {node_id}: EDS file {eds} not found") from None
+    except NotARegularFile as exc:
+        raise Cia402Error(f"node {node_id}: EDS file {eds}: {exc.reason}") from None
+    except IsADirectoryError:
+        raise Cia402Error(f"node {node_id}: EDS file {eds}: it is a directory, not a regular file") from None
+    except OSError as exc:
+        raise UnreadableFile(f"node {node_id}: cannot read EDS {eds}: {exc.strerror or exc}") from None
+    try:
+        text = io.StringIO(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        text = io.StringIO(raw.decode("latin-1"))
+    text.name = str(eds)
+    return text
 
 
 def drive_layout(node_id: int, eds: Path | None = None,
@@ -110,7 +137,10 @@ def _default(od: Any, index: int, subindex: int | None) -> float | None:
     except KeyError:
         return None
     value = entry.value if getattr(entry, "value", None) is not None else getattr(entry, "default", None)
-    return None if value is None else float(value)
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        return None
 
 
 def _layout_from_config(node_id: int, tpdo: tuple[tuple[int, tuple[str, ...]], ...]) -> DriveLayout:

@@ -15,15 +15,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from protocol.catalogue import MAX_JOINTS
+from protocol.files import NotARegularFile, read_regular
 from protocol.units import UnitError, speed_factor, temperature_conversion, torque_factor
 
 KINDS = ("dbc", "cia402", "trace")
+#: Text encodings of trace tables (pyarrow transcodes the others to UTF-8).
+ENCODINGS = ("utf-8", "cp1252", "latin-1", "iso-8859-1", "utf-16")
 CYCLE_SOURCES = ("controller", "motion", "trigger")
 QUANTITIES = ("speed", "torque", "temperature", "load")
+#: A mapping file is a few kilobytes (64 joints: ≈ 20 kB); larger is not a mapping.
+MAX_MAPPING_BYTES = 1 << 20
+#: Joint indices a mapping may name (as the agent config: 0 … MAX_JOINTS - 1).
+MAX_JOINT = MAX_JOINTS - 1
 
 
 class MappingError(ValueError):
     """Invalid mapping file; the message names the file, the key and the fix."""
+
+
+class UnreadableFile(OSError):
+    """A mapping, DBC or EDS file that is there but cannot be read (an I/O error): a runtime failure
+    (exit code 1), where a file that does not fit is a MappingError (exit code 2)."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +111,7 @@ class TraceFormat:
     time_column: str = "time"
     time_unit: str = "s"             # s | ms
     joint_column: str | None = None  # long tables
+    encoding: str = "utf-8"          # utf-8 | cp1252 | latin-1 (what Windows trace tools often write)
 
 
 @dataclass(frozen=True)
@@ -120,12 +134,18 @@ class SignalMapping:
 def load_mapping(path: str | Path) -> SignalMapping:
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_regular(p, MAX_MAPPING_BYTES).decode("utf-8"))
     except FileNotFoundError:
         raise MappingError(f"mapping file {p} not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MappingError(f"mapping file {p} cannot be read: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
+    except NotARegularFile as exc:
+        raise MappingError(f"mapping file {p}: {exc.reason}") from None
+    except UnicodeDecodeError as exc:
+        raise MappingError(f"mapping file {p} is not UTF-8 text: {exc}") from None
+    except IsADirectoryError:
+        raise MappingError(f"mapping file {p}: it is a directory, not a regular file") from None
+    except OSError as exc:
+        raise UnreadableFile(f"mapping file {p} cannot be read: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise MappingError(f"mapping file {p} is not valid TOML: {exc}") from None
     return mapping_from_dict(data, p)
 
@@ -157,11 +177,11 @@ def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Sign
         raise MappingError(f"{where}: joint: add a [joint.N] table for each joint (N = 0, 1, …)")
     joints = {}
     for key, table in joints_table.items():
-        if not str(key).isdigit() or not isinstance(table, dict):
-            raise MappingError(f"{where}: joint.{key}: tables are [joint.N] with N = 0, 1, …")
+        if not (str(key).isdigit() and len(str(key)) <= 3 and int(key) <= MAX_JOINT) or not isinstance(table, dict):
+            raise MappingError(f"{where}: joint.{str(key)[:24]}: tables are [joint.N] with N = 0 … {MAX_JOINT}")
         joints[int(key)] = _joint(int(key), table, kind, base, f"{where}: joint.{key}")
     cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles")
-    e2e = tuple(_e2e(t, f"{where}: e2e[{i}]") for i, t in enumerate(data.get("e2e", [])))
+    e2e = tuple(_e2e(t, f"{where}: e2e[{i}]") for i, t in enumerate(_list(data.get("e2e", []), f"{where}: e2e")))
     rate = data.get("rate_hz")
     if rate is not None and not (_number(rate) and rate > 0):
         raise MappingError(f"{where}: rate_hz: must be > 0, got {rate!r}")
@@ -176,7 +196,7 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
     side = t.get("side", "motor")
     if side not in ("motor", "joint"):
         raise MappingError(f"{where}: side: motor or joint (joint: speeds × gear_ratio, torques / gear_ratio)")
-    ratio = float(t.get("gear_ratio", 1.0))
+    ratio = t.get("gear_ratio", 1.0)
     if not (_number(ratio) and ratio > 0):
         raise MappingError(f"{where}: gear_ratio: must be > 0, got {ratio!r}")
     ref, rated = t.get("reference_torque_nm"), t.get("rated_torque_nm")
@@ -184,7 +204,7 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
         if value is not None and not (_number(value) and value > 0):
             raise MappingError(f"{where}: {name}: must be > 0 N·m, got {value!r}")
     jm = JointMapping(joint=joint, reference_torque_nm=None if ref is None else float(ref),
-                      rated_torque_nm=None if rated is None else float(rated), gear_ratio=ratio, side=side,
+                      rated_torque_nm=None if rated is None else float(rated), gear_ratio=float(ratio), side=side,
                       key=None if t.get("key") is None else str(t["key"]))
     refs = {}
     for q in QUANTITIES:
@@ -195,8 +215,7 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
         if not (isinstance(node, int) and 1 <= node <= 127):
             raise MappingError(f"{where}: node: the drive's CANopen node id 1 … 127, got {node!r}")
         eds = base / t["eds"] if isinstance(t.get("eds"), str) else None
-        tpdo = tuple((_int(p.get("cob_id"), f"{where}.tpdo.cob_id"), tuple(str(o) for o in p.get("objects", [])))
-                     for p in t.get("tpdo", []))
+        tpdo = tuple(_tpdo(p, f"{where}.tpdo[{i}]") for i, p in enumerate(_list(t.get("tpdo", []), f"{where}.tpdo")))
         if eds is None and not tpdo:
             raise MappingError(f"{where}: give eds = \"drive.eds\" or the TPDO mapping as "
                                "tpdo = [{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}]")
@@ -260,18 +279,18 @@ def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> C
     source = t.get("from", "motion")
     if source not in CYCLE_SOURCES:
         raise MappingError(f"{where}: from: one of {list(CYCLE_SOURCES)}, got {source!r}")
-    speeds = tuple(float(v) for v in t.get("speeds", []))
-    if any(not (math.isfinite(v) and v > 0) for v in speeds):
+    speeds = tuple(_list(t.get("speeds", []), f"{where}.speeds"))
+    if any(not (_number(v) and v > 0) for v in speeds):
         raise MappingError(f"{where}: speeds: positive rad/s (motor side), the test cycle's levels in order")
     if source in ("motion", "trigger") and not speeds:
         raise MappingError(f"{where}: speeds: cycles found from the {source} need the designed speed levels "
                            "in order (rad/s, motor side); `edge-monitor check-mapping` lists the steady speeds "
                            "it finds")
     ref_joint = t.get("reference_joint", min(joints))
-    if ref_joint not in joints:
+    if not isinstance(ref_joint, int) or ref_joint not in joints:
         raise MappingError(f"{where}: reference_joint: {ref_joint!r} is not a mapped joint {sorted(joints)}")
     probe = JointMapping(joint=-1)
-    cyc = CycleMapping(source=source, speeds=speeds, reference_joint=int(ref_joint))
+    cyc = CycleMapping(source=source, speeds=tuple(map(float, speeds)), reference_joint=int(ref_joint))
     refs = {}
     for name in ("cycle", "segment", "trigger"):
         if name in t:
@@ -297,30 +316,40 @@ def _e2e(t: Any, where: str) -> E2EMapping:
         raise MappingError(f"{where}: profile: 2 or 5 (AUTOSAR E2E profiles cantools checks), got {profile!r}")
     if not isinstance(t.get("message"), str):
         raise MappingError(f"{where}: message: the protected message's name")
-    ids = tuple(int(v) for v in t.get("data_ids", []))
-    if profile == 2 and len(ids) != 16:
-        raise MappingError(f"{where}: data_ids: profile 2 needs the 16 data IDs (one per counter value)")
-    if profile == 5 and t.get("data_id") is None:
-        raise MappingError(f"{where}: data_id: profile 5 needs the message's 16-bit data ID")
+    ids = tuple(_int(v, f"{where}.data_ids") for v in _list(t.get("data_ids", []), f"{where}.data_ids"))
+    if profile == 2 and (len(ids) != 16 or not all(0 <= v <= 0xFF for v in ids)):
+        raise MappingError(f"{where}: data_ids: profile 2 needs the 16 data IDs 0 … 255 (one per counter value)")
+    data_id = None if t.get("data_id") is None else _int(t["data_id"], f"{where}.data_id")
+    if profile == 5 and (data_id is None or not 0 <= data_id <= 0xFFFF):
+        raise MappingError(f"{where}: data_id: profile 5 needs the message's 16-bit data ID (0 … 65535)")
     return E2EMapping(message=t["message"], profile=profile, counter_signal=t.get("counter_signal"),
-                      data_id=None if t.get("data_id") is None else int(t["data_id"]), data_ids=ids)
+                      data_id=data_id, data_ids=ids)
 
 
 def _trace(t: Any, where: str) -> TraceFormat:
     if not isinstance(t, dict):
         raise MappingError(f"{where}: must be a table [trace]")
-    _only(t, {"layout", "separator", "decimal", "time_column", "time_unit", "joint_column"}, where)
+    _only(t, {"layout", "separator", "decimal", "time_column", "time_unit", "joint_column", "encoding"}, where)
     fmt = TraceFormat(layout=t.get("layout", "wide"), separator=t.get("separator", ","),
                       decimal=t.get("decimal", "."), time_column=t.get("time_column", "time"),
-                      time_unit=t.get("time_unit", "s"), joint_column=t.get("joint_column"))
+                      time_unit=t.get("time_unit", "s"), joint_column=t.get("joint_column"),
+                      encoding=t.get("encoding", "utf-8"))
     if fmt.layout not in ("wide", "long"):
         raise MappingError(f"{where}: layout: wide or long, got {fmt.layout!r}")
     if fmt.time_unit not in ("s", "ms"):
         raise MappingError(f"{where}: time_unit: s or ms, got {fmt.time_unit!r}")
     if fmt.layout == "long" and not fmt.joint_column:
         raise MappingError(f"{where}: joint_column: a long table needs the column that names the joint")
-    if len(fmt.separator) != 1 or fmt.decimal not in (".", ","):
-        raise MappingError(f"{where}: separator: one character; decimal: \".\" or \",\"")
+    if not (isinstance(fmt.separator, str) and len(fmt.separator) == 1 and fmt.separator not in "\r\n\"") \
+            or fmt.decimal not in (".", ",") or fmt.decimal == fmt.separator:
+        raise MappingError(f"{where}: separator: one character other than a quote or a line end; decimal: \".\" "
+                           "or \",\" (not the separator)")
+    if not isinstance(fmt.encoding, str) or fmt.encoding.lower().replace("_", "-") not in ENCODINGS:
+        raise MappingError(f"{where}: encoding: one of {list(ENCODINGS)} (a trace tool on Windows often writes "
+                           f"cp1252), got {fmt.encoding!r}")
+    for key in ("time_column", "joint_column"):
+        if getattr(fmt, key) is not None and not isinstance(getattr(fmt, key), str):
+            raise MappingError(f"{where}: {key}: a column name (text), got {getattr(fmt, key)!r}")
     return fmt
 
 
@@ -333,6 +362,22 @@ def _only(t: Mapping[str, Any], allowed: set[str], where: str) -> None:
 
 def _number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _list(value: Any, where: str) -> list[Any]:
+    if not isinstance(value, list):
+        raise MappingError(f"{where}: a list [ … ], got {value!r}")
+    return value
+
+
+def _tpdo(p: Any, where: str) -> tuple[int, tuple[str, ...]]:
+    """One TPDO written in the mapping: ``{cob_id = 0x181, objects = ["6041", "6077", "606C"]}``."""
+    if not isinstance(p, dict):
+        raise MappingError(f"{where}: an inline table {{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}}")
+    cob_id = _int(p.get("cob_id"), f"{where}.cob_id")
+    if not 0x001 <= cob_id <= 0x7FF:
+        raise MappingError(f"{where}.cob_id: an 11-bit COB-ID (the default TPDOs: 0x181 … 0x57F), got {cob_id:#x}")
+    return cob_id, tuple(str(o) for o in _list(p.get("objects", []), f"{where}.objects"))
 
 
 def _bool(value: Any, where: str) -> bool:

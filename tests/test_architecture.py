@@ -13,7 +13,7 @@ PACKAGES = ("joint_model", "protocol", "sim_controller", "edge_monitor")
 #: Layers from the bottom; a module may import from its own layer and the ones below, never above.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("joint_model", "protocol"),
-    ("sim_controller", "edge_monitor.errors", "edge_monitor.files", "edge_monitor.records", "edge_monitor.schemas"),
+    ("sim_controller", "edge_monitor.errors", "edge_monitor.records", "edge_monitor.schemas"),
     ("edge_monitor.stats",),
     ("edge_monitor.features",),
     ("edge_monitor.sinks",),

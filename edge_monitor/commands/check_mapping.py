@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"edge-monitor check-mapping: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as exc:          # a mapping, DBC or EDS file that cannot be read
+        print(f"edge-monitor check-mapping: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
     try:
         for decoded in _decoded(args, decode, cfg):
             check.update(decoded)

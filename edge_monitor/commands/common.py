@@ -168,6 +168,9 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
     except ValueError as exc:       # MappingError and what the DBC/EDS parsers raise
         print(f"edge-monitor: mapping error: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_USAGE) from None
+    except OSError as exc:          # a mapping, DBC or EDS file that cannot be read
+        print(f"edge-monitor: {exc}", file=sys.stderr)
+        raise SystemExit(EXIT_FAILURE) from None
 
 
 def setup_failure(command: str, exc: Exception) -> int:

@@ -29,9 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.features.disturbance_weights import WeightFitError, fit_index_weights, fit_weight_function
-from edge_monitor.files import NotARegularFile, require_regular
 from joint_model import CRITICAL_WEAR, DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, WEAR_MAX, friction
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError
+from protocol.files import NotARegularFile, require_regular
 
 #: Largest CSV read [bytes].
 MAX_CSV_BYTES = 512 << 20

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_monitor.files import NotARegularFile, require_regular
 from edge_monitor.stats.densities import DENSITY_KINDS, fit_density
 from edge_monitor.stats.glr import GLRResult, bootstrap_threshold, check_pf, glr_known_change, glr_unknown_change
 from protocol.console import EXIT_USAGE, UsageError
+from protocol.files import NotARegularFile, require_regular
 
 #: Largest CSV read [bytes].
 MAX_CSV_BYTES = 256 << 20

@@ -34,7 +34,7 @@ from edge_monitor.commands.common import (
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import FrameArrays
 from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
-from edge_monitor.pipeline.trace_source import TraceError, is_trace_file, replay_trace
+from edge_monitor.pipeline.trace_source import TraceError, TraceUnreadable, is_trace_file, replay_trace
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, progress_bar, verbosity
@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
                 report = replay_trace(agent, args.file, args.mapping)
             else:
                 report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
-        except (FileNotFoundError, LogReadError) as exc:
+        except (FileNotFoundError, LogReadError, TraceUnreadable) as exc:
             print(f"edge-monitor replay: {exc}", file=sys.stderr)
             return EXIT_FAILURE
         except TraceError as exc:

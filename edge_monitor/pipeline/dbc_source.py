@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,20 +22,38 @@ from numpy.typing import NDArray
 from edge_monitor.pipeline.foreign_source import BoundSignal, ForeignCounters, status_columns, take
 from edge_monitor.pipeline.samples import DecodedSamples, JointColumns
 from protocol.bitfields import BitFieldError, resolve
-from protocol.signal_mapping import E2EMapping, MappingError, SignalMapping, SignalRef
+from protocol.files import NotARegularFile, read_regular
+from protocol.signal_mapping import E2EMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
 
 log = logging.getLogger(__name__)
 
+#: The largest database read (see :func:`load_dbc`); a robot controller's DBC is a few kB.
+MAX_DBC_BYTES = 2 << 20
+_FORMATS = {".dbc": "dbc", ".arxml": "arxml", ".kcd": "kcd", ".sym": "sym"}
+
 
 def load_dbc(mapping: SignalMapping) -> Any:
+    """The mapping's database, read whole (a regular file of at most :data:`MAX_DBC_BYTES`: cantools
+    needs ≈ 200 bytes of memory per byte of text) and parsed by cantools; MappingError otherwise."""
     import cantools
     path = mapping.dbc
-    if path is None or not path.exists():
-        raise MappingError(f"{mapping.where('dbc')}: file {path} not found")
+    where = mapping.where("dbc")
     try:
-        return cantools.database.load_file(str(path), strict=False)
+        raw = read_regular(path or Path(), MAX_DBC_BYTES)
+    except FileNotFoundError:
+        raise MappingError(f"{where}: file {path} not found") from None
+    except NotARegularFile as exc:
+        raise MappingError(f"{where}: {path}: {exc.reason} (a DBC of a robot controller is a few kB; keep the "
+                           "messages the mapping names)") from None
+    except OSError as exc:
+        raise UnreadableFile(f"{where}: cannot read {path}: {exc.strerror or exc}") from None
+    suffix = (path or Path()).suffix.lower()
+    text = raw.decode("cp1252" if suffix == ".dbc" else "utf-8", errors="replace")   # cantools' own default
+    try:
+        return cantools.database.load_string(text, database_format=_FORMATS.get(suffix), strict=False)
     except Exception as exc:  # noqa: BLE001 — cantools raises its own ParseError, UnsupportedDatabaseFormatError …
-        raise MappingError(f"{mapping.where('dbc')}: cannot load {path}: {type(exc).__name__}: {exc}") from None
+        first = (str(exc).strip().splitlines() or [""])[0][:300]
+        raise MappingError(f"{where}: cannot load {path}: {type(exc).__name__}: {first}") from None
 
 
 def bind(db: Any, ref: SignalRef, where: str) -> BoundSignal:

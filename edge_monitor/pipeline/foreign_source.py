@@ -99,7 +99,8 @@ class ForeignSource:
         return self.stream.flush()
 
     def counters(self) -> dict[str, Any]:
-        return {**self.c.__dict__, "cycle_finding": self.stream.counters()}
+        return {**self.c.__dict__, "samples_dropped": dict(self.stream.dropped),
+                "cycle_finding": self.stream.counters()}
 
     def state_dict(self) -> dict[str, Any]:
         """The cycle numbering (flat integers, as the agent's state validation expects): a restarted agent

@@ -36,9 +36,9 @@ from can.io.asc import ASCReader
 from can.io.blf import BLFReader
 from can.io.canutils import CanutilsLogReader
 
-from edge_monitor.files import NotARegularFile, require_regular
 from edge_monitor.pipeline import blf_blocks
 from edge_monitor.pipeline.frame_source import FrameArrays
+from protocol.files import NotARegularFile, require_regular
 from protocol.frames import messages_to_arrays
 
 log = logging.getLogger(__name__)

@@ -5,6 +5,14 @@ time seen). Samples wait in a buffer until the labeller's horizon has passed the
 only when it ends), bounded by ``max_pending_s`` (older samples are then released as they are labelled
 and the release is counted). Samples before the first cycle found are dropped and counted
 (``before_first_cycle``): the agent publishes whole cycles only.
+
+A sample no robot can give is dropped and counted in ``samples_dropped`` by reason: ``not_finite``
+(speed or torque NaN or infinite: an empty trace cell, an overflowing scale), ``out_of_range`` (beyond
+:data:`PLAUSIBLE`: a wrong unit, scale or reference torque), ``bad_time`` (a time that is not finite or
+beyond :data:`MAX_TIME_S`, or more than :data:`MAX_SPAN_S` from the first), ``time_backwards``
+(earlier than the joint's last sample: a shuffled or concatenated trace) and ``pending_full`` (more
+than 4 × ``max_pending_s`` of samples waiting for a label: times that do not advance). So memory and
+work per sample stay bounded whatever the times.
 """
 
 from __future__ import annotations
@@ -18,6 +26,20 @@ from numpy.typing import NDArray
 
 from edge_monitor.pipeline.cycle_labels import CycleLabeller, Marks
 from edge_monitor.pipeline.samples import CycleRun, DecodedSamples, IngestBlock, JointSamples, JointStatusBlock
+
+#: Values beyond these are taken as a wrong unit, scale or reference torque (speed [rad/s, motor side],
+#: torque and load [fraction of T_ref], temperature [°C]).
+PLAUSIBLE = {"speed": 2000.0, "torque": 3.0, "load": 3.0, "temperature": 200.0}
+#: The longest time span a stream may cover [s] (ticks stay exact integers at any rate), and the
+#: largest time any clock gives [s] (Unix time in ms read as s is 1.8e12): the first time within it is t₀.
+MAX_SPAN_S, MAX_TIME_S = 1e9, 1e13
+BAD_TICK = np.iinfo(np.int64).min
+DROP_REASONS = ("not_finite", "out_of_range", "bad_time", "time_backwards", "pending_full")
+
+
+def _usable(time: NDArray[np.float64]) -> NDArray[np.bool_]:
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(time) & (np.abs(time) <= MAX_TIME_S)
 
 
 @dataclass
@@ -45,6 +67,15 @@ class _Pending:
     def __len__(self) -> int:
         return sum(t.size for t in self.tick)
 
+    def drop_oldest(self, keep: int) -> int:
+        """Forget all but the newest ``keep`` entries; how many were dropped."""
+        surplus = len(self) - keep
+        if surplus <= 0:
+            return 0
+        tick, a, b = np.concatenate(self.tick), np.concatenate(self.a), np.concatenate(self.b)
+        self.tick, self.a, self.b = [tick[surplus:]], [a[surplus:]], [b[surplus:]]
+        return surplus
+
 
 class SampleStream:
     """Labels decoded samples with cycles and segments (see the module docstring)."""
@@ -62,29 +93,72 @@ class SampleStream:
         self._first_cycle_seen: set[int] = set()
         self.before_first_cycle = 0
         self.forced_release = 0
+        self.dropped = dict.fromkeys(DROP_REASONS, 0)
+        self._last_tick: dict[int, int] = {}
 
     def ticks(self, time: NDArray[np.float64]) -> NDArray[np.int64]:
-        if time.size and self._t0 is None:
-            self._t0 = float(time[0])
+        """Ticks of ``time`` [s]; times that are not finite or beyond :data:`MAX_SPAN_S` from the first
+        become :data:`BAD_TICK` (callers drop them)."""
+        time = np.asarray(time, dtype=float)
+        if self._t0 is None:
+            usable = time[_usable(time)]
+            if usable.size:
+                self._t0 = float(usable[0])
         t0 = self._t0 if self._t0 is not None else 0.0
-        return np.rint((np.asarray(time, dtype=float) - t0) * self.rate_hz).astype(np.int64)
+        with np.errstate(invalid="ignore", over="ignore"):
+            span = time - t0
+            good = _usable(time) & np.isfinite(span) & (np.abs(span) <= MAX_SPAN_S)
+        return np.where(good, np.rint(np.where(good, span, 0.0) * self.rate_hz).astype(np.int64), BAD_TICK)
+
+    def _valid_time(self, key: int, tick: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Rows with a usable time not earlier than the last of stream ``key``; counts the others."""
+        good = tick != BAD_TICK
+        self.dropped["bad_time"] += int((~good).sum())
+        last = self._last_tick.get(key, BAD_TICK)
+        reached = np.maximum.accumulate(np.concatenate(([last], tick)))[:-1]
+        forward = good & (tick >= reached)
+        self.dropped["time_backwards"] += int((good & ~forward).sum())
+        if forward.any():
+            self._last_tick[key] = max(last, int(tick[forward].max()))
+        return forward
+
+    def _valid_values(self, speed: NDArray[np.float64], torque: NDArray[np.float64]) -> NDArray[np.bool_]:
+        finite = np.isfinite(speed) & np.isfinite(torque)
+        plausible = finite & (np.abs(np.where(finite, speed, 0.0)) <= PLAUSIBLE["speed"]) \
+            & (np.abs(np.where(finite, torque, 0.0)) <= PLAUSIBLE["torque"])
+        self.dropped["not_finite"] += int((~finite).sum())
+        self.dropped["out_of_range"] += int((finite & ~plausible).sum())
+        return plausible
 
     def update(self, decoded: DecodedSamples) -> IngestBlock:
-        firsts = [c.time[0] for c in decoded.joints.values() if c.time.size]
-        firsts += [c.time[0] for c in decoded.status.values() if c.time.size]
+        times = [c.time for c in decoded.joints.values()] + [c.time for c in decoded.status.values()]
+        firsts = [float(t[_usable(t)][0]) for t in times if _usable(t).any()]
         if firsts and self._t0 is None:
-            self._t0 = float(min(firsts))
+            self._t0 = min(firsts)
         ref_tick, ref_speed = np.empty(0, np.int64), np.empty(0)
         for joint, cols in decoded.joints.items():
             tick = self.ticks(cols.time)
-            self._samples.setdefault(joint, _Pending()).add(tick, cols.speed, cols.torque)
+            ok = self._valid_values(cols.speed, cols.torque)
+            ok[ok] = self._valid_time(joint, tick[ok])
+            tick, speed = tick[ok], cols.speed[ok]
+            pending = self._samples.setdefault(joint, _Pending())
+            pending.add(tick, speed, cols.torque[ok])
+            self.dropped["pending_full"] += pending.drop_oldest(4 * self.max_pending)
             if tick.size:
                 self._latest = max(self._latest, int(tick[-1]))
             if joint == self.reference_joint:
-                ref_tick, ref_speed = tick, cols.speed
+                ref_tick, ref_speed = tick, speed
         for joint, st in decoded.status.items():
-            self._status.setdefault(joint, _Pending()).add(self.ticks(st.time), st.load, st.temperature)
-        marks: Marks = {name: (self.ticks(t), v) for name, (t, v) in decoded.marks.items()}
+            tick = self.ticks(st.time)
+            ok = self._valid_time(-1 - joint, tick)
+            pending = self._status.setdefault(joint, _Pending())
+            pending.add(tick[ok], st.load[ok], st.temperature[ok])
+            self.dropped["pending_full"] += pending.drop_oldest(4 * self.max_pending)
+        marks: Marks = {}
+        for name, (t, v) in decoded.marks.items():
+            tick = self.ticks(t)
+            ok = (tick != BAD_TICK) & np.isfinite(v)
+            marks[name] = (tick[ok], v[ok])
         horizon = self.labeller.update(ref_tick, ref_speed, marks, self._latest)
         if self._latest - horizon > self.max_pending:
             self.forced_release += 1

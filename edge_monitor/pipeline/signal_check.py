@@ -17,11 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.features.segmentation import PlateauConfig, PlateauDetector
-from edge_monitor.pipeline.sample_stream import SampleStream
+from edge_monitor.pipeline.sample_stream import PLAUSIBLE, SampleStream
 from edge_monitor.pipeline.samples import DecodedSamples
-
-#: Values beyond these are taken as a wrong unit, scale or reference torque.
-PLAUSIBLE = {"speed": 2000.0, "torque": 3.0, "load": 3.0, "temperature": 200.0}
 
 
 @dataclass

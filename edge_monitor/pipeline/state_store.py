@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from edge_monitor.errors import StateError
-from edge_monitor.files import read_regular
 from edge_monitor.records import to_json
+from protocol.files import read_regular
 
 log = logging.getLogger(__name__)
 

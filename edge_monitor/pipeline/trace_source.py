@@ -14,6 +14,9 @@ joint-wear-monitor[parquet]`` where rerun-sdk did not bring pyarrow).
 from __future__ import annotations
 
 import logging
+import os
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -22,35 +25,130 @@ from numpy.typing import NDArray
 
 from edge_monitor.pipeline.log_source import LogReport
 from edge_monitor.pipeline.samples import DecodedSamples, JointColumns, StatusColumns
+from protocol.files import NotARegularFile, open_regular
 from protocol.signal_mapping import SignalMapping, SignalRef, TraceFormat, load_mapping
 
 log = logging.getLogger(__name__)
 
 TRACE_SUFFIXES = (".csv", ".parquet", ".pq")
+#: pyarrow reads a CSV in blocks of this size; a longer line is an error (no trace table has one).
+BLOCK_BYTES = 4 << 20
 
 
 class TraceError(ValueError):
     """A trace table that does not fit its mapping (the message names the column and the fix)."""
 
 
+class TraceUnreadable(OSError):
+    """A trace file that cannot be read: not a regular file (a FIFO, a device, a directory) or an I/O error."""
+
+
 def is_trace_file(path: str) -> bool:
     return Path(path).suffix.lower() in TRACE_SUFFIXES
 
 
-def _batches(path: Path, fmt: TraceFormat) -> Iterator[Any]:
-    """pyarrow record batches of the table."""
-    if path.suffix.lower() == ".csv":
-        import pyarrow.csv as pcsv
-        reader = pcsv.open_csv(str(path), parse_options=pcsv.ParseOptions(delimiter=fmt.separator),
-                               convert_options=pcsv.ConvertOptions(decimal_point=fmt.decimal),
-                               read_options=pcsv.ReadOptions(block_size=1 << 22))
-        yield from reader
-        return
+def _regular(path: Path) -> str:
+    """``path`` if it names a regular file (checked without blocking on a FIFO or reading a device);
+    pyarrow then opens it natively (its read-ahead threads never wait for Python)."""
     try:
-        import pyarrow.parquet as pq
-    except ImportError:
-        raise TraceError("reading Parquet needs pyarrow: pip install 'joint-wear-monitor[parquet]'") from None
-    yield from pq.ParquetFile(str(path)).iter_batches(batch_size=1 << 16)
+        fd = open_regular(path)
+        try:
+            head = os.read(fd, BLOCK_BYTES) if path.suffix.lower() == ".csv" else b"\n"
+        finally:
+            os.close(fd)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"trace file {path} not found") from None
+    except NotARegularFile as exc:
+        raise TraceUnreadable(f"{path}: {exc.reason}") from None
+    except IsADirectoryError:
+        raise TraceUnreadable(f"{path}: it is a directory, not a regular file") from None
+    except OSError as exc:
+        raise TraceUnreadable(f"cannot read {path}: {exc.strerror or exc}") from None
+    if len(head) == BLOCK_BYTES and b"\n" not in head:     # pyarrow may crash on such a header
+        raise TraceError(f"{path}: its first line (the header) is longer than {BLOCK_BYTES >> 20} MiB: "
+                         "not a trace table")
+    return str(path)
+
+
+@contextmanager
+def _quiet_undecodable_rows() -> Iterator[None]:
+    """pyarrow decodes a malformed row's text for the row handler and reports a row that is not text
+    as "Exception ignored" (with a traceback) before failing the table; the failure says it already."""
+    previous = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        if not isinstance(unraisable.exc_value, UnicodeDecodeError):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
+
+
+class _SkippedRows:
+    """pyarrow's ``invalid_row_handler``: a row with too few or too many cells is skipped and counted."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.examples: list[str] = []
+
+    def __call__(self, row: Any) -> str:
+        self.count += 1
+        if len(self.examples) < 5:
+            text = (row.text or "")[:80]
+            self.examples.append(f"a row with {row.actual_columns} cells, {row.expected_columns} expected: "
+                                 f"{text!r}")
+        return "skip"
+
+    def report_to(self, report: LogReport | None) -> None:
+        if report is not None and self.count:
+            report.skipped += self.count
+            report.frames_skipped += self.count
+            report.examples[:] = (report.examples + self.examples)[:5]
+        self.count, self.examples = 0, []
+
+
+def _codec(encoding: str) -> str:
+    """pyarrow's name of ``encoding``: UTF-8 is read natively (a byte that is not UTF-8 is a conversion
+    error), the others are transcoded."""
+    return "utf8" if encoding.lower().replace("_", "-") == "utf-8" else encoding
+
+
+def _batches(path: Path, fmt: TraceFormat, skipped: _SkippedRows) -> Iterator[Any]:
+    """pyarrow record batches of the table; TraceError (exit 2) where it is no table, TraceUnreadable
+    (exit 1) where it cannot be read."""
+    import pyarrow as pa
+    file = _regular(path)
+    try:
+        if path.suffix.lower() == ".csv":
+            import pyarrow.csv as pcsv
+            with _quiet_undecodable_rows():
+                reader = pcsv.open_csv(
+                    file, parse_options=pcsv.ParseOptions(delimiter=fmt.separator, invalid_row_handler=skipped),
+                    convert_options=pcsv.ConvertOptions(decimal_point=fmt.decimal),
+                    read_options=pcsv.ReadOptions(block_size=BLOCK_BYTES, encoding=_codec(fmt.encoding),
+                                                  use_threads=False))
+                _ = reader.schema.names              # the header decoded here, inside the error handling
+                yield from reader
+            return
+        try:
+            import pyarrow.parquet as pq
+        except ImportError:
+            raise TraceError("reading Parquet needs pyarrow: pip install 'joint-wear-monitor[parquet]'") from None
+        table = pq.ParquetFile(file)
+        _ = table.schema_arrow.names
+        yield from table.iter_batches(batch_size=1 << 16)
+    except OSError as exc:                   # pyarrow's I/O errors are OSErrors
+        raise TraceUnreadable(f"cannot read {path}: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise TraceError(f"{path}: not {fmt.encoding} text ({exc.reason}); a table from a Windows tool: "
+                         "[trace] encoding = \"cp1252\" (or \"utf-16\")") from None
+    except pa.ArrowException as exc:
+        first = (str(exc).strip().splitlines() or [""])[0][:300]
+        hint = (f" (a line longer than {BLOCK_BYTES >> 20} MiB)" if "straddl" in first else "")
+        raise TraceError(f"{path}: not a {path.suffix.lower()[1:]} table its mapping can read: {first}{hint}") from None
 
 
 def _column(batch: Any, name: str, where: str) -> NDArray[np.float64]:
@@ -68,11 +166,16 @@ def _values(batch: Any, ref: SignalRef, where: str) -> NDArray[np.float64]:
     return _column(batch, str(ref.column), where) * ref.factor + ref.offset
 
 
-def decoded_batches(path: str | Path, mapping: SignalMapping) -> Iterator[DecodedSamples]:
-    """The table as :class:`DecodedSamples`, one per batch of rows."""
+def decoded_batches(path: str | Path, mapping: SignalMapping,
+                    report: LogReport | None = None) -> Iterator[DecodedSamples]:
+    """The table as :class:`DecodedSamples`, one per batch of rows (rows with the wrong number of cells
+    are skipped and counted in ``report``; empty and non-finite cells are left as NaN: the sample stream
+    counts what it drops)."""
     fmt = mapping.trace or TraceFormat()
     scale = 1e-3 if fmt.time_unit == "ms" else 1.0
-    for batch in _batches(Path(path), fmt):
+    skipped = _SkippedRows()
+    for batch in _batches(Path(path), fmt, skipped):
+        skipped.report_to(report)
         time = _column(batch, fmt.time_column, mapping.where("trace.time_column")) * scale
         rows_of: dict[int, NDArray[np.bool_]] = {}
         if fmt.layout == "long":
@@ -89,7 +192,7 @@ def decoded_batches(path: str | Path, mapping: SignalMapping) -> Iterator[Decode
             rows = rows_of.get(j, np.ones(time.size, dtype=bool))
             assert jm.speed is not None and jm.torque is not None
             speed, torque = _values(batch, jm.speed, f"{where}.speed"), _values(batch, jm.torque, f"{where}.torque")
-            ok = rows & np.isfinite(time) & np.isfinite(speed) & np.isfinite(torque)
+            ok = rows & (np.isfinite(speed) | np.isfinite(torque))        # a row with neither: no sample
             out.joints[j] = JointColumns(time[ok], speed[ok], torque[ok])
             status = {q: _values(batch, ref, f"{where}.{q}") for q in ("load", "temperature")
                       if (ref := getattr(jm, q)) is not None}
@@ -105,6 +208,7 @@ def decoded_batches(path: str | Path, mapping: SignalMapping) -> Iterator[Decode
                 ok = np.isfinite(values) & np.isfinite(time)
                 out.marks[name] = (time[ok], values[ok])
         yield out
+    skipped.report_to(report)
 
 
 def replay_trace(agent: Any, path: str, mapping_path: str | None) -> LogReport:
@@ -115,10 +219,8 @@ def replay_trace(agent: Any, path: str, mapping_path: str | None) -> LogReport:
     if mapping.kind != "trace":
         raise TraceError(f"{path}: --mapping {mapping_path} is a {mapping.kind} mapping; "
                          "a table needs kind = \"trace\"")
-    if not Path(path).exists():
-        raise FileNotFoundError(f"trace file {path} not found")
     report = LogReport()
-    for decoded in decoded_batches(path, mapping):
+    for decoded in decoded_batches(path, mapping, report):
         report.frames += sum(int(c.time.size) for c in decoded.joints.values())
         agent.update_ingested(agent.ingest.update_samples(decoded))
     return report

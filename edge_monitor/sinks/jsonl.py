@@ -35,8 +35,8 @@ from pathlib import Path
 from typing import Any
 
 from edge_monitor.errors import ConfigError
-from edge_monitor.files import NotARegularFile, open_regular
 from edge_monitor.records import Advisory, Alarm, Health, Symptom, to_json
+from protocol.files import NotARegularFile, open_regular
 
 log = logging.getLogger(__name__)
 

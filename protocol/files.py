@@ -1,5 +1,6 @@
 """Files given by a user or left on disk are untrusted: read only regular files, and never more than
-a stated size (a leaf module, like :mod:`edge_monitor.errors`).
+a stated size (a leaf module: it imports nothing of the project; the agent and the mapping, DBC and EDS
+readers use it).
 
 A path may name a FIFO (opening it for reading blocks until a writer comes), a device (``/dev/zero``
 and ``/dev/urandom`` never end, ``/dev/full`` refuses every write), a directory or a socket, directly

@@ -1,0 +1,269 @@
+"""Hostile trace tables, mapping files, DBCs and EDSs (issues 28 and 30), through the real commands as a
+user runs them: each ends with a clear message and the documented exit code (2 a file that does not fit,
+1 one that cannot be read) or a counted drop, never a traceback, in bounded time and memory. Plus a
+hypothesis test of the CSV decoder and the sample stream's bounds, in process."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import hostile_files as hostile
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from edge_monitor.config import load_config
+from edge_monitor.pipeline.samples import DecodedSamples, JointColumns
+from edge_monitor.pipeline.sources import open_source
+from edge_monitor.pipeline.trace_source import TraceError, TraceUnreadable, decoded_batches
+from protocol.signal_mapping import load_mapping, mapping_from_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+MAPPING = """kind = "trace"
+[trace]
+separator = ";"
+time_column = "t"
+[cycles]
+from = "controller"
+cycle = { column = "cycle" }
+segment = { column = "segment" }
+[joint.0]
+speed = { column = "v0" }
+torque = { column = "tau0" }
+"""
+HEADER = b"t;v0;tau0;cycle;segment\n"
+
+
+def _rows(n: int = 3000) -> list[bytes]:
+    """A 500 Hz table of one joint: two cycles of three 1 s levels."""
+    t = np.arange(1, n + 1) / 500.0
+    level = (np.arange(n) // 500) % 3
+    return [b"%.3f;%.2f;%.4f;%d;%d\n" % (ti, 8.7 * (k + 1), 0.1 + 0.01 * k, i // 1500, k + 1)
+            for i, (ti, k) in enumerate(zip(t, level))]
+
+
+def _cells(rows: list[bytes], column: int, value: bytes, every: int) -> list[bytes]:
+    out = []
+    for i, row in enumerate(rows):
+        cells = row.rstrip(b"\n").split(b";")
+        if i % every == 0:
+            cells[column] = value
+        out.append(b";".join(cells) + b"\n")
+    return out
+
+
+ROWS = _rows()
+TABLES: dict[str, bytes] = {
+    "empty.csv": b"",
+    "truncated.csv": HEADER + b"".join(ROWS)[:-9],
+    "short_rows.csv": HEADER + b"".join(r if i % 50 else b"0.5;1\n" for i, r in enumerate(ROWS)),
+    "nan_inf.csv": HEADER + b"".join(_cells(ROWS, 1, b"inf", 7)),
+    "absurd_values.csv": HEADER + b"".join(_cells(ROWS, 2, b"1e308", 5)),
+    "time_backwards.csv": HEADER + b"".join(ROWS[:1500]) + b"".join(reversed(ROWS[1500:])),
+    "time_absurd.csv": HEADER + b"".join(_cells(ROWS, 0, b"1e300", 3)),
+    "latin1_header.csv": HEADER.replace(b"tau0", b"tau0 [\xb0]") + b"".join(ROWS),
+    "huge_header.csv": b"x;" * (3 << 20),
+    "text_cell.csv": HEADER + b"".join(_cells(ROWS, 1, b"abc", 1000)),
+}
+# name: (exit code, what stderr says / the counted drop in the summary)
+EXPECTED = {
+    "empty.csv": (2, "Empty CSV file"),
+    "truncated.csv": (0, lambda s: s["log"]["skipped_records"] == 1),
+    "short_rows.csv": (0, lambda s: s["log"]["skipped_records"] == 60),
+    "nan_inf.csv": (0, lambda s: s["details"]["samples_dropped"]["not_finite"] == 429),
+    "absurd_values.csv": (0, lambda s: s["details"]["samples_dropped"]["out_of_range"] == 600),
+    "time_backwards.csv": (0, lambda s: s["details"]["samples_dropped"]["time_backwards"] == 1499),
+    "time_absurd.csv": (0, lambda s: s["details"]["samples_dropped"]["bad_time"] == 1000),
+    "latin1_header.csv": (2, 'encoding = "cp1252"'),
+    "huge_header.csv": (2, "longer than 4 MiB"),
+    "text_cell.csv": (2, "is not numeric"),
+}
+
+
+def _check(run: hostile.Run, code: int, expect) -> None:
+    assert not run.timed_out and "Traceback" not in run.stderr, run.stderr[-2000:]
+    assert run.returncode == code, (run.returncode, run.stderr[-1000:])
+    if callable(expect):
+        assert expect(json.loads(run.stdout)), run.stdout[-3000:]
+    else:
+        assert expect in run.stderr, run.stderr[-1000:]
+    assert run.max_rss_mb < 800, run.max_rss_mb
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("hostile_traces")
+    (d / "trace.toml").write_text(MAPPING)
+    for name, data in TABLES.items():
+        (d / name).write_bytes(data)
+    return d
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(TABLES))
+def test_a_hostile_table_gives_a_clear_error_or_a_counted_drop(corpus, name):
+    run = hostile.run_measured(hostile.edge_monitor("replay", str(corpus / name), "--mapping",
+                                                    str(corpus / "trace.toml"), "--json", "-q"), timeout=120)
+    _check(run, *EXPECTED[name])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "directory", "missing"])
+def test_a_table_that_is_no_regular_file_cannot_be_read(corpus, tmp_path, kind):
+    path = tmp_path / "table.csv"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "dev_zero":
+        path.symlink_to("/dev/zero")
+    elif kind == "directory":
+        path.mkdir()
+    for command in ("replay", "check-mapping"):
+        run = hostile.run_measured(hostile.edge_monitor(command, str(path), "--mapping", str(corpus / "trace.toml")),
+                                   timeout=60)
+        _check(run, 1, "not found" if kind == "missing" else "not a regular file")
+
+
+def _parquet(path: Path, damage: str) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    pq.write_table(pa.table({"t": [0.002, 0.004], "v0": [1.0, 2.0], "tau0": [0.1, 0.1], "cycle": [0, 0],
+                             "segment": [1, 1]}), path)
+    raw = path.read_bytes()
+    path.write_bytes({"truncated": raw[: len(raw) // 2], "csv": HEADER + ROWS[0], "empty": b""}[damage])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("damage", ["truncated", "csv", "empty"])
+def test_a_parquet_that_is_not_one_is_a_usage_error(corpus, tmp_path, damage):
+    _parquet(tmp_path / "trace.parquet", damage)
+    run = hostile.run_measured(hostile.edge_monitor("replay", str(tmp_path / "trace.parquet"), "--mapping",
+                                                    str(corpus / "trace.toml")), timeout=60)
+    _check(run, 2, "not a parquet table")
+
+
+FOREIGN = (ROOT / "protocol" / "mappings" / "foreign_robot.toml").read_text().replace(
+    '"../', f'"{ROOT / "protocol"}/')
+CIA = (ROOT / "protocol" / "mappings" / "cia402.toml").read_text().replace('"../', f'"{ROOT / "protocol"}/')
+DBC = (ROOT / "protocol" / "dbc" / "foreign_robot.dbc").read_bytes()
+EDS = (ROOT / "protocol" / "eds" / "cia402_drive.eds").read_bytes()
+MAPPINGS = {
+    # name: (mapping text, {file name: bytes or a FIFO (None)}, what the error says)
+    "gear_ratio_list": (FOREIGN.replace("[joint.0]\n", "[joint.0]\ngear_ratio = [1]\n"), {}, "gear_ratio: must be > 0"),
+    "gear_ratio_zero": (FOREIGN.replace("[joint.0]\n", "[joint.0]\ngear_ratio = 0\n"), {}, "gear_ratio: must be > 0"),
+    "reference_torque_negative": (FOREIGN.replace("reference_torque_nm = 30.0", "reference_torque_nm = -3", 1), {},
+                                  "reference_torque_nm: must be > 0"),
+    "scale_text": (FOREIGN.replace('unit = "rpm" }', 'unit = "rpm", scale = "x" }', 1), {}, "scale: a non-zero"),
+    "speeds_scalar": (re.sub(r"(?m)^speeds = .*$", "speeds = 5", FOREIGN), {}, "speeds: a list"),
+    "missing_signal": (FOREIGN.replace('"MotorSpeed"', '"MotorSped"', 1), {}, "has no signal 'MotorSped'"),
+    "joint_99": (FOREIGN.replace("[joint.1]", "[joint.99]"), {}, "N = 0 … 7"),
+    "e2e_data_ids_large": (FOREIGN + '[[e2e]]\nmessage = "AxisFeedback_0"\nprofile = 2\ndata_ids = ['
+                           + ", ".join(["999"] * 16) + "]\n", {}, "data IDs 0 … 255"),
+    "tpdo_not_a_table": (CIA.replace(f'eds = "{ROOT}/protocol/eds/cia402_drive.eds"', "tpdo = [5]", 1), {},
+                         "tpdo[0]: an inline table"),
+    "dbc_garbage": (re.sub(r'(?m)^dbc = .*$', 'dbc = "x.dbc"', FOREIGN), {"x.dbc": bytes(range(256)) * 40},
+                    "cannot load"),
+    "dbc_3_mib": (re.sub(r'(?m)^dbc = .*$', 'dbc = "x.dbc"', FOREIGN),
+                  {"x.dbc": DBC + b'\nCM_ "' + b"y" * (3 << 20) + b'";\n'}, "more than the 2097152"),
+    "dbc_fifo": (re.sub(r'(?m)^dbc = .*$', 'dbc = "x.dbc"', FOREIGN), {"x.dbc": None}, "it is a FIFO"),
+    "eds_garbage": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"), {"x.eds": bytes(range(256)) * 40},
+                    "cannot read EDS"),
+    "eds_5_mib": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"),
+                  {"x.eds": EDS + b"\n; " + b"z" * (5 << 20) + b"\n"}, "more than the 4194304"),
+    "eds_fifo": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"), {"x.eds": None}, "it is a FIFO"),
+    "eds_without_6077": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"),
+                         {"x.eds": EDS.replace(b"0x60770010", b"0x60410010")}, "object 6077sub0 of node 1 is in no TPDO"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(MAPPINGS))
+def test_a_hostile_mapping_dbc_or_eds_is_a_usage_error_naming_it(tmp_path, name):
+    text, files, says = MAPPINGS[name]
+    for file, data in files.items():
+        os.mkfifo(tmp_path / file) if data is None else (tmp_path / file).write_bytes(data)
+    (tmp_path / "m.toml").write_text(text)
+    capture = tmp_path / "empty.log"
+    capture.write_text("")
+    run = hostile.run_measured(hostile.edge_monitor("check-mapping", str(capture), "--mapping",
+                                                    str(tmp_path / "m.toml")), timeout=60)
+    _check(run, 2, says)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["replay", "run"])
+def test_a_mapping_that_is_a_fifo_or_a_device_is_refused_at_once(tmp_path, command):
+    os.mkfifo(tmp_path / "fifo.toml")
+    (tmp_path / "zero.toml").symlink_to("/dev/zero")
+    for mapping in ("fifo.toml", "zero.toml"):
+        args = (["replay", str(tmp_path / "x.blf")] if command == "replay"
+                else ["run", "--link", "virtual:hostile", "--no-zenoh", "--duration", "1"])
+        run = hostile.run_measured(hostile.edge_monitor(*args, "--mapping", str(tmp_path / mapping)), timeout=60)
+        _check(run, 2, "not a regular file")
+
+
+# ------------------------------------------------------------------------------------------- in process
+def _trace_mapping(tmp_path: Path):
+    (tmp_path / "m.toml").write_text(MAPPING)
+    return load_mapping(tmp_path / "m.toml")
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.binary(max_size=3000) | st.lists(st.sampled_from(ROWS[:20] + [b"nan;;\n", b"\xff;1\n", b'"\n', b";;;;;;\n",
+                                                                         b"1e400;1;1;1;1\n", b"-0;-inf;x;1;1\n"]),
+                                               max_size=40).map(lambda rows: HEADER + b"".join(rows)))
+def test_any_bytes_as_a_csv_trace_decode_to_samples_or_a_clear_error(tmp_path, data):
+    """Whatever the bytes, the decoder yields samples (which the sample stream takes without an
+    exception) or raises TraceError / TraceUnreadable, nothing else."""
+    path = tmp_path / "any.csv"
+    path.write_bytes(data)
+    mapping = _trace_mapping(tmp_path)
+    source = open_source(mapping, load_config(None))
+    try:
+        for decoded in decoded_batches(path, mapping):
+            source.update_samples(decoded)
+        source.flush()
+    except (TraceError, TraceUnreadable):
+        pass
+
+
+def test_samples_whose_time_does_not_advance_are_bounded_and_counted():
+    """Times that never advance at a plateau speed (a plateau that never ends) once held every sample
+    (30 million rows: 2.75 GB, 291 s); the buffer now keeps 4 × max_pending_s of samples."""
+    mapping = mapping_from_dict({"kind": "trace", "cycles": {"from": "motion", "speeds": [8.7, 41.7]},
+                                 "joint": {"0": {"speed": {"column": "v"}, "torque": {"column": "tau"}}}})
+    source = open_source(mapping, load_config(None))
+    n = 50_000
+    for _ in range(20):
+        source.update_samples(DecodedSamples(joints={0: JointColumns(np.ones(n), np.full(n, 8.7), np.full(n, 0.1))}))
+    stream = source.stream
+    assert stream.pending_samples() <= 4 * stream.max_pending
+    assert stream.dropped["pending_full"] == 20 * n - stream.pending_samples()
+    assert source.counters()["samples_dropped"]["pending_full"] > 0
+
+
+# ------------------------------------------------------------------------ the health record's schema
+def _undeclared(record: dict) -> list[str]:
+    from edge_monitor.schemas import load_schema
+    schema = load_schema("health")
+    patterns = [re.compile(p) for p in schema.get("patternProperties", {})]
+    return sorted(k for k in record if k not in schema["properties"] and not any(p.match(k) for p in patterns))
+
+
+@pytest.mark.slow
+def test_every_counter_of_a_real_run_and_replay_is_declared_in_the_health_schema(corpus, tmp_path):
+    """The health record of a real `run` (with the live loop's counters) and the `details` of the run
+    summaries of a native and a foreign replay carry no key the health schema does not declare."""
+    run = hostile.run_measured(hostile.edge_monitor("run", "--link", "virtual:health-schema", "--no-zenoh",
+                                                    "--duration", "1", "--json"), timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert _undeclared(json.loads(run.stdout)["health"]) == []
+    trace = hostile.run_measured(hostile.edge_monitor("replay", str(corpus / "nan_inf.csv"), "--mapping",
+                                                      str(corpus / "trace.toml"), "--json", "-q"), timeout=120)
+    assert _undeclared(json.loads(trace.stdout)["details"]) == []
+    blf = ROOT / "tests" / "corpus" / "clean.blf"
+    native = hostile.run_measured(hostile.edge_monitor("replay", str(blf), "--json", "-q"), timeout=120)
+    assert _undeclared(json.loads(native.stdout)["details"]) == []
