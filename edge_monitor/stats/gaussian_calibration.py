@@ -127,10 +127,11 @@ def threshold(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], a
 
 
 def thresholds(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], targets: tuple[float, ...],
-               budget: GaussianBudget = GaussianBudget()) -> list[GaussianThreshold]:
-    """:func:`threshold` for several targets from one simulation and one bootstrap."""
+               budget: GaussianBudget = GaussianBudget(), progress: bool = False) -> list[GaussianThreshold]:
+    """:func:`threshold` for several targets from one simulation and one bootstrap (``progress``: a
+    status line per chunk of the simulation)."""
     started = time.process_time()
-    sim = simulate(settings, corr, budget)
+    sim = simulate(settings, corr, budget, progress)
     found = [read_threshold(sim.events, sim.exposure, sim.grid, float(t), budget.streams) for t in targets]
     rng = np.random.default_rng([SEED, 2])
     boot: list[list[float]] = [[] for _ in targets]
