@@ -184,11 +184,18 @@ def test_no_can_configuration_says_what_to_do(tmp_path, cmd):
 # --- 2 (cont.). Ctrl-C exits with 130 ---------------------------------------------------------------
 # A FIFO tells when the command is at work: opening one end returns once the command opened the other.
 
+def interruptible() -> None:
+    """Ctrl-C reaches the child even when this suite runs in a background job (a non-interactive shell
+    starts background jobs with SIGINT ignored, and the child would inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_during_sim_record_exits_130(tmp_path):
     fifo = tmp_path / "live.log"
     os.mkfifo(fifo)
     proc = subprocess.Popen([SIM, "record", "--out", str(fifo), "--joints", "1", "--cycles", "1000"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env_without_can())
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env_without_can(),
+                            preexec_fn=interruptible)
     try:
         with open(fifo, "rb") as reader:
             assert reader.read(1)          # writing; it blocks on the full pipe until read
@@ -209,7 +216,7 @@ def test_ctrl_c_during_edge_replay_exits_130(tmp_path):
     subprocess.run([SIM, "record", "--out", str(log), "--joints", "1", "--cycles", "60"], check=True,
                    capture_output=True, env=env_without_can(), timeout=600)
     proc = subprocess.Popen([EDGE, "-v", "replay", str(log)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env_without_can())
+                            text=True, env=env_without_can(), preexec_fn=interruptible)
     try:
         seen = []
         for line in proc.stderr:               # at work: the first frames reached the agent
