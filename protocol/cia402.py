@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.bitfields import BitField
-from protocol.files import NotARegularFile, read_regular
+from protocol.files import read_regular_or
 from protocol.signal_mapping import UnreadableFile
 
 STATUSWORD, POSITION, VELOCITY, RATED_TORQUE, TORQUE, ENCODER = 0x6041, 0x6064, 0x606C, 0x6076, 0x6077, 0x608F
@@ -89,16 +89,7 @@ def read_eds(node_id: int, eds: Path) -> io.StringIO:
     """The EDS/DCF as text for canopen (named like the file, which tells canopen its format): a regular
     file of at most :data:`MAX_EDS_BYTES`, UTF-8 or else Latin-1 (CiA 306 files are ASCII; vendors'
     comments are often Latin-1). Cia402Error if it is not such a file, UnreadableFile on an I/O error."""
-    try:
-        raw = read_regular(eds, MAX_EDS_BYTES)
-    except FileNotFoundError:
-        raise Cia402Error(f"node {node_id}: EDS file {eds} not found") from None
-    except NotARegularFile as exc:
-        raise Cia402Error(f"node {node_id}: EDS file {eds}: {exc.reason}") from None
-    except IsADirectoryError:
-        raise Cia402Error(f"node {node_id}: EDS file {eds}: it is a directory, not a regular file") from None
-    except OSError as exc:
-        raise UnreadableFile(f"node {node_id}: cannot read EDS {eds}: {exc.strerror or exc}") from None
+    raw = read_regular_or(eds, MAX_EDS_BYTES, f"node {node_id}: EDS file", Cia402Error, UnreadableFile)
     try:
         text = io.StringIO(raw.decode("utf-8"))
     except UnicodeDecodeError:

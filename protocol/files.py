@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Callable
 from pathlib import Path
 
 _NO_BLOCK = os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
@@ -71,6 +72,23 @@ def read_regular(path: str | os.PathLike[str], max_bytes: int) -> bytes:
         return b"".join(chunks)
     finally:
         os.close(fd)
+
+
+def read_regular_or(path: str | os.PathLike[str], max_bytes: int, what: str,
+                    invalid: Callable[[str], Exception], unreadable: Callable[[str], Exception]) -> bytes:
+    """:func:`read_regular`, its failures raised as the caller's errors with ``what`` (e.g. "mapping
+    file") naming the file: ``invalid`` for one that is missing, too large or not a regular file (bad
+    input), ``unreadable`` for an I/O error."""
+    try:
+        return read_regular(path, max_bytes)
+    except FileNotFoundError:
+        raise invalid(f"{what} {path} not found") from None
+    except NotARegularFile as exc:
+        raise invalid(f"{what} {path}: {exc.reason}") from None
+    except IsADirectoryError:
+        raise invalid(f"{what} {path}: it is a directory, not a regular file") from None
+    except OSError as exc:
+        raise unreadable(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
 
 
 def require_regular(path: str | os.PathLike[str]) -> Path:

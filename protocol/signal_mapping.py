@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from protocol.catalogue import MAX_JOINTS
-from protocol.files import NotARegularFile, read_regular
+from protocol.files import read_regular_or
 from protocol.units import UnitError, speed_factor, temperature_conversion, torque_factor
 
 KINDS = ("dbc", "cia402", "trace")
@@ -133,18 +133,11 @@ class SignalMapping:
 
 def load_mapping(path: str | Path) -> SignalMapping:
     p = Path(path)
+    raw = read_regular_or(p, MAX_MAPPING_BYTES, "mapping file", MappingError, UnreadableFile)
     try:
-        data = tomllib.loads(read_regular(p, MAX_MAPPING_BYTES).decode("utf-8"))
-    except FileNotFoundError:
-        raise MappingError(f"mapping file {p} not found") from None
-    except NotARegularFile as exc:
-        raise MappingError(f"mapping file {p}: {exc.reason}") from None
+        data = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise MappingError(f"mapping file {p} is not UTF-8 text: {exc}") from None
-    except IsADirectoryError:
-        raise MappingError(f"mapping file {p}: it is a directory, not a regular file") from None
-    except OSError as exc:
-        raise UnreadableFile(f"mapping file {p} cannot be read: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise MappingError(f"mapping file {p} is not valid TOML: {exc}") from None
     return mapping_from_dict(data, p)
