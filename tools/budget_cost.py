@@ -30,7 +30,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import Any, Iterator  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -39,7 +39,7 @@ from edge_monitor.pipeline.agent import Agent  # noqa: E402
 from edge_monitor.pipeline.agent_config import AgentConfig  # noqa: E402
 from edge_monitor.pipeline.detectors import BUDGET_PERIODS, DecisionConfig  # noqa: E402
 from edge_monitor.stats.sequential_detector import SequentialDetector  # noqa: E402
-from sim_controller.cycle_mode import cycle_signals  # noqa: E402
+from sim_controller.cycle_mode import CycleSignals, cycle_signals  # noqa: E402
 from sim_controller.scenario import scenario_config  # noqa: E402
 
 log = logging.getLogger("budget_cost")
@@ -78,7 +78,7 @@ def run(seed: int, ramp: str) -> dict[str, Any]:
     first: dict[str, dict[str, Any]] = {}
     started = time.monotonic()
 
-    def signals():  # type: ignore[no-untyped-def]
+    def signals() -> Iterator[CycleSignals]:
         for s in cycle_signals(sim):
             wear.update({int(t["cycle"]): float(t["wear"]) for t in s.truth})
             yield s
