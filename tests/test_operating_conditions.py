@@ -24,7 +24,11 @@ from sim_controller.timeline import PlantEvent
 pytestmark = pytest.mark.timeout(1800)      # ≈ 2 × 290 cycles of 2 joints: minutes on a loaded machine
 
 STEP, CYCLES = 170, 290
-SETTINGS = {"decision": {"settling_window": 80, "settling_max_rate": 0.05, "steady_nominal": 60}}
+# a stated 10⁴ cycles per detector, not the default budget (2.6·10⁶): with a 60-cycle steady nominal the
+# thresholds for the budget are far out in an extrapolated tail; what the budget costs on a load step is
+# measured with the shipped settings in docs/DETECTION.md ("The false-alarm budget")
+SETTINGS = {"decision": {"settling_window": 80, "settling_max_rate": 0.05, "steady_nominal": 60,
+                         "arl0_cycles": 1e4}}
 
 
 def _run(load_range: tuple[float, float], seed: int, ramp: str | None = None) -> list[dict[str, Any]]:
