@@ -145,12 +145,14 @@ def test_a_config_change_after_a_restart_takes_effect_or_is_kept_and_is_reported
         assert second.joints[0].detectors.detectors["wear"].config.allowance == 0.5
 
 
-def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_without_relearning(tmp_path):
+@pytest.mark.parametrize("on_change", ["relearn", "keep"])
+def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_without_relearning(tmp_path, caplog,
+                                                                                              on_change):
     """The ARL0 target is not what a detector learned: a restart with another budget keeps the nominals
     and re-derives every threshold for the new target (tests/test_false_alarm_budget.py has the maths)."""
     frames = make_frames(8, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=3)
     split = len(frames[0]) * 6 // 8 + 123
-    calibrated = small_config()
+    calibrated = small_config(on_config_change=on_change)
     calibrated = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, pf=None,
                                                                              arl0_cycles=1e4))
     first = Agent(calibrated, state_store=StateStore(tmp_path))
@@ -159,10 +161,12 @@ def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_witho
     before = first.joints[0].detectors.detectors["wear"]
     assert before.state == "monitoring" and before.threshold is not None
     changed = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, arl0_cycles=500.0))
-    second = Agent(changed, state_store=StateStore(tmp_path))
-    outs = feed(second, frames, start=split) + second.finish()
+    with caplog.at_level("WARNING"):
+        second = Agent(changed, state_store=StateStore(tmp_path))
+        outs = feed(second, frames, start=split) + second.finish()
     after = second.joints[0].detectors.detectors["wear"]
     assert outs[-1].decisions["wear"].state == "monitoring"              # not relearned
+    assert not any("relearning" in r.getMessage() or "keeping the models" in r.getMessage() for r in caplog.records)
     assert after.arl0 == 500.0 and after.calibration is not None and after.calibration.arl0 == 500.0
     assert after.threshold is not None and after.threshold < before.threshold    # a shorter run length
 

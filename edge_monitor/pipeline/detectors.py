@@ -39,9 +39,12 @@ from edge_monitor.stats.sequential_detector import Calibrator, SequentialDetecto
 
 log = logging.getLogger(__name__)
 
-#: Settings that say when the steady stage starts, not what a detector learned: not in the fingerprint
-#: (a saved state stays valid when they change), and kept from the current config on "keep".
-SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate")
+#: Settings that are not what a detector learned — when the steady stage starts, and the false-alarm
+#: target its threshold is derived for (a changed target is re-derived on the same nominal,
+#: :meth:`DetectorBank.retarget`): not in the fingerprint (a saved state stays valid when they change),
+#: and kept from the current config on "keep".
+SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate",
+                 "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
 #: Key of the thermal settling tracker in the detectors' state (not a quantity name).
 SETTLING_KEY = "_thermal_settling"
