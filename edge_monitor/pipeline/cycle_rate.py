@@ -18,7 +18,7 @@ import math
 from typing import Any
 
 from edge_monitor.pipeline.detectors import DecisionConfig
-from edge_monitor.stats.calibration import MAX_ARL0
+from edge_monitor.stats.calibration import MAX_ARL0, MIN_ARL0
 
 log = logging.getLogger(__name__)
 
@@ -26,8 +26,6 @@ HOUR_S = 3600.0
 DAY_HOURS = 24
 #: The thresholds are re-derived when the measured rate leaves ±this fraction of the one they are for.
 RATE_TOLERANCE = 0.25
-#: The smallest mean run length a re-derivation may ask for [cycles] (:class:`DetectorConfig`'s bound).
-MIN_ARL0 = 10.0
 
 
 class CycleRate:

@@ -27,7 +27,7 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
 )
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, CalibrationBudget
+from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MIN_ARL0, CalibrationBudget
 from edge_monitor.stats.detector_config import (
     DEFAULT_NOMINAL,
     DEFAULT_STEADY_NOMINAL,
@@ -184,8 +184,8 @@ class DecisionConfig:
                 and 1 <= self.joints_per_robot <= MAX_JOINTS_PER_ROBOT, "decision.joints_per_robot",
                 f"must be 1 … {MAX_JOINTS_PER_ROBOT}, got {self.joints_per_robot!r}")
         if self.arl0_cycles is None:
-            require(10 <= self.arl0 <= MAX_ARL0, "decision.false_alarms_per_robot",
-                    f"{self.budget_text} is outside 10 … {MAX_ARL0:g} cycles per detector; state a "
+            require(MIN_ARL0 <= self.arl0 <= MAX_ARL0, "decision.false_alarms_per_robot",
+                    f"{self.budget_text} is outside {MIN_ARL0:g} … {MAX_ARL0:g} cycles per detector; state a "
                     f"budget a {self.budget_period} of {self.cycles_per_day:g} cycles can deliver")
 
     def detector_config(self, quantity: str) -> DetectorConfig:

@@ -63,6 +63,8 @@ log = logging.getLogger(__name__)
 DEFAULT_ARL0 = 10_000.0
 #: Largest ARL0 a user may ask for [cycles]: beyond, the extrapolation is not trustworthy.
 MAX_ARL0 = 1e7
+#: Smallest ARL0 a detector may be calibrated for [cycles].
+MIN_ARL0 = 10.0
 #: A threshold is read off where at most this fraction of the simulated detectors never alarmed.
 MAX_CENSORED = 0.10
 #: … and at least this many alarmed.

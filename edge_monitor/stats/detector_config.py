@@ -13,6 +13,7 @@ from edge_monitor.stats.calibration import (
     DEFAULT_ARL0,
     MAX_ARL0,
     MAX_DRIFT,
+    MIN_ARL0,
     MIN_EVENTS,
     SIMULATE_FROM,
     CalibrationBudget,
@@ -112,8 +113,8 @@ class DetectorConfig:
             require(isinstance(self.window, int) and 1 <= self.window <= MAX_WINDOW, "window",
                     f"must be 1 … {MAX_WINDOW} cycles, got {self.window!r} (default {DEFAULT_WINDOW})")
             require(self.mode in ("exact", "recursive"), "mode", f"must be 'exact' or 'recursive', got {self.mode!r}")
-            require(isinstance(self.arl0, (int, float)) and 10 <= self.arl0 <= MAX_ARL0, "arl0",
-                    f"mean run length to false alarm must be 10 … {MAX_ARL0:g} cycles, got {self.arl0!r}")
+            require(isinstance(self.arl0, (int, float)) and MIN_ARL0 <= self.arl0 <= MAX_ARL0, "arl0",
+                    f"mean run length to false alarm must be {MIN_ARL0:g} … {MAX_ARL0:g} cycles, got {self.arl0!r}")
             require(self.direction in DIRECTIONS, "direction", f"{self.direction!r}; choose one of {DIRECTIONS}")
             require(isinstance(self.allowance, (int, float)) and 0 <= self.allowance <= 5, "allowance",
                     f"must be 0 … 5 standard deviations of the nominal values, got {self.allowance!r}")

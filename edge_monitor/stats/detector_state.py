@@ -7,13 +7,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from edge_monitor.stats.calibration import MAX_ARL0, MIN_ARL0
 from edge_monitor.stats.normalising_transform import YeoJohnson
 
 
 def saved_target(saved: Any) -> float:
     """A saved ARL0 target [cycles], checked like the config's."""
-    if isinstance(saved, bool) or not isinstance(saved, (int, float)) or not 10 <= saved <= 1e7:
-        raise ValueError(f"saved detector state: ARL0 target {saved!r} outside 10 … 1e7 cycles")
+    if isinstance(saved, bool) or not isinstance(saved, (int, float)) or not MIN_ARL0 <= saved <= MAX_ARL0:
+        raise ValueError(f"saved detector state: ARL0 target {saved!r} outside {MIN_ARL0:g} … {MAX_ARL0:g} cycles")
     return float(saved)
 
 
