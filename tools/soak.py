@@ -30,6 +30,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -160,6 +161,22 @@ class Proc:
         return self.stdout.read_text(errors="replace") if self.stdout.exists() else ""
 
 
+class LineCount:
+    """Lines of a growing file, counted from where the last call stopped (the status line must not
+    re-read a JSONL of tens of MB every 10 s)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.offset, self.lines = path, 0, 0
+
+    def count(self) -> int:
+        with contextlib.suppress(OSError), open(self.path, "rb") as f:
+            f.seek(self.offset)
+            data = f.read()
+            self.offset += len(data)
+            self.lines += data.count(b"\n")
+        return self.lines
+
+
 class HealthWatch:
     """The soak's own Zenoh session: the agent's health records, each with its arrival time."""
 
@@ -231,8 +248,13 @@ class Soak:
         self.started = time.monotonic()
         self.stream_started = 0.0
         self._last_sample = self._last_status = 0.0
+        self._sample_lock = threading.Lock()
+        self._sampler_stop = threading.Event()
+        self._sampler = threading.Thread(target=self._sample_loop, name="rss-sampler", daemon=True)
+        self._lines = {name: LineCount(work / name) for name in ("symptoms.jsonl", "received.jsonl")}
         (work / "agent.toml").write_text(AGENT_CONFIG)
         stack.callback(self._stop_all)
+        stack.callback(self._stop_sampler)
 
     # -- link -------------------------------------------------------------------------------
     def _open_link(self, link: str) -> tuple[Any, str, str, str]:
@@ -424,9 +446,8 @@ class Soak:
             time.sleep(min(0.2, max(end - time.monotonic(), 0.0)))
 
     def tick(self) -> None:
-        """Periodic work: account for the link, sample resources, the status line."""
+        """Periodic work: account for the link, the status line (the RSS sampler has its own thread)."""
         self.tap.pump()
-        self.sample()
         now = time.monotonic()
         if now - self._last_status >= STATUS_EVERY_S:
             self._last_status = now
@@ -434,27 +455,44 @@ class Soak:
             write_samples(self.lives, self.work / "resources.csv")     # so far: an interrupted soak leaves it
 
     def sample(self, force: bool = False) -> None:
-        now = time.monotonic()
-        if self.agent is None or not self.lives or (not force and now - self._last_sample < self.args.sample_interval):
-            return
-        self._last_sample = now
-        got = proc_cpu_rss(self.agent.pid)
-        if got is not None:
-            self.lives[-1].samples.append(Sample(time.time(), got[1], got[0]))
+        """One RSS/CPU sample of the open agent life, if one is due (or ``force``)."""
+        with self._sample_lock:
+            now = time.monotonic()
+            agent, life = self.agent, self.lives[-1] if self.lives else None
+            if agent is None or life is None or agent.pid != life.pid or (
+                    not force and now - self._last_sample < self.args.sample_interval):
+                return
+            self._last_sample = now
+            got = proc_cpu_rss(agent.pid)
+            if got is not None:
+                life.samples.append(Sample(time.time(), got[1], got[0]))
+
+    def _sample_loop(self) -> None:
+        """The sampler thread: a loop of its own, so that nothing the main loop waits for can starve it."""
+        while not self._sampler_stop.wait(min(self.args.sample_interval / 4.0, 0.5)):
+            try:
+                self.sample()
+            except Exception:                              # noqa: BLE001 - a sampler must not die silently
+                log.exception("RSS sampler")
+
+    def _stop_sampler(self) -> None:
+        self._sampler_stop.set()
+        if self._sampler.is_alive():
+            self._sampler.join(timeout=5.0)
 
     def status_line(self) -> str:
         elapsed = time.monotonic() - self.stream_started if self.stream_started else 0.0
-        in_file, _, _ = read_symptom_lines(self.work / "symptoms.jsonl", ROBOT)
-        got, _, _ = read_symptom_lines(self.work / "received.jsonl", ROBOT)
+        in_file, got = (self._lines[name].count() for name in ("symptoms.jsonl", "received.jsonl"))
         return (f"status: {elapsed:.0f}/{self.args.duration:.0f} s, frames on link {sum(r.frames for r in self.ledger.runs)}, "
                 f"processed {self.frames_processed()} (agent life {len(self.lives) - 1}), symptoms JSONL "
-                f"{len(in_file)} / subscriber {len(got)}, restarts {sum(self.counts.restarts.values())}")
+                f"{in_file} / subscriber {got} lines, restarts {sum(self.counts.restarts.values())}")
 
     def run(self) -> dict[str, Any]:
         self.start_router()
         self.health = HealthWatch(self.endpoint)
         self.start_subscriber()
         self.start_agent()
+        self._sampler.start()
         self.start_sim()
         self.stream_started = time.monotonic()
         plan = [] if self.args.no_chaos else chaos_plan(self.args.duration, self.args.chaos_interval, self.args.seed)

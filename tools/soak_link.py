@@ -295,9 +295,11 @@ class PtyLinkTap:
         self._events.append((what,))
 
     def pump(self) -> None:
-        """Hand every event so far to the ledger."""
+        """Hand the events queued so far to the ledger: only those, so that a bridge thread queuing
+        faster than the ledger digests cannot keep the caller here (the soak's loop starved for an hour
+        that way on a loaded machine)."""
         with self._lock:
-            while self._events:
+            for _ in range(len(self._events)):
                 event = self._events.popleft()
                 getattr(self, "_on_" + event[0])(*event[1:])
 
@@ -367,7 +369,8 @@ class CanMonitorTap:
         self._events.append(("closed",))
 
     def pump(self) -> None:
-        while self._events:
+        """Hand the events queued so far to the ledger (only those: see PtyLinkTap.pump)."""
+        for _ in range(len(self._events)):
             event = self._events.popleft()
             if event[0] == "frame":
                 self.ledger.frames(np.asarray([event[1]]), np.frombuffer(event[2][:8], np.uint8).reshape(1, 8),
