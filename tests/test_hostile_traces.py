@@ -68,6 +68,9 @@ TABLES: dict[str, bytes] = {
     "latin1_header.csv": HEADER.replace(b"tau0", b"tau0 [\xb0]") + b"".join(ROWS),
     "huge_header.csv": b"x;" * (3 << 20),
     "text_cell.csv": HEADER + b"".join(_cells(ROWS, 1, b"abc", 1000)),
+    "text_column.csv": HEADER + b"".join(_cells(ROWS, 1, b"abc", 2)),
+    "time_in_ms.csv": HEADER + b"".join(b"%d;" % round(float(r.split(b";")[0]) * 1e3) + r.split(b";", 1)[1]
+                                        for r in _rows(3000)[::3]),
 }
 # name: (exit code, what stderr says / the counted drop in the summary)
 EXPECTED = {
@@ -80,7 +83,9 @@ EXPECTED = {
     "time_absurd.csv": (0, lambda s: s["details"]["samples_dropped"]["bad_time"] == 1000),
     "latin1_header.csv": (2, 'encoding = "cp1252"'),
     "huge_header.csv": (2, "longer than 4 MiB"),
-    "text_cell.csv": (2, "is not numeric"),
+    "text_cell.csv": (0, lambda s: s["details"]["samples_dropped"]["not_finite"] == 3),
+    "text_column.csv": (2, "is not numeric"),
+    "time_in_ms.csv": (2, 'time_unit = "ms"'),
 }
 
 
@@ -143,6 +148,36 @@ def test_a_parquet_that_is_not_one_is_a_usage_error(corpus, tmp_path, damage):
     run = hostile.run_measured(hostile.edge_monitor("replay", str(tmp_path / "trace.parquet"), "--mapping",
                                                     str(corpus / "trace.toml")), timeout=60)
     _check(run, 2, "not a parquet table")
+
+
+UTF16 = ("\n".join(line.decode() for line in [HEADER.rstrip(b"\n")] + [r.rstrip(b"\n") for r in ROWS]) + "\n").encode("utf-16")
+NOT_UTF16 = {
+    "utf8_without_bom": HEADER + b"".join(ROWS),
+    "truncated": UTF16[:-1],
+    "lone_surrogate": UTF16[: len(UTF16) // 4 * 2] + b"\x00\xd8\x41\x00" + UTF16[len(UTF16) // 4 * 2:],
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(NOT_UTF16))
+def test_a_table_that_is_not_its_stated_encoding_is_a_usage_error_without_an_abort(corpus, tmp_path, name):
+    """A decode error inside pyarrow's transcoder could abort the process at exit (exit 134,
+    "terminate called without an active exception"); the text is now checked before pyarrow reads it."""
+    (tmp_path / "utf16.toml").write_text(MAPPING.replace("[trace]\n", '[trace]\nencoding = "utf-16"\n'))
+    (tmp_path / "table.csv").write_bytes(NOT_UTF16[name])
+    for _ in range(3):                       # the abort came in about one exit of eight
+        run = hostile.run_measured(hostile.edge_monitor("replay", str(tmp_path / "table.csv"), "--mapping",
+                                                        str(tmp_path / "utf16.toml")), timeout=60)
+        _check(run, 2, "not utf-16 text")
+
+
+@pytest.mark.slow
+def test_a_utf16_table_is_read(corpus, tmp_path):
+    (tmp_path / "utf16.toml").write_text(MAPPING.replace("[trace]\n", '[trace]\nencoding = "utf-16"\n'))
+    (tmp_path / "table.csv").write_bytes(UTF16)
+    run = hostile.run_measured(hostile.edge_monitor("replay", str(tmp_path / "table.csv"), "--mapping",
+                                                    str(tmp_path / "utf16.toml"), "--json", "-q"), timeout=120)
+    _check(run, 0, lambda s: s["log"]["frames"] == len(ROWS) and s["log"]["skipped_records"] == 0)
 
 
 FOREIGN = (ROOT / "protocol" / "mappings" / "foreign_robot.toml").read_text().replace(

@@ -13,6 +13,7 @@ joint-wear-monitor[parquet]`` where rerun-sdk did not bring pyarrow).
 
 from __future__ import annotations
 
+import codecs
 import logging
 import os
 import sys
@@ -33,6 +34,9 @@ log = logging.getLogger(__name__)
 TRACE_SUFFIXES = (".csv", ".parquet", ".pq")
 #: pyarrow reads a CSV in blocks of this size; a longer line is an error (no trace table has one).
 BLOCK_BYTES = 4 << 20
+#: Median time steps [s] no trace of a robot joint has: slower than 10 Hz, faster than 100 kHz (the
+#: agent needs >= 100 Hz); a table outside states its time in the other unit (ms read as s or back).
+SLOWEST_STEP_S, FASTEST_STEP_S = 0.1, 1e-5
 
 
 class TraceError(ValueError):
@@ -116,6 +120,17 @@ def _codec(encoding: str) -> str:
     return "utf8" if encoding.lower().replace("_", "-") == "utf-8" else encoding
 
 
+def _decode_through(file: str, encoding: str) -> None:
+    """Decode the whole file in blocks (UnicodeError where it is not ``encoding`` text) before pyarrow
+    transcodes it: a decode error inside pyarrow's transcoder leaves one of its threads running, and the
+    process may then abort at exit ("terminate called without an active exception")."""
+    decoder = codecs.getincrementaldecoder(encoding)()
+    with open(file, "rb") as f:
+        while block := f.read(BLOCK_BYTES):
+            decoder.decode(block)
+    decoder.decode(b"", final=True)
+
+
 def _batches(path: Path, fmt: TraceFormat, skipped: _SkippedRows) -> Iterator[Any]:
     """pyarrow record batches of the table; TraceError (exit 2) where it is no table, TraceUnreadable
     (exit 1) where it cannot be read."""
@@ -124,6 +139,8 @@ def _batches(path: Path, fmt: TraceFormat, skipped: _SkippedRows) -> Iterator[An
     try:
         if path.suffix.lower() == ".csv":
             import pyarrow.csv as pcsv
+            if _codec(fmt.encoding) != "utf8":
+                _decode_through(file, fmt.encoding)
             with _quiet_undecodable_rows():
                 reader = pcsv.open_csv(
                     file, parse_options=pcsv.ParseOptions(delimiter=fmt.separator, invalid_row_handler=skipped),
@@ -142,8 +159,9 @@ def _batches(path: Path, fmt: TraceFormat, skipped: _SkippedRows) -> Iterator[An
         yield from table.iter_batches(batch_size=1 << 16)
     except OSError as exc:                   # pyarrow's I/O errors are OSErrors
         raise TraceUnreadable(f"cannot read {path}: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise TraceError(f"{path}: not {fmt.encoding} text ({exc.reason}); a table from a Windows tool: "
+    except UnicodeError as exc:              # a decode error, or UTF-16 without its byte-order mark
+        reason = exc.reason if isinstance(exc, UnicodeDecodeError) else str(exc)
+        raise TraceError(f"{path}: not {fmt.encoding} text ({reason}); a table from a Windows tool: "
                          "[trace] encoding = \"cp1252\" (or \"utf-16\")") from None
     except pa.ArrowException as exc:
         first = (str(exc).strip().splitlines() or [""])[0][:300]
@@ -151,19 +169,77 @@ def _batches(path: Path, fmt: TraceFormat, skipped: _SkippedRows) -> Iterator[An
         raise TraceError(f"{path}: not a {path.suffix.lower()[1:]} table its mapping can read: {first}{hint}") from None
 
 
-def _column(batch: Any, name: str, where: str) -> NDArray[np.float64]:
+def _column(batch: Any, name: str, where: str, decimal: str = ".") -> NDArray[np.float64]:
+    """Column ``name`` as floats; empty cells NaN. pyarrow reads a column as text when one cell of the
+    batch is no number: those cells become NaN (the sample stream counts them as dropped) unless half or
+    more of the cells are text, which is a column that is not numeric (TraceError)."""
     names = batch.schema.names
     if name not in names:
         raise TraceError(f"{where}: column {name!r} is not in the table; its columns are {names}")
     array = batch.column(names.index(name))
-    try:
-        return np.asarray(array.to_numpy(zero_copy_only=False), dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TraceError(f"{where}: column {name!r} is not numeric (decimal mark? [trace] decimal = \",\")") from None
+    cells = array.to_numpy(zero_copy_only=False)
+    if cells.dtype != object:
+        try:
+            return np.asarray(cells, dtype=np.float64)
+        except (TypeError, ValueError):                # dates, times, durations: no number of ours
+            raise TraceError(f"{where}: column {name!r} is not numeric (it holds {array.type})") from None
+    values, text = _numbers_of_text(cells, decimal)
+    if text and text.count >= int(np.isfinite(values).sum()):
+        raise TraceError(f"{where}: column {name!r} is not numeric ({text.example!r} in {text.count} of "
+                         f"{values.size} rows; decimal mark? [trace] decimal = \",\")")
+    if text:
+        log.warning("%s: %d cells of column %r are not numbers (e.g. %r): read as missing values",
+                    where, text.count, name, text.example)
+    return values
 
 
-def _values(batch: Any, ref: SignalRef, where: str) -> NDArray[np.float64]:
-    return _column(batch, str(ref.column), where) * ref.factor + ref.offset
+class _TextCells:
+    """The cells of a column that are text, not numbers: how many and the first."""
+
+    def __init__(self) -> None:
+        self.count, self.example = 0, ""
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def add(self, cell: str) -> None:
+        if not self.count:
+            self.example = cell[:40]
+        self.count += 1
+
+
+def _numbers_of_text(cells: NDArray[Any], decimal: str) -> tuple[NDArray[np.float64], _TextCells]:
+    """Floats of a column pyarrow left as text (None and blank cells NaN), and the cells that are text."""
+    values = np.full(cells.size, np.nan)
+    text = _TextCells()
+    for i, cell in enumerate(cells):
+        if cell is None or not (cell := str(cell).strip()):
+            continue
+        try:
+            values[i] = float(cell.replace(decimal, ".") if decimal != "." else cell)
+        except ValueError:
+            text.add(cell)
+    return values, text
+
+
+def _values(batch: Any, ref: SignalRef, where: str, decimal: str = ".") -> NDArray[np.float64]:
+    return _column(batch, str(ref.column), where, decimal) * ref.factor + ref.offset
+
+
+def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str) -> None:
+    """TraceError if the median step of the first batch's times is no robot trace's (a unit off by 1000)."""
+    ticks = np.unique(time[np.isfinite(time)])
+    if ticks.size < 10:
+        return
+    step = float(np.median(np.diff(ticks)))
+    if step > SLOWEST_STEP_S:
+        hint = ' (in ms? [trace] time_unit = "ms")' if fmt.time_unit != "ms" else ""
+        raise TraceError(f"{where}: the time column steps by {step:.4g} s ({1 / step:.3g} Hz) in the median; "
+                         f"the agent needs samples at >= 100 Hz{hint}")
+    if step < FASTEST_STEP_S:
+        hint = ' (in s? [trace] time_unit = "s")' if fmt.time_unit == "ms" else ""
+        raise TraceError(f"{where}: the time column steps by {step:.4g} s ({1 / step:.3g} Hz) in the median: "
+                         f"no robot trace is that fast{hint}")
 
 
 def decoded_batches(path: str | Path, mapping: SignalMapping,
@@ -174,9 +250,13 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
     fmt = mapping.trace or TraceFormat()
     scale = 1e-3 if fmt.time_unit == "ms" else 1.0
     skipped = _SkippedRows()
+    first = True
     for batch in _batches(Path(path), fmt, skipped):
         skipped.report_to(report)
-        time = _column(batch, fmt.time_column, mapping.where("trace.time_column")) * scale
+        time = _column(batch, fmt.time_column, mapping.where("trace.time_column"), fmt.decimal) * scale
+        if first:
+            _check_time_step(time, fmt, mapping.where("trace.time_column"))
+            first = False
         rows_of: dict[int, NDArray[np.bool_]] = {}
         if fmt.layout == "long":
             keys = batch.column(batch.schema.names.index(fmt.joint_column)).to_pylist() \
@@ -191,10 +271,11 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
             where = mapping.where(f"joint.{j}")
             rows = rows_of.get(j, np.ones(time.size, dtype=bool))
             assert jm.speed is not None and jm.torque is not None
-            speed, torque = _values(batch, jm.speed, f"{where}.speed"), _values(batch, jm.torque, f"{where}.torque")
+            speed = _values(batch, jm.speed, f"{where}.speed", fmt.decimal)
+            torque = _values(batch, jm.torque, f"{where}.torque", fmt.decimal)
             ok = rows & (np.isfinite(speed) | np.isfinite(torque))        # a row with neither: no sample
             out.joints[j] = JointColumns(time[ok], speed[ok], torque[ok])
-            status = {q: _values(batch, ref, f"{where}.{q}") for q in ("load", "temperature")
+            status = {q: _values(batch, ref, f"{where}.{q}", fmt.decimal) for q in ("load", "temperature")
                       if (ref := getattr(jm, q)) is not None}
             if status:
                 has = rows & np.isfinite(time) & np.any([np.isfinite(v) for v in status.values()], axis=0)
@@ -204,7 +285,7 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
         for name in ("cycle", "segment", "trigger"):
             ref = getattr(mapping.cycles, name)
             if ref is not None:
-                values = _values(batch, ref, mapping.where(f"cycles.{name}"))
+                values = _values(batch, ref, mapping.where(f"cycles.{name}"), fmt.decimal)
                 ok = np.isfinite(values) & np.isfinite(time)
                 out.marks[name] = (time[ok], values[ok])
         yield out
