@@ -88,6 +88,33 @@ def test_the_ledger_splits_a_kill_into_read_unread_and_downtime_frames_and_finds
     assert ledger.numbering() == {0: 0}
 
 
+def test_the_pump_hands_over_only_what_was_queued_when_it_began():
+    """The bridge thread queues while the soak's loop pumps; a pump that drained until the queue was
+    empty kept the loop (and the RSS samples it took) away for an hour on a loaded machine. Here every
+    event handled queues one more, as a bridge faster than the ledger does: the pump still returns."""
+    ids, data, _, _ = make_frames(1, joints=(0,), speeds=(8.7, 41.7, 133.5), seed=3)
+    chunk = _lines(ids[:10], data[:10])
+    ledger = LinkLedger()
+    tap = PtyLinkTap("/dev/pts/x", ledger, window=1 << 20)
+    tap.announce("agent_started")
+    tap.announce("sim_started")
+    handled = 0
+
+    def frames(*args, **kwargs):
+        nonlocal handled
+        handled += 1
+        tap.queued("/dev/pts/x", chunk)                   # the bridge queues meanwhile
+        return original(*args, **kwargs)
+
+    original, ledger.frames = ledger.frames, frames
+    for _ in range(5):
+        tap.queued("/dev/pts/x", chunk)
+    tap.pump()
+    assert handled == 5 and len(tap._events) == 5          # the new ones wait for the next pump
+    tap.pump()
+    assert handled == 10 and ledger.lives[0].read == 100
+
+
 @pytest.mark.parametrize("on_link, send_errors, unaccounted", [(100, 0, 0), (101, 0, 1), (101, 1, 0), (101, 3, 0),
                                                                (103, 1, 2), (99, 1, 1)])
 def test_a_failed_send_may_explain_an_extra_frame_on_the_link_but_no_more(on_link: int, send_errors: int,
