@@ -423,7 +423,10 @@ def test_an_interrupt_stops_the_workers_at_once(sig, tmp_path):
     with log_path.open("w") as log_file:
         proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "-v", "evaluate", "--quick", "--jobs", "2",
                                  "--test-cycles", "40", "--out", str(tmp_path / "out")],
-                                stdout=subprocess.DEVNULL, stderr=log_file, cwd=ROOT, start_new_session=True)
+                                stdout=subprocess.DEVNULL, stderr=log_file, cwd=ROOT, start_new_session=True,
+                                # Ctrl-C must reach it even when the suite runs in a background job, which a
+                                # non-interactive shell starts with SIGINT ignored (the child would inherit that)
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     pgid = proc.pid                                            # its own session: process group = its pid
     try:
         deadline = time.monotonic() + 120
