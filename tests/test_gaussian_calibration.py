@@ -101,14 +101,17 @@ def test_delivered_run_length_is_the_target_on_gaussian_values(target: float, cy
 
 
 @pytest.mark.slow
-def test_the_joint_vector_threshold_follows_the_correlation_and_is_delivered() -> None:
+def test_the_joint_vector_threshold_is_delivered_on_correlated_values() -> None:
+    """Both sides, on values with a healthy joint's correlations: the calibrated threshold delivers the
+    target within its stated error; 0.5 nat lower delivers clearly less. (With H0's nearest shift found
+    in the nominal's metric, the threshold hardly depends on the correlation: 2.570 ± 0.029 against
+    2.562 ± 0.024 for independent axes at this budget; with each axis clipped alone it did.)"""
     corr = np.array([[1.0, 0.05, 0.2], [0.05, 1.0, 0.65], [0.2, 0.65, 1.0]])
     correlated = threshold(STEADY, tuple(map(tuple, corr)), 1000.0, BUDGET)
-    independent = threshold(STEADY, tuple(map(tuple, np.eye(3))), 1000.0, BUDGET)
-    assert abs(correlated.threshold - independent.threshold) > 3 * math.hypot(correlated.h_se, independent.h_se)
     delivered, alarms = _delivered(STEADY, correlated.threshold, corr, 256, 6000, seed=79)
     tolerance = _tolerance(STEADY, tuple(map(tuple, corr)), 1000.0, alarms)
     assert abs(math.log(delivered / 1000.0)) <= tolerance, (correlated, delivered, tolerance)
+    assert _delivered(STEADY, correlated.threshold - 0.5, corr, 256, 6000, seed=82)[0] < 0.7 * 1000.0
 
 
 @pytest.mark.slow

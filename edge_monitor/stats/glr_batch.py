@@ -16,8 +16,11 @@ sum over the candidates. Units: those of the observed quantity; statistics in na
 
 **Null hypothesis with a drift allowance** (project choice, docs/DETECTION.md). H0 may be the box
 of shifts ``lower ≤ Δ ≤ upper`` instead of Δ = 0: the denominator is then p0 at the shift of H0
-closest to the estimate, ``log p0(y − Δ̂) − log p0(y − clip(Δ̂, lower, upper))`` (for one Gaussian
-component exactly the GLR of the composite null; for mixtures the same projection). A one-sided
+closest to the estimate, ``log p0(y − Δ̂) − log p0(y − Δc)``, Δc the box point nearest Δ̂ in the
+metric of the nominal's covariance: ``clip(Δ̂, lower, upper)`` in one dimension, a small quadratic
+programme in several (:mod:`~edge_monitor.stats.null_projection`; clipping each axis alone overstates
+a shift along one of two correlated axes). For one Gaussian component this is exactly the GLR of the
+composite null; for mixtures the same projection with the mixture's covariance. A one-sided
 test for an increase is ``lower = −∞, upper = 0``; an allowance ``a`` moves ``upper`` to ``a``, so
 slow drifts smaller than ``a`` (the CUSUM reference value in classical SPC) do not accumulate.
 With ``lower = upper = 0`` the recursion is the plain two-sided GLR above, bit for bit.
@@ -40,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge_monitor.stats.bias_em import step_matrix
 from edge_monitor.stats.densities import GaussianMixture
+from edge_monitor.stats.null_projection import box_projection, covariance_precision
 
 GLRMode = Literal["exact", "recursive"]
 #: Directions of change a detector looks for: any shift, or only an increase (componentwise).
@@ -111,6 +115,21 @@ class MixtureBatch:
         self.means_w_t = np.ascontiguousarray(self.means_w.transpose(0, 2, 1))   # (B, d, K)
         self.gain_t = np.ascontiguousarray(self.gain.transpose(0, 2, 1))
         self._scalar = d == 1                                                   # the common case: plain broadcasting
+        self._precision: NDArray[np.float64] | None = None
+
+    @property
+    def precision(self) -> NDArray[np.float64]:
+        """(B, d, d) inverse of each mixture's covariance (the components' S plus the spread of their
+        means): the metric in which the shift of H0 closest to an estimate is found."""
+        if self._precision is None:
+            s_inv = self.whiten.transpose(0, 2, 1) @ self.whiten                  # S⁻¹ = L⁻ᵀL⁻¹
+            weight = np.exp(self.log_coef - self.log_coef.max(axis=1, keepdims=True))
+            weight /= weight.sum(axis=1, keepdims=True)
+            centre = np.einsum("bk,bkd->bd", weight, self.means)
+            spread = self.means - centre[:, None, :]
+            cov = np.linalg.inv(s_inv) + np.einsum("bk,bkd,bke->bde", weight, spread, spread)
+            self._precision = covariance_precision(cov)
+        return self._precision
 
     def _component_logpdf(self, x: NDArray[np.float64], rows: Any = slice(None)) -> NDArray[np.float64]:
         """log(πk·N(x; μk, S)) for x of shape (B', n, d), the b-th with mixture ``rows[b]`` (default:
@@ -202,8 +221,11 @@ class BatchWindowedGLR:
         return np.maximum(stats[np.arange(stats.shape[0]), best], 0.0)
 
     def null_shift(self, delta: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The shift of H0 closest to each estimate: ``clip(Δ̂, lower, upper)``, delta (B, A, d)."""
-        return np.clip(delta, self.lower[:, None, :], self.upper[:, None, :])
+        """The shift of H0 closest to each estimate in the nominal's metric (``clip(Δ̂, lower, upper)``
+        in one dimension; :mod:`~edge_monitor.stats.null_projection`), delta (B, A, d)."""
+        if self.mix.dim == 1:
+            return np.clip(delta, self.lower[:, None, :], self.upper[:, None, :])
+        return box_projection(delta, self.lower, self.upper, self.mix.precision)
 
     def _statistics(self, obs: NDArray[np.float64], slot: int, active: NDArray[np.int64],
                     delta: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -6,9 +6,10 @@ which the threshold calibration runs for thousands of simulated detectors:
 
 * SA-EM: the posterior mean is μ and the step matrix (S·F(0))⁻¹ is the identity, so every candidate's
   estimate is ``Δ̂ ← Δ̂ + γñ·(e − Δ̂)`` with ``e = y − μ`` (y winsorised) and ``γñ = γ0·ñ^(−ρ)``;
-* numerator: ``log p0(y − Δ̂) − log p0(y − clip(Δ̂)) = ½·[q(e − Δc) − q(e − Δ̂)]`` with ``q(x) = xᵀS⁻¹x``,
+* numerator: ``log p0(y − Δ̂) − log p0(y − Δc) = ½·[q(e − Δc) − q(e − Δ̂)]`` with ``q(x) = xᵀS⁻¹x``,
   i.e. ``½·(Δc − Δ̂)ᵀS⁻¹(Δc + Δ̂ − 2e)``,
-  and ``Δc`` the shift of H0 closest to Δ̂ (its box, componentwise as the general code does);
+  and ``Δc`` the shift of H0 closest to Δ̂ in the metric S⁻¹ (its box; clip in one dimension, the
+  projection of :mod:`~edge_monitor.stats.null_projection` in several, as the general code does);
 * the statistic is the largest candidate sum, at least 0.
 
 The same numbers as the general code to rounding (tests/test_glr_gaussian.py), about 10× faster.
@@ -19,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from edge_monitor.stats.null_projection import BoxProjector
 
 
 class GaussianBatchGLR:
@@ -32,6 +35,11 @@ class GaussianBatchGLR:
         b, d = self.means.shape
         precision = np.linalg.inv(np.asarray(covs, dtype=float).reshape(b, d, d))
         self.precision = np.ascontiguousarray(precision.transpose(1, 2, 0))[:, :, :, None]   # (d, d, B, 1)
+        lower, upper = (np.broadcast_to(np.asarray(v, dtype=float), (b, d)) for v in null_box)
+        self.projector = BoxProjector(lower, upper, 0.5 * (precision + precision.transpose(0, 2, 1))) \
+            if d > 1 else None
+        self.lcp = _UpperBoxLCP(np.asarray(covs, dtype=float).reshape(b, d, d)) \
+            if d > 1 and np.all(np.isneginf(lower)) and np.all(np.isfinite(upper)) else None
         # axis first: every operation below runs over contiguous (B, W) planes
         self.lower, self.upper = (np.broadcast_to(np.asarray(v, dtype=float), (b, d)).T[:, :, None]
                                   for v in null_box)
@@ -59,7 +67,16 @@ class GaussianBatchGLR:
         gain = np.where(active, self.gamma0 * (np.maximum(self.ages, 0) + 1.0) ** (-self.rho), 0.0)    # (W,)
         e = (obs - self.means).T[:, :, None]                                                           # (d, B, 1)
         self.delta += gain * (e - self.delta)
-        allowed = np.clip(self.delta, self.lower, self.upper)
+        if self.lcp is not None:          # one-sided box: the increment from the multipliers alone
+            mu = self.lcp.multipliers(self.delta - self.upper)
+            g = self.delta - self.upper
+            acc = sum(mu[i] * (0.5 * g[i] - self.delta[i] + e[i]) for i in range(len(mu)))
+            self.sums += acc
+            return np.maximum(self.sums.max(axis=1), 0.0)
+        if self.projector is None:
+            allowed = np.clip(self.delta, self.lower, self.upper)
+        else:                      # the box point nearest Δ̂ in the metric S⁻¹ (null_projection)
+            allowed = self.projector(self.delta.transpose(1, 2, 0)).transpose(2, 0, 1)
         # q(e − Δc) − q(e − Δ̂) = (Δc − Δ̂)ᵀ S⁻¹ (Δc + Δ̂ − 2e): d² operations over (B, W) planes
         moved = allowed - self.delta
         total = allowed + self.delta - 2.0 * e
@@ -75,3 +92,40 @@ class GaussianBatchGLR:
             acc += row * total[i]
         self.sums += 0.5 * acc
         return np.maximum(self.sums.max(axis=1), 0.0)
+
+
+class _UpperBoxLCP:
+    """H0's nearest point for the box Δ ≤ u, through its multipliers: with r = Δ̂ − Δc = S·μ and
+    g = Δ̂ − u, μ solves the linear complementarity problem μ ≥ 0, w = S·μ − g ≥ 0, μᵀw = 0 (the
+    optimality conditions of min rᵀS⁻¹r over r ≥ g). Each active set A (μ_A > 0, w_A = 0) gives
+    μ_A = (S_AA)⁻¹ g_A; the one whose μ_A ≥ 0 and w_F ≥ 0 is the solution. Over (B, W) planes with
+    per-detector coefficients, no gathers. The GLR increment is then μᵀ(½g − Δ̂ + e)."""
+
+    def __init__(self, covs: NDArray[np.float64]) -> None:
+        import itertools
+        b, d, _ = covs.shape
+        self.dim = d
+        self.cov = [[covs[:, i, j][:, None] for j in range(d)] for i in range(d)]
+        self.sets = []
+        for k in range(1, d + 1):
+            for active in itertools.combinations(range(d), k):
+                a = list(active)
+                inv = np.linalg.inv(covs[:, a][:, :, a])
+                self.sets.append((a, [i for i in range(d) if i not in a],
+                                  [[inv[:, m, n][:, None] for n in range(k)] for m in range(k)]))
+
+    def multipliers(self, g: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        d = self.dim
+        mu = [np.zeros(g.shape[1:]) for _ in range(d)]
+        found = np.all(g <= 0.0, axis=0)
+        for a, free, inv in self.sets:
+            m_a = [sum(inv[m][n] * g[a[n]] for n in range(len(a))) for m in range(len(a))]
+            ok = ~found
+            for v in m_a:
+                ok &= v >= 0.0
+            for f in free:
+                ok &= sum(self.cov[f][a[n]] * m_a[n] for n in range(len(a))) >= g[f]
+            for n, i in enumerate(a):
+                mu[i] = np.where(ok, m_a[n], mu[i])
+            found |= ok
+        return mu
