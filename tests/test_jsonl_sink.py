@@ -292,3 +292,51 @@ def test_sighup_makes_the_agents_jsonl_output_reopen(tmp_path: Path) -> None:
         sink.close()
     assert sink.reopens == 1 and [r["cycle"] for r in lines(tmp_path / "s.jsonl")] == [0]
     assert (tmp_path / "s.jsonl.1").read_bytes() == b""
+
+
+def test_records_are_fsynced_in_groups_and_always_before_a_state_save(tmp_path: Path, monkeypatch) -> None:
+    """Group commit: with a clock that does not move, 50 records cost no fsync until a sync, a close or
+    the interval passes; an agent with a state store syncs the JSONL before every state save, so the state
+    never counts a record that a power cut could take."""
+    from test_agent_pipeline import small_config
+
+    from edge_monitor.pipeline.agent import Agent
+    from edge_monitor.pipeline.state_store import StateStore
+    from edge_monitor.sinks import jsonl as jsonl_module
+
+    calls: list[str] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:                       # os is one module: the state store's fsyncs come here too
+        if os.readlink(f"/proc/self/fd/{fd}").endswith(".jsonl"):
+            calls.append("jsonl")
+        real_fsync(fd)
+
+    monkeypatch.setattr(jsonl_module.os, "fsync", fsync)
+    now = [0.0]
+    sink = JsonlSink(tmp_path / "s.jsonl", clock=lambda: now[0])
+    for cycle in range(50):
+        sink.on_symptom(symptom(0, cycle))
+    assert calls == [] and sink.written == 50
+    sink.sync()
+    sink.sync()                                       # nothing new: no second fsync
+    assert calls == ["jsonl"] and sink.fsyncs == 1
+    now[0] = 0.5
+    sink.on_symptom(symptom(0, 50))
+    assert calls == ["jsonl"]
+    now[0] = 1.0 + 1e-9                               # the interval has passed since the last sync
+    sink.on_symptom(symptom(0, 51))
+    assert calls == ["jsonl"] * 2
+    sink.on_symptom(symptom(0, 52))
+    sink.close()
+    assert calls == ["jsonl"] * 3 and len(lines(tmp_path / "s.jsonl")) == 53
+
+    calls.clear()
+    sink = JsonlSink(tmp_path / "t.jsonl", clock=lambda: 0.0)
+    store = StateStore(tmp_path / "state")
+    real_save = store.save
+    monkeypatch.setattr(store, "save", lambda state: (calls.append("state"), real_save(state))[1])
+    agent = Agent(small_config(), sinks=[sink], state_store=store)
+    sink.on_symptom(symptom(1, 0))
+    assert agent.save_state() and calls == ["jsonl", "state"]
+    assert agent.save_state() and calls == ["jsonl", "state", "state"]      # nothing new to sync

@@ -380,6 +380,10 @@ class Agent:
         if self.store is None:
             return True
         with self.lock:            # one snapshot at a time, in order
+            for sink in self.sinks:          # what the state counts as published is on disk first
+                sync = getattr(sink, "sync", None)
+                if sync is not None:
+                    self._deliver(lambda s: s.sync(), sink)
             try:
                 self.store.save(self.state_dict())
             except StateSaveError as exc:
