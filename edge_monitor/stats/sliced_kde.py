@@ -104,13 +104,12 @@ class SlicedKDE:
         fd = u - k
         first = int(j.min())
         span = int(j.max()) - first + 2
-        local = np.zeros((self.n_anchors, span))
-        rel = j - first
-        for dk, wk in ((0, 1.0 - fd), (1, fd)):
-            for dj, wj in ((0, 1.0 - fy), (1, fy)):
-                flat = (k + dk) * span + rel + dj
-                local += np.bincount(flat, weights=wk * wj, minlength=self.n_anchors * span).reshape(local.shape)
-        self.mass[:, first:first + span] += local
+        base = k * span + (j - first)                   # the (anchor, grid) cell below-left of each sample
+        gy, gd = 1.0 - fy, 1.0 - fd
+        cells = np.concatenate((base, base + 1, base + span, base + span + 1))
+        weights = np.concatenate((gd * gy, gd * fy, fd * gy, fd * fy))
+        local = np.bincount(cells, weights=weights, minlength=self.n_anchors * span)
+        self.mass[:, first:first + span] += local.reshape(self.n_anchors, span)
 
     def _update_moments(self, y: NDArray[np.float64], d: NDArray[np.float64]) -> None:
         """Chan et al. parallel combination of (n, mean, M2) of the pairs (y, d)."""
