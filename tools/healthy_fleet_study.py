@@ -19,8 +19,11 @@ fraction of them not alarmed yet next to the mean miss probability the detectors
 observed misses). Seeds run in parallel worker
 processes (``--jobs``); a status line per seed and every ``--progress`` cycles.
 
+``--from-series`` runs only the detectors over the per-cycle quantities tools/fleet_series.py keeps
+(the same inputs; minutes instead of an hour once the series are kept).
+
 Usage: ``python tools/healthy_fleet_study.py --cycles 200 --seeds 1 2 [--wear-ramp 2:100:200:0:60]
-[--scenario load_step] [--set decision.allowance=0] [--json OUT]``.
+[--scenario load_step] [--set decision.allowance=0] [--from-series] [--json OUT]``.
 """
 
 from __future__ import annotations
@@ -127,6 +130,44 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
 
 
+def run_robot_series(spec: RunSpec) -> dict[str, Any]:
+    """:func:`run_robot` from the per-cycle quantities tools/fleet_series.py keeps (computed once per code
+    version): only the detectors run, the agent's own :class:`DetectorBank` at the same settings fed what
+    the fast path fed it (the detector inputs and the cycle's motor temperature). Wear must come from the
+    scenario file (``--wear-ramp`` changes the simulation, not the kept series)."""
+    from fleet_series import robot_series
+
+    from edge_monitor.pipeline.detectors import DetectorBank
+
+    started = time.monotonic()
+    sim = spec.sim_config()
+    decision = config_from_mapping(settings_from(spec.overrides)).decision
+    series = robot_series(spec.seed, sim.cycles, sim.joints, spec.scenario)
+    monitored: dict[int, dict[str, int]] = {}
+    steady_from: dict[int, dict[str, int]] = {}
+    alarms: list[dict[str, Any]] = []
+    wear_truth: dict[int, list[float]] = {}
+    for joint, rows in series.items():
+        bank = DetectorBank(decision, {})
+        for row in rows:
+            cycle = int(row["cycle"])
+            wear_truth.setdefault(joint, []).append(float(row["wear"]))
+            bank.observe_temperature(row.get("motor_temperature"))
+            decisions, raised = bank.update(row, "robot", joint, cycle)
+            for q, d in decisions.items():
+                if (d.calibration or {}).get("stage") == "steady":
+                    steady_from.setdefault(joint, {}).setdefault(q, cycle)
+                if d.state == "monitoring" and d.threshold is not None:
+                    counts = monitored.setdefault(joint, {})
+                    counts[q] = counts.get(q, 0) + 1
+            alarms += [{"joint": joint, "cycle": cycle, "quantity": a.quantity, "wear": float(row["wear"])}
+                       for a in raised]
+    worn = sorted(j for j, w in wear_truth.items() if max(w) > 0)
+    return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
+            "steady_from": {str(j): c for j, c in steady_from.items()}, "worn": worn, "miss_probability": {},
+            "wear_truth": {str(j): wear_truth[j] for j in worn}, "seconds": time.monotonic() - started}
+
+
 def earliest_alarm(run: dict[str, Any], joint: int, quantity: str | None = None) -> dict[str, Any] | None:
     """The first alarm of ``joint`` in ``run`` (of ``quantity`` only, if given), or None."""
     mine = [a for a in run["alarms"] if a["joint"] == joint and quantity in (None, a["quantity"])]
@@ -209,6 +250,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="simulator scenario for every robot (e.g. load_step, mild_load_step, plant_week)")
     ap.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
                     help="agent setting (value as JSON), e.g. decision.allowance=0")
+    ap.add_argument("--from-series", action="store_true",
+                    help="run only the detectors over the per-cycle quantities tools/fleet_series.py keeps "
+                         "(computed once per code version; wear from the scenario file only)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--progress", type=int, default=50, help="status line every N cycles (0: off)")
     ap.add_argument("--json", type=Path, default=None)
@@ -220,8 +264,10 @@ def main(argv: list[str] | None = None) -> int:
         sim = specs[0].sim_config()
     except ValueError as exc:          # SimConfigError, ScenarioError: names the field
         ap.error(str(exc))
+    if args.from_series and args.wear_ramp:
+        ap.error("--from-series: put the wear in the scenario file (--wear-ramp changes the simulation)")
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        runs = list(pool.map(run_robot, specs))
+        runs = list(pool.map(run_robot_series if args.from_series else run_robot, specs))
     result = {"cycles": sim.cycles, "seeds": args.seeds, "joints": args.joints, "wear_ramps": args.wear_ramp,
               "scenario": args.scenario, "timeline": [e.to_dict() for e in sim.timeline],
               "overrides": dict(args.set), "runs": runs, "summary": summarise(runs)}
