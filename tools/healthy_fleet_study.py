@@ -133,8 +133,11 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
 def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     """:func:`run_robot` from the per-cycle quantities tools/fleet_series.py keeps (computed once per code
     version): only the detectors run, the agent's own :class:`DetectorBank` at the same settings fed what
-    the fast path fed it (the detector inputs and the cycle's motor temperature). Wear must come from the
-    scenario file (``--wear-ramp`` changes the simulation, not the kept series)."""
+    the fast path fed it (the detector inputs and the cycle's motor temperature). One difference: the
+    series begin once the KL distances have values, ≈ 10 cycles after the wear score, so the wear
+    detector's warm-up nominal is learned from later cycles than the agent's (tests/
+    test_fleet_study_from_series.py). Wear must come from the scenario file (``--wear-ramp`` changes the
+    simulation, not the kept series)."""
     from fleet_series import robot_series
 
     from edge_monitor.pipeline.detectors import DetectorBank
