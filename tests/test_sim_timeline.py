@@ -145,7 +145,7 @@ def test_command_line_events_merge_over_the_scenario_timeline(tmp_path):
 
 
 def test_packaged_scenarios_load_by_name_and_describe_the_plant_week():
-    assert packaged_scenarios() == ["load_step", "mild_load_step", "plant_week"]
+    assert packaged_scenarios() == ["load_step", "load_step_wear", "mild_load_step", "plant_week"]
     step = SimConfig(**load_scenario("load_step"))
     assert step.conditions(999).load_range == (0.3, 0.7) and step.conditions(1000).load_range == (0.6, 1.0)
     assert SimConfig(**load_scenario("mild_load_step.toml")).conditions(1000).load_range == (0.4, 0.8)
@@ -156,7 +156,7 @@ def test_packaged_scenarios_load_by_name_and_describe_the_plant_week():
                      3600: 0.5, 4000: 64.0}
     assert week.conditions(1999).load_range == (0.3, 0.7) and week.conditions(2000).load_range == (0.5, 0.9)
     assert [week.conditions(c).ambient for c in (2599, 2600, 3199, 3200)] == [30.0, 36.0, 36.0, 30.0]
-    with pytest.raises(ScenarioError, match="packaged: load_step, mild_load_step, plant_week"):
+    with pytest.raises(ScenarioError, match="packaged: load_step, load_step_wear, mild_load_step, plant_week"):
         load_scenario("plant_month")
 
 
