@@ -9,8 +9,9 @@ cleared before each so nothing is reused):
   healthy drift and wander after learning of the wear score and of the KL distances): read from the
   shipped table (:mod:`edge_monitor.stats.threshold_table`);
 * scalar Gaussian with settings outside the table (50 values): simulated in standard units;
-* joint vector (3-d Gaussian, 240 values with the correlations of a healthy joint's inputs):
-  simulated in standard units for its correlation matrix;
+* joint vector (3-d Gaussian with the correlations of a healthy joint's inputs), warm-up and steady:
+  read from the shipped table by the correlation of its KL axes; at settings outside the table (at
+  the nominal): simulated in standard units for its correlation matrix;
 * before: the GCE warm-up nominal (60 values, 48 bootstrap detectors with a GCE refitted per nominal),
   the 3-d KDE warm-up nominal, and the steady stage simulated from the 240 values (smoothed bootstrap,
   48 detectors of the general mixture code).
@@ -67,11 +68,13 @@ CASES: list[tuple[str, Callable[[], Any]]] = [
                        wander=(0.09,), **COMMON)),
     ("scalar outside the table (Gaussian, 50 values): simulated",
      lambda: calibrate(_values(50, 1), "gauss", at="boundary", **COMMON)),
-    ("joint vector, steady (Gaussian 3-d, 240 values, healthy drift and wander): simulated",
+    ("joint vector, steady (Gaussian 3-d, 240 values, healthy drift and wander): table",
      lambda: calibrate(_values(240, 3), "gauss", at="healthy_drift", drift_mean=(0.0, 0.1, 0.1),
                        drift_sd=(0.08, 0.09, 0.09), wander=(0.0, 0.09, 0.09), **COMMON)),
-    ("joint vector, warm-up (Gaussian 3-d, 60 values, boundary): simulated",
+    ("joint vector, warm-up (Gaussian 3-d, 60 values, boundary): table",
      lambda: calibrate(_values(60, 3), "gauss", at="boundary", **COMMON)),
+    ("joint vector outside the table (Gaussian 3-d, 240 values, at the nominal): simulated",
+     lambda: calibrate(_values(240, 3), "gauss", at="nominal", **COMMON)),
     ("before: scalar warm-up (GCE, 60 values, boundary, 48 detectors)",
      lambda: calibrate(_values(60, 1), "gce", at="boundary", **COMMON)),
     ("before: joint vector warm-up (KDE 3-d, 60 values, boundary, 48 detectors)",

@@ -1,17 +1,19 @@
 #!/usr/bin/env python3
-"""Compute the shipped table of scalar Gaussian thresholds (edge_monitor/stats/threshold_table.py).
+"""Compute the shipped table of Gaussian thresholds (edge_monitor/stats/threshold_table.py).
 
 For the agent's shipped detector settings — the warm-up nominal (``decision.n_nominal`` values,
 calibrated at ``decision.calibrate_at``) and the steady one (``decision.steady_nominal`` values, at
-``decision.steady_calibrate_at``) — it simulates ``--nominals`` × 4 detectors for ``--steps`` cycles in
-standard units (edge_monitor/stats/gaussian_calibration.py) and writes, for ARL0 = 10^1.5 … 10^7 in
-quarter decades, the threshold, its bootstrap standard error and how it was read, to
-``edge_monitor/stats/data/gaussian_thresholds.json``. A threshold is read off directly where ≥ 30
-simulated detectors alarmed (``--nominals 8192 --steps 10000``: 3.3·10⁸ detector-cycles, ≈ 30 alarms at
-10⁷), else extrapolated (said in the table).
+``decision.steady_calibrate_at``), for the scalar detectors and for the joint vector at each
+correlation of its KL axes in ``--vector-rho`` — it simulates ``--nominals`` × 4 detectors for
+``--steps`` cycles in standard units (edge_monitor/stats/gaussian_calibration.py) and writes, for
+ARL0 = 10^1.5 … 10^7 in quarter decades, the threshold, its bootstrap standard error and how it was
+read, to ``edge_monitor/stats/data/gaussian_thresholds.json``. A threshold is read off directly where
+≥ 30 simulated detectors alarmed, else extrapolated (said in the table). Entries the table already
+holds stay unless ``--recompute``; ``--jobs`` computes entries in parallel processes.
 
-Usage: ``python tools/threshold_table.py [--nominals 8192] [--steps 10000] [--out PATH]`` (≈ 10–20 min
-CPU per setting here; progress every 512 detectors).
+Usage: ``python tools/threshold_table.py [--nominals 4096] [--steps 4000] [--jobs 2] [--only
+scalar|vector] [--out PATH]`` (scalar entries ≈ 3–8 min, vector ones ≈ 10–20 min CPU each here;
+progress every 512 detectors).
 """
 
 from __future__ import annotations
@@ -21,12 +23,14 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import concurrent.futures  # noqa: E402
 import json  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import asdict  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -37,6 +41,13 @@ from edge_monitor.stats.gaussian_calibration import (  # noqa: E402
     GaussianSettings,
     thresholds,
 )
+from edge_monitor.stats.threshold_table import (  # noqa: E402
+    entry_correlation,
+    entry_rho,
+    entry_settings,
+    key,
+    tabulated_correlation,
+)
 
 log = logging.getLogger("threshold_table")
 
@@ -44,11 +55,14 @@ TARGETS = tuple(round(10 ** (1.5 + 0.25 * k), 1) for k in range(23))      # 31.6
 OUT = ROOT / "edge_monitor" / "stats" / "data" / "gaussian_thresholds.json"
 
 
-def shipped_settings(config: DecisionConfig | None = None) -> list[GaussianSettings]:
-    """The warm-up and steady settings of the agent's scalar detectors (one per distinct healthy drift)."""
+def shipped_settings(config: DecisionConfig | None = None, quantities: tuple[str, ...] = ("wear", "kl_raw",
+                                                                                        "kl_weighted")
+                     ) -> list[GaussianSettings]:
+    """The warm-up and steady settings of the agent's detectors of ``quantities`` (one per distinct
+    healthy drift)."""
     c = config or DecisionConfig()
     out: list[GaussianSettings] = []
-    for quantity in ("wear", "kl_raw", "kl_weighted"):
+    for quantity in quantities:
         d = c.detector_config(quantity)
         for n0, at, mean, sd, wander in ((d.n_nominal, d.calibrate_at, d.drift_mean, d.drift_sd, ()),
                                          (d.steady_nominal, d.steady_at, d.steady_drift_mean, d.steady_drift_sd,
@@ -57,41 +71,78 @@ def shipped_settings(config: DecisionConfig | None = None) -> list[GaussianSetti
                                         float(d.clip_sigma), at, tuple(mean), tuple(sd), tuple(wander))
             if settings not in out:
                 out.append(settings)
+    return out
+
+
+def scalar_settings(config: DecisionConfig | None = None) -> list[GaussianSettings]:
+    """:func:`shipped_settings` of the scalar detectors, and the steady option without drift."""
+    c = config or DecisionConfig()
+    out = shipped_settings(c)
     steady_nominal = GaussianSettings(c.steady_nominal, c.window, c.gamma0, c.rho, c.direction, float(c.allowance),
                                       float(c.clip_sigma), "nominal")      # the option without drift
     return out + ([steady_nominal] if steady_nominal not in out else [])
 
 
-def entry(settings: GaussianSettings, budget: GaussianBudget) -> dict[str, object]:
+def entry(settings: GaussianSettings, budget: GaussianBudget, dim: int = 1, rho: float = 0.0) -> dict[str, Any]:
+    """One table entry: ``settings`` for a ``dim``-dimensional detector whose KL axes correlate by ``rho``."""
     started = time.monotonic()
-    found = thresholds(settings, ((1.0,),), TARGETS, budget, progress=True)      # one simulation, not two
-    log.info("%s: done in %.0f s", settings, time.monotonic() - started)
-    return {"settings": asdict(settings), "arl0": [t.arl0 for t in found],
+    corr = tabulated_correlation(rho, dim)
+    found = thresholds(settings, corr, TARGETS, budget, progress=True)      # one simulation, not two
+    log.info("%s (d = %d, rho = %.2f): done in %.0f s", settings, dim, rho, time.monotonic() - started)
+    return {"settings": asdict(settings), "correlation": [list(row) for row in corr], "arl0": [t.arl0 for t in found],
             "threshold": [round(t.threshold, 4) for t in found], "h_se": [round(t.h_se, 4) for t in found],
             "method": [t.method for t in found], "events": [t.events for t in found],
             "events_min": min(t.events for t in found), "detectors": budget.nominals * budget.streams,
             "steps": budget.steps, "cpu_s": round(found[0].cpu_s, 1)}
 
 
+def _entry_key(e: dict[str, Any]) -> tuple[str, float]:
+    """(settings key with the dimension, ρ) of a table entry."""
+    return key(entry_settings(e), len(entry_correlation(e))), round(entry_rho(e), 6)
+
+
+def wanted(only: str, vector_rho: list[float]) -> list[tuple[GaussianSettings, int, float]]:
+    """The (settings, dim, ρ) the table should hold."""
+    out: list[tuple[GaussianSettings, int, float]] = []
+    if only in ("all", "scalar"):
+        out += [(s, 1, 0.0) for s in scalar_settings()]
+    if only in ("all", "vector"):
+        dim = DecisionConfig().detector_config("joint").dim
+        out += [(s, dim, rho) for s in shipped_settings(quantities=("joint",)) for rho in vector_rho]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--nominals", type=int, default=8192)
-    parser.add_argument("--steps", type=int, default=10_000)
+    parser.add_argument("--nominals", type=int, default=4096)
+    parser.add_argument("--steps", type=int, default=4000)
+    parser.add_argument("--vector-rho", default="0,0.5,0.7,0.9",
+                        help="correlations of the joint vector's KL axes to tabulate (comma-separated)")
+    parser.add_argument("--only", choices=("all", "scalar", "vector"), default="all")
+    parser.add_argument("--jobs", type=int, default=1, help="entries computed in parallel processes")
     parser.add_argument("--out", type=Path, default=OUT)
-    parser.add_argument("--recompute", action="store_true", help="recompute settings the table already holds")
+    parser.add_argument("--recompute", action="store_true", help="recompute entries the table already holds")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     budget = GaussianBudget(nominals=args.nominals, streams=4, steps=args.steps)
-    kept = {}
-    if args.out.exists() and not args.recompute:          # entries of settings already tabulated stay
-        for e in json.loads(args.out.read_text()).get("entries", []):
-            e["settings"] = {k: tuple(v) if isinstance(v, list) else v for k, v in e["settings"].items()}
-            kept[GaussianSettings(**e["settings"])] = e
-    entries = [kept.get(s) or entry(s, budget) for s in shipped_settings()]
+    kept: dict[tuple[str, float], dict[str, Any]] = {}
+    commands: list[str] = []
+    if args.out.exists():
+        old = json.loads(args.out.read_text())
+        kept = {_entry_key(e): e for e in old.get("entries", [])}
+        commands = list(old.get("commands") or ([old["command"]] if old.get("command") else []))
+    todo = wanted(args.only, [float(x) for x in args.vector_rho.split(",") if x.strip()])
+    missing = [(s, dim, rho) for s, dim, rho in todo if args.recompute or (key(s, dim), round(rho, 6)) not in kept]
+    log.info("%d entries to compute, %d kept", len(missing), len(kept))
+    with concurrent.futures.ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        jobs = [pool.submit(entry, s, budget, dim, rho) for s, dim, rho in missing]
+        for job in concurrent.futures.as_completed(jobs):
+            e = job.result()
+            kept[_entry_key(e)] = e
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"command": "python tools/threshold_table.py "
-                                               f"--nominals {args.nominals} --steps {args.steps}",
-                                    "entries": entries}, indent=1) + "\n")
+    if missing:                          # what computed the entries, in order (each entry says its budget)
+        commands.append("python tools/threshold_table.py " + " ".join(argv if argv is not None else sys.argv[1:]))
+    args.out.write_text(json.dumps({"commands": commands, "entries": list(kept.values())}, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0
 

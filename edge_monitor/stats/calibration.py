@@ -138,17 +138,21 @@ def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, g
                         at: str, drift_mean: tuple[float, ...] = (), drift_sd: tuple[float, ...] = (),
                         wander: tuple[float, ...] = ()) -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
-    tabulated for the shipped scalar settings, else simulated (cached) with ``GAUSSIAN_DRAW_FACTOR`` ×
-    ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
+    tabulated for the shipped settings (:mod:`~edge_monitor.stats.threshold_table`), else simulated
+    (cached) with ``GAUSSIAN_DRAW_FACTOR`` × ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
     settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
                                 float(clip_sigma), at, drift_mean, drift_sd, wander)
-    found = threshold_table.lookup(settings, arl0) if values.shape[1] == 1 else None
+    try:
+        corr = correlation(values)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise CalibrationError(f"Gaussian calibration failed: {exc}") from None
+    found = threshold_table.lookup(settings, arl0, corr)
     if found is None:
         detectors = GAUSSIAN_DRAW_FACTOR * budget.draws
         gauss_budget = GaussianBudget(nominals=max(detectors // STREAMS_PER_NOMINAL, 8), streams=STREAMS_PER_NOMINAL,
                                       steps=budget.steps(arl0))
         try:
-            found = gaussian_threshold(settings, correlation(values), arl0, gauss_budget)
+            found = gaussian_threshold(settings, corr, arl0, gauss_budget)
         except (ValueError, np.linalg.LinAlgError) as exc:
             raise CalibrationError(f"Gaussian calibration failed: {exc}") from None
     return Calibration(threshold=found.threshold, arl0=float(arl0), method=found.method, draws=found.detectors,

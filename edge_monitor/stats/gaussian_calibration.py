@@ -43,6 +43,9 @@ from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 
 log = logging.getLogger(__name__)
 
+#: A correlation matrix as nested tuples (hashable: simulations are cached per matrix).
+Correlation = tuple[tuple[float, ...], ...]
+
 #: Seed of every Gaussian calibration: the draws are the same for every detector and path.
 SEED = 20261126
 #: Threshold grid step [nats].
@@ -109,7 +112,7 @@ class GaussianThreshold:
     cpu_s: float
 
 
-def correlation(values: NDArray[np.float64]) -> tuple[tuple[float, ...], ...]:
+def correlation(values: NDArray[np.float64]) -> Correlation:
     """The correlation matrix of learned values (N0 × d) as nested tuples (d = 1: ((1.0,),))."""
     if values.shape[1] == 1:
         return ((1.0,),)
@@ -119,14 +122,14 @@ def correlation(values: NDArray[np.float64]) -> tuple[tuple[float, ...], ...]:
     return tuple(tuple(float(x) for x in row) for row in r)
 
 
-def threshold(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], arl0: float,
+def threshold(settings: GaussianSettings, corr: Correlation, arl0: float,
               budget: GaussianBudget = GaussianBudget()) -> GaussianThreshold:
     """The threshold for ``arl0`` (see the module docstring). The simulation is cached per settings,
     correlation and budget: every target of one detector family costs one simulation."""
     return thresholds(settings, corr, (arl0,), budget)[0]
 
 
-def thresholds(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], targets: tuple[float, ...],
+def thresholds(settings: GaussianSettings, corr: Correlation, targets: tuple[float, ...],
                budget: GaussianBudget = GaussianBudget(), progress: bool = False) -> list[GaussianThreshold]:
     """:func:`threshold` for several targets from one simulation and one bootstrap (``progress``: a
     status line per chunk of the simulation)."""
@@ -163,7 +166,7 @@ class Simulation:
 
 
 @functools.lru_cache(maxsize=32)
-def simulate(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], budget: GaussianBudget,
+def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudget,
              progress: bool = False) -> Simulation:
     """The simulation of steps 1–3 of the module docstring (chunks of :data:`CHUNK` detectors; time in
     segments of :data:`SEGMENT` cycles, so memory stays O(CHUNK·(SEGMENT + grid)))."""

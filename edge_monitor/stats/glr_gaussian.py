@@ -18,6 +18,8 @@ Units: those of the observations; statistics in nats.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -68,10 +70,9 @@ class GaussianBatchGLR:
         e = (obs - self.means).T[:, :, None]                                                           # (d, B, 1)
         self.delta += gain * (e - self.delta)
         if self.lcp is not None:          # one-sided box: the increment from the multipliers alone
-            mu = self.lcp.multipliers(self.delta - self.upper)
             g = self.delta - self.upper
-            acc = sum(mu[i] * (0.5 * g[i] - self.delta[i] + e[i]) for i in range(len(mu)))
-            self.sums += acc
+            mu = self.lcp.multipliers(g)
+            self.sums += sum(mu[i] * (0.5 * g[i] - self.delta[i] + e[i]) for i in range(len(mu)))
             return np.maximum(self.sums.max(axis=1), 0.0)
         if self.projector is None:
             allowed = np.clip(self.delta, self.lower, self.upper)
@@ -102,21 +103,21 @@ class _UpperBoxLCP:
     per-detector coefficients, no gathers. The GLR increment is then μᵀ(½g − Δ̂ + e)."""
 
     def __init__(self, covs: NDArray[np.float64]) -> None:
-        import itertools
-        b, d, _ = covs.shape
+        d = covs.shape[1]
         self.dim = d
         self.cov = [[covs[:, i, j][:, None] for j in range(d)] for i in range(d)]
-        self.sets = []
+        self.sets: list[tuple[list[int], list[int], list[list[NDArray[np.float64]]]]] = []
         for k in range(1, d + 1):
             for active in itertools.combinations(range(d), k):
                 a = list(active)
-                inv = np.linalg.inv(covs[:, a][:, :, a])
+                inv: NDArray[np.float64] = np.linalg.inv(covs[:, a][:, :, a]).astype(np.float64)
                 self.sets.append((a, [i for i in range(d) if i not in a],
                                   [[inv[:, m, n][:, None] for n in range(k)] for m in range(k)]))
 
     def multipliers(self, g: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        """μ (d arrays (B, W)) for g = Δ̂ − u (d, B, W); 0 where Δ̂ is inside the box."""
         d = self.dim
-        mu = [np.zeros(g.shape[1:]) for _ in range(d)]
+        mu: list[NDArray[np.float64]] = [np.zeros(g.shape[1:]) for _ in range(d)]
         found = np.all(g <= 0.0, axis=0)
         for a, free, inv in self.sets:
             m_a = [sum(inv[m][n] * g[a[n]] for n in range(len(a))) for m in range(len(a))]
