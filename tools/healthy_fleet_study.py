@@ -148,13 +148,15 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     series = robot_series(spec.seed, sim.cycles, sim.joints, spec.scenario)
     monitored: dict[int, dict[str, int]] = {}
     steady_from: dict[int, dict[str, int]] = {}
+    miss: dict[int, dict[str, dict[int, float]]] = {}
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[int, list[float]] = {}
     for joint, rows in series.items():
         bank = DetectorBank(decision, {})
+        truth = wear_truth.setdefault(joint, [float(rows[0]["wear"])] * sim.cycles if rows else [])
         for row in rows:
             cycle = int(row["cycle"])
-            wear_truth.setdefault(joint, []).append(float(row["wear"]))
+            truth[cycle] = float(row["wear"])
             bank.observe_temperature(row.get("motor_temperature"))
             decisions, raised = bank.update(row, "robot", joint, cycle)
             for q, d in decisions.items():
@@ -163,11 +165,15 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
                 if d.state == "monitoring" and d.threshold is not None:
                     counts = monitored.setdefault(joint, {})
                     counts[q] = counts.get(q, 0) + 1
+                    if d.miss_probability is not None and not d.alarm:
+                        miss.setdefault(joint, {}).setdefault(q, {})[cycle] = d.miss_probability
             alarms += [{"joint": joint, "cycle": cycle, "quantity": a.quantity, "wear": float(row["wear"])}
                        for a in raised]
-    worn = sorted(j for j, w in wear_truth.items() if max(w) > 0)
+    worn = sorted(j for j, w in wear_truth.items() if w and max(w) > 0)
     return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
-            "steady_from": {str(j): c for j, c in steady_from.items()}, "worn": worn, "miss_probability": {},
+            "steady_from": {str(j): c for j, c in steady_from.items()}, "worn": worn,
+            "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()} for q, per in miss.get(j, {}).items()}
+                                 for j in worn},
             "wear_truth": {str(j): wear_truth[j] for j in worn}, "seconds": time.monotonic() - started}
 
 
