@@ -11,15 +11,15 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 
-from arl_check import delivered, settings_of  # noqa: E402
+from arl_check import delivered  # noqa: E402
 
-from edge_monitor.stats.threshold_table import _table, lookup  # noqa: E402
+from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
 
 
 def _entry(at: str, dim: int, rho: float = 0.0, drifting: bool = True) -> dict:
     for group in _table().values():
         for e in group:
-            corr = e.get("correlation") or [[1.0]]
+            corr = entry_correlation(e)
             if e["settings"]["at"] == at and len(corr) == dim and (dim == 1 or corr[1][2] == rho) \
                     and bool(e["settings"].get("wander")) == drifting:
                 return e
@@ -33,8 +33,7 @@ def test_the_tables_threshold_is_delivered_at_1000_and_a_lower_one_is_not(entry:
     """Delivered within 3 standard errors (the table's h_se through the slope of log ARL0 in h, and the
     clustered measurement's) of 10³; half a nat lower delivers less than 0.7× (log ARL0 grows by ≥ 1 per
     nat at these settings)."""
-    settings = settings_of(entry)
-    corr = tuple(tuple(row) for row in (entry.get("correlation") or [[1.0]]))
+    settings, corr = entry_settings(entry), entry_correlation(entry)
     target = 1000.0
     found, above = lookup(settings, target, corr), lookup(settings, math.e * target, corr)
     assert found is not None and above is not None

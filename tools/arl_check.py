@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge_monitor.stats import gaussian_calibration as gc  # noqa: E402
 from edge_monitor.stats.gaussian_calibration import GaussianSettings  # noqa: E402
-from edge_monitor.stats.threshold_table import _table, lookup  # noqa: E402
+from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
 
 log = logging.getLogger("arl_check")
 
@@ -45,11 +45,6 @@ log = logging.getLogger("arl_check")
 CHECK_SEED = 20261127
 #: Alarms the check expects per entry and target: a 95 % interval of about ±15 % (more with clustering).
 ALARMS = 200
-
-
-def settings_of(entry: dict[str, Any]) -> GaussianSettings:
-    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in entry["settings"].items()}
-    return GaussianSettings(**fields)
 
 
 def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detectors: int, cycles: int,
@@ -78,8 +73,7 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
 
 
 def check(entry: dict[str, Any], target: float, detectors: int, seed: int) -> dict[str, Any] | None:
-    settings = settings_of(entry)
-    corr = tuple(tuple(float(x) for x in row) for row in (entry.get("correlation") or [[1.0]]))
+    settings, corr = entry_settings(entry), entry_correlation(entry)
     found = lookup(settings, target, corr)
     if found is None:
         return None
@@ -107,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     entries = [e for group in _table().values() for e in group]
     for k, e in enumerate(entries):
-        dim = len(e.get("correlation") or [[1.0]])
+        dim = len(entry_correlation(e))
         if (args.only == "scalar" and dim > 1) or (args.only == "vector" and dim == 1):
             continue
         for target in (float(t) for t in args.targets.split(",")):
