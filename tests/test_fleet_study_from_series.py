@@ -13,7 +13,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import fleet_series  # noqa: E402
 from healthy_fleet_study import RunSpec, run_robot, run_robot_series  # noqa: E402
 
-
 SCENARIO = """
 [simulation]
 joints = 2
