@@ -36,7 +36,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -84,11 +84,37 @@ def settings_from(overrides: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
     return doc
 
 
+@dataclass
+class DecisionTally:
+    """What a study keeps of the decisions, per joint and quantity: the monitored cycles, the first cycle
+    of the steady stage and the reported miss probability per cycle (until the alarm)."""
+
+    monitored: dict[int, dict[str, int]] = field(default_factory=dict)
+    steady_from: dict[int, dict[str, int]] = field(default_factory=dict)
+    miss: dict[int, dict[str, dict[int, float]]] = field(default_factory=dict)
+
+    def add(self, joint: int, cycle: int, decisions: dict[str, Any]) -> None:
+        for q, decision in decisions.items():
+            if (decision.calibration or {}).get("stage") == "steady":
+                self.steady_from.setdefault(joint, {}).setdefault(q, cycle)
+            if decision.state == "monitoring" and decision.threshold is not None:
+                counts = self.monitored.setdefault(joint, {})
+                counts[q] = counts.get(q, 0) + 1
+                if decision.miss_probability is not None and not decision.alarm:
+                    self.miss.setdefault(joint, {}).setdefault(q, {})[cycle] = decision.miss_probability
+
+    def fields(self, worn: list[int]) -> dict[str, Any]:
+        """The run record's ``monitored``, ``steady_from`` and ``miss_probability`` (worn joints only)."""
+        return {"monitored": {str(j): c for j, c in self.monitored.items()},
+                "steady_from": {str(j): c for j, c in self.steady_from.items()},
+                "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()}
+                                              for q, per in self.miss.get(j, {}).items()} for j in worn}}
+
+
 def run_robot(spec: RunSpec) -> dict[str, Any]:
     """Simulate one robot through the agent; per joint the monitored cycles and alarms per quantity."""
     sim = spec.sim_config()
     agent = Agent(config_from_mapping(settings_from(spec.overrides)))
-    monitored: dict[int, dict[str, int]] = {}
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[tuple[int, int], float] = {}
     temperatures: list[float] = []
@@ -105,26 +131,15 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
                          len(agent.stats.alarms), time.monotonic() - started)
             yield signals
 
-    miss: dict[int, dict[str, dict[int, float]]] = {}    # joint → quantity → cycle → reported Pm
-    steady_from: dict[int, dict[str, int]] = {}          # joint → quantity → first cycle of the steady stage
+    tally = DecisionTally()
     for symptom in run_cycles(agent, cycles()):
-        for q, decision in symptom.decisions.items():
-            if (decision.calibration or {}).get("stage") == "steady":
-                steady_from.setdefault(symptom.joint, {}).setdefault(q, symptom.cycle)
-            if decision.state == "monitoring" and decision.threshold is not None:
-                counts = monitored.setdefault(symptom.joint, {})
-                counts[q] = counts.get(q, 0) + 1
-                if decision.miss_probability is not None and not decision.alarm:
-                    miss.setdefault(symptom.joint, {}).setdefault(q, {})[symptom.cycle] = decision.miss_probability
+        tally.add(symptom.joint, symptom.cycle, symptom.decisions)
     for alarm in agent.stats.alarms:
         joint, cycle = int(alarm["joint"]), int(alarm["cycle"])
         alarms.append({"joint": joint, "cycle": cycle, "quantity": alarm["quantity"],
                        "wear": wear_truth.get((joint, cycle), math.nan)})
     worn = sorted({j for (j, _), w in wear_truth.items() if w > 0})
-    return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
-            "steady_from": {str(j): c for j, c in steady_from.items()},
-            "worn": worn, "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()}
-                                                         for q, per in miss.get(j, {}).items()} for j in worn},
+    return {"seed": spec.seed, "alarms": alarms, "worn": worn, **tally.fields(worn),
             "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(sim.cycles) if (j, c) in wear_truth]
                            for j in worn},
             "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
@@ -146,9 +161,7 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     sim = spec.sim_config()
     decision = config_from_mapping(settings_from(spec.overrides)).decision
     series = robot_series(spec.seed, sim.cycles, sim.joints, spec.scenario)
-    monitored: dict[int, dict[str, int]] = {}
-    steady_from: dict[int, dict[str, int]] = {}
-    miss: dict[int, dict[str, dict[int, float]]] = {}
+    tally = DecisionTally()
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[int, list[float]] = {}
     for joint, rows in series.items():
@@ -159,21 +172,11 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
             truth[cycle] = float(row["wear"])
             bank.observe_temperature(row.get("motor_temperature"))
             decisions, raised = bank.update(row, "robot", joint, cycle)
-            for q, d in decisions.items():
-                if (d.calibration or {}).get("stage") == "steady":
-                    steady_from.setdefault(joint, {}).setdefault(q, cycle)
-                if d.state == "monitoring" and d.threshold is not None:
-                    counts = monitored.setdefault(joint, {})
-                    counts[q] = counts.get(q, 0) + 1
-                    if d.miss_probability is not None and not d.alarm:
-                        miss.setdefault(joint, {}).setdefault(q, {})[cycle] = d.miss_probability
+            tally.add(joint, cycle, decisions)
             alarms += [{"joint": joint, "cycle": cycle, "quantity": a.quantity, "wear": float(row["wear"])}
                        for a in raised]
     worn = sorted(j for j, w in wear_truth.items() if w and max(w) > 0)
-    return {"seed": spec.seed, "monitored": {str(j): c for j, c in monitored.items()}, "alarms": alarms,
-            "steady_from": {str(j): c for j, c in steady_from.items()}, "worn": worn,
-            "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()} for q, per in miss.get(j, {}).items()}
-                                 for j in worn},
+    return {"seed": spec.seed, "alarms": alarms, "worn": worn, **tally.fields(worn),
             "wear_truth": {str(j): wear_truth[j] for j in worn}, "seconds": time.monotonic() - started}
 
 

@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge_monitor.stats.bias_em import step_matrix
 from edge_monitor.stats.densities import GaussianMixture
-from edge_monitor.stats.null_projection import box_projection, covariance_precision
+from edge_monitor.stats.null_projection import BoxProjector, covariance_precision
 
 GLRMode = Literal["exact", "recursive"]
 #: Directions of change a detector looks for: any shift, or only an increase (componentwise).
@@ -102,12 +102,14 @@ class MixtureBatch:
         self.means = np.zeros((b, k, d))
         self.log_coef = np.full((b, k), -np.inf)
         self.whiten = np.empty((b, d, d))
+        self.cov = np.empty((b, d, d))                                         # the components' S
         self.gain = np.empty((b, d, d))
         for i, m in enumerate(mixtures):
             kk = m.n_components
             self.means[i, :kk] = m.means
             self.log_coef[i, :kk] = m._log_coef
             self.whiten[i] = m._whiten
+            self.cov[i] = m.cov
             self.gain[i] = step_matrix(m, step)
         self.means_w = np.einsum("bkd,bed->bke", self.means, self.whiten)      # L⁻¹μk
         self.means_w_sq = np.einsum("bkd,bkd->bk", self.means_w, self.means_w)
@@ -122,12 +124,11 @@ class MixtureBatch:
         """(B, d, d) inverse of each mixture's covariance (the components' S plus the spread of their
         means): the metric in which the shift of H0 closest to an estimate is found."""
         if self._precision is None:
-            s_inv = self.whiten.transpose(0, 2, 1) @ self.whiten                  # S⁻¹ = L⁻ᵀL⁻¹
             weight = np.exp(self.log_coef - self.log_coef.max(axis=1, keepdims=True))
             weight /= weight.sum(axis=1, keepdims=True)
             centre = np.einsum("bk,bkd->bd", weight, self.means)
             spread = self.means - centre[:, None, :]
-            cov = np.linalg.inv(s_inv) + np.einsum("bk,bkd,bke->bde", weight, spread, spread)
+            cov = self.cov + np.einsum("bk,bkd,bke->bde", weight, spread, spread)
             self._precision = covariance_precision(cov)
         return self._precision
 
@@ -193,6 +194,7 @@ class BatchWindowedGLR:
         self.delta = np.zeros((b, w, d))
         self.sums = np.zeros((b, w))
         self.best = np.zeros(b, dtype=np.int64)
+        self._projector: BoxProjector | None = None
 
     def update(self, y: ArrayLike) -> NDArray[np.float64]:
         obs = np.clip(np.asarray(y, dtype=float).reshape(self.mix.size, self.mix.dim), self.clip_lo, self.clip_hi)
@@ -225,7 +227,9 @@ class BatchWindowedGLR:
         in one dimension; :mod:`~edge_monitor.stats.null_projection`), delta (B, A, d)."""
         if self.mix.dim == 1:
             return np.clip(delta, self.lower[:, None, :], self.upper[:, None, :])
-        return box_projection(delta, self.lower, self.upper, self.mix.precision)
+        if self._projector is None:          # fixed bounds and metric: its per-set solves once
+            self._projector = BoxProjector(self.lower, self.upper, self.mix.precision)
+        return self._projector(delta)
 
     def _statistics(self, obs: NDArray[np.float64], slot: int, active: NDArray[np.int64],
                     delta: NDArray[np.float64]) -> NDArray[np.float64]:

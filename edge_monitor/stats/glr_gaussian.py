@@ -23,7 +23,7 @@ import itertools
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge_monitor.stats.null_projection import BoxProjector
+from edge_monitor.stats.null_projection import BoxProjector, covariance_precision
 
 
 class GaussianBatchGLR:
@@ -35,16 +35,15 @@ class GaussianBatchGLR:
                  null_box: tuple[ArrayLike, ArrayLike], clip: tuple[ArrayLike, ArrayLike]) -> None:
         self.means = np.asarray(means, dtype=float)
         b, d = self.means.shape
-        precision = np.linalg.inv(np.asarray(covs, dtype=float).reshape(b, d, d))
+        covs = np.asarray(covs, dtype=float).reshape(b, d, d)
+        precision = np.linalg.inv(covs)
         self.precision = np.ascontiguousarray(precision.transpose(1, 2, 0))[:, :, :, None]   # (d, d, B, 1)
         lower, upper = (np.broadcast_to(np.asarray(v, dtype=float), (b, d)) for v in null_box)
-        self.projector = BoxProjector(lower, upper, 0.5 * (precision + precision.transpose(0, 2, 1))) \
-            if d > 1 else None
-        self.lcp = _UpperBoxLCP(np.asarray(covs, dtype=float).reshape(b, d, d)) \
-            if d > 1 and np.all(np.isneginf(lower)) and np.all(np.isfinite(upper)) else None
+        one_sided = d > 1 and bool(np.all(np.isneginf(lower)) and np.all(np.isfinite(upper)))
+        self.lcp = _UpperBoxLCP(covs) if one_sided else None
+        self.projector = BoxProjector(lower, upper, covariance_precision(covs)) if d > 1 and not one_sided else None
         # axis first: every operation below runs over contiguous (B, W) planes
-        self.lower, self.upper = (np.broadcast_to(np.asarray(v, dtype=float), (b, d)).T[:, :, None]
-                                  for v in null_box)
+        self.lower, self.upper = lower.T[:, :, None], upper.T[:, :, None]
         self.clip_lo, self.clip_hi = (np.broadcast_to(np.asarray(v, dtype=float), (b, d)) for v in clip)
         self.window, self.gamma0, self.rho = int(window), float(gamma0), float(rho)
         self.count = 0

@@ -65,13 +65,15 @@ def entry_correlation(entry: dict[str, Any]) -> Correlation:
     return tuple(tuple(float(x) for x in row) for row in (entry.get("correlation") or [[1.0]]))
 
 
+def correlation_rho(corr: Correlation) -> float:
+    """ρ between :data:`VECTOR_AXES` of a correlation matrix (0 for a scalar)."""
+    i, j = VECTOR_AXES
+    return float(corr[i][j]) if len(corr) > 1 else 0.0
+
+
 def entry_rho(entry: dict[str, Any]) -> float:
     """ρ between :data:`VECTOR_AXES` of a table entry (0 for a scalar)."""
-    corr = entry.get("correlation") or [[1.0]]
-    if len(corr) == 1:
-        return 0.0
-    i, j = VECTOR_AXES
-    return float(corr[i][j])
+    return correlation_rho(entry_correlation(entry))
 
 
 @functools.lru_cache(maxsize=1)
@@ -107,17 +109,17 @@ def lookup(settings: GaussianSettings, arl0: float, corr: Correlation = ((1.0,),
         return None
     target = math.log(float(arl0))
     rhos = [entry_rho(e) for e in entries]
-    given = float(corr[VECTOR_AXES[0]][VECTOR_AXES[1]]) if dim > 1 else 0.0
+    given = correlation_rho(corr)
     if not math.isfinite(given):
         return None
     rho = min(max(given, rhos[0]), rhos[-1])
     k = max(0, int(np.searchsorted(rhos, rho, side="right")) - 1)
-    below, above = entries[k], entries[min(k + 1, len(entries) - 1)]
+    m = min(k + 1, len(entries) - 1)                   # the entries either side of ρ (the same at an end)
+    below, above = entries[k], entries[m]
     read_below, read_above = _read(below, target), _read(above, target)
     if read_below is None or read_above is None:
         return None
-    span = rhos[min(k + 1, len(entries) - 1)] - rhos[k]
-    w = (rho - rhos[k]) / span if span > 0 else 0.0
+    w = (rho - rhos[k]) / (rhos[m] - rhos[k]) if rhos[m] > rhos[k] else 0.0
     h, h_se = ((1.0 - w) * a + w * b for a, b in zip(read_below, read_above))
     events = min(int(below["events_min"]), int(above["events_min"]))
     return GaussianThreshold(h, h_se, float(arl0), "table", events, int(below["detectors"]), int(below["steps"]), 0.0)
