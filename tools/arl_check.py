@@ -54,7 +54,7 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     r = np.asarray(corr, dtype=float)
     rng = np.random.default_rng(seed)
     noise = gc._Noise(np.linalg.cholesky(r), settings.wander, rng)
-    glr = gc._detectors(settings, noise.sequence(detectors, settings.n0), 1)
+    glr = gc._detectors(settings, *gc._fit(noise.sequence(detectors, settings.n0)), 1)   # plain learning sets
     shift = gc._shifts(settings, detectors, r.shape[0])
     if settings.at == "healthy_drift":             # the check's own fleet drift, not the calibration's order
         shift = shift[rng.permutation(detectors)]

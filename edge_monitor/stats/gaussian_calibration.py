@@ -11,7 +11,11 @@ recursion of :class:`~edge_monitor.stats.glr_gaussian.GaussianBatchGLR` (≈ 1 �
 cycle in d = 1), so many more can be simulated than with a general mixture:
 
 1. ``nominals`` nominal sets of N0 values from N(0, R), each fitted (mean, covariance with ddof = 1,
-   its null box and winsorising range) as the agent fits its own — the learning error;
+   its null box and winsorising range) as the agent fits its own — the learning error. For a scalar
+   detector with independent learning values the fit is drawn from its exact law instead (the mean
+   √N0·μ̂ ~ N(0, 1), the spread (N0 − 1)·σ̂² ~ χ²(N0 − 1)), by importance sampling (:func:`_learned`):
+   the fleet's rate at a high threshold is decided by the few nominals learned too low and too narrow,
+   which plain draws of a few thousand learning sets hardly ever hold;
 2. ``streams`` detectors per nominal on independent streams from N(0, R) moved by the calibration
    point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
    ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
@@ -20,9 +24,11 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
    √(1 − f)·e + √f·a with a a unit AR(1) process of coefficient :data:`WANDER_COEFFICIENT` — the slow
    wander of a warm joint's quantities, which makes consecutive values, learning sets included, dependent;
 3. per nominal g and candidate threshold h its false-alarm rate from its first passages (e/X, events
-   over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(rate);
-4. h where that run length is the target: interpolated where at least :data:`MIN_EVENTS_DIRECT`
-   detectors alarmed, else extrapolated along log E[T] = a + c·h over the upper reliable range;
+   over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(w_g·rate)
+   with w_g the nominal's importance weight (1 where its learning set was drawn as it is);
+4. h where that run length is the target: interpolated where the alarms are worth at least
+   :data:`MIN_EVENTS_DIRECT` unweighted ones ((Σ w·e)² / Σ w²·e, Kish's effective count), else
+   extrapolated along log E[T] = a + c·h over the upper reliable range;
 5. its precision: the standard error of h from a bootstrap over the nominals (both the learning
    error and the Monte Carlo error), reported with the threshold.
 """
@@ -60,6 +66,14 @@ CHUNK = 512
 SEGMENT = 2000
 #: Top of the threshold grid [nats].
 H_MAX = 60.0
+#: Importance sampling of a scalar nominal's learning error (:func:`_learned`): a deterministic mixture of
+#: proposals, each tilting the fitted mean down and its spread narrower by this many standard deviations
+#: of their own errors, along :data:`TILT_DIRECTION` — where the warm-up detector's false alarms come from.
+TILTS = (0.0, 1.5, 3.0, 4.5)
+#: (fitted mean, log fitted spread): the direction in which a learning error moves the boundary's stream
+#: furthest above the learned box, in units of each error's standard deviation, (1/√N0, 1/√(2(N0 − 1))):
+#: the shift δ = (a − μ̂)/σ̂ − a at the allowance a = 0.75 moves 1 : 0.75·σ_logσ̂/σ_μ̂ ≈ 1 : 0.55.
+TILT_DIRECTION = (0.875, 0.485)
 #: Lag-1 coefficient of the slow wander's AR(1) component (``GaussianSettings.wander``): fitted to the
 #: variance ratios k·var(k-cycle mean)/var = 1.19, 1.32, 1.39 at k = 5, 10, 30 of the log KL distances
 #: of 48 warm healthy joints (docs/DETECTION.md).
@@ -135,14 +149,17 @@ def thresholds(settings: GaussianSettings, corr: Correlation, targets: tuple[flo
     status line per chunk of the simulation)."""
     started = time.process_time()
     sim = simulate(settings, corr, budget, progress)
-    found = [read_threshold(sim.events, sim.exposure, sim.grid, float(t), budget.streams) for t in targets]
+    found = [read_threshold(sim.events, sim.exposure, sim.grid, float(t), budget.streams, sim.weights)
+             for t in targets]
     rng = np.random.default_rng([SEED, 2])
     boot: list[list[float]] = [[] for _ in targets]
-    rates, events = nominal_rates(sim.events, sim.exposure, budget.streams), sim.events.astype(float)
+    w = sim.weights[:, None]
+    rates = w * nominal_rates(sim.events, sim.exposure, budget.streams)
+    events, events_sq = w * sim.events, w ** 2 * sim.events
     nominals = rates.shape[0]
     for _ in range(BOOTSTRAP):
-        weights = np.bincount(rng.integers(0, nominals, nominals), minlength=nominals).astype(float)
-        curve = (weights @ rates / nominals, weights @ events)          # a resample of the nominals
+        count = np.bincount(rng.integers(0, nominals, nominals), minlength=nominals).astype(float)
+        curve = (count @ rates / nominals, _effective(count @ events, count @ events_sq))   # a resample
         for k, target in enumerate(targets):
             try:
                 boot[k].append(read_from_curve(*curve, sim.grid, float(target))[0])
@@ -156,13 +173,14 @@ def thresholds(settings: GaussianSettings, corr: Correlation, targets: tuple[flo
 
 @dataclass(frozen=True)
 class Simulation:
-    """First passages per nominal and grid threshold (G, H), their exposure [cycles], the grid [nats]
-    and the CPU time the simulation took [s]."""
+    """First passages per nominal and grid threshold (G, H), their exposure [cycles], the grid [nats],
+    the CPU time the simulation took [s] and each nominal's importance weight (G,)."""
 
     events: NDArray[np.float32]
     exposure: NDArray[np.float32]
     grid: NDArray[np.float64]
     cpu_s: float
+    weights: NDArray[np.float64]
 
 
 @functools.lru_cache(maxsize=32)
@@ -177,11 +195,17 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     grid = np.arange(H_STEP, H_MAX, H_STEP)
     per_chunk = max(1, CHUNK // budget.streams)
     shifts = _shifts(settings, budget.nominals, r.shape[0])
-    events, exposure = [], []
+    events, exposure, weights = [], [], []
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
         noise = _Noise(lower_chol, settings.wander, rng)
-        glr = _detectors(settings, noise.sequence(g, settings.n0), budget.streams)
+        if _iid_scalar(settings, r.shape[0]):
+            means, covs, weight = _learned(settings.n0, np.arange(first, first + g), rng)
+        else:
+            means, covs = _fit(noise.sequence(g, settings.n0))
+            weight = np.ones(g)
+        glr = _detectors(settings, means, covs, budget.streams)
+        weights.append(weight)
         shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
         passage = _passages(glr, shift, noise, budget.steps, grid)
         alarmed = passage < budget.steps
@@ -192,14 +216,53 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
             log.info("calibration simulation: %d/%d nominals", first + g, budget.nominals)
     ev, ex = np.concatenate(events).astype(np.float32), np.concatenate(exposure).astype(np.float32)   # exact
     used = int(np.flatnonzero(ev.sum(axis=0) > 0)[-1]) + 2 if ev.any() else 1
-    return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started)
+    return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started,
+                      np.concatenate(weights))
 
 
-def _detectors(settings: GaussianSettings, samples: NDArray[np.float64], streams: int) -> GaussianBatchGLR:
-    """``streams`` detectors for each nominal set of ``samples`` (G, N0, d), fitted as the agent fits."""
+def _iid_scalar(settings: GaussianSettings, d: int) -> bool:
+    """Whether a nominal's fit has the closed-form law :func:`_learned` draws from (d = 1, no wander)."""
+    return d == 1 and not settings.wander
+
+
+def _learned(n0: int, index: NDArray[np.int64], rng: np.random.Generator
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Fitted means (G, 1) and variances (G, 1, 1) of scalar nominals learned from ``n0`` independent
+    standard normal values, drawn by importance sampling, and their weights (G,), mean 1.
+
+    Nominal g is drawn from proposal ``index[g] mod len(TILTS)`` (a deterministic mixture): the fitted
+    mean's error u = √N0·μ̂ from N(−t·c_u, 1), the spread's q = (N0 − 1)·σ̂² from χ²(N0 − 1) scaled by
+    exp(−2·t·c_s·σ_logσ̂) (log σ̂ moved t·c_s of its standard deviations), t the tilt, (c_u, c_s)
+    :data:`TILT_DIRECTION`; its weight is the exact density over the mixture's (balance heuristic)."""
+    from scipy.stats import gamma
+
+    k = (n0 - 1) / 2.0                                       # χ²(N0 − 1) = Gamma(k, scale 2)
+    sd_log_sd = 1.0 / math.sqrt(2.0 * (n0 - 1))
+    tilt = np.asarray(TILTS)
+    mean_shift = -tilt * TILT_DIRECTION[0]
+    scale = 2.0 * np.exp(-2.0 * tilt * TILT_DIRECTION[1] * sd_log_sd)
+    component = index % tilt.size
+    u = rng.standard_normal(index.size) + mean_shift[component]
+    q = rng.gamma(k, scale[component])
+    log_prior = norm.logpdf(u) + gamma.logpdf(q, k, scale=2.0)
+    log_mixture = np.logaddexp.reduce(norm.logpdf(u[:, None] - mean_shift[None, :])
+                                      + gamma.logpdf(q[:, None], k, scale=scale[None, :]), axis=1) - math.log(tilt.size)
+    means = (u / math.sqrt(n0))[:, None]
+    covs = (q / (n0 - 1))[:, None, None]
+    return means, covs, np.exp(log_prior - log_mixture)
+
+
+def _fit(samples: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Means (G, d) and covariances (G, d, d; ddof = 1) of nominal sets ``samples`` (G, N0, d), as the
+    agent fits its own."""
     means = samples.mean(axis=1)
     dev = samples - means[:, None, :]
-    covs = np.einsum("gni,gnj->gij", dev, dev) / (settings.n0 - 1)
+    return means, np.einsum("gni,gnj->gij", dev, dev) / (samples.shape[1] - 1)
+
+
+def _detectors(settings: GaussianSettings, means: NDArray[np.float64], covs: NDArray[np.float64],
+               streams: int) -> GaussianBatchGLR:
+    """``streams`` detectors for each fitted nominal (means (G, d), covariances (G, d, d))."""
     sd = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
     upper = settings.allowance * sd
     lower = np.full_like(upper, -np.inf) if settings.direction == "increase" else -upper
@@ -288,23 +351,33 @@ def nominal_rates(events: NDArray[np.floating], exposure: NDArray[np.floating], 
     return np.where(ev < streams, ev, np.maximum(ev - 1.0, 0.0)) / ex
 
 
-def fleet_curve(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Per grid threshold: the mean over nominals of their rates (:func:`nominal_rates`) and the
-    detectors that alarmed in all."""
-    return nominal_rates(events, exposure, streams).mean(axis=0), np.asarray(events, dtype=float).sum(axis=0)
+def _effective(weighted: NDArray[np.float64], weighted_sq: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Kish's effective count of weighted alarms, (Σ w·e)² / Σ w²·e (Σ e when every w = 1)."""
+    return np.divide(weighted ** 2, weighted_sq, out=np.zeros_like(weighted), where=weighted_sq > 0)
+
+
+def fleet_curve(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int,
+                weights: NDArray[np.floating] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per grid threshold: the weighted mean over nominals of their rates (:func:`nominal_rates`) and the
+    effective count of the detectors that alarmed (:func:`_effective`; their number without ``weights``)."""
+    ev = np.asarray(events, dtype=float)
+    w = np.ones((ev.shape[0], 1)) if weights is None else np.asarray(weights, dtype=float)[:, None]
+    rate = (w * nominal_rates(ev, exposure, streams)).mean(axis=0)
+    return rate, _effective((w * ev).sum(axis=0), (w ** 2 * ev).sum(axis=0))
 
 
 def read_threshold(events: NDArray[np.floating], exposure: NDArray[np.floating], grid: NDArray[np.float64],
-                   arl0: float, streams: int) -> tuple[float, str, int]:
+                   arl0: float, streams: int, weights: NDArray[np.floating] | None = None) -> tuple[float, str, int]:
     """h for ``arl0`` from per-nominal first passages ``events`` and ``exposure`` (G, H) on ``grid`` of
-    ``streams`` detectors per nominal; ``ValueError`` when the simulation cannot tell (module docstring)."""
-    return read_from_curve(*fleet_curve(events, exposure, streams), grid, arl0)
+    ``streams`` detectors per nominal, weighted by ``weights`` (G,); ``ValueError`` when the simulation
+    cannot tell (module docstring)."""
+    return read_from_curve(*fleet_curve(events, exposure, streams, weights), grid, arl0)
 
 
 def read_from_curve(rate: NDArray[np.float64], total: NDArray[np.float64], grid: NDArray[np.float64],
                     arl0: float) -> tuple[float, str, int]:
-    """h for ``arl0`` from the fleet's rate and alarmed detectors per grid threshold (:func:`fleet_curve`)."""
+    """h for ``arl0`` from the fleet's rate and the (effective) alarmed detectors per grid threshold
+    (:func:`fleet_curve`)."""
     reliable = (total >= MIN_EVENTS_DIRECT) & (rate > 0)
     if not reliable.any():
         raise ValueError("too few simulated alarms to calibrate; give a larger calibration budget")
