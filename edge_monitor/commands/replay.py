@@ -5,6 +5,9 @@ short is reported and its last cycle is left open (not published; a later replay
 publishes it). Both are in the summary and in ``--json`` under ``"log"``.
 
 Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO line every 5 s (``-v``).
+``--jobs 2`` (the default ``auto`` for a CAN log over :data:`AUTO_SPLIT_BYTES` where there are two
+cores and no state file is kept) reads and ingests the log in this process and monitors the joints in a second one
+(:mod:`edge_monitor.pipeline.monitor_process`): the same records, in about two thirds of the time.
 Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device), the
 ``--jsonl`` file cannot be opened, or records or the state could not be written (a full disk:
 ``sink_errors``, ``state_save_errors``; the statistics are printed first)."""
@@ -18,7 +21,9 @@ import sys
 import time
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Callable, Iterator
+
+from numpy.typing import NDArray
 
 from edge_monitor.app import Outputs, build_app
 from edge_monitor.commands.common import (
@@ -33,13 +38,19 @@ from edge_monitor.commands.common import (
 )
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import FrameArrays
+from edge_monitor.pipeline.ingest import Ingest
 from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
+from edge_monitor.pipeline.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
 from edge_monitor.pipeline.trace_source import TraceError, TraceUnreadable, is_trace_file, replay_trace
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
-from protocol.console import EXIT_FAILURE, EXIT_USAGE, progress_bar, verbosity
+from protocol.console import EXIT_FAILURE, EXIT_USAGE, LOG_FORMAT, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
+
+#: ``--jobs auto`` splits a replay of a CAN log this large or larger [bytes]: below it, starting the
+#: second process (≈ 2 s of imports) costs more than it saves.
+AUTO_SPLIT_BYTES = 64 * 2 ** 20
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -55,6 +66,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "(a viewer; without a display: save:<log name>.rrd) or connect:URL")
     p.add_argument("--no-close", action="store_true",
                    help="leave the last cycle open at end of file (as if the stream continued)")
+    p.add_argument("--jobs", default="auto", choices=("auto", "1", "2"),
+                   help="2: read and ingest the log in this process, monitor the joints in a second one (the "
+                        "same records, faster on two cores); auto (default): 2 for a CAN log of 64 MiB or more "
+                        "on two or more cores without a state file, else 1")
     p.set_defaults(func=run)
 
 
@@ -68,28 +83,111 @@ def _blocks(path: str, block_size: int, report: LogReport) -> Iterator[tuple[Fra
         raise LogReadError(f"cannot read {path}: {exc}") from exc
 
 
-def replay(agent: Agent, path: str, block_size: int, progress_s: float = 5.0, bar: bool = False) -> LogReport:
-    """Feed the log to the agent; progress as a bar over the file's bytes (``bar`` and stderr a
-    terminal), else an INFO line every ``progress_s``. Returns what reading the file found."""
+def replay(path: str, block_size: int, feed: Callable[[NDArray, NDArray, NDArray, NDArray], Any],
+           status: Callable[[], str], progress_s: float = 5.0, bar: bool = False) -> LogReport:
+    """Feed the log's frame blocks to ``feed`` (the agent, or the ingest of a split replay); progress as
+    a bar over the file's bytes (``bar`` and stderr a terminal), else an INFO line ``status()`` every
+    ``progress_s``. Returns what reading the file found."""
     report = LogReport()
     size = os.path.getsize(path) if os.path.isfile(path) else None
     with progress_bar(size, f"replay {os.path.basename(path)}", enabled=bar, unit="B", unit_scale=True,
                       unit_divisor=1024) as progress:
         next_report = time.monotonic() + progress_s
         for (ids, data, dlc, ts), position in _blocks(path, block_size, report):
-            agent.update(ids, data, dlc, ts)
+            feed(ids, data, dlc, ts)
             progress.update(max(position - progress.n, 0))
             if progress.disable and time.monotonic() >= next_report:
-                log.info("replay: %d frames, %d cycles, %d symptoms", agent.frames_total, agent.stats.cycles,
-                         agent.stats.symptoms)
+                log.info("replay: %s", status())
                 next_report = time.monotonic() + progress_s
     return report
+
+
+def _agent_status(agent: Agent) -> str:
+    return f"{agent.frames_total} frames, {agent.stats.cycles} cycles, {agent.stats.symptoms} symptoms"
+
+
+def _jobs(args: argparse.Namespace, store: Any) -> int:
+    """How many processes the replay uses (``--jobs``; auto: 2 for a CAN log of at least
+    :data:`AUTO_SPLIT_BYTES` without a state file on two or more cores)."""
+    if args.jobs != "auto":
+        return int(args.jobs)
+    try:
+        large = os.path.getsize(args.file) >= AUTO_SPLIT_BYTES
+    except OSError:
+        large = False                          # a missing file is reported by the replay itself
+    return 2 if large and (os.cpu_count() or 1) >= 2 and store is None and not is_trace_file(args.file) else 1
+
+
+def _run_split(args: argparse.Namespace, cfg: Any, source: Any) -> int:
+    """``replay --jobs 2``: ingest here, monitor in a second process (module docstring)."""
+    started = time.perf_counter()
+    source = source if source is not None else Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
+    outputs = Outputs(jsonl=cfg.jsonl, rerun=args.rerun, rerun_fallback=Path(args.file).with_suffix(".rrd").name)
+    level = logging.getLogger().level
+    monitor = MonitorProcess(cfg, outputs, level, LOG_FORMAT)
+    try:
+        if monitor.setup is not None:
+            return int(monitor.setup.setup_exit or EXIT_FAILURE)
+        try:
+            def feed(ids: NDArray, data: NDArray, dlc: NDArray, ts: NDArray) -> None:
+                block = source.update(ids, data, dlc, ts)
+                if block.runs:
+                    monitor.update(block)
+
+            report = replay(args.file, cfg.block_size, feed, bar=verbosity(args) >= 0,
+                            status=lambda: f"{source.c.frames_total} frames ingested (the joints monitored in "
+                                           "a second process)")
+        except (FileNotFoundError, LogReadError) as exc:
+            print(f"edge-monitor replay: {exc}", file=sys.stderr)
+            return EXIT_FAILURE
+        flush = getattr(source, "flush", None)
+        flushed = flush() if flush is not None and not args.no_close else None
+        counters = source.counters()
+        e2e = dict(source.e2e.stats) if hasattr(source, "e2e") else {"no_new_data": 0}
+        result = monitor.finish(not args.no_close and report.truncated is None, counters, e2e, flushed)
+    except MonitorProcessError as exc:
+        print(f"edge-monitor replay: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    finally:
+        monitor.close()
+    wall = time.perf_counter() - started
+    stats = {**result.statistics, "wall_s": wall, "log": report.to_dict()}
+    stats["frames_per_second"] = stats["frames_total"] / wall if wall > 0 else 0.0
+    return _report(args, cfg, stats, report, result)
+
+
+def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: LogReport,
+            result: MonitorResult) -> int:
+    """The summary (table or ``--json``) and the exit code (1 when an output or the state failed)."""
+    if args.json:
+        print_json(stats)
+    elif verbosity(args) >= 0:              # -q: no summary
+        print(summary_table(result.last, stats, cfg.decision))
+        print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
+              f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
+              f"{stats['frames_per_second']:.0f} frames/s")
+        if report.skipped or report.truncated:
+            print(f"log: {report.skipped} unreadable record(s) skipped"
+                  + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
+                     else ""))
+    for problem in result.failures:
+        print(f"edge-monitor replay: {problem}", file=sys.stderr)
+    return EXIT_FAILURE if result.failures else 0
 
 
 def run(args: argparse.Namespace) -> int:
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     last = LastSymptomSink()
     store = open_state_store(cfg)
+    if _jobs(args, store) == 2:
+        if store is not None:
+            print("edge-monitor replay: --jobs 2 keeps no state file; use --jobs 1 with a state file", file=sys.stderr)
+            return EXIT_USAGE
+        if is_trace_file(args.file):
+            print("edge-monitor replay: --jobs 2 replays CAN logs; a trace table replays with --jobs 1",
+                  file=sys.stderr)
+            return EXIT_USAGE
+        return _run_split(args, cfg, source)
     with ExitStack() as stack:
         try:
             agent = build_app(cfg, Outputs(jsonl=cfg.jsonl, rerun=args.rerun,
@@ -102,7 +200,8 @@ def run(args: argparse.Namespace) -> int:
             if is_trace_file(args.file):
                 report = replay_trace(agent, args.file, args.mapping)
             else:
-                report = replay(agent, args.file, cfg.block_size, bar=verbosity(args) >= 0)
+                report = replay(args.file, cfg.block_size, agent.update, lambda: _agent_status(agent),
+                                bar=verbosity(args) >= 0)
         except (FileNotFoundError, LogReadError, TraceUnreadable) as exc:
             print(f"edge-monitor replay: {exc}", file=sys.stderr)
             return EXIT_FAILURE
@@ -113,18 +212,5 @@ def run(args: argparse.Namespace) -> int:
             agent.flush_source()
         agent.finish(close_open_cycle=not args.no_close and report.truncated is None)
         stats = {**agent.run_statistics(), "log": report.to_dict()}
-    if args.json:
-        print_json(stats)
-    elif verbosity(args) >= 0:              # -q: no summary
-        print(summary_table(last.last, stats, cfg.decision))
-        print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
-              f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
-              f"{stats['frames_per_second']:.0f} frames/s")
-        if report.skipped or report.truncated:
-            print(f"log: {report.skipped} unreadable record(s) skipped"
-                  + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
-                     else ""))
-    problems = output_failures(agent, store)      # after the exit stack: the final state save included
-    for problem in problems:
-        print(f"edge-monitor replay: {problem}", file=sys.stderr)
-    return EXIT_FAILURE if problems else 0
+    # output failures after the exit stack: the final state save included
+    return _report(args, cfg, stats, report, MonitorResult(stats, last.last, output_failures(agent, store)))
