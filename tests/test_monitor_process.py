@@ -1,5 +1,5 @@
 """``edge-monitor replay --jobs 2``: ingest in one process, the joints' monitoring in a second
-(edge_monitor/pipeline/monitor_process.py). The records are those of a one-process replay, byte for
+(edge_monitor/monitor_process.py). The records are those of a one-process replay, byte for
 byte; a monitoring process that fails or is killed stops the replay with a message, never a hang."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import pytest
 from edge_monitor.app import Outputs
 from edge_monitor.commands.replay import AUTO_SPLIT_BYTES, _jobs
 from edge_monitor.config import AgentConfig
-from edge_monitor.pipeline.monitor_process import MonitorProcess, MonitorProcessError
+from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError
 from edge_monitor.pipeline.samples import IngestBlock
 from protocol.console import LOG_FORMAT
 

@@ -7,7 +7,7 @@ publishes it). Both are in the summary and in ``--json`` under ``"log"``.
 Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO line every 5 s (``-v``).
 ``--jobs 2`` (the default ``auto`` for a CAN log over :data:`AUTO_SPLIT_BYTES` where there are two
 cores and no state file is kept) reads and ingests the log in this process and monitors the joints in a second one
-(:mod:`edge_monitor.pipeline.monitor_process`): the same records, in about two thirds of the time.
+(:mod:`edge_monitor.monitor_process`): the same records, in about two thirds of the time.
 Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device), the
 ``--jsonl`` file cannot be opened, or records or the state could not be written (a full disk:
 ``sink_errors``, ``state_save_errors``; the statistics are printed first)."""
@@ -40,7 +40,7 @@ from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.frame_source import FrameArrays
 from edge_monitor.pipeline.ingest import Ingest
 from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
-from edge_monitor.pipeline.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
+from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
 from edge_monitor.pipeline.trace_source import TraceError, TraceUnreadable, is_trace_file, replay_trace
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError

@@ -98,12 +98,15 @@ class CycleNumbering:
             return self._take(frame, self.cycle)
         if (raw - self.cycle_raw) % CYCLE_MODULUS == 1 and segment <= 1 and self._lasted(tick):
             first_seen[self.cycle + 1] = True
-            return self._take(frame, self.cycle + 1, started=True)
+            # it began after the last frame of the cycle before: lost status frames at its start must not
+            # make it look shorter than it was
+            return self._take(frame, self.cycle + 1, started=True, start_tick=self._tick)
         self.jumps += 1                                      # out of step within a continuous stream
         return None
 
     def _lasted(self, tick: int) -> bool:
-        """The cycle in force lasted ``min_cycle_ticks`` by ``tick`` (or its start was not seen)."""
+        """The cycle in force lasted ``min_cycle_ticks`` by ``tick`` (or its start was not seen), counted from
+        the last frame of the cycle before where it was entered by progress."""
         start = self._cycle_start
         return start is None or (tick_step(start, tick) or 0) >= self.min_cycle_ticks
 
@@ -140,10 +143,11 @@ class CycleNumbering:
         self.taken_back = len(frames) - 1
         return cycle
 
-    def _take(self, frame: _Frame, cycle: int, started: bool | None = None) -> int:
-        """Make ``frame`` the last one taken; ``started``: a new cycle begins (its start tick known or not)."""
+    def _take(self, frame: _Frame, cycle: int, started: bool | None = None, start_tick: int | None = None) -> int:
+        """Make ``frame`` the last one taken; ``started``: a new cycle begins (its start tick known or not:
+        ``start_tick``, else the frame's)."""
         if started is not None:
-            self._cycle_start = frame.tick if started else None
+            self._cycle_start = (frame.tick if start_tick is None else start_tick) if started else None
         self.cycle, self.cycle_raw, self._tick = cycle, frame.raw, frame.tick
         self.anchored = True
         return cycle
