@@ -12,8 +12,9 @@ same nominal, as the agent's are; and the draws come from another seed. Delivere
 / alarms, with a 95 % interval from the alarms counted per detector (clustered: a badly learned nominal
 alarms again and again).
 
-Usage: ``python tools/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--json OUT]``
-(scalars: ≈ 1–3 min per entry and target here; the vector ≈ 4–10× that; a status line per entry).
+Usage: ``python tools/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--detectors 16384]
+[--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
+``--detectors 1024``; a status line per entry).
 """
 
 from __future__ import annotations
@@ -94,7 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--targets", default="1e3,1e4,1e5")
     parser.add_argument("--only", choices=("all", "scalar", "vector"), default="all")
-    parser.add_argument("--detectors", type=int, default=4096)
+    parser.add_argument("--detectors", type=int, default=16384,
+                        help="learned detectors per entry and target (they learn from plain sets of values, so "
+                             "the badly learned nominals that decide the warm-up's rate need many)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
