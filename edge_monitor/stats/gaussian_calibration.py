@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import norm
+from scipy.stats import gamma, norm
 
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 
@@ -234,8 +234,6 @@ def _learned(n0: int, index: NDArray[np.int64], rng: np.random.Generator
     mean's error u = √N0·μ̂ from N(−t·c_u, 1), the spread's q = (N0 − 1)·σ̂² from χ²(N0 − 1) scaled by
     exp(−2·t·c_s·σ_logσ̂) (log σ̂ moved t·c_s of its standard deviations), t the tilt, (c_u, c_s)
     :data:`TILT_DIRECTION`; its weight is the exact density over the mixture's (balance heuristic)."""
-    from scipy.stats import gamma
-
     k = (n0 - 1) / 2.0                                       # χ²(N0 − 1) = Gamma(k, scale 2)
     sd_log_sd = 1.0 / math.sqrt(2.0 * (n0 - 1))
     tilt = np.asarray(TILTS)
