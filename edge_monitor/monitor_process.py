@@ -180,8 +180,12 @@ def _monitor(config: Any, outputs: Any, inbox: Any, outbox: Any) -> tuple[str, A
             return "setup_failed", setup_failure("replay", exc)
         agent.sinks.append(last)
         outbox.put(("ready", None))
+        statistics: dict[str, Any] = {}
         while True:
-            message = inbox.get()
+            message = _next(inbox)
+            if message is None:                 # the parent is gone (killed): nothing will come
+                log.error("the replay process is gone; the monitoring process stops (outputs closed)")
+                break
             if message[0] == "block":
                 agent.update_ingested(message[1])
                 continue
@@ -193,3 +197,14 @@ def _monitor(config: Any, outputs: Any, inbox: Any, outbox: Any) -> tuple[str, A
             statistics = agent.run_statistics()
             break
     return "done", MonitorResult(statistics, last.last, output_failures(agent, None))
+
+
+def _next(inbox: Any) -> tuple | None:
+    """The parent's next message, or None once the parent has died (checked every :data:`POLL_S`)."""
+    parent = multiprocessing.parent_process()
+    while True:
+        try:
+            return inbox.get(timeout=POLL_S)
+        except queue.Empty:
+            if parent is not None and not parent.is_alive():
+                return None

@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -110,3 +111,43 @@ def test_auto_splits_large_logs_only_without_a_state_file(tmp_path: Path, monkey
     assert _jobs(args(tmp_path / "missing.blf"), None) == 1
     monkeypatch.setattr(os, "cpu_count", lambda: 1)
     assert _jobs(args(large), None) == 1
+
+
+def test_a_killed_replay_does_not_leave_its_monitoring_process_behind(tmp_path: Path) -> None:
+    """kill -9 of the replay: its monitoring process notices within a poll and exits, closing its
+    outputs (the JSONL file is whole up to its last record), instead of waiting forever."""
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import sys, time\n"
+        "from edge_monitor.app import Outputs\n"
+        "from edge_monitor.config import AgentConfig\n"
+        "from edge_monitor.monitor_process import MonitorProcess\n"
+        "from protocol.console import LOG_FORMAT\n"
+        "if __name__ == '__main__':\n"                      # the child is spawned: it imports this file
+        f"    m = MonitorProcess(AgentConfig(), Outputs(jsonl={str(tmp_path / 'out.jsonl')!r}), 30, LOG_FORMAT)\n"
+        "    print(m.pid, flush=True)\n"
+        "    time.sleep(600)\n")
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    child = 0
+    try:
+        child = int(parent.stdout.readline())
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait(timeout=30)
+        for _ in range(600):                                 # ≤ 60 s; a poll is 1 s
+            if not _alive(child):
+                break
+            time.sleep(0.1)
+        assert not _alive(child), "the monitoring process outlived the replay"
+    finally:
+        parent.kill()
+        if child and _alive(child):
+            os.kill(child, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, reaped by init soon, counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
