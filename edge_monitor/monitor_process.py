@@ -22,7 +22,11 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any
 
+from edge_monitor.app import build_app
+from edge_monitor.commands.common import output_failures, setup_failure
 from edge_monitor.pipeline.samples import IngestBlock
+from edge_monitor.sinks.base import LastSymptomSink
+from edge_monitor.sinks.jsonl import JsonlOpenError
 
 log = logging.getLogger(__name__)
 
@@ -166,11 +170,6 @@ def _serve(config: Any, outputs: Any, log_level: int, log_format: str, inbox: An
 
 
 def _monitor(config: Any, outputs: Any, inbox: Any, outbox: Any) -> tuple[str, Any]:
-    from edge_monitor.app import build_app
-    from edge_monitor.commands.common import output_failures, setup_failure
-    from edge_monitor.sinks.base import LastSymptomSink
-    from edge_monitor.sinks.jsonl import JsonlOpenError
-
     last = LastSymptomSink()
     with ExitStack() as stack:
         try:

@@ -106,6 +106,12 @@ def _agent_status(agent: Agent) -> str:
     return f"{agent.frames_total} frames, {agent.stats.cycles} cycles, {agent.stats.symptoms} symptoms"
 
 
+def _outputs(args: argparse.Namespace, cfg: Any) -> Outputs:
+    """The replay's outputs: the configured JSONL file and ``--rerun`` (a recording named after the log
+    where no viewer can be spawned)."""
+    return Outputs(jsonl=cfg.jsonl, rerun=args.rerun, rerun_fallback=Path(args.file).with_suffix(".rrd").name)
+
+
 def _jobs(args: argparse.Namespace, store: Any) -> int:
     """How many processes the replay uses (``--jobs``; auto: 2 for a CAN log of at least
     :data:`AUTO_SPLIT_BYTES` without a state file on two or more cores)."""
@@ -121,10 +127,8 @@ def _jobs(args: argparse.Namespace, store: Any) -> int:
 def _run_split(args: argparse.Namespace, cfg: Any, source: Any) -> int:
     """``replay --jobs 2``: ingest here, monitor in a second process (module docstring)."""
     started = time.perf_counter()
-    source = source if source is not None else Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
-    outputs = Outputs(jsonl=cfg.jsonl, rerun=args.rerun, rerun_fallback=Path(args.file).with_suffix(".rrd").name)
-    level = logging.getLogger().level
-    monitor = MonitorProcess(cfg, outputs, level, LOG_FORMAT)
+    source = source if source is not None else Ingest.for_config(cfg)
+    monitor = MonitorProcess(cfg, _outputs(args, cfg), logging.getLogger().level, LOG_FORMAT)
     try:
         if monitor.setup is not None:
             return int(monitor.setup.setup_exit or EXIT_FAILURE)
@@ -142,9 +146,8 @@ def _run_split(args: argparse.Namespace, cfg: Any, source: Any) -> int:
             return EXIT_FAILURE
         flush = getattr(source, "flush", None)
         flushed = flush() if flush is not None and not args.no_close else None
-        counters = source.counters()
-        e2e = dict(source.e2e.stats) if hasattr(source, "e2e") else {"no_new_data": 0}
-        result = monitor.finish(not args.no_close and report.truncated is None, counters, e2e, flushed)
+        result = monitor.finish(not args.no_close and report.truncated is None, source.counters(),
+                                dict(source.e2e.stats), flushed)
     except MonitorProcessError as exc:
         print(f"edge-monitor replay: {exc}", file=sys.stderr)
         return EXIT_FAILURE
@@ -190,9 +193,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_split(args, cfg, source)
     with ExitStack() as stack:
         try:
-            agent = build_app(cfg, Outputs(jsonl=cfg.jsonl, rerun=args.rerun,
-                                           rerun_fallback=Path(args.file).with_suffix(".rrd").name),
-                              stack, store, source=source).agent
+            agent = build_app(cfg, _outputs(args, cfg), stack, store, source=source).agent
         except (ValueError, JsonlOpenError) as exc:   # a bad --rerun, an unwritable recording or JSONL file
             return setup_failure("replay", exc)
         agent.sinks.append(last)

@@ -60,7 +60,7 @@ class Agent:
         self.sinks = list(sinks)
         self.store = state_store
         # the sample source (docs/ARCHITECTURE.md): our frames, or a mapping's (pipeline.sources)
-        self.ingest = source if source is not None else Ingest(rate_hz=config.rate_hz, joints=config.joints)
+        self.ingest = source if source is not None else Ingest.for_config(config)
         self.joints: dict[int, JointMonitor] = {}
         self.budget = BudgetRate(config.decision)       # the cycle rate the false-alarm budget is for
         self.stats = RunStats()

@@ -13,6 +13,7 @@ stream) is :mod:`edge_monitor.pipeline.cycle_numbering`. Its output is the sampl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +21,9 @@ from numpy.typing import NDArray
 from edge_monitor.pipeline.cycle_numbering import MAX_CYCLE_STEP, CycleNumbering, tick_step
 from edge_monitor.pipeline.samples import CycleRun, IngestBlock, JointSamples, JointStatusBlock
 from protocol.e2e import E2EReceiver, E2EStatus
+
+if TYPE_CHECKING:
+    from edge_monitor.pipeline.agent_config import AgentConfig
 from protocol.frames import (
     MOTOR_COUNTER_MODULUS,
     DecodeErrorKind,
@@ -64,6 +68,11 @@ class Ingest:
         self._status_tick_raw: int | None = None
         self._last_counter: dict[int, int] = {}
         self._last_tick: dict[int, int] = {}
+
+    @classmethod
+    def for_config(cls, config: AgentConfig) -> Ingest:
+        """The ingest of our own frames for an agent's ``config`` (its default sample source)."""
+        return cls(rate_hz=config.rate_hz, joints=config.joints)
 
     # ------------------------------------------------------------------ public
     def counters(self) -> dict[str, int]:
