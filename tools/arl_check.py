@@ -12,8 +12,8 @@ same nominal, as the agent's are; and the draws come from another seed. Delivere
 / alarms, with a 95 % interval from the alarms counted per detector (clustered: a badly learned nominal
 alarms again and again).
 
-Usage: ``python tools/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--detectors 16384]
-[--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
+Usage: ``python tools/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--stage
+warm-up|steady] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
 ``--detectors 1024``; a status line per entry).
 """
 
@@ -36,6 +36,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from edge_monitor.pipeline.detectors import DecisionConfig  # noqa: E402
 from edge_monitor.stats import gaussian_calibration as gc  # noqa: E402
 from edge_monitor.stats.gaussian_calibration import GaussianSettings  # noqa: E402
 from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
@@ -98,14 +99,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--detectors", type=int, default=16384,
                         help="learned detectors per entry and target (they learn from plain sets of values, so "
                              "the badly learned nominals that decide the warm-up's rate need many)")
+    parser.add_argument("--stage", choices=("all", "warm-up", "steady"), default="all",
+                        help="only the entries of the warm-up or of the steady nominal")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
+    warm_up_n0 = DecisionConfig().n_nominal
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     rows = []
     entries = [e for group in _table().values() for e in group]
     for k, e in enumerate(entries):
         dim = len(entry_correlation(e))
         if (args.only == "scalar" and dim > 1) or (args.only == "vector" and dim == 1):
+            continue
+        if args.stage != "all" and (entry_settings(e).n0 == warm_up_n0) != (args.stage == "warm-up"):
             continue
         for target in (float(t) for t in args.targets.split(",")):
             row = check(e, target, args.detectors, CHECK_SEED + k)

@@ -12,7 +12,7 @@ read, to ``edge_monitor/stats/data/gaussian_thresholds.json``. A threshold is re
 holds stay unless ``--recompute``; ``--jobs`` computes entries in parallel processes.
 
 Usage: ``python tools/threshold_table.py [--nominals 4096] [--steps 4000] [--jobs 2] [--only
-scalar|vector] [--out PATH]`` (scalar entries ≈ 3–8 min, vector ones ≈ 10–20 min CPU each here;
+scalar|vector] [--stage warm-up|steady] [--out PATH]`` (scalar entries ≈ 3–8 min, vector ones ≈ 10–20 min CPU each here;
 progress every 512 detectors).
 """
 
@@ -101,14 +101,17 @@ def _entry_key(e: dict[str, Any]) -> tuple[str, float]:
     return key(entry_settings(e), len(entry_correlation(e))), round(entry_rho(e), 6)
 
 
-def wanted(only: str, vector_rho: list[float]) -> list[tuple[GaussianSettings, int, float]]:
-    """The (settings, dim, ρ) the table should hold."""
+def wanted(only: str, vector_rho: list[float], stage: str = "all") -> list[tuple[GaussianSettings, int, float]]:
+    """The (settings, dim, ρ) the table should hold (of the warm-up or the steady nominal only: ``stage``)."""
     out: list[tuple[GaussianSettings, int, float]] = []
     if only in ("all", "scalar"):
         out += [(s, 1, 0.0) for s in scalar_settings()]
     if only in ("all", "vector"):
         dim = DecisionConfig().detector_config("joint").dim
         out += [(s, dim, rho) for s in shipped_settings(quantities=("joint",)) for rho in vector_rho]
+    if stage != "all":                   # the warm-up nominal learns n_nominal values, the steady one more
+        warm_up = DecisionConfig().n_nominal
+        out = [(s, dim, rho) for s, dim, rho in out if (s.n0 == warm_up) == (stage == "warm-up")]
     return out
 
 
@@ -119,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--vector-rho", default="0,0.5,0.7,0.9",
                         help="correlations of the joint vector's KL axes to tabulate (comma-separated)")
     parser.add_argument("--only", choices=("all", "scalar", "vector"), default="all")
+    parser.add_argument("--stage", choices=("all", "warm-up", "steady"), default="all",
+                        help="only the entries of the warm-up or of the steady nominal")
     parser.add_argument("--jobs", type=int, default=1, help="entries computed in parallel processes")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--recompute", action="store_true", help="recompute entries the table already holds")
@@ -131,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         old = json.loads(args.out.read_text())
         kept = {_entry_key(e): e for e in old.get("entries", [])}
         commands = list(old.get("commands") or ([old["command"]] if old.get("command") else []))
-    todo = wanted(args.only, [float(x) for x in args.vector_rho.split(",") if x.strip()])
+    todo = wanted(args.only, [float(x) for x in args.vector_rho.split(",") if x.strip()], args.stage)
     missing = [(s, dim, rho) for s, dim, rho in todo if args.recompute or (key(s, dim), round(rho, 6)) not in kept]
     log.info("%d entries to compute, %d kept", len(missing), len(kept))
     with concurrent.futures.ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
