@@ -13,7 +13,7 @@ same nominal, as the agent's are; and the draws come from another seed. Delivere
 alarms again and again).
 
 Usage: ``python tools/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--stage
-warm-up|steady] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
+warm-up|steady] [--rho 0.5] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
 ``--detectors 1024``; a status line per entry).
 """
 
@@ -101,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
                              "the badly learned nominals that decide the warm-up's rate need many)")
     parser.add_argument("--stage", choices=("all", "warm-up", "steady"), default="all",
                         help="only the entries of the warm-up or of the steady nominal")
+    parser.add_argument("--rho", type=float, default=None, help="only the joint vector's entry of this KL correlation")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     warm_up_n0 = DecisionConfig().n_nominal
@@ -112,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
         if (args.only == "scalar" and dim > 1) or (args.only == "vector" and dim == 1):
             continue
         if args.stage != "all" and (entry_settings(e).n0 == warm_up_n0) != (args.stage == "warm-up"):
+            continue
+        if args.rho is not None and (dim == 1 or abs(entry_correlation(e)[1][2] - args.rho) > 1e-9):
             continue
         for target in (float(t) for t in args.targets.split(",")):
             row = check(e, target, args.detectors, CHECK_SEED + k)
