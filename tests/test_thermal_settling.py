@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.errors import ConfigError
-from edge_monitor.pipeline.detectors import SETTLING_KEY, DecisionConfig, DetectorBank
+from edge_monitor.pipeline.detectors import SETTLING_KEY, SPANS_KEY, DecisionConfig, DetectorBank
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.stats.sequential_detector import DetectorConfig, SequentialDetector
 
@@ -253,3 +253,79 @@ def test_maintenance_forgets_the_temperature_history_and_keep_keeps_the_schedule
     kept, names = mine.with_learned(0, saved)
     assert names == ["decision"] and kept.decision.allowance == 0.5
     assert kept.decision.steady_relearn is False and kept.decision.settling_window == 60
+
+
+# ------------------------------------------------ a restart after a stop: colder than the steady nominal
+def _steady_bank(seed: int) -> tuple[DetectorBank, np.random.Generator, int]:
+    """A bank whose detectors are all steady, learned at 50 ± 3 °C (the wear score N(0, 1), the logs of
+    the KL distances N(−3, 0.3) and N(−4, 0.3)); returns it, its generator and the next cycle."""
+    config = DecisionConfig(n_nominal=20, steady_nominal=30, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(seed)
+    cycle = 0
+    while {d.stage for d in bank.detectors.values()} != {"steady"} or bank.collecting:
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        decisions, _ = bank.update(_healthy(rng), "r", 0, cycle)
+        for quantity, decision in decisions.items():
+            if decision.alarm:
+                bank.detectors[quantity].reset()
+        cycle += 1
+        assert cycle < 1000
+    return bank, rng, cycle
+
+
+def _healthy(rng: np.random.Generator, kl_shift: float = 0.0) -> dict[str, float]:
+    """One cycle's detector inputs; ``kl_shift``: the log KL distances ``kl_shift`` (their σ: 0.3) up."""
+    return {"wear_score": rng.normal(), "kl_raw": float(np.exp(rng.normal(-3.0 + 0.3 * kl_shift, 0.3))),
+            "kl_weighted": float(np.exp(rng.normal(-4.0 + 0.3 * kl_shift, 0.3)))}
+
+
+def test_a_steady_detector_holds_while_the_joint_is_colder_than_it_learned_and_resumes_when_warm() -> None:
+    """After a stop the joint restarts at 30 °C, 20 °C below the span its steady nominals were learned in,
+    and its KL distances sit 6 σ up (what a cold joint's do): the steady detectors hold — no statistic,
+    no alarm, the reason says why — while the joint is colder than those spans. Other side: the same 6 σ
+    once the joint is back at 50 °C raises the KL alarms within a few cycles (the hold masks nothing
+    in range); a joint colder by less than the margin (2 °C) is watched; without a temperature no hold."""
+    bank, rng, cycle = _steady_bank(10)
+    spans = dict(bank.steady_spans)
+    assert set(spans) == set(bank.detectors) and all(38.0 < low <= high < 62.0 for low, high in spans.values())
+    for k in range(40):
+        bank.observe_temperature(30.0 + 0.2 * k)
+        decisions, alarms = bank.update(_healthy(rng, kl_shift=6.0), "r", 0, cycle + k)
+        assert not alarms and all(d.statistic is None and d.reason.startswith("held: motor temperature")
+                                  for d in decisions.values())
+    cycle += 40
+    low = min(span[0] for span in spans.values())
+    bank.observe_temperature(low - 1.0)
+    decisions, _ = bank.update(_healthy(rng), "r", 0, cycle)
+    assert all(d.statistic is not None for d in decisions.values())       # inside the margin: watched
+    bank.observe_temperature(None)
+    decisions, _ = bank.update(_healthy(rng), "r", 0, cycle + 1)
+    assert all(d.statistic is not None for d in decisions.values())       # unknown: watched
+    raised: list[str] = []
+    for k in range(2, 30):
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        raised += [a.quantity for a in bank.update(_healthy(rng, kl_shift=6.0), "r", 0, cycle + k)[1]]
+    assert {"kl_raw", "kl_weighted"} <= set(raised)
+
+
+def test_the_learned_spans_survive_a_restart_and_a_maintenance_clears_them() -> None:
+    """Saved with the detectors (strict JSON: no infinities while a span is still empty), restored as
+    they were; a damaged span is dropped (that detector does not hold); a declared maintenance clears
+    them, as it makes every detector learn again."""
+    bank, rng, cycle = _steady_bank(11)
+    state = json.loads(json.dumps(bank.state_dict(), allow_nan=False))
+    restored = DetectorBank(bank.config, {})
+    restored.load_state(state, 0)
+    assert restored.steady_spans == bank.steady_spans and restored.steady_spans
+    state[SPANS_KEY]["learned"]["wear"] = [60.0, "hot"]
+    damaged = DetectorBank(bank.config, {})
+    damaged.load_state(state, 0)
+    assert "wear" not in damaged.steady_spans and "kl_raw" in damaged.steady_spans
+    bank.reset("r", 0, cycle)
+    assert bank.steady_spans == {}
+    fresh = DetectorBank(bank.config, {})
+    fresh.observe_temperature(50.0)
+    fresh.update(_healthy(rng), "r", 0, 0)
+    json.dumps(fresh.state_dict(), allow_nan=False)

@@ -97,7 +97,7 @@ class DecisionTally:
         for q, decision in decisions.items():
             if (decision.calibration or {}).get("stage") == "steady":
                 self.steady_from.setdefault(joint, {}).setdefault(q, cycle)
-            if decision.state == "monitoring" and decision.threshold is not None:
+            if decision.state == "monitoring" and decision.threshold is not None and decision.statistic is not None:
                 counts = self.monitored.setdefault(joint, {})
                 counts[q] = counts.get(q, 0) + 1
                 if decision.miss_probability is not None and not decision.alarm:

@@ -106,6 +106,11 @@ class SequentialDetector:
         return self._glr is None or (self._steady_values is not None and self._latched is None)
 
     @property
+    def collecting_steady(self) -> bool:
+        """Whether the values fed now go into the steady nominal (learned once the joint has settled)."""
+        return self.collecting and (self.stage == "steady" or self._steady_values is not None)
+
+    @property
     def alarmed(self) -> bool:
         """Whether an alarm is latched (until :meth:`reset`)."""
         return self._latched is not None
