@@ -11,8 +11,10 @@ reports each cycle's covariates, which of them lie outside the learned range wid
 an advisory when a covariate leaves the range ("entered", at once) or is back for good ("left", after
 :data:`RETURN_CYCLES` cycles in a row inside: a new load range that overlaps the learned one would
 otherwise flap between the two every few cycles). The detectors keep monitoring (their
-quantities are compensated, and holding them would blind the agent to wear during a new regime);
-every alarm carries the covariates next to the learned range.
+quantities are compensated, and holding them would blind the agent to wear during a new regime),
+except a steady detector while the joint is colder than its steady nominal was learned at (a restart
+after a stop, :meth:`~edge_monitor.pipeline.detectors.DetectorBank.update`); every alarm carries the
+covariates next to the learned range.
 
 Covariates: ``load`` — |load torque| of the cycle (measured at the plateaus, else the controller's
 estimate; dimensionless); ``motor_temperature`` — the cycle's mean motor temperature [°C].
