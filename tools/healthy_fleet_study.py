@@ -90,22 +90,26 @@ class DecisionTally:
     of the steady stage and the reported miss probability per cycle (until the alarm)."""
 
     monitored: dict[int, dict[str, int]] = field(default_factory=dict)
+    monitored_steady: dict[int, dict[str, int]] = field(default_factory=dict)
     steady_from: dict[int, dict[str, int]] = field(default_factory=dict)
     miss: dict[int, dict[str, dict[int, float]]] = field(default_factory=dict)
 
     def add(self, joint: int, cycle: int, decisions: dict[str, Any]) -> None:
         for q, decision in decisions.items():
-            if (decision.calibration or {}).get("stage") == "steady":
+            steady = (decision.calibration or {}).get("stage") == "steady"
+            if steady:
                 self.steady_from.setdefault(joint, {}).setdefault(q, cycle)
             if decision.state == "monitoring" and decision.threshold is not None and decision.statistic is not None:
-                counts = self.monitored.setdefault(joint, {})
-                counts[q] = counts.get(q, 0) + 1
+                for tally in (self.monitored, self.monitored_steady) if steady else (self.monitored,):
+                    counts = tally.setdefault(joint, {})
+                    counts[q] = counts.get(q, 0) + 1
                 if decision.miss_probability is not None and not decision.alarm:
                     self.miss.setdefault(joint, {}).setdefault(q, {})[cycle] = decision.miss_probability
 
     def fields(self, worn: list[int]) -> dict[str, Any]:
         """The run record's ``monitored``, ``steady_from`` and ``miss_probability`` (worn joints only)."""
         return {"monitored": {str(j): c for j, c in self.monitored.items()},
+                "monitored_steady": {str(j): c for j, c in self.monitored_steady.items()},
                 "steady_from": {str(j): c for j, c in self.steady_from.items()},
                 "miss_probability": {str(j): {q: {str(c): p for c, p in per.items()}
                                               for q, per in self.miss.get(j, {}).items()} for j in worn}}
@@ -173,8 +177,8 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
             bank.observe_temperature(row.get("motor_temperature"))
             decisions, raised = bank.update(row, "robot", joint, cycle)
             tally.add(joint, cycle, decisions)
-            alarms += [{"joint": joint, "cycle": cycle, "quantity": a.quantity, "wear": float(row["wear"])}
-                       for a in raised]
+            alarms += [{"joint": joint, "cycle": cycle, "quantity": a.quantity, "wear": float(row["wear"]),
+                        "stage": (decisions[a.quantity].calibration or {}).get("stage")} for a in raised]
     worn = sorted(j for j, w in wear_truth.items() if w and max(w) > 0)
     return {"seed": spec.seed, "alarms": alarms, "worn": worn, **tally.fields(worn),
             "wear_truth": {str(j): wear_truth[j] for j in worn}, "seconds": time.monotonic() - started}
@@ -190,18 +194,23 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Pooled over robots: false alarms and exposure per quantity on unworn joints, first alarms of worn ones."""
     exposure: dict[str, int] = {}
     false_alarms: dict[str, int] = {}
+    steady_exposure: dict[str, int] = {}
+    steady_alarms: dict[str, int] = {}
     detections = []
     for run in runs:
         worn = set(run["worn"])
-        for joint, counts in run["monitored"].items():
-            if int(joint) in worn:
-                continue
-            for q, n in counts.items():
-                exposure[q] = exposure.get(q, 0) + n
+        for tally, key in ((exposure, "monitored"), (steady_exposure, "monitored_steady")):
+            for joint, counts in run.get(key, {}).items():
+                if int(joint) in worn:
+                    continue
+                for q, n in counts.items():
+                    tally[q] = tally.get(q, 0) + n
         for alarm in run["alarms"]:
             if alarm["joint"] in worn:
                 continue
             false_alarms[alarm["quantity"]] = false_alarms.get(alarm["quantity"], 0) + 1
+            if alarm.get("stage") == "steady":
+                steady_alarms[alarm["quantity"]] = steady_alarms.get(alarm["quantity"], 0) + 1
         for joint in worn:
             detections.append({"seed": run["seed"], "joint": joint, "first_alarm": earliest_alarm(run, joint)})
     per_quantity = {}
@@ -209,7 +218,8 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         k = false_alarms.get(q, 0)
         # with no alarm, the 95 % one-sided Poisson bound: rate ≤ 3/exposure
         per_quantity[q] = {"exposure": n, "false_alarms": k,
-                           "arl0": n / k if k else None, "arl0_95_lower": n / 3.0 if not k else None}
+                           "arl0": n / k if k else None, "arl0_95_lower": n / 3.0 if not k else None,
+                           "steady_exposure": steady_exposure.get(q, 0), "steady_false_alarms": steady_alarms.get(q, 0)}
     return {"per_quantity": per_quantity, "detections": detections,
             "false_alarms": sum(false_alarms.values()), "miss_forecast": miss_forecast(runs)}
 
