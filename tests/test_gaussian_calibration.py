@@ -11,17 +11,14 @@ from scipy.stats import gamma, norm
 
 from edge_monitor.stats.calibration import CalibrationBudget, calibrate
 from edge_monitor.stats.gaussian_calibration import (
-    TILT_DIRECTION,
-    TILTS,
     WANDER_COEFFICIENT,
     GaussianBudget,
     GaussianSettings,
-    _learned,
-    _learned_vector,
     _Noise,
     threshold,
 )
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
+from edge_monitor.stats.learning_error import TILT_DIRECTION, TILTS, scalar_fits, vector_fits
 from edge_monitor.stats.threshold_table import lookup
 
 STEADY = GaussianSettings(240, 100, 0.6, 1.0, "increase", 0.75, 3.0, "nominal")
@@ -113,7 +110,7 @@ def test_the_learning_error_is_drawn_from_its_exact_law_and_weighted_without_bia
     P(u < −3) = Φ(−3) = 1.35e-3, is estimated at least twice as precisely as by plain draws (about 54 of
     40 000 fall there: ± 14 %). Tolerances: 4 standard errors of each weighted mean (weights ≤ 4)."""
     n, n0 = 40_000, 60
-    means, covs, w = _learned(n0, np.arange(n), np.random.default_rng(5))
+    means, covs, w = scalar_fits(n0, np.arange(n), np.random.default_rng(5))
     u, q = means[:, 0] * math.sqrt(n0), covs[:, 0, 0] * (n0 - 1)
     assert w.max() <= 4.0 + 1e-9 and abs(w.mean() - 1.0) < 4 * w.std() / math.sqrt(n)
     assert abs(np.mean(w * u)) < 4 * np.std(w * u) / math.sqrt(n)
@@ -129,10 +126,10 @@ def test_a_vector_learning_error_is_drawn_from_its_exact_law_and_weighted_withou
     N0·E[μ̂μ̂ᵀ] = R and E[Σ̂] = R entrywise (Wishart), the weights average 1 and are at most 4; the tail the
     warm-up's alarms come from — every axis' mean learned low at once, P(Σ √N0·μ̂_i/√(1ᵀR1) < −3) = Φ(−3)
     — at least twice as precise as plain draws. In one dimension the weights are the scalar law's
-    (:func:`_learned`'s formula, to rounding). Tolerances: 4 standard errors of each weighted mean."""
+    (:func:`scalar_fits`'s formula, to rounding). Tolerances: 4 standard errors of each weighted mean."""
     n, n0 = 40_000, 60
     corr = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.62], [0.0, 0.62, 1.0]])
-    means, covs, w = _learned_vector(n0, np.arange(n), np.linalg.cholesky(corr), np.random.default_rng(5))
+    means, covs, w = vector_fits(n0, np.arange(n), np.linalg.cholesky(corr), np.random.default_rng(5))
     assert w.max() <= 4.0 + 1e-9 and abs(w.mean() - 1.0) < 4 * w.std() / math.sqrt(n)
     for i in range(3):
         for j in range(3):
@@ -144,7 +141,7 @@ def test_a_vector_learning_error_is_drawn_from_its_exact_law_and_weighted_withou
     tail, p = w * (along < -3.0), 1.349898e-3
     se = tail.std() / math.sqrt(n)
     assert abs(tail.mean() - p) < 4 * se and se < 0.5 * math.sqrt(p * (1 - p) / n)
-    one, var, w1 = _learned_vector(n0, np.arange(n), np.eye(1), np.random.default_rng(6))
+    one, var, w1 = vector_fits(n0, np.arange(n), np.eye(1), np.random.default_rng(6))
     u, q = one[:, 0] * math.sqrt(n0), var[:, 0, 0] * (n0 - 1)
     tilt = np.asarray(TILTS)
     shift, scale = -tilt * TILT_DIRECTION[0], 2.0 * np.exp(-2.0 * tilt * TILT_DIRECTION[1] / math.sqrt(2.0 * (n0 - 1)))

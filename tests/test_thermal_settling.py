@@ -288,7 +288,7 @@ def test_a_steady_detector_holds_while_the_joint_is_colder_than_it_learned_and_r
     once the joint is back at 50 °C raises the KL alarms within a few cycles (the hold masks nothing
     in range); a joint colder by less than the margin (2 °C) is watched; without a temperature no hold."""
     bank, rng, cycle = _steady_bank(10)
-    spans = dict(bank.steady_spans)
+    spans = dict(bank.spans.learned)
     assert set(spans) == set(bank.detectors) and all(38.0 < low <= high < 62.0 for low, high in spans.values())
     for k in range(40):
         bank.observe_temperature(30.0 + 0.2 * k)
@@ -318,13 +318,13 @@ def test_the_learned_spans_survive_a_restart_and_a_maintenance_clears_them() -> 
     state = json.loads(json.dumps(bank.state_dict(), allow_nan=False))
     restored = DetectorBank(bank.config, {})
     restored.load_state(state, 0)
-    assert restored.steady_spans == bank.steady_spans and restored.steady_spans
+    assert restored.spans.learned == bank.spans.learned and restored.spans.learned
     state[SPANS_KEY]["learned"]["wear"] = [60.0, "hot"]
     damaged = DetectorBank(bank.config, {})
     damaged.load_state(state, 0)
-    assert "wear" not in damaged.steady_spans and "kl_raw" in damaged.steady_spans
+    assert "wear" not in damaged.spans.learned and "kl_raw" in damaged.spans.learned
     bank.reset("r", 0, cycle)
-    assert bank.steady_spans == {}
+    assert bank.spans.learned == {}
     fresh = DetectorBank(bank.config, {})
     fresh.observe_temperature(50.0)
     fresh.update(_healthy(rng), "r", 0, 0)

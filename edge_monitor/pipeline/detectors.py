@@ -25,7 +25,7 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
     healthy_drift,
     steady_wander,
 )
-from edge_monitor.pipeline.operating_range import MARGINS, RELATIVE_MARGIN
+from edge_monitor.pipeline.steady_temperature import SteadySpans
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.records import Alarm, Decision
 from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MIN_ARL0, CalibrationBudget
@@ -230,17 +230,6 @@ class DecisionConfig:
         return out
 
 
-def _spans(saved: Any) -> dict[str, list[float]]:
-    """Temperature spans from a saved state: {quantity: [low, high]} with finite low ≤ high; anything else
-    (a state saved before spans were kept, a damaged one) is left out: no hold for that detector."""
-    out: dict[str, list[float]] = {}
-    for quantity, span in (saved.items() if isinstance(saved, dict) else ()):
-        if (isinstance(span, list) and len(span) == 2 and all(isinstance(x, (int, float)) for x in span)
-                and all(math.isfinite(x) for x in span) and span[0] <= span[1]):
-            out[str(quantity)] = [float(span[0]), float(span[1])]
-    return out
-
-
 def _log_or_nan(x: float) -> float:
     """log of a positive finite value; NaN otherwise (the detector skips and counts it)."""
     return math.log(x) if math.isfinite(x) and x > 0 else math.nan
@@ -268,10 +257,7 @@ class DetectorBank:
                           for q in config.quantities} if config.enabled else {}
         self.settling = ThermalSettling(config.settling)
         self.temperature: float | None = None                  # the current cycle's motor temperature [°C]
-        #: Per quantity, the motor-temperature span [°C] of the cycles its steady nominal was learned from
-        #: (``_collecting``: of the one being collected).
-        self.steady_spans: dict[str, list[float]] = {}
-        self._collecting: dict[str, list[float]] = {}
+        self.spans = SteadySpans()          # the temperatures of the steady nominals (a restart's hold)
 
     def observe_temperature(self, motor_temperature: float | None) -> None:
         """A cycle's mean motor temperature [°C] (None: unknown). Once the joint's temperature has
@@ -310,7 +296,7 @@ class DetectorBank:
         decisions: dict[str, Decision] = {}
         alarms: list[Alarm] = []
         for quantity, detector in self.detectors.items():
-            held = self._held(quantity, detector)
+            held = self.spans.held(quantity, detector, self.temperature)
             if held:
                 decisions[quantity] = detector.idle(held)
                 continue
@@ -319,42 +305,12 @@ class DetectorBank:
             was_alarmed = detector.alarmed
             collecting = detector.collecting_steady
             decision = detector.update(value[0] if spec.dim == 1 else value, cycle)
-            self._track_span(quantity, detector, collecting)
+            self.spans.track(quantity, detector, collecting, self.temperature)
             decisions[quantity] = decision
             if decision.alarm and not was_alarmed:
                 alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
                                     decision.miss_probability, decision.change_cycle))
         return decisions, alarms
-
-    def _held(self, quantity: str, detector: SequentialDetector) -> str:
-        """Why ``quantity``'s steady detector skips this cycle ("" if it does not): the joint is colder than
-        any cycle its steady nominal was learned from, by more than the operating range's margin — a
-        restart after a stop, warming again. Its quantities are compensated for temperature only
-        within the learned range (a cold joint's KL distances sit far above a warm nominal), so it waits
-        until the joint is back in range; the warm-up stage, learned cold and calibrated for warming, and
-        the other stages watch on. Unknown temperature, or no span learned: no hold."""
-        span, t = self.steady_spans.get(quantity), self.temperature
-        if span is None or t is None or detector.stage != "steady" or detector.collecting:
-            return ""
-        low, high = span
-        if t >= low - max(MARGINS["motor_temperature"], RELATIVE_MARGIN * (high - low)):
-            return ""
-        return (f"held: motor temperature {t:.1f} °C below the {low:.1f} … {high:.1f} °C the steady nominal was "
-                f"learned in (warming again after a stop); monitoring resumes when it is back")
-
-    def _track_span(self, quantity: str, detector: SequentialDetector, collected: bool) -> None:
-        """Extend the span of the steady nominal being collected by this cycle's temperature (``collected``:
-        this cycle's value went into it); keep it once the nominal is fitted, drop it if the collection was."""
-        if not collected:
-            self._collecting.pop(quantity, None)
-            return
-        span = self._collecting.setdefault(quantity, [math.inf, -math.inf])
-        if self.temperature is not None:
-            span[:] = [min(span[0], self.temperature), max(span[1], self.temperature)]
-        if not detector.collecting_steady:                  # this value completed the steady nominal
-            fitted = self._collecting.pop(quantity)
-            if detector.stage == "steady" and not detector.collecting and fitted[0] <= fitted[1]:
-                self.steady_spans[quantity] = fitted
 
     @property
     def collecting(self) -> bool:
@@ -375,8 +331,7 @@ class DetectorBank:
         cleared = [Alarm(robot, joint, cycle, q, "cleared") for q, d in self.detectors.items() if d.alarmed]
         for detector in self.detectors.values():
             detector.reset()
-        self.steady_spans.clear()
-        self._collecting.clear()
+        self.spans.clear()
         return cleared
 
     def acknowledge(self, robot: str, joint: int, cycle: int,
@@ -408,8 +363,7 @@ class DetectorBank:
     def state_dict(self) -> dict[str, Any]:
         out = {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
         return {**out, SETTLING_KEY: self.settling.state_dict(),
-                SPANS_KEY: {"learned": self.steady_spans,             # finite spans only (strict JSON)
-                            "collecting": {q: v for q, v in self._collecting.items() if v[0] <= v[1]}}}
+                SPANS_KEY: self.spans.state_dict()}
 
     def _check_inputs(self, quantity: str, saved: Any) -> None:
         """:class:`StateMismatch` naming what changed if ``quantity``'s detector learned on other values."""
@@ -433,9 +387,7 @@ class DetectorBank:
         messages: list[str] = []
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
-        saved_spans = state.get(SPANS_KEY)
-        spans: dict[str, Any] = saved_spans if isinstance(saved_spans, dict) else {}
-        self.steady_spans, self._collecting = _spans(spans.get("learned")), _spans(spans.get("collecting"))
+        self.spans = SteadySpans.from_state(state.get(SPANS_KEY))
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:
