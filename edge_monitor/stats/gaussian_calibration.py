@@ -193,10 +193,10 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
         noise = _Noise(lower_chol, settings.wander, rng)
-        if _iid_scalar(settings, r.shape[0]):
-            means, covs, weight = scalar_fits(settings.n0, np.arange(first, first + g), rng)
-        elif not settings.wander:
-            means, covs, weight = vector_fits(settings.n0, np.arange(first, first + g), lower_chol, rng)
+        if not settings.wander:             # independent learning values: the fit's exact law
+            index = np.arange(first, first + g)
+            means, covs, weight = scalar_fits(settings.n0, index, rng) if r.shape[0] == 1 else \
+                vector_fits(settings.n0, index, lower_chol, rng)
         else:
             means, covs = _fit(noise.sequence(g, settings.n0))
             weight = np.ones(g)
@@ -214,12 +214,6 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     used = int(np.flatnonzero(ev.sum(axis=0) > 0)[-1]) + 2 if ev.any() else 1
     return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started,
                       np.concatenate(weights))
-
-
-def _iid_scalar(settings: GaussianSettings, d: int) -> bool:
-    """Whether a nominal's fit has the closed-form law :func:`scalar_fits` draws from (d = 1, no wander; d > 1
-    without wander: :func:`vector_fits`)."""
-    return d == 1 and not settings.wander
 
 
 def _fit(samples: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -31,7 +31,7 @@ TILT_DIRECTION = (0.875, 0.485)
 
 
 def scalar_fits(n0: int, index: NDArray[np.int64], rng: np.random.Generator
-             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Fitted means (G, 1) and variances (G, 1, 1) of scalar nominals learned from ``n0`` independent
     standard normal values, drawn by importance sampling, and their weights (G,), mean 1.
 
@@ -56,7 +56,7 @@ def scalar_fits(n0: int, index: NDArray[np.int64], rng: np.random.Generator
 
 
 def vector_fits(n0: int, index: NDArray[np.int64], lower_chol: NDArray[np.float64], rng: np.random.Generator
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """:func:`scalar_fits` for d > 1: fitted means (G, d) and covariances (G, d, d) of nominals learned from
     ``n0`` independent values of N(0, R), R = L·Lᵀ (``lower_chol`` L), drawn by importance sampling, and
     their weights (G,), mean 1.
