@@ -36,7 +36,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge_monitor.pipeline.detectors import DecisionConfig  # noqa: E402
+from threshold_table import in_stage  # noqa: E402  (tools/threshold_table.py)
+
 from edge_monitor.stats import gaussian_calibration as gc  # noqa: E402
 from edge_monitor.stats.gaussian_calibration import GaussianSettings  # noqa: E402
 from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
@@ -104,7 +105,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rho", type=float, default=None, help="only the joint vector's entry of this KL correlation")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
-    warm_up_n0 = DecisionConfig().n_nominal
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     rows = []
     entries = [e for group in _table().values() for e in group]
@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         dim = len(entry_correlation(e))
         if (args.only == "scalar" and dim > 1) or (args.only == "vector" and dim == 1):
             continue
-        if args.stage != "all" and (entry_settings(e).n0 == warm_up_n0) != (args.stage == "warm-up"):
+        if not in_stage(entry_settings(e), args.stage):
             continue
         if args.rho is not None and (dim == 1 or abs(entry_correlation(e)[1][2] - args.rho) > 1e-9):
             continue

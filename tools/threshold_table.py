@@ -109,10 +109,13 @@ def wanted(only: str, vector_rho: list[float], stage: str = "all") -> list[tuple
     if only in ("all", "vector"):
         dim = DecisionConfig().detector_config("joint").dim
         out += [(s, dim, rho) for s in shipped_settings(quantities=("joint",)) for rho in vector_rho]
-    if stage != "all":                   # the warm-up nominal learns n_nominal values, the steady one more
-        warm_up = DecisionConfig().n_nominal
-        out = [(s, dim, rho) for s, dim, rho in out if (s.n0 == warm_up) == (stage == "warm-up")]
-    return out
+    return [(s, dim, rho) for s, dim, rho in out if in_stage(s, stage)]
+
+
+def in_stage(settings: GaussianSettings, stage: str) -> bool:
+    """Whether ``settings`` are the warm-up nominal's or the steady one's, as ``stage`` asks ("all": both):
+    the warm-up nominal learns ``decision.n_nominal`` values, the steady one more."""
+    return stage == "all" or (settings.n0 == DecisionConfig().n_nominal) == (stage == "warm-up")
 
 
 def main(argv: list[str] | None = None) -> int:
