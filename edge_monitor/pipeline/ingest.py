@@ -21,15 +21,15 @@ from numpy.typing import NDArray
 from edge_monitor.pipeline.cycle_numbering import MAX_CYCLE_STEP, CycleNumbering, tick_step
 from edge_monitor.pipeline.samples import CycleRun, IngestBlock, JointSamples, JointStatusBlock
 from protocol.e2e import E2EReceiver, E2EStatus
-
-if TYPE_CHECKING:
-    from edge_monitor.pipeline.agent_config import AgentConfig
 from protocol.frames import (
     MOTOR_COUNTER_MODULUS,
     DecodeErrorKind,
     FrameKind,
     decode_block,
 )
+
+if TYPE_CHECKING:
+    from edge_monitor.pipeline.agent_config import AgentConfig
 
 __all__ = ["MAX_CYCLE_STEP", "CycleRun", "Ingest", "IngestBlock", "IngestCounters", "JointSamples",
            "JointStatusBlock"]
