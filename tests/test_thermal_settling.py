@@ -289,14 +289,14 @@ def test_a_steady_detector_holds_while_the_joint_is_colder_than_it_learned_and_r
     in range); a joint colder by less than the margin (2 °C) is watched; without a temperature no hold."""
     bank, rng, cycle = _steady_bank(10)
     spans = dict(bank.spans.learned)
-    assert set(spans) == set(bank.detectors) and all(38.0 < low <= high < 62.0 for low, high in spans.values())
+    assert set(spans) == set(bank.detectors) and all(38.0 < span.lo <= span.hi < 62.0 for span in spans.values())
     for k in range(40):
         bank.observe_temperature(30.0 + 0.2 * k)
         decisions, alarms = bank.update(_healthy(rng, kl_shift=6.0), "r", 0, cycle + k)
         assert not alarms and all(d.statistic is None and d.reason.startswith("held: motor temperature")
                                   for d in decisions.values())
     cycle += 40
-    low = min(span[0] for span in spans.values())
+    low = min(span.lo for span in spans.values())
     bank.observe_temperature(low - 1.0)
     decisions, _ = bank.update(_healthy(rng), "r", 0, cycle)
     assert all(d.statistic is not None for d in decisions.values())       # inside the margin: watched

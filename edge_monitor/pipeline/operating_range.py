@@ -37,7 +37,9 @@ RETURN_CYCLES = 20
 
 
 @dataclass
-class _Span:
+class Span:
+    """The range [lo, hi] of a covariate's values (empty until one is added)."""
+
     lo: float = math.inf
     hi: float = -math.inf
 
@@ -47,6 +49,10 @@ class _Span:
     @property
     def empty(self) -> bool:
         return self.lo > self.hi
+
+    def margin(self, covariate: str) -> float:
+        """How far outside it a value of ``covariate`` may lie and still count as inside."""
+        return max(MARGINS[covariate], RELATIVE_MARGIN * (self.hi - self.lo))
 
 
 @dataclass(frozen=True)
@@ -63,8 +69,8 @@ class RangeEvent:
 class OperatingRange:
     """See the module docstring."""
 
-    learned: dict[str, _Span] = field(default_factory=dict)
-    collecting: dict[str, _Span] = field(default_factory=dict)
+    learned: dict[str, Span] = field(default_factory=dict)
+    collecting: dict[str, Span] = field(default_factory=dict)
     advised: dict[str, int] = field(default_factory=dict)  # open advisories: cycles in a row back inside
     was_collecting: bool = False
     now_outside: set[str] = field(default_factory=set)     # covariates outside in the last cycle
@@ -81,10 +87,10 @@ class OperatingRange:
         self.was_collecting = collecting
         if collecting:
             for name, value in known.items():
-                self.collecting.setdefault(name, _Span()).add(value)
+                self.collecting.setdefault(name, Span()).add(value)
         refit = fitted and bool(self.collecting)
         if refit:
-            self.learned = {name: _Span(span.lo, span.hi) for name, span in self.collecting.items()}
+            self.learned = {name: Span(span.lo, span.hi) for name, span in self.collecting.items()}
         self.now_outside = {name for name, value in known.items() if self._beyond(name, value)}
         return [event for name, value in known.items() if (event := self._advise(name, value, refit)) is not None]
 
@@ -92,7 +98,7 @@ class OperatingRange:
         span = self.learned.get(name)
         if span is None or span.empty:
             return False
-        margin = max(MARGINS[name], RELATIVE_MARGIN * (span.hi - span.lo))
+        margin = span.margin(name)
         return not span.lo - margin <= value <= span.hi + margin
 
     def _advise(self, name: str, value: float, refit: bool) -> RangeEvent | None:
@@ -136,8 +142,8 @@ class OperatingRange:
         for key in ("learned", "collecting"):
             spans = state.get(key)
             if isinstance(spans, dict):
-                getattr(out, key).update({name: _Span(float(v[0]), float(v[1])) for name, v in spans.items()
-                                          if name in MARGINS and _pair(v)})
+                getattr(out, key).update({name: Span(float(v[0]), float(v[1])) for name, v in spans.items()
+                                          if name in MARGINS and is_span(v)})
         outside, runs = state.get("outside"), state.get("inside_run")
         if isinstance(outside, list):            # a state saved before "inside_run" has no counts: 0
             runs = runs if isinstance(runs, dict) else {}
@@ -147,6 +153,7 @@ class OperatingRange:
         return out
 
 
-def _pair(value: Any) -> bool:
+def is_span(value: Any) -> bool:
+    """Whether a saved value is a span: [lo, hi], finite numbers, lo ≤ hi."""
     return (isinstance(value, list) and len(value) == 2
             and all(isinstance(x, (int, float)) and math.isfinite(x) for x in value) and value[0] <= value[1])

@@ -12,13 +12,13 @@ back in range. Unknown temperature, or no span: no hold.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-from edge_monitor.pipeline.operating_range import MARGINS, RELATIVE_MARGIN
+from edge_monitor.pipeline.operating_range import Span, is_span
 from edge_monitor.stats.sequential_detector import SequentialDetector
 
-Span = list[float]                                   # [low, high] motor temperature [°C]
+#: The covariate whose span is kept (the operating range's name for it, and its margin).
+COVARIATE = "motor_temperature"
 
 
 class SteadySpans:
@@ -31,16 +31,15 @@ class SteadySpans:
 
     def held(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> str:
         """Why ``quantity``'s detector skips a cycle at ``temperature`` ("" if it does not): it is steady,
-        not collecting, and the joint is colder than its steady span by more than the margin
-        (max(2 °C, 10 % of the span))."""
+        not collecting, and the joint is colder than its steady span by more than the operating range's
+        margin (max(2 °C, 10 % of the span))."""
         span = self.learned.get(quantity)
         if span is None or temperature is None or detector.stage != "steady" or detector.collecting:
             return ""
-        low, high = span
-        if temperature >= low - max(MARGINS["motor_temperature"], RELATIVE_MARGIN * (high - low)):
+        if temperature >= span.lo - span.margin(COVARIATE):
             return ""
-        return (f"held: motor temperature {temperature:.1f} °C below the {low:.1f} … {high:.1f} °C the steady "
-                f"nominal was learned in (warming again after a stop); monitoring resumes when it is back")
+        return (f"held: motor temperature {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C the "
+                f"steady nominal was learned in (warming again after a stop); monitoring resumes when it is back")
 
     def track(self, quantity: str, detector: SequentialDetector, collected: bool, temperature: float | None) -> None:
         """After ``detector`` took a cycle: extend the span being collected by ``temperature`` if the cycle's
@@ -49,12 +48,12 @@ class SteadySpans:
         if not collected:
             self.collecting.pop(quantity, None)
             return
-        span = self.collecting.setdefault(quantity, [math.inf, -math.inf])
+        span = self.collecting.setdefault(quantity, Span())
         if temperature is not None:
-            span[:] = [min(span[0], temperature), max(span[1], temperature)]
+            span.add(temperature)
         if not detector.collecting_steady:                  # this value completed the steady nominal
             fitted = self.collecting.pop(quantity)
-            if detector.stage == "steady" and not detector.collecting and fitted[0] <= fitted[1]:
+            if detector.stage == "steady" and not detector.collecting and not fitted.empty:
                 self.learned[quantity] = fitted
 
     def clear(self) -> None:
@@ -63,9 +62,9 @@ class SteadySpans:
         self.collecting.clear()
 
     def state_dict(self) -> dict[str, Any]:
-        """Finite spans only (strict JSON: a span still empty is left out)."""
-        return {"learned": dict(self.learned),
-                "collecting": {q: v for q, v in self.collecting.items() if v[0] <= v[1]}}
+        """Non-empty spans only (strict JSON: an empty span is infinite)."""
+        return {key: {q: [s.lo, s.hi] for q, s in spans.items() if not s.empty}
+                for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
 
     @classmethod
     def from_state(cls, state: Any) -> "SteadySpans":
@@ -76,10 +75,6 @@ class SteadySpans:
 
 
 def _spans(saved: Any) -> dict[str, Span]:
-    """{quantity: [low, high]} with finite low ≤ high from a saved state; anything else left out."""
-    out: dict[str, Span] = {}
-    for quantity, span in (saved.items() if isinstance(saved, dict) else ()):
-        if (isinstance(span, list) and len(span) == 2 and all(isinstance(x, (int, float)) for x in span)
-                and all(math.isfinite(x) for x in span) and span[0] <= span[1]):
-            out[str(quantity)] = [float(span[0]), float(span[1])]
-    return out
+    """{quantity: span} from a saved {quantity: [lo, hi]}; what is not a span is left out."""
+    items = saved.items() if isinstance(saved, dict) else ()
+    return {str(q): Span(float(v[0]), float(v[1])) for q, v in items if is_span(v)}
