@@ -346,6 +346,7 @@ class Agent:
                 "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
                 "segmentation": {str(j): m.counters()["segmentation"] for j, m in self.joints.items()},
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
+                "detector_cycles_held": {str(j): m.counters()["held"] for j, m in self.joints.items()},
                 "e2e": dict(self.ingest.e2e.stats),
                 "no_new_data": self.ingest.e2e.stats["no_new_data"],
                 **self.budget.counters(),

@@ -25,7 +25,7 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
     healthy_drift,
     steady_wander,
 )
-from edge_monitor.pipeline.steady_temperature import SteadySpans
+from edge_monitor.pipeline.nominal_temperature import NominalSpans
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.records import Alarm, Decision
 from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MIN_ARL0, CalibrationBudget
@@ -44,13 +44,14 @@ log = logging.getLogger(__name__)
 #: target its threshold is derived for (a changed target is re-derived on the same nominal,
 #: :meth:`DetectorBank.retarget`): not in the fingerprint (a saved state stays valid when they change),
 #: and kept from the current config on "keep".
-SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate",
+SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold",
                  "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
 #: Key of the thermal settling tracker in the detectors' state (not a quantity name).
 SETTLING_KEY = "_thermal_settling"
-#: Key of the motor-temperature spans the steady nominals were learned in (not a quantity name).
-SPANS_KEY = "_steady_temperature"
+#: Key of the motor-temperature spans the nominals were learned in (not a quantity name), and its name in
+#: states saved before the warm-up detectors kept theirs.
+SPANS_KEY, OLD_SPANS_KEY = "_nominal_temperature", "_steady_temperature"
 
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
@@ -120,6 +121,7 @@ class DecisionConfig:
     steady_simulate_from: str = "model"
     settling_window: int = SettlingConfig().window
     settling_max_rate: float = SettlingConfig().max_rate
+    warm_up_hold: tuple[str, ...] = ("kl_raw", "kl_weighted", "joint")
 
     @property
     def settling(self) -> SettlingConfig:
@@ -166,6 +168,8 @@ class DecisionConfig:
         require(not unknown, "decision.quantities", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
         require(len(set(self.quantities)) == len(self.quantities), "decision.quantities",
                 f"listed twice: {list(self.quantities)}")
+        unknown = [q for q in self.warm_up_hold if q not in QUANTITIES]
+        require(not unknown, "decision.warm_up_hold", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
         for quantity in self.quantities:
             try:
                 self.detector_config(quantity)
@@ -214,7 +218,7 @@ class DecisionConfig:
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
 
     def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "quantities": list(self.quantities),
+        out = {**asdict(self), "quantities": list(self.quantities), "warm_up_hold": list(self.warm_up_hold),
                "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())},
                "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())},
                "steady_wander": dict(sorted(self.steady_wander.items()))}
@@ -257,7 +261,8 @@ class DetectorBank:
                           for q in config.quantities} if config.enabled else {}
         self.settling = ThermalSettling(config.settling)
         self.temperature: float | None = None                  # the current cycle's motor temperature [°C]
-        self.spans = SteadySpans()          # the temperatures of the steady nominals (a restart's hold)
+        self.spans = NominalSpans(warm_up_hold=config.warm_up_hold)   # the temperatures of the nominals (holds)
+        self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
 
     def observe_temperature(self, motor_temperature: float | None) -> None:
         """A cycle's mean motor temperature [°C] (None: unknown). Once the joint's temperature has
@@ -266,9 +271,12 @@ class DetectorBank:
         t = None if motor_temperature is None else float(motor_temperature)
         self.temperature = t if t is not None and math.isfinite(t) else None
         settled = self.settling.update(motor_temperature)
-        for detector in self.detectors.values():
+        for quantity, detector in self.detectors.items():
             if settled and self.config.steady_relearn:
+                learning = detector.state == "learning" and detector.stage != "steady"
                 detector.begin_steady()
+                if learning and detector.stage == "steady":       # learns again from settled values only
+                    self.spans.restart(quantity)
             elif not settled:
                 detector.cancel_steady()      # warming again: the values collected are not steady
 
@@ -296,15 +304,15 @@ class DetectorBank:
         decisions: dict[str, Decision] = {}
         alarms: list[Alarm] = []
         for quantity, detector in self.detectors.items():
-            held = self.spans.held(quantity, detector, self.temperature)
-            if held:
-                decisions[quantity] = detector.idle(held)
-                continue
             spec = QUANTITIES[quantity]
             value = [watched.get(q, math.nan) for q in spec.inputs]
+            fed = value[0] if spec.dim == 1 else value
             was_alarmed = detector.alarmed
-            collecting = detector.collecting_steady
-            decision = detector.update(value[0] if spec.dim == 1 else value, cycle)
+            collecting = detector.collecting
+            held = self.spans.held(quantity, detector, self.temperature)
+            if held:
+                self.held[quantity] = self.held.get(quantity, 0) + 1
+            decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)
             self.spans.track(quantity, detector, collecting, self.temperature)
             decisions[quantity] = decision
             if decision.alarm and not was_alarmed:
@@ -387,7 +395,7 @@ class DetectorBank:
         messages: list[str] = []
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
-        self.spans = SteadySpans.from_state(state.get(SPANS_KEY))
+        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self.config.warm_up_hold)
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:

@@ -265,8 +265,9 @@ class JointMonitor:
         return result
 
     def counters(self) -> dict[str, Any]:
-        """Segmentation counters of the samples processed so far (≤ SAMPLE_BATCH may still wait)."""
-        return self.assembler.counters()
+        """Segmentation counters of the samples processed so far (≤ SAMPLE_BATCH may still wait) and the
+        detector-cycles held per quantity (docs/DETECTION.md, "Operating conditions")."""
+        return {**self.assembler.counters(), "held": dict(self.detectors.held)}
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:

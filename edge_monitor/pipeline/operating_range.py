@@ -12,9 +12,9 @@ an advisory when a covariate leaves the range ("entered", at once) or is back fo
 :data:`RETURN_CYCLES` cycles in a row inside: a new load range that overlaps the learned one would
 otherwise flap between the two every few cycles). The detectors keep monitoring (their
 quantities are compensated, and holding them would blind the agent to wear during a new regime),
-except a steady detector while the joint is colder than its steady nominal was learned at (a restart
-after a stop, :meth:`~edge_monitor.pipeline.detectors.DetectorBank.update`); every alarm carries the
-covariates next to the learned range.
+except where the motor temperature is far from the one a nominal was learned at
+(:mod:`~edge_monitor.pipeline.nominal_temperature`: a warm-up KL detector while the joint warms, a steady
+one while it is colder after a stop); every alarm carries the covariates next to the learned range.
 
 Covariates: ``load`` — |load torque| of the cycle (measured at the plateaus, else the controller's
 estimate; dimensionless); ``motor_temperature`` — the cycle's mean motor temperature [°C].

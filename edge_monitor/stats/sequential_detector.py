@@ -187,6 +187,20 @@ class SequentialDetector:
             return self._learn(vec, cycle)
         return self._monitor(vec, cycle)
 
+    def collect(self, value: float | Sequence[float], cycle: int, reason: str) -> Decision:
+        """A cycle on which the detector holds (does not decide, for ``reason``): its value still goes into
+        the steady nominal being collected, if any, and completes it like :meth:`update`."""
+        self._collect_calibration(cycle)
+        if self._glr is None or not self.collecting_steady or self._steady_values is None:
+            return self.idle(reason)
+        vec, problem = self._as_vector(value)
+        if vec is None:
+            return self.idle(f"{reason}; {problem}")
+        self._steady_values.append(vec.tolist())
+        if len(self._steady_values) >= self.config.steady_nominal:
+            return self._start_steady(cycle)
+        return self.idle(reason)
+
     def reset(self) -> None:
         """Declared maintenance: clear the alarm and the nominal model, learn again."""
         self._clear()

@@ -1,0 +1,108 @@
+"""The motor temperatures each detector's nominal was learned at, and the cycles a detector holds because
+the joint is far from them (docs/DETECTION.md, "Operating conditions").
+
+The temperature compensation of the KL distances is identified over a few °C; carried much further, it
+leaves a drift a detector reads as a fault. Two cases meet every plant:
+
+* **warming after commissioning or a maintenance** (the warm-up stage): the warm-up nominal is learned
+  in the first cycles, cold; as the lubricant warms by ≈ 25 °C the KL distances of some joints drift up
+  by more than the detectors' drift allowance (measured on 162 healthy joints: ≈ +0.035 σ per °C for
+  kl_weighted, +0.02 σ per °C for kl_raw, with a joint-to-joint spread that grows as they warm; the wear
+  score, compensated through the friction model, drifts down). So the warm-up detectors of the
+  temperature-sensitive quantities (``decision.warm_up_hold``) skip the cycles warmer than the span
+  they learned in, by more than the operating range's margin, until the steady stage replaces their
+  nominal; the values a held detector would add to its steady nominal still go in. The wear evidence
+  keeps watching throughout.
+* **a restart after a stop** (the steady stage): a steady nominal describes the joint warm; after a
+  long stop the lubricant is back near ambient, and a cold joint's KL distances sit well above a warm
+  nominal. So a steady detector skips the cycles colder than its span by more than the margin, until
+  the joint is back in range.
+
+:class:`NominalSpans` keeps, per detector, the span of the cycle-mean motor temperature [°C] over the
+cycles whose values went into its current nominal. Unknown temperature, or no span: no hold.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Collection
+
+from edge_monitor.pipeline.operating_range import Span, is_span
+from edge_monitor.stats.sequential_detector import SequentialDetector
+
+#: The covariate whose span is kept (the operating range's name for it, and its margin).
+COVARIATE = "motor_temperature"
+
+
+class NominalSpans:
+    """Per quantity, the motor-temperature span of its current nominal (``learned``) and of the one being
+    collected (``collecting``); ``warm_up_hold`` names the quantities whose warm-up detectors hold while
+    the joint is warmer than their span."""
+
+    def __init__(self, learned: dict[str, Span] | None = None, collecting: dict[str, Span] | None = None,
+                 warm_up_hold: Collection[str] = ()) -> None:
+        self.learned: dict[str, Span] = dict(learned or {})
+        self.collecting: dict[str, Span] = dict(collecting or {})
+        self.warm_up_hold = frozenset(warm_up_hold)
+
+    def held(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> str:
+        """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does): a steady
+        detector while the joint is colder than its span by more than the operating range's margin
+        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is warmer."""
+        span = self.learned.get(quantity)
+        if span is None or temperature is None or detector.state != "monitoring":
+            return ""
+        margin = span.margin(COVARIATE)
+        if detector.stage == "steady" and not detector.collecting and temperature < span.lo - margin:
+            return (f"held: motor temperature {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C "
+                    f"the steady nominal was learned in (warming again after a stop); monitoring resumes when it "
+                    f"is back")
+        if detector.stage != "steady" and quantity in self.warm_up_hold and temperature > span.hi + margin:
+            return (f"held: motor temperature {temperature:.1f} °C above the {span.lo:.1f} … {span.hi:.1f} °C "
+                    f"the warm-up nominal was learned in (the joint is warming); monitoring resumes on the steady "
+                    f"nominal once the temperature has settled")
+        return ""
+
+    def track(self, quantity: str, detector: SequentialDetector, collected: bool, temperature: float | None) -> None:
+        """After ``detector`` took a cycle: extend the span being collected by ``temperature`` if the cycle's
+        value went into a nominal (``collected``); keep it as the learned span once that nominal is fitted,
+        drop it if the collection was dropped."""
+        if not collected:
+            self.collecting.pop(quantity, None)
+            return
+        span = self.collecting.setdefault(quantity, Span())
+        if temperature is not None:
+            span.add(temperature)
+        if not detector.collecting:                     # this value completed the nominal
+            fitted = self.collecting.pop(quantity)
+            if not fitted.empty:
+                self.learned[quantity] = fitted
+            else:
+                self.learned.pop(quantity, None)
+
+    def restart(self, quantity: str) -> None:
+        """``quantity``'s detector starts collecting its nominal over (what it collected is dropped)."""
+        self.collecting.pop(quantity, None)
+
+    def clear(self) -> None:
+        """A declared maintenance: every detector learns again."""
+        self.learned.clear()
+        self.collecting.clear()
+
+    def state_dict(self) -> dict[str, Any]:
+        """Non-empty spans only (strict JSON: an empty span is infinite)."""
+        return {key: {q: [s.lo, s.hi] for q, s in spans.items() if not s.empty}
+                for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
+
+    @classmethod
+    def from_state(cls, state: Any, warm_up_hold: Collection[str] = ()) -> "NominalSpans":
+        """From :meth:`state_dict`; anything else (a state saved before spans were kept, a damaged span)
+        is left out: no hold for that detector. (A state saved before 2026-11-27 holds only the steady
+        nominals' spans; its warm-up detectors do not hold until they learn again.)"""
+        saved: dict[str, Any] = state if isinstance(state, dict) else {}
+        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold)
+
+
+def _spans(saved: Any) -> dict[str, Span]:
+    """{quantity: span} from a saved {quantity: [lo, hi]}; what is not a span is left out."""
+    items = saved.items() if isinstance(saved, dict) else ()
+    return {str(q): Span(float(v[0]), float(v[1])) for q, v in items if is_span(v)}

@@ -1,0 +1,121 @@
+"""The warm-up hold: the detectors of the temperature-sensitive quantities (``decision.warm_up_hold``: the
+KL distances and the joint vector) skip the cycles warmer than the span their warm-up nominal was learned
+in, until the steady stage replaces it; the wear evidence watches on (docs/DETECTION.md, "Operating
+conditions"). Both sides: what the hold keeps quiet, and that it masks nothing it should not."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from edge_monitor.errors import ConfigError
+from edge_monitor.pipeline.detectors import OLD_SPANS_KEY, SPANS_KEY, DecisionConfig, DetectorBank
+
+#: Cycle-mean motor temperature scatter in the simulator [°C].
+NOISE = 3.0
+#: Where the warm-up nominals are learned [°C] (a cold joint).
+COLD = 35.0
+HELD = {"kl_raw", "kl_weighted", "joint"}
+
+
+def _inputs(rng: np.random.Generator, kl_shift: float = 0.0, wear_shift: float = 0.0) -> dict[str, float]:
+    """One cycle's detector inputs: the wear score N(``wear_shift``, 1), the logs of the KL distances
+    N(−3, 0.3) and N(−4, 0.3) moved ``kl_shift`` of their σ up."""
+    return {"wear_score": rng.normal(wear_shift, 1.0),
+            "kl_raw": float(np.exp(rng.normal(-3.0 + 0.3 * kl_shift, 0.3))),
+            "kl_weighted": float(np.exp(rng.normal(-4.0 + 0.3 * kl_shift, 0.3)))}
+
+
+def _warm_up_bank(seed: int, **settings) -> tuple[DetectorBank, np.random.Generator, int]:
+    """A bank whose detectors have learned their warm-up nominals at 35 ± 3 °C and are monitoring; the
+    settling window (1 000 cycles) keeps them in the warm-up stage for the test."""
+    config = DecisionConfig(n_nominal=20, density="gauss", density_joint="gauss", calibration_draws=16,
+                            calibration_steps=400, settling_window=1000, arl0_cycles=1000, **settings)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(seed)
+    cycle = 0
+    while bank.collecting:
+        bank.observe_temperature(COLD + rng.normal(0.0, NOISE))
+        bank.update(_inputs(rng), "r", 0, cycle)
+        cycle += 1
+    return bank, rng, cycle
+
+
+def _run(bank: DetectorBank, rng: np.random.Generator, cycle: int, temperature: float | None, cycles: int,
+         **shift: float) -> tuple[list, set[str]]:
+    """``cycles`` cycles at ``temperature`` (plus scatter) with the inputs shifted by ``shift``: every
+    cycle's decisions and the quantities that raised an alarm."""
+    decisions, raised = [], set()
+    for k in range(cycles):
+        bank.observe_temperature(None if temperature is None else temperature + rng.normal(0.0, NOISE))
+        d, alarms = bank.update(_inputs(rng, **shift), "r", 0, cycle + k)
+        decisions.append(d)
+        raised |= {a.quantity for a in alarms}
+    return decisions, raised
+
+
+def test_a_warming_joint_holds_its_kl_and_joint_detectors_and_its_wear_evidence_watches_on() -> None:
+    """The joint warms to 60 °C, 25 °C above where its warm-up nominals were learned, and its KL distances
+    drift 6 σ up (far more than a healthy joint's ≈ 1 σ, docs/DETECTION.md): the KL and joint-vector
+    detectors hold — no statistic, no alarm, the reason says why; the wear detector decides every cycle.
+    Other side: a 6 σ wear shift meanwhile raises the wear alarm. Every held cycle is counted."""
+    bank, rng, cycle = _warm_up_bank(1)
+    assert {q: bank.detectors[q].stage for q in bank.detectors} == dict.fromkeys(bank.detectors, "warm-up")
+    assert all(COLD - 4 * NOISE < s.lo <= s.hi < COLD + 4 * NOISE for s in bank.spans.learned.values())
+    decisions, raised = _run(bank, rng, cycle, COLD + 25.0, 40, kl_shift=6.0)
+    assert not raised
+    for d in decisions:
+        assert all(d[q].statistic is None and "above" in d[q].reason and d[q].reason.startswith("held")
+                   for q in HELD)
+        assert d["wear"].statistic is not None
+    _, raised = _run(bank, rng, cycle + 40, COLD + 25.0, 30, kl_shift=6.0, wear_shift=6.0)
+    assert raised == {"wear"}
+    assert bank.held == dict.fromkeys(HELD, 70)         # counted for the health record
+
+
+def test_the_hold_masks_nothing_in_range_nor_when_switched_off_or_the_temperature_is_unknown() -> None:
+    """The same 6 σ KL shift raises the KL alarms (a) within the learned span, (b) warm with
+    ``warm_up_hold = []`` and (c) without a temperature signal: the hold, not the detectors, kept the
+    warm joint quiet above, and only where the temperature says the joint left its span."""
+    for temperature, settings in ((COLD, {}), (COLD + 25.0, {"warm_up_hold": ()}), (None, {})):
+        bank, rng, cycle = _warm_up_bank(2, **settings)
+        _, raised = _run(bank, rng, cycle, temperature, 30, kl_shift=6.0)
+        assert {"kl_raw", "kl_weighted", "joint"} <= raised, (temperature, settings, raised)
+
+
+def test_held_detectors_still_learn_their_steady_nominal_from_the_settled_joint() -> None:
+    """A joint that warms 35 → 60 °C and settles there: its held detectors collect the settled values,
+    learn their steady nominals (their spans now around 60 °C) and decide again; the wear detector's
+    nominal is learned the same way."""
+    config = DecisionConfig(n_nominal=20, steady_nominal=30, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(3)
+    temperature = np.concatenate([np.full(20, COLD), np.linspace(COLD, 60.0, 60), np.full(200, 60.0)])
+    held = 0
+    for cycle, t in enumerate(temperature + rng.normal(0.0, NOISE, temperature.size)):
+        bank.observe_temperature(float(t))
+        decisions, _ = bank.update(_inputs(rng), "r", 0, cycle)
+        held += sum(d.reason.startswith("held") for d in decisions.values())
+        for quantity, decision in decisions.items():
+            if decision.alarm:
+                bank.detectors[quantity].reset()
+    assert held > 0
+    assert {d.stage for d in bank.detectors.values()} == {"steady"} and not bank.collecting
+    assert all(60.0 - 4 * NOISE < s.lo <= s.hi < 60.0 + 4 * NOISE for s in bank.spans.learned.values())
+    assert all(d.statistic is not None for d in decisions.values())
+
+
+def test_the_spans_of_a_state_saved_before_the_warm_up_kept_them_are_read() -> None:
+    """A state saved under the former key (steady spans only) restores those spans; the setting is
+    checked like every other."""
+    bank, rng, cycle = _warm_up_bank(4)
+    state = json.loads(json.dumps(bank.state_dict(), allow_nan=False))
+    state[OLD_SPANS_KEY] = state.pop(SPANS_KEY)
+    restored = DetectorBank(bank.config, {})
+    restored.load_state(state, 0)
+    assert restored.spans.learned == bank.spans.learned and restored.spans.warm_up_hold == HELD
+    with pytest.raises(ConfigError, match="warm_up_hold"):
+        DecisionConfig(warm_up_hold=("kl_rwa",))
