@@ -119,3 +119,35 @@ def test_the_spans_of_a_state_saved_before_the_warm_up_kept_them_are_read() -> N
     assert restored.spans.learned == bank.spans.learned and restored.spans.warm_up_hold == HELD
     with pytest.raises(ConfigError, match="warm_up_hold"):
         DecisionConfig(warm_up_hold=("kl_rwa",))
+
+
+def test_an_alarm_during_the_steady_collection_keeps_the_warm_up_span_and_the_hold() -> None:
+    """The joint settles and the detectors start collecting their steady values while still deciding on
+    the warm-up nominal; a 6 σ KL shift then latches an alarm, which ends that collection. The detector
+    is still on its warm-up nominal, so its span stays the warm-up one and, once acknowledged, it holds
+    again when the joint is warm (it must not treat the ended collection as a new nominal)."""
+    bank, rng, cycle = _warm_up_bank(5)
+    learned = dict(bank.spans.learned)
+    for detector in bank.detectors.values():
+        detector.begin_steady()
+    _, raised = _run(bank, rng, cycle, COLD, 30, kl_shift=6.0)
+    assert {"kl_raw", "kl_weighted"} <= raised
+    assert all(bank.detectors[q].stage == "warm-up" for q in raised)
+    assert {q: bank.spans.learned[q] for q in raised} == {q: learned[q] for q in raised}
+    bank.acknowledge("r", 0, cycle + 30)
+    decisions, raised = _run(bank, rng, cycle + 31, COLD + 25.0, 10, kl_shift=6.0)
+    assert not raised and all(d["kl_raw"].reason.startswith("held") for d in decisions)
+
+
+def test_without_the_steady_stage_nothing_holds_while_warm() -> None:
+    """``steady_relearn = false``: the warm-up nominal is the only one, and the steady stage that would
+    end a hold never comes, so the warm-up detectors do not hold (a 6 σ KL shift on the warm joint
+    alarms); a detector whose saved state is not usable learns again without its old span."""
+    bank, rng, cycle = _warm_up_bank(6, steady_relearn=False)
+    _, raised = _run(bank, rng, cycle, COLD + 25.0, 30, kl_shift=6.0)
+    assert {"kl_raw", "kl_weighted", "joint"} <= raised
+    state = json.loads(json.dumps(bank.state_dict(), allow_nan=False))
+    del state["kl_raw"]
+    restored = DetectorBank(bank.config, {})
+    restored.load_state(state, 0)
+    assert "kl_raw" not in restored.spans.learned and "kl_weighted" in restored.spans.learned

@@ -168,8 +168,9 @@ class DecisionConfig:
         require(not unknown, "decision.quantities", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
         require(len(set(self.quantities)) == len(self.quantities), "decision.quantities",
                 f"listed twice: {list(self.quantities)}")
-        unknown = [q for q in self.warm_up_hold if q not in QUANTITIES]
-        require(not unknown, "decision.warm_up_hold", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
+        hold = self.warm_up_hold
+        require(isinstance(hold, tuple) and all(q in QUANTITIES for q in hold), "decision.warm_up_hold",
+                f"a list of quantities of {sorted(QUANTITIES)}, got {hold!r}")
         for quantity in self.quantities:
             try:
                 self.detector_config(quantity)
@@ -261,7 +262,7 @@ class DetectorBank:
                           for q in config.quantities} if config.enabled else {}
         self.settling = ThermalSettling(config.settling)
         self.temperature: float | None = None                  # the current cycle's motor temperature [°C]
-        self.spans = NominalSpans(warm_up_hold=config.warm_up_hold)   # the temperatures of the nominals (holds)
+        self.spans = NominalSpans(warm_up_hold=self._warm_up_hold)    # the temperatures of the nominals (holds)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
 
     def observe_temperature(self, motor_temperature: float | None) -> None:
@@ -307,18 +308,22 @@ class DetectorBank:
             spec = QUANTITIES[quantity]
             value = [watched.get(q, math.nan) for q in spec.inputs]
             fed = value[0] if spec.dim == 1 else value
-            was_alarmed = detector.alarmed
-            collecting = detector.collecting
+            was_alarmed, collecting, fits = detector.alarmed, detector.collecting, detector.fits
             held = self.spans.held(quantity, detector, self.temperature)
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)
-            self.spans.track(quantity, detector, collecting, self.temperature)
+            self.spans.track(quantity, detector, collecting, detector.fits > fits, self.temperature)
             decisions[quantity] = decision
             if decision.alarm and not was_alarmed:
                 alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
                                     decision.miss_probability, decision.change_cycle))
         return decisions, alarms
+
+    @property
+    def _warm_up_hold(self) -> tuple[str, ...]:
+        """The quantities whose warm-up detectors hold while warm (none without the steady stage, their end)."""
+        return self.config.warm_up_hold if self.config.steady_relearn else ()
 
     @property
     def collecting(self) -> bool:
@@ -395,16 +400,18 @@ class DetectorBank:
         messages: list[str] = []
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
-        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self.config.warm_up_hold)
+        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self._warm_up_hold)
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:
+                self.spans.forget(quantity)
                 continue
             try:
                 self._check_inputs(quantity, saved.get("inputs"))
                 self.detectors[quantity] = SequentialDetector.from_state(self.config.detector_config(quantity), saved,
                                                                          self.calibrator)
             except StateMismatch as exc:
+                self.spans.forget(quantity)
                 messages.append(f"joint {joint}: {exc}; relearning the {quantity} detector")
         return messages
 

@@ -52,7 +52,7 @@ class NominalSpans:
         if span is None or temperature is None or detector.state != "monitoring":
             return ""
         margin = span.margin(COVARIATE)
-        if detector.stage == "steady" and not detector.collecting and temperature < span.lo - margin:
+        if detector.stage == "steady" and temperature < span.lo - margin:
             return (f"held: motor temperature {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the steady nominal was learned in (warming again after a stop); monitoring resumes when it "
                     f"is back")
@@ -62,22 +62,31 @@ class NominalSpans:
                     f"nominal once the temperature has settled")
         return ""
 
-    def track(self, quantity: str, detector: SequentialDetector, collected: bool, temperature: float | None) -> None:
+    def track(self, quantity: str, detector: SequentialDetector, collected: bool, fitted: bool,
+              temperature: float | None) -> None:
         """After ``detector`` took a cycle: extend the span being collected by ``temperature`` if the cycle's
-        value went into a nominal (``collected``); keep it as the learned span once that nominal is fitted,
-        drop it if the collection was dropped."""
+        value went into a nominal (``collected``); keep it as the learned span if that value completed the
+        nominal (``fitted``: the detector fitted a new one), drop it if the collection ended otherwise (an
+        alarm latched, or the joint warmed again): the current nominal's span stays."""
         if not collected:
             self.collecting.pop(quantity, None)
             return
         span = self.collecting.setdefault(quantity, Span())
         if temperature is not None:
             span.add(temperature)
-        if not detector.collecting:                     # this value completed the nominal
-            fitted = self.collecting.pop(quantity)
-            if not fitted.empty:
-                self.learned[quantity] = fitted
-            else:
+        if fitted:
+            span = self.collecting.pop(quantity)
+            if span.empty:
                 self.learned.pop(quantity, None)
+            else:
+                self.learned[quantity] = span
+        elif not detector.collecting:
+            self.collecting.pop(quantity, None)
+
+    def forget(self, quantity: str) -> None:
+        """``quantity``'s detector learns from scratch (its saved state was not usable): no span."""
+        self.learned.pop(quantity, None)
+        self.collecting.pop(quantity, None)
 
     def restart(self, quantity: str) -> None:
         """``quantity``'s detector starts collecting its nominal over (what it collected is dropped)."""
