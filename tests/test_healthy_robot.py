@@ -39,7 +39,11 @@ def test_healthy_joint_stays_quiet_and_a_wearing_joint_alarms_under_default_drif
     healthy = [a for a in run["alarms"] if a["joint"] == 0]
     worn = [a for a in run["alarms"] if a["joint"] == 1]
     assert set(run["monitored"]["0"]) == {"wear", "kl_raw", "kl_weighted", "joint"}
-    assert min(run["monitored"]["0"].values()) >= 100, run["monitored"]
+    # the wear detector decides every cycle after learning; the KL and joint-vector detectors hold while
+    # the joint is warmer than they learned at (docs/DETECTION.md, "Operating conditions"), so they decide
+    # on fewer cycles, but on at least half of the wear detector's: the quiet side is still watched
+    monitored = run["monitored"]["0"]
+    assert monitored["wear"] >= 100 and min(monitored.values()) >= monitored["wear"] / 2, run["monitored"]
     assert healthy == [], healthy
     assert worn, "a 0 → 60 wear ramp went unnoticed"
     assert min(a["cycle"] for a in worn) > 100                     # nothing before the wear starts
