@@ -14,6 +14,7 @@ from protocol.console import EXIT_FAILURE, EXIT_USAGE
 if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
     from edge_monitor.config import AgentConfig
     from edge_monitor.pipeline.agent import Agent
+    from edge_monitor.pipeline.detectors import DecisionConfig
     from edge_monitor.pipeline.state_store import StateStore
 
 log = logging.getLogger(__name__)
@@ -127,12 +128,12 @@ def wear_text(wear: dict[str, Any]) -> str:
     return f"{estimate:.1f} ± {fmt(std, '.1f')}"
 
 
-def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: Any) -> str:
+def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig) -> str:
     """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
     estimated lubricant temperature, the detectors' stage (warm-up or steady, docs/DETECTION.md), alarms
     (quantity@cycle), the false-alarm setting and the smallest estimated miss probability over the
     joint's detectors."""
-    held = getattr(decision, "warm_up_hold", ())
+    held = decision.warm_up_hold
     warm_up = ("for drifts up to the allowance during the warm-up"
                + (f" (its {', '.join(held)} detectors holding while the joint is warmer than they learned at)"
                   if held else ""))

@@ -191,15 +191,13 @@ class SequentialDetector:
         """A cycle on which the detector holds (does not decide, for ``reason``): its value still goes into
         the steady nominal being collected, if any, and completes it like :meth:`update`."""
         self._collect_calibration(cycle)
-        if self._glr is None or not self.collecting_steady or self._steady_values is None:
+        if self._glr is None or self._steady_values is None or self._latched is not None:
             return self.idle(reason)
         vec, problem = self._as_vector(value)
         if vec is None:
             return self.idle(f"{reason}; {problem}")
-        self._steady_values.append(vec.tolist())
-        if len(self._steady_values) >= self.config.steady_nominal:
-            return self._start_steady(cycle)
-        return self.idle(reason)
+        fitted = self._add_steady_value(vec, cycle)
+        return self.idle(reason) if fitted is None else fitted
 
     def reset(self) -> None:
         """Declared maintenance: clear the alarm and the nominal model, learn again."""
@@ -316,10 +314,9 @@ class SequentialDetector:
     # ------------------------------------------------------------------ monitoring
     def _monitor(self, vec: np.ndarray, cycle: int) -> Decision:
         assert self._glr is not None
-        if self._steady_values is not None and self._latched is None:
-            self._steady_values.append(vec.tolist())
-            if len(self._steady_values) >= self.config.steady_nominal:
-                return self._start_steady(cycle)
+        fitted = self._add_steady_value(vec, cycle)
+        if fitted is not None:
+            return fitted
         if self._transform is not None:
             vec = self._transform.apply(vec)
             if not np.all(np.isfinite(vec)):       # a finite value too large for the transform
@@ -346,6 +343,14 @@ class SequentialDetector:
         if self._transform is None or self._glr is None:
             return tuple(float(v) for v in delta)
         return self._transform.shift_in_units(self._glr.density.mean, delta)
+
+    def _add_steady_value(self, vec: np.ndarray, cycle: int) -> Decision | None:
+        """Add ``vec`` to the steady nominal being collected (none while an alarm is latched); the fit's
+        decision once the nominal is complete, else ``None``."""
+        if self._steady_values is None or self._latched is not None:
+            return None
+        self._steady_values.append(vec.tolist())
+        return self._start_steady(cycle) if len(self._steady_values) >= self.config.steady_nominal else None
 
     def _start_steady(self, cycle: int) -> Decision:
         """Replace the warm-up nominal and threshold by the steady nominal just learned."""
