@@ -425,3 +425,52 @@ def test_score_shows_critical_wear_cold_and_warm(marginal_estimator, temperature
                                                   temperature_prior=(float(p), 3.0)).score
                       for row, mu, p in zip(tau, load_estimate, priors)])
     assert np.sum(score > 3.0) >= 85
+
+
+@pytest.fixture(scope="module")
+def site_estimator() -> WearEstimator:
+    """The agent's estimator: site range 30 … 80 °C (edge_monitor/defaults/agent.toml)."""
+    return WearEstimator(method="marginal", temperature_range=(30.0, 80.0))
+
+
+def flat_prior_scores(estimator: WearEstimator, wear: float, runs: int, seed: int) -> np.ndarray:
+    """Scores of ``runs`` cycles at 44 °C without a temperature prior (a controller without one)."""
+    tau, load_estimate = simulate_cycles(DEFAULT_SPEEDS, 44.0, wear, runs, seed=seed)
+    return np.array([estimator.estimate(DEFAULT_SPEEDS, row, mu, LOAD_STD).score
+                     for row, mu in zip(tau, load_estimate)])
+
+
+def test_score_keeps_its_sign_on_a_worn_joint_without_temperature(site_estimator):
+    """Without a temperature prior ξ is free over 30 … 80 °C, and the score's continuation below ϖ = 0,
+    reached to −ϖmax, fitted a worn joint as negative wear with a warmer lubricant: the sign flipped on
+    37 of 100 cycles at wear 25 (44 °C), 49 of 100 > 2. Bounded at −20 (the continuation's local job):
+    measured 8 negative and 71 > 2 (seed 42; 2 and 70 with another). Bounds at p ≈ 0.05 and 0.7
+    per cycle: > 15 negative or < 55 above 2 each have binomial probability < 10⁻³."""
+    worn = flat_prior_scores(site_estimator, 25.0, 100, seed=42)
+    assert np.sum(worn < 0.0) <= 15
+    assert np.sum(worn > 2.0) >= 55
+
+
+def test_bounded_continuation_keeps_a_healthy_joint_quiet(site_estimator):
+    """The other side, same setting without wear: the score stays below 3 (measured: 0 of 150, max
+    < 3, mean +0.52, variance 0.46; the detector learns its own nominal of these values). Bound: at most
+    2 of 150 above 3 (a N(0, 1) score would have 0.2 expected)."""
+    healthy = flat_prior_scores(site_estimator, 0.0, 150, seed=41)
+    assert np.all(np.isfinite(healthy))
+    assert np.sum(healthy > 3.0) <= 2
+    assert abs(healthy.mean()) <= 1.0
+
+
+def test_continuation_bound_applies_only_without_a_temperature_prior(site_estimator, monkeypatch):
+    """With a motor-temperature prior the score is what it was before the bound (the agent's calibrated
+    native path): the same values with the bound moved out of reach. On these 40 healthy cycles the
+    best wear of 4 lies below −20 (measured), so a bound applied with the prior would change them."""
+    tau, load_estimate = simulate_cycles(DEFAULT_SPEEDS, 44.0, 0.0, 40, seed=43)
+
+    def scores() -> list[float]:
+        return [site_estimator.estimate(DEFAULT_SPEEDS, row, mu, LOAD_STD, temperature_prior=(44.0, 3.0)).score
+                for row, mu in zip(tau, load_estimate)]
+
+    bounded = scores()
+    monkeypatch.setattr("edge_monitor.features.wear_estimation._FLAT_PRIOR_CONTINUATION", 1e9)
+    assert scores() == bounded

@@ -6,6 +6,9 @@ wear estimate ± its reported std at a few cycles, beside the true wear.
 
     nice -n 10 python tools/connecting_comparison.py --out out/connecting --cycles 200 --joints 6 \
         --wear-ramp 2:100:200:0:40 --seed 3
+
+``--profiles native`` runs some of them (each keeps its own files in ``--out``, so several invocations
+may run side by side, one per core); the table lists every profile found there.
 """
 
 from __future__ import annotations
@@ -57,19 +60,25 @@ def main() -> int:
     p.add_argument("--at", default="99,150,199", help="cycles at which wear estimates are listed")
     p.add_argument("--keep", action="store_true", help="keep the .blf recordings")
     p.add_argument("--report-only", action="store_true", help="only print the table from the files in --out")
+    p.add_argument("--profiles", default=",".join(PROFILES),
+                   help=f"comma-separated profiles to run (default: all of {', '.join(PROFILES)})")
     args = p.parse_args()
+    chosen = [name.strip() for name in args.profiles.split(",") if name.strip()]
+    unknown = [name for name in chosen if name not in PROFILES]
+    if unknown:
+        p.error(f"--profiles: unknown {', '.join(unknown)}; choose from {', '.join(PROFILES)}")
     Path(args.out).mkdir(parents=True, exist_ok=True)
     worn, start = int(args.wear_ramp.split(":")[0]), int(args.wear_ramp.split(":")[1])
     healthy = 0 if worn != 0 else 1
-    results = {}
     if not args.report_only:
-        for name, (profile, mapping) in PROFILES.items():
-            results[name] = run_profile(name, profile, mapping, args)
-            print(f"{name}: recorded in {results[name]['record_s']:.0f} s, replayed in "
-                  f"{results[name]['replay_s']:.0f} s", file=sys.stderr, flush=True)
-        (Path(args.out) / "results.json").write_text(json.dumps(
-            {k: {"stats": v["stats"], "record_s": v["record_s"], "replay_s": v["replay_s"]}
-             for k, v in results.items()}))
+        for name in chosen:
+            profile, mapping = PROFILES[name]
+            print(f"{name}: recording and replaying {args.cycles} cycles …", file=sys.stderr, flush=True)
+            r = run_profile(name, profile, mapping, args)
+            print(f"{name}: recorded in {r['record_s']:.0f} s, replayed in {r['replay_s']:.0f} s",
+                  file=sys.stderr, flush=True)
+            _stats_file(Path(args.out), name).write_text(json.dumps(
+                {"stats": r["stats"], "record_s": r["record_s"], "replay_s": r["replay_s"]}))
     results = _from_files(Path(args.out))
     print("| | " + " | ".join(results) + " |")
     print("|---|" + "---|" * len(results))
@@ -110,7 +119,6 @@ def main() -> int:
 def _from_files(out: Path) -> dict:
     """Each profile's symptoms and truth in ``out`` (profiles not run yet are left out); alarms: the first
     cycle each (joint, quantity) decision reads alarm."""
-    saved = json.loads((out / "results.json").read_text()) if (out / "results.json").exists() else {}
     results = {}
     for name in PROFILES:
         stem = name.replace(" ", "_")
@@ -122,7 +130,8 @@ def _from_files(out: Path) -> dict:
             for q, d in s["decisions"].items():
                 if d.get("alarm"):
                     first.setdefault((s["joint"], q), s["cycle"])
-        stats = saved.get(name, {}).get("stats", {})
+        saved = _stats_file(out, name)
+        stats = json.loads(saved.read_text()).get("stats", {}) if saved.exists() else {}
         stats["alarms"] = [{"joint": j, "cycle": c, "quantity": q} for (j, q), c in sorted(first.items(),
                                                                                           key=lambda x: x[1])]
         stats.setdefault("cycles", max((s["cycle"] for s in symptoms), default=-1) + 1)
@@ -131,6 +140,10 @@ def _from_files(out: Path) -> dict:
                          "truth": [json.loads(line) for line in (out / f"{stem}.truth.jsonl").open()
                                    if '"joint"' in line]}
     return results
+
+
+def _stats_file(out: Path, name: str) -> Path:
+    return out / f"{name.replace(' ', '_')}.stats.json"
 
 
 def _healthy(r: dict, worn: int, start: int) -> list[tuple[dict, float]]:

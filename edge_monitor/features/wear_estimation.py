@@ -26,7 +26,8 @@ of 0.5 on [0, ϖmax] — one matrix product, since τf = τ0(ξ) + τw(ϖ). From
   95 % profile-likelihood interval; the nominal one-sided level 1.645² under-covers where the
   estimate is biased low, see ``_PROFILE_THRESHOLD``).
 * ``score``: the signed root of the marginal likelihood ratio of the best wear against none,
-  ``r = sign(ϖ̃)·√(2·(log m(ϖ̃) − log m(0)))`` with ϖ̃ maximising m over ``[−ϖmax, ϖmax]``. Below 0 the
+  ``r = sign(ϖ̃)·√(2·(log m(ϖ̃) − log m(0)))`` with ϖ̃ maximising m over ``[−ϖmax, ϖmax]`` (over
+  ``[−20, ϖmax]`` without a temperature prior: ``_FLAT_PRIOR_CONTINUATION``). Below 0 the
   model is continued by the first-order effect of wear, ``τw = ϖ·fvϖ·v`` (what ``wear_friction`` gives
   for ϖ ≤ 0), so that r passes smoothly through ϖ = 0. Without wear r is close to N(0, 1) at every
   temperature (Wilks; measured on healthy simulated joints over 30 … 50 °C: mean 0.0–0.5, std ≈ 1,
@@ -79,6 +80,13 @@ _WEAR_STEP = 0.5
 _PROFILE_THRESHOLD = 1.959963984540054 ** 2
 #: Local solver starts at most (local minima of the grid's wear profile), ``method="joint"``.
 _MAX_STARTS = 3
+#: How far below ϖ = 0 the score's first-order continuation reaches when ξ has no prior (flat over the
+#: site range): 20 ≈ 4 posterior stds of ϖ̂ on a healthy joint, where it does its job (r continuous through
+#: 0). Deeper, a negative wear with a lubricant ≈ 10 °C warmer mimics real wear; the score's sign then
+#: flipped from cycle to cycle on a worn joint (wear 20–30: 25 % and 14 % negative, mode at ϖ = −100;
+#: bounded: 6 % and 3 %; docs/WEAR_ESTIMATION.md). With a temperature prior ξ is pinned and the
+#: continuation keeps the whole mirrored grid.
+_FLAT_PRIOR_CONTINUATION = 20.0
 _COMPETITIVE_COST = 13.8
 _SOLVER_METHOD = "trf"
 #: Plausibility limits of the inputs: speeds [rad/s] (useful range ≤ 300), torques (fractions of
@@ -231,7 +239,8 @@ class WearEstimator:
             if not np.all(np.isfinite(cost)):
                 return _invalid(int(v.size), "no finite fit")
             prior = self._prior_cost(temperature_prior)
-            grid = self._summarise(cost + prior[:, None], v, whiten, white_nominal, prior)
+            grid = self._summarise(cost + prior[:, None], v, whiten, white_nominal, prior,
+                                   informed=bool(prior.any()))
             if v.size == 1 or self.method == "marginal":
                 estimate = grid.mode
                 temperature = grid.temperature if v.size >= 2 else None
@@ -307,7 +316,7 @@ class WearEstimator:
         return cached
 
     def _summarise(self, signed_cost: NDArray[np.float64], v, whiten, white_nominal,
-                   prior: NDArray[np.float64]) -> _GridSummary:
+                   prior: NDArray[np.float64], informed: bool = True) -> _GridSummary:
         w = self._grid_wear
         best_signed = np.argmin(signed_cost, axis=0)
         signed_profile = signed_cost[best_signed, np.arange(self._grid_signed.size)]     # min_ξ C
@@ -315,7 +324,8 @@ class WearEstimator:
         signed_log_m = -0.5 * signed_profile + np.log(
             np.sum(np.exp(-0.5 * (signed_cost - signed_profile[None, :])), axis=0))
         zero = self._grid_signed.size - w.size                  # index of ϖ = 0 on the signed grid
-        top = int(np.argmax(signed_log_m))
+        floor = 0 if informed else int(np.searchsorted(self._grid_signed, -_FLAT_PRIOR_CONTINUATION))
+        top = floor + int(np.argmax(signed_log_m[floor:]))
         score = math.copysign(math.sqrt(max(2.0 * float(signed_log_m[top] - signed_log_m[zero]), 0.0)),
                               float(self._grid_signed[top]))
         best_xi, profile, log_marginal = best_signed[zero:], signed_profile[zero:], signed_log_m[zero:]
