@@ -21,7 +21,7 @@ from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
-from edge_monitor.pipeline.detectors import DecisionConfig
+from edge_monitor.pipeline.decision_config import DecisionConfig
 from edge_monitor.pipeline.fault_grouping import AlarmConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig

@@ -14,7 +14,7 @@ from protocol.console import EXIT_FAILURE, EXIT_USAGE
 if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
     from edge_monitor.config import AgentConfig
     from edge_monitor.pipeline.agent import Agent
-    from edge_monitor.pipeline.detectors import DecisionConfig
+    from edge_monitor.pipeline.decision_config import DecisionConfig
     from edge_monitor.pipeline.state_store import StateStore
 
 log = logging.getLogger(__name__)

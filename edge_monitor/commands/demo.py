@@ -28,7 +28,7 @@ from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
-from edge_monitor.pipeline.detectors import DecisionConfig
+from edge_monitor.pipeline.decision_config import DecisionConfig
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json

@@ -18,7 +18,7 @@ from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
-from edge_monitor.pipeline.detectors import SCHEDULE_KEYS, DecisionConfig
+from edge_monitor.pipeline.decision_config import SCHEDULE_KEYS, DecisionConfig
 from edge_monitor.pipeline.fault_grouping import AlarmConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.jsonl import Rotation

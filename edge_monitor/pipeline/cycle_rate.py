@@ -17,7 +17,7 @@ import logging
 import math
 from typing import Any
 
-from edge_monitor.pipeline.detectors import DecisionConfig
+from edge_monitor.pipeline.decision_config import DecisionConfig
 from edge_monitor.stats.calibration import MAX_ARL0, MIN_ARL0
 
 log = logging.getLogger(__name__)

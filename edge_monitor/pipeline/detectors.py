@@ -1,51 +1,44 @@
 """The decision layer of one joint: one sequential detector per watched quantity (docs/ALGORITHMS.md §6).
 
-:class:`DecisionConfig` (the ``[decision]`` table) says which registered quantities are watched and
-how; :class:`DetectorBank` turns the feature values of a cycle into one :class:`Decision` per quantity
-and the alarm transitions of that cycle. Positive, right-skewed quantities (the KL distances) are
-watched as their logarithm when ``log_scale`` is on; the wear is watched as its likelihood-ratio
-score; a vector quantity is made of its inputs' (transformed) values. Detectors look for an increase
-by default: wear and KL distances grow with a fault, a decrease is nominal.
+:class:`~edge_monitor.pipeline.decision_config.DecisionConfig` (the ``[decision]`` table) says which
+registered quantities are watched and how; :class:`DetectorBank` turns the feature values of a cycle
+into one :class:`Decision` per quantity and the alarm transitions of that cycle. Positive, right-skewed
+quantities (the KL distances) are watched as their logarithm when ``log_scale`` is on; the wear is
+watched as its likelihood-ratio score; a vector quantity is made of its inputs' (transformed) values.
+Detectors look for an increase by default: wear and KL distances grow with a fault, a decrease is
+nominal.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from edge_monitor.errors import ConfigError, StateMismatch, require
+from edge_monitor.errors import StateMismatch
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
+from edge_monitor.pipeline.decision_config import (  # noqa: F401  (re-exported: the [decision] table lives there)
+    BUDGET_PERIODS,
+    DEFAULT_CYCLES_PER_DAY,
+    DEFAULT_JOINTS_PER_ROBOT,
+    MAX_JOINTS_PER_ROBOT,
+    SCHEDULE_KEYS,
+    DecisionConfig,
+)
 from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: the decision tables live there)
     HEALTHY_DRIFT,
     STEADY_DRIFT,
     STEADY_WANDER,
-    healthy_drift,
-    steady_wander,
 )
 from edge_monitor.pipeline.nominal_temperature import NominalSpans
-from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
+from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Alarm, Decision
-from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MIN_ARL0, CalibrationBudget
-from edge_monitor.stats.detector_config import (
-    DEFAULT_NOMINAL,
-    DEFAULT_STEADY_NOMINAL,
-    DEFAULT_WINDOW,
-    STEADY_DEFAULTS,
-    DetectorConfig,
-)
+from edge_monitor.stats.detector_config import DEFAULT_NOMINAL  # noqa: F401  (re-exported for the studies)
 from edge_monitor.stats.sequential_detector import Calibrator, SequentialDetector
 
 log = logging.getLogger(__name__)
-
-#: Settings that are not what a detector learned — when the steady stage starts, and the false-alarm
-#: target its threshold is derived for (a changed target is re-derived on the same nominal,
-#: :meth:`DetectorBank.retarget`): not in the fingerprint (a saved state stays valid when they change),
-#: and kept from the current config on "keep".
-SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold",
-                 "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
 #: Key of the thermal settling tracker in the detectors' state (not a quantity name).
 SETTLING_KEY = "_thermal_settling"
@@ -56,183 +49,6 @@ SPANS_KEY, OLD_SPANS_KEY = "_nominal_temperature", "_steady_temperature"
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
 
-#: The periods a false-alarm budget may be stated per [days].
-BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
-#: Test cycles a day the thresholds are derived for until the agent has measured its own rate.
-DEFAULT_CYCLES_PER_DAY = 300.0
-#: Joints the robot's budget is split over unless the config lists the joints (a six-axis arm).
-DEFAULT_JOINTS_PER_ROBOT = 6
-MAX_JOINTS_PER_ROBOT = 64
-
-
-
-@dataclass(frozen=True)
-class DecisionConfig:
-    """Sequential GLR decision layer settings (the ``[decision]`` table), validated once, here.
-
-    False alarms are stated per robot: ``false_alarms_per_robot`` per ``budget_period`` (day, week,
-    month or year; default one a year), split evenly (Bonferroni) over the robot's detectors —
-    ``joints_per_robot`` × the watched quantities — at ``cycles_per_day`` test cycles a day; expert
-    option: ``arl0_cycles``, the mean run length to a false alarm of each detector [cycles], directly.
-    Every detector calibrates its threshold for :attr:`arl0` at the end of learning (docs/DETECTION.md).
-    ``pf``/``pf_joint`` (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
-    the scalar / vector quantities. ``density`` applies to scalar quantities, ``density_joint`` to the
-    vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
-    ``calibrate_at``: where the calibration simulates each detector (default at the drift allowance);
-    ``"healthy_drift"`` (a study option) uses ``healthy_drift`` (input → (mean, sd) [σ]) instead.
-    ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
-    ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
-    learns its nominal again, from ``steady_nominal`` cycles with the ``steady_density`` family after a
-    ``steady_transform`` ("yeo-johnson" or "none") learned from the same values for the inputs watched
-    as logs (it refines their fixed log; the wear score is near normal by construction), and calibrates
-    it at ``steady_calibrate_at`` (docs/DETECTION.md, "Two stages").
-    """
-
-    enabled: bool = True
-    n_nominal: int = DEFAULT_NOMINAL
-    density: str = "gauss"
-    density_joint: str = "gauss"
-    false_alarms_per_robot: float = 1.0
-    budget_period: str = "year"
-    cycles_per_day: float = DEFAULT_CYCLES_PER_DAY
-    joints_per_robot: int = DEFAULT_JOINTS_PER_ROBOT
-    arl0_cycles: float | None = None
-    pf: float | None = None
-    pf_joint: float | None = None
-    window: int = DEFAULT_WINDOW
-    gamma0: float = 0.6
-    rho: float = 1.0
-    quantities: tuple[str, ...] = tuple(QUANTITIES)
-    log_scale: bool = True
-    direction: str = "increase"
-    allowance: float = 0.75
-    clip_sigma: float = 3.0
-    calibration_draws: int = CalibrationBudget().draws
-    calibration_steps: int = CalibrationBudget().max_steps
-    calibrate_at: str = "boundary"
-    healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
-    steady_relearn: bool = True
-    steady_calibrate_at: str = "healthy_drift"
-    steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
-    steady_wander: Mapping[str, float] = field(default_factory=lambda: dict(STEADY_WANDER))
-    steady_nominal: int = DEFAULT_STEADY_NOMINAL
-    steady_density: str = "gauss"
-    steady_transform: str = "yeo-johnson"
-    steady_simulate_from: str = "model"
-    settling_window: int = SettlingConfig().window
-    settling_max_rate: float = SettlingConfig().max_rate
-    warm_up_hold: tuple[str, ...] = ("kl_raw", "kl_weighted", "joint")
-
-    @property
-    def settling(self) -> SettlingConfig:
-        return SettlingConfig(window=self.settling_window, max_rate=self.settling_max_rate)
-
-    @property
-    def detectors_per_robot(self) -> int:
-        """How many detectors the robot's false-alarm budget is split over."""
-        return self.joints_per_robot * len(self.quantities)
-
-    @property
-    def arl0(self) -> float:
-        """The mean run length to false alarm per detector [cycles] the thresholds are calibrated for."""
-        return self.arl0_for(self.cycles_per_day)
-
-    def arl0_for(self, cycles_per_day: float) -> float:
-        """:attr:`arl0` at ``cycles_per_day`` test cycles a day (``arl0_cycles`` if given: fixed)."""
-        if self.arl0_cycles is not None:
-            return float(self.arl0_cycles)
-        days = BUDGET_PERIODS[self.budget_period]
-        return cycles_per_day * days * self.detectors_per_robot / self.false_alarms_per_robot
-
-    @property
-    def budget_text(self) -> str:
-        """The false-alarm budget as a person reads it."""
-        if self.arl0_cycles is not None:
-            return f"mean run length to a false alarm {self.arl0:.3g} cycles per detector"
-        return (f"{self.false_alarms_per_robot:g} false alarm(s) per robot-{self.budget_period} "
-                f"({self.detectors_per_robot} detectors at {self.cycles_per_day:g} cycles a day: "
-                f"{self.arl0:.3g} cycles per detector)")
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "healthy_drift", healthy_drift(self.healthy_drift))
-        object.__setattr__(self, "steady_drift", healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
-        object.__setattr__(self, "steady_wander", steady_wander(self.steady_wander))
-        for name in ("calibrate_at", "steady_calibrate_at"):
-            require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
-                    f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")
-        require(isinstance(self.steady_relearn, bool), "decision.steady_relearn",
-                f"must be true or false, got {self.steady_relearn!r}")
-        _ = self.settling                                         # validates the settling keys
-        self._check_budget()
-        unknown = [q for q in self.quantities if q not in QUANTITIES]
-        require(not unknown, "decision.quantities", f"unknown {unknown}; registered: {sorted(QUANTITIES)}")
-        require(len(set(self.quantities)) == len(self.quantities), "decision.quantities",
-                f"listed twice: {list(self.quantities)}")
-        hold = self.warm_up_hold
-        require(isinstance(hold, tuple) and all(q in QUANTITIES for q in hold), "decision.warm_up_hold",
-                f"a list of quantities of {sorted(QUANTITIES)}, got {hold!r}")
-        for quantity in self.quantities:
-            try:
-                self.detector_config(quantity)
-            except ConfigError as exc:      # "field: message" → "decision.<config key> (quantity …): message"
-                field, _, message = str(exc).partition(": ")
-                if QUANTITIES[quantity].dim > 1:
-                    field = {"pf": "pf_joint", "density": "density_joint"}.get(field, field)
-                field = {"arl0": "arl0_cycles"}.get(field, field)
-                raise ConfigError(f"decision.{field} (quantity '{quantity}'): {message}") from None
-
-    def _check_budget(self) -> None:
-        require(self.budget_period in BUDGET_PERIODS, "decision.budget_period",
-                f"{self.budget_period!r}; choose one of {sorted(BUDGET_PERIODS)}")
-        for name in ("false_alarms_per_robot", "cycles_per_day"):
-            value = getattr(self, name)
-            require(isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value <= 1e6,
-                    f"decision.{name}", f"must be a number > 0 and ≤ 1e6, got {value!r}")
-        require(isinstance(self.joints_per_robot, int) and not isinstance(self.joints_per_robot, bool)
-                and 1 <= self.joints_per_robot <= MAX_JOINTS_PER_ROBOT, "decision.joints_per_robot",
-                f"must be 1 … {MAX_JOINTS_PER_ROBOT}, got {self.joints_per_robot!r}")
-        if self.arl0_cycles is None:
-            require(MIN_ARL0 <= self.arl0 <= MAX_ARL0, "decision.false_alarms_per_robot",
-                    f"{self.budget_text} is outside {MIN_ARL0:g} … {MAX_ARL0:g} cycles per detector; state a "
-                    f"budget a {self.budget_period} of {self.cycles_per_day:g} cycles can deliver")
-
-    def detector_config(self, quantity: str) -> DetectorConfig:
-        spec = QUANTITIES[quantity]
-        vector = spec.dim > 1
-        drifting = self.calibrate_at == "healthy_drift"
-        steady_drifting = self.steady_calibrate_at == "healthy_drift"
-        return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
-                              density=self.density_joint if vector else self.density,
-                              pf=self.pf_joint if vector else self.pf, window=self.window,
-                              gamma0=self.gamma0, rho=self.rho, arl0=self.arl0, direction=self.direction,
-                              allowance=self.allowance, clip_sigma=self.clip_sigma,
-                              calibration_draws=self.calibration_draws,
-                              calibration_steps=self.calibration_steps, calibrate_at=self.calibrate_at,
-                              steady_at=self.steady_calibrate_at, steady_nominal=self.steady_nominal,
-                              steady_density=self.steady_density, steady_transform=self.steady_transform,
-                              steady_simulate_from=self.steady_simulate_from,
-                              transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs),
-                              drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
-                              drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting),
-                              steady_drift_mean=tuple(self.steady_drift[q][0] for q in spec.inputs if steady_drifting),
-                              steady_drift_sd=tuple(self.steady_drift[q][1] for q in spec.inputs if steady_drifting),
-                              steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
-
-    def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "quantities": list(self.quantities), "warm_up_hold": list(self.warm_up_hold),
-               "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())},
-               "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())},
-               "steady_wander": dict(sorted(self.steady_wander.items()))}
-        if self.calibrate_at == "boundary":
-            del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
-        steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform",
-                  "steady_simulate_from")
-        if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
-            for key in steady:      # the default: states saved before these settings still match
-                del out[key]
-        for key in SCHEDULE_KEYS:
-            del out[key]
-        return out
 
 
 def _log_or_nan(x: float) -> float:
