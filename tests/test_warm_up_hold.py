@@ -151,3 +151,36 @@ def test_without_the_steady_stage_nothing_holds_while_warm() -> None:
     restored = DetectorBank(bank.config, {})
     restored.load_state(state, 0)
     assert "kl_raw" not in restored.spans.learned and "kl_weighted" in restored.spans.learned
+
+
+def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperature() -> None:
+    """A controller that sends no motor temperature (a foreign DBC): the joint's detectors follow the
+    lubricant temperature the wear estimate reads from the friction curve (its settling, the steady hold),
+    and a hold says so. A joint
+    that has sent a motor temperature never switches: a later cycle without one has no temperature (the
+    two differ by the joint's motor-to-lubricant offset, so mixing them would fake a warming)."""
+    from types import SimpleNamespace
+
+    from edge_monitor.config import config_from_mapping
+    from edge_monitor.pipeline.joint_monitor import JointMonitor
+    from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE, NominalSpans
+    from edge_monitor.pipeline.operating_range import Span
+
+    config = config_from_mapping({})
+    monitor = JointMonitor(0, config)
+    read = {"temperature": 41.5}
+    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (41.5, FRICTION_TEMPERATURE)
+    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), {}) == (None, FRICTION_TEMPERATURE)
+    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=50.0), read) == (50.0, MOTOR_TEMPERATURE)
+    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
+    restored = JointMonitor.from_state(0, config, json.loads(json.dumps(monitor.state_dict())))
+    assert restored._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
+
+    # What the friction's temperature may hold: a steady detector while colder (a restart after a stop), never
+    # a warm-up one while warmer (wear reads warmer there and would hold the KL detectors as it grows).
+    spans = NominalSpans({"kl_raw": Span(50.0, 55.0)}, warm_up_hold=("kl_raw",))
+    steady, warm_up = (SimpleNamespace(state="monitoring", stage=stage) for stage in ("steady", "warm-up"))
+    assert spans.held("kl_raw", steady, 40.0, FRICTION_TEMPERATURE).startswith(
+        f"held: {FRICTION_TEMPERATURE} 40.0 °C below")
+    assert spans.held("kl_raw", warm_up, 70.0, FRICTION_TEMPERATURE) == ""
+    assert spans.held("kl_raw", warm_up, 70.0, MOTOR_TEMPERATURE).startswith("held: motor temperature 70.0 °C above")

@@ -124,7 +124,8 @@ def _from_files(out: Path) -> dict:
         stem = name.replace(" ", "_")
         if not (out / f"{stem}.symptoms.jsonl").exists() or not (out / f"{stem}.truth.jsonl").exists():
             continue
-        symptoms = [json.loads(line) for line in (out / f"{stem}.symptoms.jsonl").open()]
+        records = [json.loads(line) for line in (out / f"{stem}.symptoms.jsonl").open()]
+        symptoms = [r for r in records if "kind" not in r]       # alarm and advisory records are apart
         first: dict[tuple[int, str], int] = {}
         for s in symptoms:
             for q, d in s["decisions"].items():

@@ -32,7 +32,7 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
     STEADY_DRIFT,
     STEADY_WANDER,
 )
-from edge_monitor.pipeline.nominal_temperature import NominalSpans
+from edge_monitor.pipeline.nominal_temperature import MOTOR_TEMPERATURE, NominalSpans
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Alarm, Decision
 from edge_monitor.stats.detector_config import DEFAULT_NOMINAL  # noqa: F401  (re-exported for the studies)
@@ -77,17 +77,20 @@ class DetectorBank:
         self.detectors = {q: SequentialDetector(config.detector_config(q), calibrator)
                           for q in config.quantities} if config.enabled else {}
         self.settling = ThermalSettling(config.settling)
-        self.temperature: float | None = None                  # the current cycle's motor temperature [°C]
+        self.temperature: float | None = None         # the current cycle's temperature [°C] (observe_temperature)
+        self.temperature_source = MOTOR_TEMPERATURE
         self.spans = NominalSpans(warm_up_hold=self._warm_up_hold)    # the temperatures of the nominals (holds)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
 
-    def observe_temperature(self, motor_temperature: float | None) -> None:
-        """A cycle's mean motor temperature [°C] (None: unknown). Once the joint's temperature has
-        settled, every detector still on its warm-up nominal learns its steady one; if it warms again
-        before a detector has collected its steady values, that collection is dropped."""
-        t = None if motor_temperature is None else float(motor_temperature)
+    def observe_temperature(self, temperature: float | None, source: str = MOTOR_TEMPERATURE) -> None:
+        """A cycle's mean temperature [°C] (None: unknown), ``source`` saying which (the motor's, or the
+        lubricant's read from the friction). Once the joint's temperature has settled, every detector still on
+        its warm-up nominal learns its steady one; if it warms again before a detector has collected its
+        steady values, that collection is dropped."""
+        t = None if temperature is None else float(temperature)
         self.temperature = t if t is not None and math.isfinite(t) else None
-        settled = self.settling.update(motor_temperature)
+        self.temperature_source = source
+        settled = self.settling.update(self.temperature)
         for quantity, detector in self.detectors.items():
             if settled and self.config.steady_relearn:
                 learning = detector.state == "learning" and detector.stage != "steady"
@@ -125,7 +128,7 @@ class DetectorBank:
             value = [watched.get(q, math.nan) for q in spec.inputs]
             fed = value[0] if spec.dim == 1 else value
             was_alarmed, collecting, fits = detector.alarmed, detector.collecting, detector.fits
-            held = self.spans.held(quantity, detector, self.temperature)
+            held = self.spans.held(quantity, detector, self.temperature, self.temperature_source)
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)

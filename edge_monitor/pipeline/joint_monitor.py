@@ -18,6 +18,7 @@ processing (the streaming algorithms are block-size invariant up to floating-poi
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import replace
 from typing import Any, Sequence
 
@@ -32,6 +33,7 @@ from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import Acknowledgement, DetectorBank
 from edge_monitor.pipeline.fault_grouping import FaultTracker
+from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
 from edge_monitor.pipeline.operating_range import OperatingRange
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Advisory, Alarm, Decision, Symptom, finite_or_none
@@ -80,6 +82,7 @@ class JointMonitor:
         self._build()
         self.maintenances = 0
         self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
+        self.motor_temperature_seen = False   # whether the controller ever sent this joint's motor temperature
 
     def _build(self) -> None:
         """Features with the joint's current model, and fresh detectors (which keep the temperature
@@ -186,7 +189,6 @@ class JointMonitor:
         reasons: dict[str, str] = {}
         extras: dict[str, Any] = {}
         learning_model = not self.model_ready
-        self.detectors.observe_temperature(cycle.motor_temperature)
         for spec in FEATURES:
             feature = self.features.get(spec.name)
             if feature is None or (learning_model and spec.waits_for_model):
@@ -201,6 +203,7 @@ class JointMonitor:
             values.update(out.values)
             if out.reason:
                 reasons[spec.name] = out.reason
+        self.detectors.observe_temperature(*self._joint_temperature(cycle, values))
         alarms: list[Alarm] = []
         advisories: list[Advisory] = []
         covariates = _covariates(cycle)
@@ -226,6 +229,17 @@ class JointMonitor:
                              "measured": finite_or_none(cycle.friction.load_torque)},
                        skipped=cycle.friction.skipped, critical_wear=self.config.wear.critical,
                        reasons=reasons, partial=cycle.partial, alarms=alarms, advisories=advisories, extras=extras)
+
+    def _joint_temperature(self, cycle: CycleInput, values: dict[str, float]) -> tuple[float | None, str]:
+        """The temperature [°C] the detectors' stages and holds follow, and what it is: the cycle's motor
+        temperature; on a joint whose controller never sent one (a foreign DBC without it), the lubricant
+        temperature the wear estimate reads from the friction curve (docs/CONNECTING.md). A joint that
+        has sent motor temperatures never switches: a cycle without one is a cycle of unknown temperature."""
+        motor = finite_or_none(cycle.motor_temperature)
+        if motor is not None or self.motor_temperature_seen:
+            self.motor_temperature_seen = self.motor_temperature_seen or motor is not None
+            return motor, MOTOR_TEMPERATURE
+        return finite_or_none(values.get("temperature", math.nan)), FRICTION_TEMPERATURE
 
     def _cause(self, decision: Decision, covariates: dict[str, float | None]) -> dict[str, Any]:
         """An alarm's cause as far as the agent can tell: the shift in the quantity's units and the
@@ -276,7 +290,7 @@ class JointMonitor:
         snapshot are not; a cycle resumed from a saved state is published partial anyway."""
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "acknowledgements": self.acknowledgements,
-                "assembly": self.assembler.state_dict(),
+                "motor_temperature_seen": self.motor_temperature_seen, "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
@@ -298,6 +312,7 @@ class JointMonitor:
         monitor = cls(joint, config, calibrator)
         monitor.maintenances = int(state.get("maintenances", 0))
         monitor.acknowledgements = int(state.get("acknowledgements", 0))
+        monitor.motor_temperature_seen = state.get("motor_temperature_seen") is True
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
             monitor.assembler.load_state(assembly)

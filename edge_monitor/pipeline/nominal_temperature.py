@@ -19,7 +19,12 @@ leaves a drift a detector reads as a fault. Two cases meet every plant:
   the joint is back in range.
 
 :class:`NominalSpans` keeps, per detector, the span of the cycle-mean motor temperature [°C] over the
-cycles whose values went into its current nominal. Unknown temperature, or no span: no hold.
+cycles whose values went into its current nominal. Unknown temperature, or no span: no hold. A joint whose
+controller sends no motor temperature is followed by the lubricant temperature its wear estimate reads from
+the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`):
+for its settling and the steady stage's hold, not the warm-up hold. Wear reads as a warmer lubricant there
+(the friction's temperature and wear are estimated together; +2 … 4 °C at wear 20 on a warm joint), so it
+would hold the KL detectors just as the wear grows; colder, the steady hold's side, it never reads.
 """
 
 from __future__ import annotations
@@ -31,6 +36,9 @@ from edge_monitor.stats.sequential_detector import SequentialDetector
 
 #: The covariate whose span is kept (the operating range's name for it, and its margin).
 COVARIATE = "motor_temperature"
+#: What the joint's temperature is (named in the hold reasons): the controller's motor temperature, or, on a
+#: joint whose controller sends none, the lubricant temperature the wear estimate reads from the friction.
+MOTOR_TEMPERATURE, FRICTION_TEMPERATURE = "motor temperature", "lubricant temperature (from the friction)"
 
 
 class NominalSpans:
@@ -44,20 +52,23 @@ class NominalSpans:
         self.collecting: dict[str, Span] = dict(collecting or {})
         self.warm_up_hold = frozenset(warm_up_hold)
 
-    def held(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> str:
+    def held(self, quantity: str, detector: SequentialDetector, temperature: float | None,
+             source: str = MOTOR_TEMPERATURE) -> str:
         """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does): a steady
         detector while the joint is colder than its span by more than the operating range's margin
-        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is warmer."""
+        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is warmer (by the motor
+        temperature only: see the module)."""
         span = self.learned.get(quantity)
         if span is None or temperature is None or detector.state != "monitoring":
             return ""
         margin = span.margin(COVARIATE)
         if detector.stage == "steady" and temperature < span.lo - margin:
-            return (f"held: motor temperature {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C "
+            return (f"held: {source} {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the steady nominal was learned in (warming again after a stop); monitoring resumes when it "
                     f"is back")
-        if detector.stage != "steady" and quantity in self.warm_up_hold and temperature > span.hi + margin:
-            return (f"held: motor temperature {temperature:.1f} °C above the {span.lo:.1f} … {span.hi:.1f} °C "
+        if detector.stage != "steady" and quantity in self.warm_up_hold and source == MOTOR_TEMPERATURE \
+                and temperature > span.hi + margin:
+            return (f"held: {source} {temperature:.1f} °C above the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the warm-up nominal was learned in (the joint is warming); monitoring resumes on the steady "
                     f"nominal once the temperature has settled")
         return ""
