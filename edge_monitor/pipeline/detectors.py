@@ -101,8 +101,10 @@ class DetectorBank:
                 detector.cancel_steady()      # warming again: the values collected are not steady
 
     def keep_settling(self, previous: "DetectorBank") -> None:
-        """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled)."""
+        """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled), and its count of
+        held detector-cycles (a health counter of the run)."""
         self.settling = ThermalSettling.from_state(self.config.settling, previous.settling.state_dict())
+        self.held = dict(previous.held)
         for quantity, detector in self.detectors.items():           # and the budget's current target
             if quantity in previous.detectors:
                 detector.retarget(previous.detectors[quantity].arl0)
