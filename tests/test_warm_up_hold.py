@@ -6,12 +6,15 @@ conditions"). Both sides: what the hold keeps quiet, and that it masks nothing i
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from edge_monitor.errors import ConfigError
-from edge_monitor.pipeline.detectors import OLD_SPANS_KEY, SPANS_KEY, DecisionConfig, DetectorBank
+from edge_monitor.pipeline.detectors import OLD_SPANS_KEY, SETTLING_KEY, SPANS_KEY, DecisionConfig, DetectorBank
+from edge_monitor.pipeline.nominal_temperature import NominalSpans
+from edge_monitor.pipeline.operating_range import Span
 
 #: Cycle-mean motor temperature scatter in the simulator [°C].
 NOISE = 3.0
@@ -155,26 +158,41 @@ def test_without_the_steady_stage_nothing_holds_while_warm() -> None:
 
 def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperature() -> None:
     """A controller that sends no motor temperature (a foreign DBC): the joint's detectors follow the
-    lubricant temperature the wear estimate reads from the friction curve (its settling, the steady hold),
-    and a hold says so. A joint
-    that has sent a motor temperature never switches: a later cycle without one has no temperature (the
-    two differ by the joint's motor-to-lubricant offset, so mixing them would fake a warming)."""
-    from types import SimpleNamespace
-
+    lubricant temperature the wear estimate reads from the friction curve with the joint's own model (none
+    while that model is learned), and a hold says so. The two temperatures differ by the joint's offset,
+    so they never mix: after a motor temperature a cycle without one has none, and the first motor
+    temperature after friction-read ones restarts the history (settling, spans)."""
     from edge_monitor.config import config_from_mapping
     from edge_monitor.pipeline.joint_monitor import JointMonitor
-    from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE, NominalSpans
-    from edge_monitor.pipeline.operating_range import Span
+    from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
 
-    config = config_from_mapping({})
+    learning = JointMonitor(0, config_from_mapping({}))
+    assert not learning.model_ready
+    assert learning._joint_temperature(SimpleNamespace(motor_temperature=None), {"temperature": 41.5}) == \
+        (None, FRICTION_TEMPERATURE)
+
+    config = config_from_mapping({"model": {"enabled": False}})
     monitor = JointMonitor(0, config)
     read = {"temperature": 41.5}
     assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (41.5, FRICTION_TEMPERATURE)
     assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), {}) == (None, FRICTION_TEMPERATURE)
+    for _ in range(300):               # the friction-read history: the settling window fills, a span is learned
+        monitor.detectors.observe_temperature(41.5, FRICTION_TEMPERATURE)
+    monitor.detectors.spans.learned["kl_raw"] = Span(40.0, 43.0)
+    assert monitor.detectors.settling.rate is not None
     assert monitor._joint_temperature(SimpleNamespace(motor_temperature=50.0), read) == (50.0, MOTOR_TEMPERATURE)
+    assert monitor.detectors.settling.rate is None and not monitor.detectors.spans.learned
     assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
     restored = JointMonitor.from_state(0, config, json.loads(json.dumps(monitor.state_dict())))
     assert restored._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
+    old = json.loads(json.dumps(monitor.state_dict()))          # saved before the sources were kept:
+    del old["motor_temperature_seen"], old["friction_temperature_used"]
+    old["detectors"][SETTLING_KEY]["count"] = 0                 # its settling never saw a motor temperature
+    assert JointMonitor.from_state(0, config, old)._joint_temperature(
+        SimpleNamespace(motor_temperature=None), read) == (41.5, FRICTION_TEMPERATURE)
+    old["detectors"][SETTLING_KEY]["count"] = 12                # it did
+    assert JointMonitor.from_state(0, config, old)._joint_temperature(
+        SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
 
     # What the friction's temperature may hold: a steady detector while colder (a restart after a stop), never
     # a warm-up one while warmer (wear reads warmer there and would hold the KL detectors as it grows).
@@ -184,3 +202,35 @@ def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperat
         f"held: {FRICTION_TEMPERATURE} 40.0 °C below")
     assert spans.held("kl_raw", warm_up, 70.0, FRICTION_TEMPERATURE) == ""
     assert spans.held("kl_raw", warm_up, 70.0, MOTOR_TEMPERATURE).startswith("held: motor temperature 70.0 °C above")
+
+
+def test_a_robot_without_motor_temperature_runs_end_to_end_on_its_friction_temperature() -> None:
+    """The agent on the simulator's fast path with every motor temperature removed (2 joints, 60 cycles):
+    no cycle fails; after the joint's model is learned its detectors' temperature is the friction's, a
+    lubricant temperature near the simulator's true one (measured over 78 joint-cycles: error −0.5 ± 1.0 °C,
+    at most 2.9 °C; bound: 3 × 2.5 °C, three of ξ̂'s largest std on a warm healthy joint)."""
+    from dataclasses import replace
+
+    from edge_monitor.config import config_from_mapping
+    from edge_monitor.offline.fast_path import CycleFeeder
+    from edge_monitor.pipeline.agent import Agent
+    from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE
+    from sim_controller.config import SimConfig
+    from sim_controller.cycle_mode import cycle_signals
+
+    agent = Agent(config_from_mapping({}))
+    feeder = CycleFeeder(agent)
+    seen: list[tuple[float, float]] = []
+    truth: dict[tuple[int, int], float] = {}
+    for signals in cycle_signals(SimConfig(joints=2, cycles=60, seed=7)):
+        truth.update({(signals.cycle, j): t["temperature"] for j, t in enumerate(signals.truth)})
+        stripped = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]
+        for symptom in feeder.update(replace(signals, joints=stripped)):
+            bank = agent.joints[symptom.joint].detectors
+            if bank.temperature is not None:
+                assert bank.temperature_source == FRICTION_TEMPERATURE
+                seen.append((bank.temperature, truth[(symptom.cycle, symptom.joint)]))
+    feeder.finish()
+    assert len(seen) >= 2 * 20                     # every cycle after the model (20 cycles of 60)
+    assert all(abs(read - true) < 7.5 for read, true in seen), max(abs(r - t) for r, t in seen)
+    assert all(not m.motor_temperature_seen and m.friction_temperature_used for m in agent.joints.values())

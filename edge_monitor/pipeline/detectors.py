@@ -109,6 +109,12 @@ class DetectorBank:
             if quantity in previous.detectors:
                 detector.retarget(previous.detectors[quantity].arl0)
 
+    def restart_temperature_history(self) -> None:
+        """The joint's temperature now comes from another source: settling and the nominals' spans start over
+        (no hold until a nominal is learned again)."""
+        self.settling = ThermalSettling(self.config.settling)
+        self.spans.clear()
+
     def retarget(self, arl0: float) -> int:
         """Re-derive every threshold for the mean run length ``arl0`` [cycles] on the same nominals (the
         robot's cycle rate changed, :mod:`~edge_monitor.pipeline.cycle_rate`); calibrations started."""

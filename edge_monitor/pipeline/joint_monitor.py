@@ -31,7 +31,7 @@ from edge_monitor.features.joint_model_learning import JointModelLearner
 from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
-from edge_monitor.pipeline.detectors import Acknowledgement, DetectorBank
+from edge_monitor.pipeline.detectors import SETTLING_KEY, Acknowledgement, DetectorBank
 from edge_monitor.pipeline.fault_grouping import FaultTracker
 from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
 from edge_monitor.pipeline.operating_range import OperatingRange
@@ -82,7 +82,8 @@ class JointMonitor:
         self._build()
         self.maintenances = 0
         self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
-        self.motor_temperature_seen = False   # whether the controller ever sent this joint's motor temperature
+        self.motor_temperature_seen = False    # whether the controller ever sent this joint's motor temperature
+        self.friction_temperature_used = False  # whether the detectors followed the friction's temperature
 
     def _build(self) -> None:
         """Features with the joint's current model, and fresh detectors (which keep the temperature
@@ -233,13 +234,22 @@ class JointMonitor:
     def _joint_temperature(self, cycle: CycleInput, values: dict[str, float]) -> tuple[float | None, str]:
         """The temperature [°C] the detectors' stages and holds follow, and what it is: the cycle's motor
         temperature; on a joint whose controller never sent one (a foreign DBC without it), the lubricant
-        temperature the wear estimate reads from the friction curve (docs/CONNECTING.md). A joint that
-        has sent motor temperatures never switches: a cycle without one is a cycle of unknown temperature."""
+        temperature the wear estimate reads from the friction curve with the joint's own model
+        (docs/CONNECTING.md). The two differ by the joint's motor-to-lubricant offset, so they never mix:
+        a joint that has sent a motor temperature has no temperature in a cycle without one, and the first
+        motor temperature after friction-read ones restarts the temperature history (settling, spans)."""
         motor = finite_or_none(cycle.motor_temperature)
-        if motor is not None or self.motor_temperature_seen:
-            self.motor_temperature_seen = self.motor_temperature_seen or motor is not None
+        if motor is not None and not self.motor_temperature_seen:
+            self.motor_temperature_seen = True
+            if self.friction_temperature_used:
+                log.info("joint %d: the controller now sends a motor temperature; the detectors' temperature "
+                         "history read from the friction is restarted on it", self.joint)
+                self.detectors.restart_temperature_history()
+        if self.motor_temperature_seen:
             return motor, MOTOR_TEMPERATURE
-        return finite_or_none(values.get("temperature", math.nan)), FRICTION_TEMPERATURE
+        lubricant = finite_or_none(values.get("temperature", math.nan)) if self.model_ready else None
+        self.friction_temperature_used |= lubricant is not None
+        return lubricant, FRICTION_TEMPERATURE
 
     def _cause(self, decision: Decision, covariates: dict[str, float | None]) -> dict[str, Any]:
         """An alarm's cause as far as the agent can tell: the shift in the quantity's units and the
@@ -290,7 +300,8 @@ class JointMonitor:
         snapshot are not; a cycle resumed from a saved state is published partial anyway."""
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "acknowledgements": self.acknowledgements,
-                "motor_temperature_seen": self.motor_temperature_seen, "assembly": self.assembler.state_dict(),
+                "motor_temperature_seen": self.motor_temperature_seen,
+                "friction_temperature_used": self.friction_temperature_used, "assembly": self.assembler.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
@@ -312,7 +323,7 @@ class JointMonitor:
         monitor = cls(joint, config, calibrator)
         monitor.maintenances = int(state.get("maintenances", 0))
         monitor.acknowledgements = int(state.get("acknowledgements", 0))
-        monitor.motor_temperature_seen = state.get("motor_temperature_seen") is True
+        monitor.motor_temperature_seen, monitor.friction_temperature_used = _temperature_sources(state)
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
             monitor.assembler.load_state(assembly)
@@ -345,6 +356,17 @@ class JointMonitor:
             log.warning("joint %d: %s; relearning it", self.joint, exc)
         except (KeyError, TypeError, ValueError) as exc:
             log.warning("joint %d: saved %s state unusable (%s); relearning it", self.joint, spec.name, exc)
+
+
+def _temperature_sources(state: dict[str, Any]) -> tuple[bool, bool]:
+    """(motor temperature seen, friction's temperature used) from a saved joint state; a state saved before
+    they were kept had its detectors follow the motor temperature alone: seen if its settling has values."""
+    if "motor_temperature_seen" in state:
+        return state.get("motor_temperature_seen") is True, state.get("friction_temperature_used") is True
+    detectors = state.get("detectors")
+    settling = detectors.get(SETTLING_KEY) if isinstance(detectors, dict) else None
+    count = settling.get("count") if isinstance(settling, dict) else None
+    return isinstance(count, int) and not isinstance(count, bool) and count > 0, False
 
 
 def _covariates(cycle: CycleInput) -> dict[str, float | None]:
