@@ -131,8 +131,9 @@ def _from_files(out: Path) -> dict:
             for q, d in s["decisions"].items():
                 if d.get("alarm"):
                     first.setdefault((s["joint"], q), s["cycle"])
-        saved = _stats_file(out, name)
-        stats = json.loads(saved.read_text()).get("stats", {}) if saved.exists() else {}
+        saved, legacy = _stats_file(out, name), out / "results.json"       # (all profiles' stats, before --profiles)
+        stats = json.loads(saved.read_text()).get("stats", {}) if saved.exists() else \
+            json.loads(legacy.read_text()).get(name, {}).get("stats", {}) if legacy.exists() else {}
         stats["alarms"] = [{"joint": j, "cycle": c, "quantity": q} for (j, q), c in sorted(first.items(),
                                                                                           key=lambda x: x[1])]
         stats.setdefault("cycles", max((s["cycle"] for s in symptoms), default=-1) + 1)
