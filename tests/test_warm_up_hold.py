@@ -159,7 +159,7 @@ def test_without_the_steady_stage_nothing_holds_while_warm() -> None:
 def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperature() -> None:
     """A controller that sends no motor temperature (a foreign DBC): the joint's detectors follow the
     lubricant temperature the wear estimate reads from the friction curve with the joint's own model (none
-    while that model is learned), and a hold says so. The two temperatures differ by the joint's offset,
+    while that model is learned; both holds and the settling use it), and a hold says so. The two temperatures differ by the joint's offset,
     so they never mix: after a motor temperature a cycle without one has none, and the first motor
     temperature after friction-read ones restarts the history (settling, spans)."""
     from edge_monitor.config import config_from_mapping
@@ -194,14 +194,15 @@ def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperat
     assert JointMonitor.from_state(0, config, old)._joint_temperature(
         SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
 
-    # What the friction's temperature may hold: a steady detector while colder (a restart after a stop), never
-    # a warm-up one while warmer (wear reads warmer there and would hold the KL detectors as it grows).
+    # The holds name what the temperature is.
     spans = NominalSpans({"kl_raw": Span(50.0, 55.0)}, warm_up_hold=("kl_raw",))
     steady, warm_up = (SimpleNamespace(state="monitoring", stage=stage) for stage in ("steady", "warm-up"))
     assert spans.held("kl_raw", steady, 40.0, FRICTION_TEMPERATURE).startswith(
         f"held: {FRICTION_TEMPERATURE} 40.0 °C below")
-    assert spans.held("kl_raw", warm_up, 70.0, FRICTION_TEMPERATURE) == ""
+    assert spans.held("kl_raw", warm_up, 70.0, FRICTION_TEMPERATURE).startswith(
+        f"held: {FRICTION_TEMPERATURE} 70.0 °C above")
     assert spans.held("kl_raw", warm_up, 70.0, MOTOR_TEMPERATURE).startswith("held: motor temperature 70.0 °C above")
+    assert spans.held("kl_raw", warm_up, 56.0, FRICTION_TEMPERATURE) == ""      # within the margin (2 °C)
 
 
 def test_a_robot_without_motor_temperature_runs_end_to_end_on_its_friction_temperature() -> None:

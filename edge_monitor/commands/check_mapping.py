@@ -29,7 +29,7 @@ from edge_monitor.pipeline.signal_check import SignalCheck
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, add_can_arguments, can_options
 
 FALLBACK = {"temperature": "site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
-                           "lubricant temperature read from the friction for the detectors' stages (no warm-up hold)",
+                           "lubricant temperature read from the friction for the detectors' stages and holds",
             "load": "configured load prior ([wear] default_load_mean ± default_load_std)"}
 
 

@@ -21,10 +21,11 @@ leaves a drift a detector reads as a fault. Two cases meet every plant:
 :class:`NominalSpans` keeps, per detector, the span of the cycle-mean motor temperature [°C] over the
 cycles whose values went into its current nominal. Unknown temperature, or no span: no hold. A joint whose
 controller sends no motor temperature is followed by the lubricant temperature its wear estimate reads from
-the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`):
-for its settling and the steady stage's hold, not the warm-up hold. Wear reads as a warmer lubricant there
-(the friction's temperature and wear are estimated together; +2 … 4 °C at wear 20 on a warm joint), so it
-would hold the KL detectors just as the wear grows; colder, the steady hold's side, it never reads.
+the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`),
+for both holds and its settling. Its price: wear reads as a slightly warmer lubricant (the two are estimated
+together; +1.5 … 4 °C at wear 20 on a warm joint), so a worn joint's warm-up KL detectors hold a little
+sooner; without the hold such a joint's warm-up KL detectors false-alarm in storms (docs/DETECTION.md,
+"A robot without motor temperature"). The wear evidence never holds.
 """
 
 from __future__ import annotations
@@ -56,8 +57,8 @@ class NominalSpans:
              source: str = MOTOR_TEMPERATURE) -> str:
         """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does): a steady
         detector while the joint is colder than its span by more than the operating range's margin
-        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is warmer (by the motor
-        temperature only: see the module)."""
+        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is warmer. ``source``:
+        what the temperature is (named in the reason)."""
         span = self.learned.get(quantity)
         if span is None or temperature is None or detector.state != "monitoring":
             return ""
@@ -66,8 +67,7 @@ class NominalSpans:
             return (f"held: {source} {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the steady nominal was learned in (warming again after a stop); monitoring resumes when it "
                     f"is back")
-        if detector.stage != "steady" and quantity in self.warm_up_hold and source == MOTOR_TEMPERATURE \
-                and temperature > span.hi + margin:
+        if detector.stage != "steady" and quantity in self.warm_up_hold and temperature > span.hi + margin:
             return (f"held: {source} {temperature:.1f} °C above the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the warm-up nominal was learned in (the joint is warming); monitoring resumes on the steady "
                     f"nominal once the temperature has settled")
