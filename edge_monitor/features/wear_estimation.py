@@ -239,8 +239,7 @@ class WearEstimator:
             if not np.all(np.isfinite(cost)):
                 return _invalid(int(v.size), "no finite fit")
             prior = self._prior_cost(temperature_prior)
-            grid = self._summarise(cost + prior[:, None], v, whiten, white_nominal, prior,
-                                   informed=bool(prior.any()))
+            grid = self._summarise(cost + prior[:, None], v, whiten, white_nominal, prior)
             if v.size == 1 or self.method == "marginal":
                 estimate = grid.mode
                 temperature = grid.temperature if v.size >= 2 else None
@@ -316,7 +315,7 @@ class WearEstimator:
         return cached
 
     def _summarise(self, signed_cost: NDArray[np.float64], v, whiten, white_nominal,
-                   prior: NDArray[np.float64], informed: bool = True) -> _GridSummary:
+                   prior: NDArray[np.float64]) -> _GridSummary:
         w = self._grid_wear
         best_signed = np.argmin(signed_cost, axis=0)
         signed_profile = signed_cost[best_signed, np.arange(self._grid_signed.size)]     # min_ξ C
@@ -324,7 +323,8 @@ class WearEstimator:
         signed_log_m = -0.5 * signed_profile + np.log(
             np.sum(np.exp(-0.5 * (signed_cost - signed_profile[None, :])), axis=0))
         zero = self._grid_signed.size - w.size                  # index of ϖ = 0 on the signed grid
-        floor = 0 if informed else int(np.searchsorted(self._grid_signed, -_FLAT_PRIOR_CONTINUATION))
+        # ξ pinned by a prior (its cost is not all zero): the whole mirrored grid; flat: bounded below
+        floor = 0 if prior.any() else int(np.searchsorted(self._grid_signed, -_FLAT_PRIOR_CONTINUATION))
         top = floor + int(np.argmax(signed_log_m[floor:]))
         score = math.copysign(math.sqrt(max(2.0 * float(signed_log_m[top] - signed_log_m[zero]), 0.0)),
                               float(self._grid_signed[top]))
