@@ -25,7 +25,7 @@ the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMon
 for both holds and its settling. Its price: wear reads as a slightly warmer lubricant (the two are estimated
 together; +1.5 … 4 °C at wear 20 on a warm joint), so a worn joint's warm-up KL detectors hold a little
 sooner; without the hold such a joint's warm-up KL detectors false-alarm in storms (docs/DETECTION.md,
-"A robot without motor temperature"). The wear evidence never holds.
+"A robot without motor temperature"). The wear evidence never holds while the joint warms.
 """
 
 from __future__ import annotations
