@@ -329,3 +329,37 @@ def test_the_learned_spans_survive_a_restart_and_a_maintenance_clears_them() -> 
     fresh.observe_temperature(50.0)
     fresh.update(_healthy(rng), "r", 0, 0)
     json.dumps(fresh.state_dict(), allow_nan=False)
+
+
+def test_a_stop_restarts_the_settling_so_no_steady_nominal_spans_it() -> None:
+    """A settled joint collecting its steady values (50 ± 3 °C) stops overnight and restarts at 30 °C. A
+    regression over a window that holds the warm cycles and the cold restart sees no warming, so before
+    the stop was noticed the collection went on across it and the steady nominal mixed warm and cold
+    cycles (seed 401 of the plant week: a span of 34–65 °C, then no cold-restart hold and two false
+    alarms at the next restart). Now the stop restarts the settling test: the collection under way is
+    dropped, and the steady nominals learned once the joint has settled again hold warm cycles only."""
+    config = DecisionConfig(n_nominal=20, steady_nominal=60, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(12)
+    cycle = 0
+    while not bank.detectors["wear"]._steady_values:
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        bank.update(_healthy(rng), "r", 0, cycle)
+        cycle += 1
+    assert bank.settling.settled and bank.detectors["wear"].stage == "warm-up"
+    for k in range(2):
+        bank.observe_temperature(30.0 + rng.normal(0.0, NOISE))
+        bank.update(_healthy(rng), "r", 0, cycle + k)
+    assert bank.hold_temperature.jumps == 1 and not bank.settling.settled
+    assert all(d._steady_values is None for d in bank.detectors.values())
+    cycle += 2
+    temperature = 50.0 - 20.0 * np.exp(-np.arange(600) / 30.0)      # warming again towards 50 °C
+    for k, t in enumerate(temperature + rng.normal(0.0, NOISE, temperature.size)):
+        bank.observe_temperature(float(t))
+        decisions, _ = bank.update(_healthy(rng), "r", 0, cycle + k)
+        for quantity, decision in decisions.items():
+            if decision.alarm:
+                bank.detectors[quantity].reset()
+    assert {d.stage for d in bank.detectors.values()} == {"steady"}
+    assert all(span.lo > 44.0 for span in bank.spans.learned.values()), bank.spans.learned

@@ -235,3 +235,33 @@ def test_a_robot_without_motor_temperature_runs_end_to_end_on_its_friction_tempe
     assert len(seen) >= 2 * 20                     # every cycle after the model (20 cycles of 60)
     assert all(abs(read - true) < 7.5 for read, true in seen), max(abs(r - t) for r, t in seen)
     assert all(not m.motor_temperature_seen and m.friction_temperature_used for m in agent.joints.values())
+
+
+def test_a_warm_up_detector_holds_while_the_joint_is_cold_again_after_a_stop() -> None:
+    """A joint still in its warm-up stage stops overnight: it restarts at 20 °C, 15 °C below the span its
+    warm-up nominals were learned in, where its KL distances sit well above them (seed 401 of the plant week:
+    kl_raw 4–6 σ up for ten cycles, which raised a false alarm). The KL and joint-vector detectors hold
+    ("below"), the wear evidence decides on. Other side: back inside the span the same shift alarms."""
+    bank, rng, cycle = _warm_up_bank(4)
+    decisions, raised = _run(bank, rng, cycle, COLD - 15.0, 30, kl_shift=6.0)
+    assert not raised
+    for d in decisions:
+        assert all(d[q].statistic is None and "below" in d[q].reason and d[q].reason.startswith("held")
+                   for q in HELD)
+        assert d["wear"].statistic is not None
+    _, raised = _run(bank, rng, cycle + 30, COLD, 30, kl_shift=6.0)
+    assert HELD <= raised
+
+
+def test_the_spans_and_holds_read_the_smoothed_temperature() -> None:
+    """The spans are learned on the smoothed temperature (edge_monitor/pipeline/hold_temperature.py), so
+    the scatter's extremes do not widen them: 20 learning cycles at 35 ± 3 °C give a span of about
+    ±1.1·2 °C around 35 (the smoothed std is 3·√(0.25/1.75) = 1.13 °C; the raw span would be ≈ ±5.6 °C),
+    inside 35 ± 4·1.13 here. The smoothing state is saved with the detectors and restored."""
+    bank, _, _ = _warm_up_bank(5)
+    expected = NOISE * (0.25 / 1.75) ** 0.5
+    for span in bank.spans.learned.values():
+        assert COLD - 4 * expected < span.lo <= span.hi < COLD + 4 * expected
+    restored = DetectorBank(bank.config, {})
+    restored.load_state(json.loads(json.dumps(bank.state_dict(), allow_nan=False)), 0)
+    assert restored.hold_temperature.state_dict() == bank.hold_temperature.state_dict()

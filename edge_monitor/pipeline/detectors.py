@@ -32,6 +32,7 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
     STEADY_DRIFT,
     STEADY_WANDER,
 )
+from edge_monitor.pipeline.hold_temperature import HoldTemperature
 from edge_monitor.pipeline.nominal_temperature import MOTOR_TEMPERATURE, NominalSpans
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Alarm, Decision
@@ -45,6 +46,8 @@ SETTLING_KEY = "_thermal_settling"
 #: Key of the motor-temperature spans the nominals were learned in (not a quantity name), and its name in
 #: states saved before the warm-up detectors kept theirs.
 SPANS_KEY, OLD_SPANS_KEY = "_nominal_temperature", "_steady_temperature"
+#: Key of the smoothed temperature the holds read (not a quantity name).
+HOLD_KEY = "_hold_temperature"
 
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
@@ -78,6 +81,8 @@ class DetectorBank:
                           for q in config.quantities} if config.enabled else {}
         self.settling = ThermalSettling(config.settling)
         self.temperature: float | None = None         # the current cycle's temperature [°C] (observe_temperature)
+        self.hold_temperature = HoldTemperature()      # its smoothing, which the spans and holds read
+        self.smoothed: float | None = None            # the current cycle's smoothed temperature [°C]
         self.temperature_source = MOTOR_TEMPERATURE
         self.spans = NominalSpans(warm_up_hold=self._warm_up_hold)    # the temperatures of the nominals (holds)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
@@ -86,10 +91,16 @@ class DetectorBank:
         """A cycle's mean temperature [°C] (None: unknown), ``source`` saying which (the motor's, or the
         lubricant's read from the friction). Once the joint's temperature has settled, every detector still on
         its warm-up nominal learns its steady one; if it warms again before a detector has collected its
-        steady values, that collection is dropped."""
+        steady values, that collection is dropped. A stop (the temperature jumps,
+        :class:`~edge_monitor.pipeline.hold_temperature.HoldTemperature`) restarts the settling test: the
+        joint warms again from where the stop left it."""
         t = None if temperature is None else float(temperature)
         self.temperature = t if t is not None and math.isfinite(t) else None
         self.temperature_source = source
+        jumps = self.hold_temperature.jumps
+        self.smoothed = self.hold_temperature.update(self.temperature)
+        if self.hold_temperature.jumps > jumps:        # a stop: the warming starts over, so does the settling
+            self.settling = ThermalSettling(self.config.settling)
         settled = self.settling.update(self.temperature)
         for quantity, detector in self.detectors.items():
             if settled and self.config.steady_relearn:
@@ -104,6 +115,7 @@ class DetectorBank:
         """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled), and its count of
         held detector-cycles (a health counter of the run)."""
         self.settling = ThermalSettling.from_state(self.config.settling, previous.settling.state_dict())
+        self.hold_temperature = HoldTemperature.from_state(previous.hold_temperature.state_dict())
         self.held = dict(previous.held)
         for quantity, detector in self.detectors.items():           # and the budget's current target
             if quantity in previous.detectors:
@@ -113,6 +125,7 @@ class DetectorBank:
         """The joint's temperature now comes from another source: settling and the nominals' spans start over
         (no hold until a nominal is learned again)."""
         self.settling = ThermalSettling(self.config.settling)
+        self.hold_temperature = HoldTemperature()
         self.spans.clear()
 
     def retarget(self, arl0: float) -> int:
@@ -136,11 +149,11 @@ class DetectorBank:
             value = [watched.get(q, math.nan) for q in spec.inputs]
             fed = value[0] if spec.dim == 1 else value
             was_alarmed, collecting, fits = detector.alarmed, detector.collecting, detector.fits
-            held = self.spans.held(quantity, detector, self.temperature, self.temperature_source)
+            held = self.spans.held(quantity, detector, self.smoothed, self.temperature_source)
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)
-            self.spans.track(quantity, detector, collecting, detector.fits > fits, self.temperature)
+            self.spans.track(quantity, detector, collecting, detector.fits > fits, self.smoothed)
             decisions[quantity] = decision
             if decision.alarm and not was_alarmed:
                 alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
@@ -203,7 +216,7 @@ class DetectorBank:
     def state_dict(self) -> dict[str, Any]:
         out = {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
         return {**out, SETTLING_KEY: self.settling.state_dict(),
-                SPANS_KEY: self.spans.state_dict()}
+                SPANS_KEY: self.spans.state_dict(), HOLD_KEY: self.hold_temperature.state_dict()}
 
     def _check_inputs(self, quantity: str, saved: Any) -> None:
         """:class:`StateMismatch` naming what changed if ``quantity``'s detector learned on other values."""
@@ -227,6 +240,7 @@ class DetectorBank:
         messages: list[str] = []
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
+        self.hold_temperature = HoldTemperature.from_state(state.get(HOLD_KEY))
         self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self._warm_up_hold)
         for quantity in self.detectors:
             saved = state.get(quantity)

@@ -1,4 +1,4 @@
-"""The motor temperatures each detector's nominal was learned at, and the cycles a detector holds because
+"""The temperatures each detector's nominal was learned at, and the cycles a detector holds because
 the joint is far from them (docs/DETECTION.md, "Operating conditions").
 
 The temperature compensation of the KL distances is identified over a few °C; carried much further, it
@@ -13,13 +13,17 @@ leaves a drift a detector reads as a fault. Two cases meet every plant:
   they learned in, by more than the operating range's margin, until the steady stage replaces their
   nominal; the values a held detector would add to its steady nominal still go in. The wear evidence
   keeps watching throughout.
-* **a restart after a stop** (the steady stage): a steady nominal describes the joint warm; after a
-  long stop the lubricant is back near ambient, and a cold joint's KL distances sit well above a warm
-  nominal. So a steady detector skips the cycles colder than its span by more than the margin, until
-  the joint is back in range.
+* **a restart after a stop**: a nominal learned warm describes the joint warm; after a long stop the
+  lubricant is back near ambient, and a cold joint's KL distances sit well above it. So a steady
+  detector skips the cycles colder than its span by more than the margin, until the joint is back in
+  range; so does a warm-up detector of ``decision.warm_up_hold`` (a joint that stops before it settled:
+  its warm-up nominal was learned in its first, already warming cycles; seed 401 of the plant week
+  restarted 10 °C below them and raised a kl_raw false alarm).
 
-:class:`NominalSpans` keeps, per detector, the span of the cycle-mean motor temperature [°C] over the
-cycles whose values went into its current nominal. Unknown temperature, or no span: no hold. A joint whose
+:class:`NominalSpans` keeps, per detector, the span of the joint's temperature [°C] over the cycles
+whose values went into its current nominal; both the spans and the holds read the temperature smoothed
+over a few cycles (:mod:`~edge_monitor.pipeline.hold_temperature`: the per-cycle scatter would widen a
+span by its extremes and make a hold flicker). Unknown temperature, or no span: no hold. A joint whose
 controller sends no motor temperature is followed by the lubricant temperature its wear estimate reads from
 the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`),
 for both holds and its settling. Its price: wear reads as a slightly warmer lubricant (the two are estimated
@@ -57,20 +61,25 @@ class NominalSpans:
              source: str = MOTOR_TEMPERATURE) -> str:
         """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does): a steady
         detector while the joint is colder than its span by more than the operating range's margin
-        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is warmer. ``source``:
-        what the temperature is (named in the reason)."""
+        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is outside its span by
+        more than that, warmer or colder. ``source``: what the temperature is (named in the reason)."""
         span = self.learned.get(quantity)
         if span is None or temperature is None or detector.state != "monitoring":
             return ""
         margin = span.margin(COVARIATE)
         if detector.stage == "steady" and temperature < span.lo - margin:
-            return (f"held: {source} {temperature:.1f} °C below the {span.lo:.1f} … {span.hi:.1f} °C "
+            return (f"held: {source} {temperature:.1f} °C (smoothed) below the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the steady nominal was learned in (warming again after a stop); monitoring resumes when it "
                     f"is back")
-        if detector.stage != "steady" and quantity in self.warm_up_hold and temperature > span.hi + margin:
-            return (f"held: {source} {temperature:.1f} °C above the {span.lo:.1f} … {span.hi:.1f} °C "
+        if detector.stage == "steady" or quantity not in self.warm_up_hold:
+            return ""
+        if temperature > span.hi + margin:
+            return (f"held: {source} {temperature:.1f} °C (smoothed) above the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the warm-up nominal was learned in (the joint is warming); monitoring resumes on the steady "
                     f"nominal once the temperature has settled")
+        if temperature < span.lo - margin:
+            return (f"held: {source} {temperature:.1f} °C (smoothed) below the {span.lo:.1f} … {span.hi:.1f} °C "
+                    f"the warm-up nominal was learned in (cold again after a stop); monitoring resumes when it is back")
         return ""
 
     def track(self, quantity: str, detector: SequentialDetector, collected: bool, fitted: bool,
