@@ -11,8 +11,8 @@ re-derived for each budget's ARL0 on the same nominal (:meth:`SequentialDetector
 budget's first alarm is the first cycle a statistic reaches that budget's threshold. Budgets are
 converted at 300 cycles a day over 6 joints × 4 detectors, as the agent does by default.
 
-Usage: ``python tools/budget_cost.py [--seeds 301 302 303] [--jobs 2] [--json OUT]`` (≈ 1–2 min CPU per
-run here).
+Usage: ``python tools/budget_cost.py [--seeds 301 302 303] [--jobs 2] [--json OUT] [--set TABLE.KEY=VALUE]``
+(≈ 1–2 min CPU per run here).
 """
 
 from __future__ import annotations
@@ -34,13 +34,16 @@ from typing import Any, Iterator  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.offline.fast_path import run_cycles  # noqa: E402
 from edge_monitor.pipeline.agent import Agent  # noqa: E402
-from edge_monitor.pipeline.agent_config import AgentConfig  # noqa: E402
 from edge_monitor.pipeline.detectors import BUDGET_PERIODS, DecisionConfig  # noqa: E402
 from edge_monitor.stats.sequential_detector import SequentialDetector  # noqa: E402
 from sim_controller.cycle_mode import CycleSignals, cycle_signals  # noqa: E402
 from sim_controller.scenario import scenario_config  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from healthy_fleet_study import parse_set, settings_from  # noqa: E402
 
 log = logging.getLogger("budget_cost")
 #: name → (wear ramp JOINT:START:END:FROM:TO, cycles simulated): the ramps start once the detectors monitor.
@@ -67,11 +70,12 @@ def thresholds(detector: SequentialDetector, targets: dict[str, float], cycle: i
     return out
 
 
-def run(seed: int, ramp: str) -> dict[str, Any]:
-    """One joint with ``ramp``: per budget, the first alarm (cycle, quantity, true wear)."""
+def run(seed: int, ramp: str, overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
+    """One joint with ``ramp``: per budget, the first alarm (cycle, quantity, true wear); ``overrides``:
+    agent settings (TABLE.KEY, value) on top of the shipped defaults."""
     spec, cycles = RAMPS[ramp]
     sim = scenario_config(None, {"seed": seed, "joints": 1, "cycles": cycles}, fallback={}, wear_ramps=(spec,))
-    agent = Agent(AgentConfig())
+    agent = Agent(config_from_mapping(settings_from(overrides)))
     targets = budgets()
     wear: dict[int, float] = {}
     current: dict[str, tuple[tuple[str, int], dict[str, float]]] = {}     # quantity → (adopted at, thresholds per budget)
@@ -119,17 +123,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ramps", nargs="+", default=list(RAMPS), choices=list(RAMPS))
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
+                        help="agent setting (value as JSON) on top of the shipped defaults, e.g. "
+                             "decision.warm_up_hold_margin=4")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     for name in ("edge_monitor", "sim_controller"):
         logging.getLogger(name).setLevel(logging.ERROR)
-    jobs = [(seed, ramp) for ramp in args.ramps for seed in args.seeds]
+    overrides = tuple(args.set)
+    jobs = [(seed, ramp, overrides) for ramp in args.ramps for seed in args.seeds]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(run, *zip(*jobs)))
     print(table(results))
     if args.json:
-        args.json.write_text(json.dumps({"budgets": budgets(), "periods": BUDGET_PERIODS, "results": results},
-                                        indent=1) + "\n")
+        args.json.write_text(json.dumps({"budgets": budgets(), "periods": BUDGET_PERIODS, "overrides": dict(overrides),
+                                         "results": results}, indent=1) + "\n")
     return 0
 
 

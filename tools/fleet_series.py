@@ -31,6 +31,7 @@ import json  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+import tomllib  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -51,7 +52,9 @@ Series = dict[int, list[dict[str, float]]]
 
 
 def code_hash() -> str:
-    """SHA-256 (12 hex digits) of every source file the quantities depend on."""
+    """SHA-256 (12 hex digits) of every source file the quantities depend on; a TOML file by its settings,
+    without its comments and its ``[decision]`` table (the detectors are off here), so a comment or a
+    detector setting does not make the kept series stale."""
     digest = hashlib.sha256()
     for name in SOURCES:
         path = ROOT / name
@@ -59,8 +62,15 @@ def code_hash() -> str:
         for file in files:
             if file.is_file() and file.suffix in (".py", ".toml") and "__pycache__" not in file.parts:
                 digest.update(str(file.relative_to(ROOT)).encode())
-                digest.update(file.read_bytes())
+                digest.update(_settings_bytes(file) if file.suffix == ".toml" else file.read_bytes())
     return digest.hexdigest()[:12]
+
+
+def _settings_bytes(file: Path) -> bytes:
+    """A TOML file's settings other than ``[decision]``, canonically."""
+    settings = tomllib.loads(file.read_text(encoding="utf-8"))
+    settings.pop("decision", None)
+    return json.dumps(settings, sort_keys=True, default=str).encode()
 
 
 def _config(seed: int, cycles: int, joints: int, scenario: str | None) -> Any:

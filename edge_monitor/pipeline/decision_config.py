@@ -32,7 +32,7 @@ from edge_monitor.stats.detector_config import (
 #: target its threshold is derived for (a changed target is re-derived on the same nominal,
 #: :meth:`DetectorBank.retarget`): not in the fingerprint (a saved state stays valid when they change),
 #: and kept from the current config on "keep".
-SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold",
+SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold", "warm_up_hold_margin",
                  "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
 #: The periods a false-alarm budget may be stated per [days].
@@ -100,6 +100,7 @@ class DecisionConfig:
     settling_window: int = SettlingConfig().window
     settling_max_rate: float = SettlingConfig().max_rate
     warm_up_hold: tuple[str, ...] = ("kl_raw", "kl_weighted", "joint")
+    warm_up_hold_margin: float = 6.0
 
     @property
     def settling(self) -> SettlingConfig:
@@ -149,6 +150,9 @@ class DecisionConfig:
         hold = self.warm_up_hold
         require(isinstance(hold, tuple) and all(q in QUANTITIES for q in hold), "decision.warm_up_hold",
                 f"a list of quantities of {sorted(QUANTITIES)}, got {hold!r}")
+        margin = self.warm_up_hold_margin
+        require(isinstance(margin, (int, float)) and not isinstance(margin, bool) and 0 <= margin <= 50,
+                "decision.warm_up_hold_margin", f"must be 0 … 50 °C, got {margin!r}")
         for quantity in self.quantities:
             try:
                 self.detector_config(quantity)

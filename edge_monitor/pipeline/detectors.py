@@ -84,7 +84,8 @@ class DetectorBank:
         self.hold_temperature = HoldTemperature()      # its smoothing, which the spans and holds read
         self.smoothed: float | None = None            # the current cycle's smoothed temperature [°C]
         self.temperature_source = MOTOR_TEMPERATURE
-        self.spans = NominalSpans(warm_up_hold=self._warm_up_hold)    # the temperatures of the nominals (holds)
+        self.spans = NominalSpans(warm_up_hold=self._warm_up_hold,    # the temperatures of the nominals (holds)
+                                  warm_margin=config.warm_up_hold_margin)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
 
     def observe_temperature(self, temperature: float | None, source: str = MOTOR_TEMPERATURE) -> None:
@@ -241,7 +242,8 @@ class DetectorBank:
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
         self.hold_temperature = HoldTemperature.from_state(state.get(HOLD_KEY))
-        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self._warm_up_hold)
+        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self._warm_up_hold,
+                                             self.config.warm_up_hold_margin)
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:

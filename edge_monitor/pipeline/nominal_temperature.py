@@ -52,10 +52,11 @@ class NominalSpans:
     the joint is warmer than their span."""
 
     def __init__(self, learned: dict[str, Span] | None = None, collecting: dict[str, Span] | None = None,
-                 warm_up_hold: Collection[str] = ()) -> None:
+                 warm_up_hold: Collection[str] = (), warm_margin: float = 0.0) -> None:
         self.learned: dict[str, Span] = dict(learned or {})
         self.collecting: dict[str, Span] = dict(collecting or {})
         self.warm_up_hold = frozenset(warm_up_hold)
+        self.warm_margin = float(warm_margin)      # the least margin [°C] above a warm-up span before it holds
 
     def held(self, quantity: str, detector: SequentialDetector, temperature: float | None,
              source: str = MOTOR_TEMPERATURE) -> str:
@@ -73,7 +74,7 @@ class NominalSpans:
                     f"is back")
         if detector.stage == "steady" or quantity not in self.warm_up_hold:
             return ""
-        if temperature > span.hi + margin:
+        if temperature > span.hi + max(margin, self.warm_margin):
             return (f"held: {source} {temperature:.1f} °C (smoothed) above the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the warm-up nominal was learned in (the joint is warming); monitoring resumes on the steady "
                     f"nominal once the temperature has settled")
@@ -123,12 +124,12 @@ class NominalSpans:
                 for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
 
     @classmethod
-    def from_state(cls, state: Any, warm_up_hold: Collection[str] = ()) -> "NominalSpans":
+    def from_state(cls, state: Any, warm_up_hold: Collection[str] = (), warm_margin: float = 0.0) -> "NominalSpans":
         """From :meth:`state_dict`; anything else (a state saved before spans were kept, a damaged span)
         is left out: no hold for that detector. (A state saved before 2026-11-27 holds only the steady
         nominals' spans; its warm-up detectors do not hold until they learn again.)"""
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
-        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold)
+        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin)
 
 
 def _spans(saved: Any) -> dict[str, Span]:
