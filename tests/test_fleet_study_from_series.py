@@ -50,3 +50,18 @@ def test_the_detectors_over_kept_series_alarm_as_the_agent_does(tmp_path: Path, 
     for joint, counts in agent["monitored"].items():
         assert {q: n for q, n in counts.items() if q != "wear"} == \
             {q: n for q, n in detectors["monitored"][joint].items() if q != "wear"}
+
+
+def test_the_kept_series_key_reads_a_toml_by_its_settings_without_the_decision_table(tmp_path: Path) -> None:
+    """The series do not depend on comments nor on ``[decision]`` (the detectors are off when they are
+    computed): neither changes a TOML file's part of the key; any other setting does."""
+    base = '[kl]\nmin_speed = 10  # rad/s\n\n[decision]\nwarm_up_hold_margin = 6.0\n'
+    variants = {"comment": base.replace("# rad/s", "# a longer comment"),
+                "decision": base.replace("6.0", "2.0") + "allowance = 0.5\n",
+                "kl": base.replace("10", "12")}
+    key = {}
+    for name, text in {"base": base, **variants}.items():
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text, encoding="utf-8")
+        key[name] = fleet_series._settings_bytes(path)
+    assert key["comment"] == key["decision"] == key["base"] != key["kl"]

@@ -198,10 +198,11 @@ def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperat
     spans = NominalSpans({"kl_raw": Span(50.0, 55.0)}, warm_up_hold=("kl_raw",))
     steady, warm_up = (SimpleNamespace(state="monitoring", stage=stage) for stage in ("steady", "warm-up"))
     assert spans.held("kl_raw", steady, 40.0, FRICTION_TEMPERATURE).startswith(
-        f"held: {FRICTION_TEMPERATURE} 40.0 °C below")
+        f"held: {FRICTION_TEMPERATURE} 40.0 °C (smoothed) below")
     assert spans.held("kl_raw", warm_up, 70.0, FRICTION_TEMPERATURE).startswith(
-        f"held: {FRICTION_TEMPERATURE} 70.0 °C above")
-    assert spans.held("kl_raw", warm_up, 70.0, MOTOR_TEMPERATURE).startswith("held: motor temperature 70.0 °C above")
+        f"held: {FRICTION_TEMPERATURE} 70.0 °C (smoothed) above")
+    assert spans.held("kl_raw", warm_up, 70.0, MOTOR_TEMPERATURE).startswith(
+        "held: motor temperature 70.0 °C (smoothed) above")
     assert spans.held("kl_raw", warm_up, 56.0, FRICTION_TEMPERATURE) == ""      # within the margin (2 °C)
 
 
@@ -265,3 +266,27 @@ def test_the_spans_and_holds_read_the_smoothed_temperature() -> None:
     restored = DetectorBank(bank.config, {})
     restored.load_state(json.loads(json.dumps(bank.state_dict(), allow_nan=False)), 0)
     assert restored.hold_temperature.state_dict() == bank.hold_temperature.state_dict()
+
+
+def test_the_warm_side_holds_beyond_its_margin_and_a_bad_margin_is_a_clear_error() -> None:
+    """``decision.warm_up_hold_margin`` (°C): a joint whose smoothed temperature is 4 °C above the span is
+    still watched at 6 (the default: a 6 σ KL shift alarms), held at 2; 10 °C above is held at 6.
+    Below the span the margin stays max(2 °C, 10 % of the span)."""
+    for margin, above, held in ((6.0, 4.0, False), (2.0, 4.0, True), (6.0, 10.0, True)):
+        bank, rng, cycle = _warm_up_bank(6, warm_up_hold_margin=margin)
+        top = max(bank.spans.learned[q].hi for q in HELD)
+        for k in range(20):            # no scatter: the smoothed temperature comes within 0.1 °C of it
+            bank.observe_temperature(top + above)
+            bank.update(_inputs(rng), "r", 0, cycle + k)
+        assert bank.smoothed == pytest.approx(top + above, abs=0.1)
+        decisions, raised = [], set()
+        for k in range(20, 50):
+            bank.observe_temperature(top + above)
+            d, alarms = bank.update(_inputs(rng, kl_shift=6.0), "r", 0, cycle + k)
+            decisions.append(d)
+            raised |= {a.quantity for a in alarms}
+        assert all(all(dd[q].reason.startswith("held") == held for q in HELD) for dd in decisions), margin
+        assert (HELD & raised == set()) == held, (margin, above, raised)
+    for bad in (-1.0, 51.0, "6", True):
+        with pytest.raises(ConfigError, match="warm_up_hold_margin"):
+            DecisionConfig(warm_up_hold_margin=bad)
