@@ -23,7 +23,7 @@ The settling test (:mod:`~edge_monitor.pipeline.thermal_settling`) reads the raw
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypeGuard
 
 #: Smallest jump [°C] that restarts the smoothing: the floor of the holds' margin (a steadier sensor than
 #: the simulator's would otherwise restart at every fraction of a degree).
@@ -96,9 +96,9 @@ class HoldTemperature:
         return out
 
 
-def _count(x: Any) -> bool:
+def _count(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool) and x >= 0
 
 
-def _finite(x: Any) -> bool:
+def _finite(x: Any) -> TypeGuard[float]:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
