@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.errors import ConfigError
-from edge_monitor.pipeline.detectors import SETTLING_KEY, SPANS_KEY, DecisionConfig, DetectorBank
+from edge_monitor.pipeline.detectors import HOLD_KEY, SETTLING_KEY, SPANS_KEY, DecisionConfig, DetectorBank
 from edge_monitor.pipeline.thermal_settling import SettlingConfig, ThermalSettling
 from edge_monitor.stats.sequential_detector import DetectorConfig, SequentialDetector
 
@@ -363,3 +363,29 @@ def test_a_stop_restarts_the_settling_so_no_steady_nominal_spans_it() -> None:
                 bank.detectors[quantity].reset()
     assert {d.stage for d in bank.detectors.values()} == {"steady"}
     assert all(span.lo > 44.0 for span in bank.spans.learned.values()), bank.spans.learned
+
+
+def test_a_state_saved_before_the_smoothing_still_sees_the_first_stop() -> None:
+    """An agent upgraded across an overnight stop: its saved bank has no smoothing state, which is then
+    replayed from the settling test's recent temperatures, so the stop right after the restart is still
+    counted, the settling restarts and the steady collection under way is dropped (a fresh smoothing would
+    need 32 readings before it could see a jump)."""
+    config = DecisionConfig(n_nominal=20, steady_nominal=60, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(13)
+    cycle = 0
+    while not bank.detectors["wear"]._steady_values:
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        bank.update(_healthy(rng), "r", 0, cycle)
+        cycle += 1
+    state = json.loads(json.dumps(bank.state_dict()))
+    del state[HOLD_KEY]
+    restored = DetectorBank(config, {})
+    restored.load_state(state, 0)
+    assert restored.settling.settled and restored.detectors["wear"]._steady_values
+    for k, t in enumerate((30.0, 31.0)):
+        restored.observe_temperature(t)
+        restored.update(_healthy(rng), "r", 0, cycle + k)
+    assert restored.hold_temperature.stops == 1 and not restored.settling.settled
+    assert all(d._steady_values is None for d in restored.detectors.values())

@@ -82,10 +82,10 @@ class DetectorBank:
         self.settling = ThermalSettling(config.settling)
         self.temperature: float | None = None         # the current cycle's temperature [°C] (observe_temperature)
         self.hold_temperature = HoldTemperature()      # its smoothing, which the spans and holds read
-        self.smoothed: float | None = None            # the current cycle's smoothed temperature [°C]
+        self.smoothed: float | None = None            # the current cycle's smoothed temperature [°C] (holds)
         self.temperature_source = MOTOR_TEMPERATURE
-        self.spans = NominalSpans(warm_up_hold=self._warm_up_hold,    # the temperatures of the nominals (holds)
-                                  warm_margin=config.warm_up_hold_margin)
+        self.spans = NominalSpans(warm_up_hold=config.warm_up_hold,   # the temperatures of the nominals (holds)
+                                  warm_margin=config.warm_up_hold_margin, warm_side=config.steady_relearn)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
 
     def observe_temperature(self, temperature: float | None, source: str = MOTOR_TEMPERATURE) -> None:
@@ -98,9 +98,9 @@ class DetectorBank:
         t = None if temperature is None else float(temperature)
         self.temperature = t if t is not None and math.isfinite(t) else None
         self.temperature_source = source
-        jumps = self.hold_temperature.jumps
+        stops = self.hold_temperature.stops
         self.smoothed = self.hold_temperature.update(self.temperature)
-        if self.hold_temperature.jumps > jumps:        # a stop: the warming starts over, so does the settling
+        if self.hold_temperature.stops > stops:        # a stop: the warming starts over, so does the settling
             self.settling = ThermalSettling(self.config.settling)
         settled = self.settling.update(self.temperature)
         for quantity, detector in self.detectors.items():
@@ -154,7 +154,7 @@ class DetectorBank:
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)
-            self.spans.track(quantity, detector, collecting, detector.fits > fits, self.smoothed)
+            self.spans.track(quantity, detector, collecting, detector.fits > fits, self._span_temperature)
             decisions[quantity] = decision
             if decision.alarm and not was_alarmed:
                 alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
@@ -162,9 +162,10 @@ class DetectorBank:
         return decisions, alarms
 
     @property
-    def _warm_up_hold(self) -> tuple[str, ...]:
-        """The quantities whose warm-up detectors hold while warm (none without the steady stage, their end)."""
-        return self.config.warm_up_hold if self.config.steady_relearn else ()
+    def _span_temperature(self) -> float | None:
+        """What this cycle adds to a span being collected: the smoothed temperature, not a jump awaiting
+        confirmation (one wild reading would widen a span for good)."""
+        return self.smoothed if self.temperature is not None and self.hold_temperature.confirmed else None
 
     @property
     def collecting(self) -> bool:
@@ -241,9 +242,10 @@ class DetectorBank:
         messages: list[str] = []
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
-        self.hold_temperature = HoldTemperature.from_state(state.get(HOLD_KEY))
-        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self._warm_up_hold,
-                                             self.config.warm_up_hold_margin)
+        self.hold_temperature = HoldTemperature.from_state(state.get(HOLD_KEY)) if HOLD_KEY in state else \
+            HoldTemperature.replayed(self.settling.recent())      # saved before the holds smoothed
+        self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self.config.warm_up_hold,
+                                             self.config.warm_up_hold_margin, self.config.steady_relearn)
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:

@@ -29,15 +29,21 @@ from typing import Any, TypeGuard
 #: the simulator's would otherwise restart at every fraction of a degree).
 MIN_JUMP = 2.0
 #: Readings before the residuals' spread is trusted to call a jump (until then none restarts the smoothing).
-SPREAD_READINGS = 8
+SPREAD_READINGS = 32
 #: Memory of the residuals' spread [cycles] (a running mean until then).
 SPREAD_MEMORY = 32
+#: How far the mean of a jumping reading and the next must be from the level [residual stds] to confirm a
+#: jump (each alone: ``jump_sigmas``): two readings of Gaussian scatter hardly ever get there together.
+CONFIRM_SIGMAS = 4.0
+#: Plausible temperatures [°C] and spread [°C²] of a saved state (beyond them it starts afresh).
+PLAUSIBLE = (-100.0, 300.0)
+MAX_VARIANCE = 1.0e6
 
 
 class HoldTemperature:
     """``update(temperature) -> smoothed | None`` per cycle (None: unknown this cycle, state unchanged)."""
 
-    def __init__(self, smoothing: float = 0.25, jump_sigmas: float = 4.0) -> None:
+    def __init__(self, smoothing: float = 0.25, jump_sigmas: float = 3.0) -> None:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing: need 0 < a ≤ 1, got {smoothing!r}")
         self.smoothing = float(smoothing)
@@ -46,13 +52,14 @@ class HoldTemperature:
         self.variance = 0.0                  # running mean square of the residuals [°C²]
         self.readings = 0                    # residuals in ``variance``
         self.pending: float | None = None    # a reading that jumped, until the next one confirms it [°C]
-        self.jumps = 0                       # confirmed jumps so far (stops seen)
+        self.jumps = 0                       # confirmed jumps so far, either way
+        self.stops = 0                       # confirmed jumps down: the joint cooled at once (a stop)
 
     def update(self, temperature: float | None) -> float | None:
         """Take one cycle's temperature [°C]; the smoothed one, or None when this cycle's is unknown. A
         reading that jumps is this cycle's temperature at once; the next reading confirms the jump (it jumps
-        the same way: the level restarts between the two, :attr:`jumps` counts it) or shows a glitch (the
-        level stays)."""
+        the same way and agrees with it: the level restarts between the two, :attr:`jumps` counts it, and
+        :attr:`stops` if it was down) or shows a glitch (the level stays)."""
         if temperature is None or not math.isfinite(temperature):
             return None
         t = float(temperature)
@@ -60,12 +67,14 @@ class HoldTemperature:
             self.level = t
             return t
         pending, self.pending = self.pending, None
-        residual = t - self.level
-        if pending is not None and abs(residual) > self._jump() and (residual > 0) == (pending > self.level):
-            self.level = 0.5 * (pending + t)        # a stop: the joint is where the two readings say
+        residual, jump = t - self.level, self._jump()
+        if pending is not None and abs(residual) > jump and (residual > 0) == (pending > self.level) \
+                and abs(t - pending) <= jump and abs(0.5 * (t + pending) - self.level) > self._jump(CONFIRM_SIGMAS):
+            self.stops += residual < 0
             self.jumps += 1
+            self.level = 0.5 * (pending + t)        # the joint is where the two readings say
             return self.level
-        if self.readings >= SPREAD_READINGS and abs(residual) > self._jump():
+        if self.readings >= SPREAD_READINGS and abs(residual) > jump:
             self.pending = t
             return t
         self.level += self.smoothing * residual
@@ -73,26 +82,43 @@ class HoldTemperature:
         self.readings += 1
         return self.level
 
-    def _jump(self) -> float:
-        """The smallest residual [°C] that is a jump."""
-        return max(MIN_JUMP, self.jump_sigmas * math.sqrt(self.variance))
+    @property
+    def confirmed(self) -> bool:
+        """Whether the last reading is part of the smoothed course (not a jump awaiting confirmation)."""
+        return self.pending is None
+
+    def _jump(self, sigmas: float | None = None) -> float:
+        """The smallest residual [°C] that is a jump (``sigmas`` of the residuals' spread, at least
+        :data:`MIN_JUMP`; default :attr:`jump_sigmas`)."""
+        return max(MIN_JUMP, (self.jump_sigmas if sigmas is None else sigmas) * math.sqrt(self.variance))
 
     def state_dict(self) -> dict[str, Any]:
         return {"level": self.level, "variance": self.variance, "readings": self.readings,
-                "pending": self.pending, "jumps": self.jumps}
+                "pending": self.pending, "jumps": self.jumps, "stops": self.stops}
 
     @classmethod
-    def from_state(cls, state: Any, smoothing: float = 0.25, jump_sigmas: float = 4.0) -> "HoldTemperature":
-        """From :meth:`state_dict`; anything unusable (a state saved before the holds smoothed, a damaged
-        value) starts afresh."""
+    def from_state(cls, state: Any, smoothing: float = 0.25, jump_sigmas: float = 3.0) -> "HoldTemperature":
+        """From :meth:`state_dict`; anything unusable (a state saved before the holds smoothed, a damaged or
+        implausible value) starts afresh."""
         out = cls(smoothing, jump_sigmas)
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
         level, variance, readings = saved.get("level"), saved.get("variance"), saved.get("readings")
-        if _finite(level) and _finite(variance) and variance >= 0 and _count(readings):
+        if _plausible(level) and _finite(variance) and 0 <= variance <= MAX_VARIANCE and _count(readings):
             out.level, out.variance, out.readings = float(level), float(variance), readings
-            pending, jumps = saved.get("pending"), saved.get("jumps")
-            out.pending = float(pending) if _finite(pending) else None
-            out.jumps = jumps if _count(jumps) else 0
+            pending = saved.get("pending")
+            out.pending = float(pending) if _plausible(pending) else None
+            out.jumps = saved["jumps"] if _count(saved.get("jumps")) else 0
+            out.stops = saved["stops"] if _count(saved.get("stops")) else 0
+        return out
+
+    @classmethod
+    def replayed(cls, temperatures: list[float]) -> "HoldTemperature":
+        """A fresh smoothing fed ``temperatures`` (oldest first): for a state saved before the holds
+        smoothed, from the settling test's recent history, so a stop right after the upgrade is still seen."""
+        out = cls()
+        for t in temperatures[-(SPREAD_READINGS + 1):]:
+            out.update(t)
+        out.jumps = out.stops = 0
         return out
 
 
@@ -101,4 +127,13 @@ def _count(x: Any) -> TypeGuard[int]:
 
 
 def _finite(x: Any) -> TypeGuard[float]:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    if not isinstance(x, (int, float)) or isinstance(x, bool):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:           # an int beyond a float's range
+        return False
+
+
+def _plausible(x: Any) -> TypeGuard[float]:
+    return _finite(x) and PLAUSIBLE[0] <= x <= PLAUSIBLE[1]

@@ -47,23 +47,25 @@ MOTOR_TEMPERATURE, FRICTION_TEMPERATURE = "motor temperature", "lubricant temper
 
 
 class NominalSpans:
-    """Per quantity, the motor-temperature span of its current nominal (``learned``) and of the one being
+    """Per quantity, the temperature span of its current nominal (``learned``) and of the one being
     collected (``collecting``); ``warm_up_hold`` names the quantities whose warm-up detectors hold while
-    the joint is warmer than their span."""
+    the joint is outside their span (warmer: only with ``warm_side``, by more than ``warm_margin``)."""
 
     def __init__(self, learned: dict[str, Span] | None = None, collecting: dict[str, Span] | None = None,
-                 warm_up_hold: Collection[str] = (), warm_margin: float = 0.0) -> None:
+                 warm_up_hold: Collection[str] = (), warm_margin: float = 0.0, warm_side: bool = True) -> None:
         self.learned: dict[str, Span] = dict(learned or {})
         self.collecting: dict[str, Span] = dict(collecting or {})
         self.warm_up_hold = frozenset(warm_up_hold)
         self.warm_margin = float(warm_margin)      # the least margin [°C] above a warm-up span before it holds
+        self.warm_side = warm_side                 # False without the steady stage: nothing would end that hold
 
     def held(self, quantity: str, detector: SequentialDetector, temperature: float | None,
              source: str = MOTOR_TEMPERATURE) -> str:
         """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does): a steady
         detector while the joint is colder than its span by more than the operating range's margin
-        (max(2 °C, 10 % of the span)), a warm-up one of :attr:`warm_up_hold` while it is outside its span by
-        more than that, warmer or colder. ``source``: what the temperature is (named in the reason)."""
+        (max(2 °C, 10 % of the span)); a warm-up one of :attr:`warm_up_hold` while it is colder by that much,
+        or warmer by more than :attr:`warm_margin` (at least that margin; only with :attr:`warm_side`).
+        ``source``: what the temperature is (named in the reason)."""
         span = self.learned.get(quantity)
         if span is None or temperature is None or detector.state != "monitoring":
             return ""
@@ -74,7 +76,7 @@ class NominalSpans:
                     f"is back")
         if detector.stage == "steady" or quantity not in self.warm_up_hold:
             return ""
-        if temperature > span.hi + max(margin, self.warm_margin):
+        if self.warm_side and temperature > span.hi + max(margin, self.warm_margin):
             return (f"held: {source} {temperature:.1f} °C (smoothed) above the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the warm-up nominal was learned in (the joint is warming); monitoring resumes on the steady "
                     f"nominal once the temperature has settled")
@@ -124,12 +126,13 @@ class NominalSpans:
                 for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
 
     @classmethod
-    def from_state(cls, state: Any, warm_up_hold: Collection[str] = (), warm_margin: float = 0.0) -> "NominalSpans":
+    def from_state(cls, state: Any, warm_up_hold: Collection[str] = (), warm_margin: float = 0.0,
+                   warm_side: bool = True) -> "NominalSpans":
         """From :meth:`state_dict`; anything else (a state saved before spans were kept, a damaged span)
         is left out: no hold for that detector. (A state saved before 2026-11-27 holds only the steady
         nominals' spans; its warm-up detectors do not hold until they learn again.)"""
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
-        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin)
+        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin, warm_side)
 
 
 def _spans(saved: Any) -> dict[str, Span]:

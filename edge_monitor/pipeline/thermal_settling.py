@@ -97,12 +97,15 @@ class ThermalSettling:
         """For the symptom: settled, and the rate with its standard error [°C per cycle] once known."""
         return {"settled": self.settled, "rate": self.rate, "rate_se": self.rate_se}
 
-    # ------------------------------------------------------------------ persistence
-    def state_dict(self) -> dict[str, Any]:
+    def recent(self) -> list[float]:
+        """The temperatures in the window [°C], oldest first."""
         n = self.config.window
         kept = min(self._count, n)
-        recent = np.roll(self._ring, -(self._count % n))[n - kept:] if self._count >= n else self._ring[:kept]
-        return {"window": n, "count": self._count, "recent": recent.tolist(), "settled": self.settled}
+        return (np.roll(self._ring, -(self._count % n))[n - kept:] if self._count >= n else self._ring[:kept]).tolist()
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict[str, Any]:
+        return {"window": self.config.window, "count": self._count, "recent": self.recent(), "settled": self.settled}
 
     @classmethod
     def from_state(cls, config: SettlingConfig, state: dict[str, Any]) -> "ThermalSettling":
