@@ -17,7 +17,7 @@ Then the shipped :class:`~edge_monitor.pipeline.detectors.DetectorBank` over eac
 warm-up detector of ``--quantity`` holds and the share of its warm-up cycles 90–750 held.
 
 Usage: ``python tools/hold_margin_study.py --seeds 101-127 [--quantity kl_weighted] [--json OUT]``
-(≈ 1 min for 27 kept robots here).
+(≈ 4 min for 27 kept robots here).
 """
 
 from __future__ import annotations
