@@ -11,8 +11,9 @@ controller reports it (the detectors' thermal settling test watches it) and the 
 give values on (after its model and KL nominal are learned).
 
 The cache (``.cache/fleet_series/``) is keyed by seed, joints, cycles, the scenario's content and a
-hash of the code the quantities depend on (simulator, joint model, features, fast path, defaults), so
-a code change recomputes. Robots run in parallel processes (``--jobs``).
+hash of the code the quantities depend on (simulator, joint model, features, fast path, defaults; the
+defaults by their settings without comments and without ``[decision]``, which the detectors alone read),
+so a code change recomputes. Robots run in parallel processes (``--jobs``).
 
 Usage: ``python tools/fleet_series.py --seeds 101-108 --cycles 1100 [--joints 6] [--scenario FILE]
 [--jobs 2]`` prints one status line per robot and the cache files.
