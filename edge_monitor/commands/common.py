@@ -135,8 +135,8 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
     joint's detectors."""
     held = decision.warm_up_hold
     warm_up = ("for drifts up to the allowance during the warm-up"
-               + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures they learned at)"
-                  if held else ""))
+               + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
+                  f"they learned at)" if held else ""))
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
                else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, {warm_up}")
     lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'alarms':<44} {'Pm':>7}"]
