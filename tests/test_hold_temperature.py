@@ -143,3 +143,16 @@ def test_a_bad_smoothing_is_a_clear_error() -> None:
     for bad in (0.0, -0.1, 1.5):
         with pytest.raises(ValueError, match="smoothing"):
             HoldTemperature(smoothing=bad)
+
+
+def test_a_lasting_shift_below_a_stop_is_followed_without_restarting_the_settling() -> None:
+    """A lasting step of 3.5 residual stds (≈ 10 °C here: a shorter stop, or a cooler program): each
+    reading jumps, but the pair's mean is short of the 4 stds a stop needs. The level follows after two
+    readings (it never stays stuck on the old level, its readings all pending) and no stop is counted."""
+    rng = np.random.default_rng(8)
+    h = HoldTemperature()
+    _feed(h, 50.0 + rng.normal(0.0, NOISE, 300))
+    step = 3.5 * math.sqrt(h.variance)
+    after = _feed(h, 50.0 - step + rng.normal(0.0, 0.3, 10))
+    assert h.stops == 0 and h.jumps == 1 and h.confirmed
+    assert all(t == pytest.approx(50.0 - step, abs=1.5) for t in after)

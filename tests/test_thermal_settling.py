@@ -351,7 +351,7 @@ def test_a_stop_restarts_the_settling_so_no_steady_nominal_spans_it() -> None:
     for k in range(2):
         bank.observe_temperature(30.0 + rng.normal(0.0, NOISE))
         bank.update(_healthy(rng), "r", 0, cycle + k)
-    assert bank.hold_temperature.jumps == 1 and not bank.settling.settled
+    assert bank.hold_temperature.stops == 1 and not bank.settling.settled
     assert all(d._steady_values is None for d in bank.detectors.values())
     cycle += 2
     temperature = 50.0 - 20.0 * np.exp(-np.arange(600) / 30.0)      # warming again towards 50 °C

@@ -32,8 +32,9 @@ MIN_JUMP = 2.0
 SPREAD_READINGS = 32
 #: Memory of the residuals' spread [cycles] (a running mean until then).
 SPREAD_MEMORY = 32
-#: How far the mean of a jumping reading and the next must be from the level [residual stds] to confirm a
-#: jump (each alone: ``jump_sigmas``): two readings of Gaussian scatter hardly ever get there together.
+#: How far below the level the mean of a jumping reading and the confirming next one must be [residual
+#: stds] to count a stop (each alone: ``jump_sigmas``): two readings of Gaussian scatter hardly ever get
+#: there together. A smaller confirmed jump moves the level, but restarts no settling.
 CONFIRM_SIGMAS = 4.0
 #: Plausible temperatures [°C] and spread [°C²] of a saved state (beyond them it starts afresh).
 PLAUSIBLE = (-100.0, 300.0)
@@ -58,8 +59,9 @@ class HoldTemperature:
     def update(self, temperature: float | None) -> float | None:
         """Take one cycle's temperature [°C]; the smoothed one, or None when this cycle's is unknown. A
         reading that jumps is this cycle's temperature at once; the next reading confirms the jump (it jumps
-        the same way and agrees with it: the level restarts between the two, :attr:`jumps` counts it, and
-        :attr:`stops` if it was down) or shows a glitch (the level stays)."""
+        the same way and agrees with it: the level restarts between the two and :attr:`jumps` counts it;
+        :attr:`stops` too if the two's mean is below the level by more than :data:`CONFIRM_SIGMAS`) or
+        shows a glitch (the level stays)."""
         if temperature is None or not math.isfinite(temperature):
             return None
         t = float(temperature)
@@ -69,10 +71,11 @@ class HoldTemperature:
         pending, self.pending = self.pending, None
         residual, jump = t - self.level, self._jump()
         if pending is not None and abs(residual) > jump and (residual > 0) == (pending > self.level) \
-                and abs(t - pending) <= jump and abs(0.5 * (t + pending) - self.level) > self._jump(CONFIRM_SIGMAS):
-            self.stops += residual < 0
+                and abs(t - pending) <= jump:
+            shift = 0.5 * (t + pending) - self.level
+            self.stops += shift < -self._jump(CONFIRM_SIGMAS)
             self.jumps += 1
-            self.level = 0.5 * (pending + t)        # the joint is where the two readings say
+            self.level += shift                     # the joint is where the two readings say
             return self.level
         if self.readings >= SPREAD_READINGS and abs(residual) > jump:
             self.pending = t
