@@ -156,3 +156,16 @@ def test_a_lasting_shift_below_a_stop_is_followed_without_restarting_the_settlin
     after = _feed(h, 50.0 - step + rng.normal(0.0, 0.3, 10))
     assert h.stops == 0 and h.jumps == 1 and h.confirmed
     assert all(t == pytest.approx(50.0 - step, abs=1.5) for t in after)
+
+
+def test_a_wild_reading_in_the_first_cycles_moves_neither_level_nor_spread() -> None:
+    """Before the spread is trusted (32 readings) a jump is a residual beyond 10 °C: one reading of 150 °C
+    at the 11th cycle is that cycle's temperature only; an implausible one (6553.5 °C, a raw 0xFFFF) is
+    no temperature at all. Neither enters the level nor the spread, and no stop is counted that early."""
+    rng = np.random.default_rng(9)
+    h = HoldTemperature()
+    readings = list(50.0 + rng.normal(0.0, NOISE, 30))
+    readings[10], readings[20] = 150.0, 6553.5
+    out = _feed(h, readings)
+    assert out[10] == 150.0 and out[20] is None
+    assert abs(h.level - 50.0) < 4 * NOISE and h.variance < (4 * NOISE) ** 2 and h.stops == 0

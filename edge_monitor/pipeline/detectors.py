@@ -95,7 +95,10 @@ class DetectorBank:
         steady values, that collection is dropped. A stop (the temperature jumps,
         :class:`~edge_monitor.pipeline.hold_temperature.HoldTemperature`) restarts the settling test: the
         joint warms again from where the stop left it."""
-        t = None if temperature is None else float(temperature)
+        try:
+            t = None if temperature is None else float(temperature)
+        except (TypeError, ValueError, OverflowError):
+            t = None
         self.temperature = t if t is not None and math.isfinite(t) else None
         self.temperature_source = source
         stops = self.hold_temperature.stops

@@ -28,8 +28,11 @@ from typing import Any, TypeGuard
 #: Smallest jump [°C] that restarts the smoothing: the floor of the holds' margin (a steadier sensor than
 #: the simulator's would otherwise restart at every fraction of a degree).
 MIN_JUMP = 2.0
-#: Readings before the residuals' spread is trusted to call a jump (until then none restarts the smoothing).
+#: Readings before the residuals' spread is trusted to call a jump and count a stop; until then a jump is
+#: a residual beyond :data:`EARLY_JUMP` [°C] (one wild reading in the first cycles would otherwise enter the
+#: level and the spread whole).
 SPREAD_READINGS = 32
+EARLY_JUMP = 10.0
 #: Memory of the residuals' spread [cycles] (a running mean until then).
 SPREAD_MEMORY = 32
 #: How far below the level the mean of a jumping reading and the confirming next one must be [residual
@@ -62,7 +65,7 @@ class HoldTemperature:
         the same way and agrees with it: the level restarts between the two and :attr:`jumps` counts it;
         :attr:`stops` too if the two's mean is below the level by more than :data:`CONFIRM_SIGMAS`) or
         shows a glitch (the level stays)."""
-        if temperature is None or not math.isfinite(temperature):
+        if not _plausible(temperature):        # unknown, or no temperature a joint has: a counted drop upstream
             return None
         t = float(temperature)
         if self.level is None:
@@ -73,11 +76,11 @@ class HoldTemperature:
         if pending is not None and abs(residual) > jump and (residual > 0) == (pending > self.level) \
                 and abs(t - pending) <= jump:
             shift = 0.5 * (t + pending) - self.level
-            self.stops += shift < -self._jump(CONFIRM_SIGMAS)
+            self.stops += self.readings >= SPREAD_READINGS and shift < -self._jump(CONFIRM_SIGMAS)
             self.jumps += 1
             self.level += shift                     # the joint is where the two readings say
             return self.level
-        if self.readings >= SPREAD_READINGS and abs(residual) > jump:
+        if abs(residual) > jump:
             self.pending = t
             return t
         self.level += self.smoothing * residual
@@ -92,7 +95,9 @@ class HoldTemperature:
 
     def _jump(self, sigmas: float | None = None) -> float:
         """The smallest residual [°C] that is a jump (``sigmas`` of the residuals' spread, at least
-        :data:`MIN_JUMP`; default :attr:`jump_sigmas`)."""
+        :data:`MIN_JUMP`; default :attr:`jump_sigmas`; :data:`EARLY_JUMP` until the spread is trusted)."""
+        if self.readings < SPREAD_READINGS:
+            return EARLY_JUMP
         return max(MIN_JUMP, (self.jump_sigmas if sigmas is None else sigmas) * math.sqrt(self.variance))
 
     def state_dict(self) -> dict[str, Any]:

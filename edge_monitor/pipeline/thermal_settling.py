@@ -113,8 +113,7 @@ class ThermalSettling:
         out = cls(config)
         saved = state.get("recent")
         saved = saved if isinstance(saved, list) else []
-        recent = [float(v) for v in saved
-                  if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+        recent = [float(v) for v in saved if _finite(v)]
         for value in recent[-config.window:]:
             out._ring[out._count % config.window] = value
             out._count += 1
@@ -122,3 +121,13 @@ class ThermalSettling:
         out.settled = state.get("settled") is True and out.rate is not None    # a full window restored
         out._decide()
         return out
+
+
+def _finite(x: Any) -> bool:
+    """A finite number (an int beyond a float's range is not)."""
+    if not isinstance(x, (int, float)) or isinstance(x, bool):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
