@@ -331,6 +331,21 @@ def test_the_learned_spans_survive_a_restart_and_a_maintenance_clears_them() -> 
     json.dumps(fresh.state_dict(), allow_nan=False)
 
 
+def _collecting_steady_bank(seed: int) -> tuple[DetectorBank, np.random.Generator, int]:
+    """A bank settled at 50 ± 3 °C whose detectors have begun collecting their steady values (60 of them);
+    returns it, its generator and the next cycle."""
+    config = DecisionConfig(n_nominal=20, steady_nominal=60, density="gauss", density_joint="gauss",
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+    bank = DetectorBank(config, {})
+    rng = np.random.default_rng(seed)
+    cycle = 0
+    while not bank.detectors["wear"]._steady_values:
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        bank.update(_healthy(rng), "r", 0, cycle)
+        cycle += 1
+    return bank, rng, cycle
+
+
 def test_a_stop_restarts_the_settling_so_no_steady_nominal_spans_it() -> None:
     """A settled joint collecting its steady values (50 ± 3 °C) stops overnight and restarts at 30 °C. A
     regression over a window that holds the warm cycles and the cold restart sees no warming, so before
@@ -338,15 +353,7 @@ def test_a_stop_restarts_the_settling_so_no_steady_nominal_spans_it() -> None:
     cycles (seed 401 of the plant week: a span of 34–65 °C, then no cold-restart hold and two false
     alarms at the next restart). Now the stop restarts the settling test: the collection under way is
     dropped, and the steady nominals learned once the joint has settled again hold warm cycles only."""
-    config = DecisionConfig(n_nominal=20, steady_nominal=60, density="gauss", density_joint="gauss",
-                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
-    bank = DetectorBank(config, {})
-    rng = np.random.default_rng(12)
-    cycle = 0
-    while not bank.detectors["wear"]._steady_values:
-        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
-        bank.update(_healthy(rng), "r", 0, cycle)
-        cycle += 1
+    bank, rng, cycle = _collecting_steady_bank(12)
     assert bank.settling.settled and bank.detectors["wear"].stage == "warm-up"
     for k in range(2):
         bank.observe_temperature(30.0 + rng.normal(0.0, NOISE))
@@ -370,15 +377,8 @@ def test_a_state_saved_before_the_smoothing_still_sees_the_first_stop() -> None:
     replayed from the settling test's recent temperatures, so the stop right after the restart is still
     counted, the settling restarts and the steady collection under way is dropped (a fresh smoothing would
     need 32 readings before it could see a jump)."""
-    config = DecisionConfig(n_nominal=20, steady_nominal=60, density="gauss", density_joint="gauss",
-                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
-    bank = DetectorBank(config, {})
-    rng = np.random.default_rng(13)
-    cycle = 0
-    while not bank.detectors["wear"]._steady_values:
-        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
-        bank.update(_healthy(rng), "r", 0, cycle)
-        cycle += 1
+    bank, rng, cycle = _collecting_steady_bank(13)
+    config = bank.config
     state = json.loads(json.dumps(bank.state_dict()))
     del state[HOLD_KEY]
     restored = DetectorBank(config, {})
