@@ -12,7 +12,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -69,9 +69,15 @@ def finite_or_none(value: Any) -> float | None:
     """``float(value)`` if it is a finite number, else None (for JSON-ready record fields)."""
     try:
         number = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):          # OverflowError: an int beyond a float's range
         return None
     return number if math.isfinite(number) else None
+
+
+def is_finite_number(value: Any) -> TypeGuard[float]:
+    """Whether ``value`` is an int or float (not a bool, not a string) with a finite float value (for saved
+    states, where a string or a bool is damage, not a number)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and finite_or_none(value) is not None
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
 from edge_monitor.pipeline.hold_temperature import HoldTemperature
 from edge_monitor.pipeline.nominal_temperature import MOTOR_TEMPERATURE, NominalSpans
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
-from edge_monitor.records import Alarm, Decision
+from edge_monitor.records import Alarm, Decision, finite_or_none
 from edge_monitor.stats.detector_config import DEFAULT_NOMINAL  # noqa: F401  (re-exported for the studies)
 from edge_monitor.stats.sequential_detector import Calibrator, SequentialDetector
 
@@ -95,11 +95,7 @@ class DetectorBank:
         steady values, that collection is dropped. A stop (the temperature jumps,
         :class:`~edge_monitor.pipeline.hold_temperature.HoldTemperature`) restarts the settling test: the
         joint warms again from where the stop left it."""
-        try:
-            t = None if temperature is None else float(temperature)
-        except (TypeError, ValueError, OverflowError):
-            t = None
-        self.temperature = t if t is not None and math.isfinite(t) else None
+        self.temperature = finite_or_none(temperature)
         self.temperature_source = source
         stops = self.hold_temperature.stops
         self.smoothed = self.hold_temperature.update(self.temperature)
@@ -168,7 +164,7 @@ class DetectorBank:
     def _span_temperature(self) -> float | None:
         """What this cycle adds to a span being collected: the smoothed temperature, not a jump awaiting
         confirmation (one wild reading would widen a span for good)."""
-        return self.smoothed if self.temperature is not None and self.hold_temperature.confirmed else None
+        return self.smoothed if self.hold_temperature.confirmed else None
 
     @property
     def collecting(self) -> bool:

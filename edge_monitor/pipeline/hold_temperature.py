@@ -12,9 +12,10 @@ joint is.
 :class:`HoldTemperature` is an exponential smoothing (``smoothing`` per cycle: the scatter's std shrinks by
 √(a/(2 − a)), 0.38 at the default 0.25, and a steady warming lags ≈ (1 − a)/a = 3 cycles) that follows
 a reading at once when it jumps further than ``jump_sigmas`` of the residuals' own spread (and at least
-:data:`MIN_JUMP`): a stop, after which the joint is colder at once. The next reading tells a stop (it jumps
-the same way: the smoothing restarts there) from a glitch (it is back: the smoothing goes on as before),
-so one wild reading moves one cycle's temperature only. The smoothing only decides which
+:data:`MIN_JUMP`). The next reading tells a lasting jump (it jumps the same way: the smoothing restarts
+there; a stop, after which the joint is colder at once, if it is down by more than :data:`CONFIRM_SIGMAS`)
+from a glitch (it is back: the smoothing goes on as before), so one wild reading moves one cycle's
+temperature only. The smoothing only decides which
 cycles the detectors test; the values they test are not smoothed, so consecutive decisions stay
 independent (unlike a smoothed temperature prior, :mod:`edge_monitor.features.temperature_prior`).
 The settling test (:mod:`~edge_monitor.pipeline.thermal_settling`) reads the raw cycles. Units: °C.
@@ -24,6 +25,8 @@ from __future__ import annotations
 
 import math
 from typing import Any, TypeGuard
+
+from edge_monitor.records import is_finite_number
 
 #: Smallest jump [°C] that restarts the smoothing: the floor of the holds' margin (a steadier sensor than
 #: the simulator's would otherwise restart at every fraction of a degree).
@@ -111,7 +114,7 @@ class HoldTemperature:
         out = cls(smoothing, jump_sigmas)
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
         level, variance, readings = saved.get("level"), saved.get("variance"), saved.get("readings")
-        if _plausible(level) and _finite(variance) and 0 <= variance <= MAX_VARIANCE and _count(readings):
+        if _plausible(level) and is_finite_number(variance) and 0 <= variance <= MAX_VARIANCE and _count(readings):
             out.level, out.variance, out.readings = float(level), float(variance), readings
             pending = saved.get("pending")
             out.pending = float(pending) if _plausible(pending) else None
@@ -134,14 +137,5 @@ def _count(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool) and x >= 0
 
 
-def _finite(x: Any) -> TypeGuard[float]:
-    if not isinstance(x, (int, float)) or isinstance(x, bool):
-        return False
-    try:
-        return math.isfinite(x)
-    except OverflowError:           # an int beyond a float's range
-        return False
-
-
 def _plausible(x: Any) -> TypeGuard[float]:
-    return _finite(x) and PLAUSIBLE[0] <= x <= PLAUSIBLE[1]
+    return is_finite_number(x) and PLAUSIBLE[0] <= x <= PLAUSIBLE[1]

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from edge_monitor.errors import require
+from edge_monitor.records import is_finite_number
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,7 @@ class ThermalSettling:
         out = cls(config)
         saved = state.get("recent")
         saved = saved if isinstance(saved, list) else []
-        recent = [float(v) for v in saved if _finite(v)]
+        recent = [float(v) for v in saved if is_finite_number(v)]
         for value in recent[-config.window:]:
             out._ring[out._count % config.window] = value
             out._count += 1
@@ -121,13 +122,3 @@ class ThermalSettling:
         out.settled = state.get("settled") is True and out.rate is not None    # a full window restored
         out._decide()
         return out
-
-
-def _finite(x: Any) -> bool:
-    """A finite number (an int beyond a float's range is not)."""
-    if not isinstance(x, (int, float)) or isinstance(x, bool):
-        return False
-    try:
-        return math.isfinite(x)
-    except OverflowError:
-        return False
