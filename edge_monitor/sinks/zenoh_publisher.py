@@ -116,6 +116,14 @@ class SymptomPublisher:
     def joints(self) -> list[int]:
         return sorted(self._joint_publishers)
 
+    def has_subscriber(self) -> bool:
+        """True once this session knows a subscriber whose key expression covers this agent's keys.
+
+        Samples put before that are routed nowhere; a subscriber that connects later recovers them
+        from the publishers' caches only if it sees them published after it came (a Zenoh race of
+        "publication before discovery"), so wait for this before a burst that must arrive whole."""
+        return bool(self._health.matching_status.matching)
+
     # -- publication -------------------------------------------------------------------------------
 
     def publish_symptom(self, record: dict) -> bool:
