@@ -97,6 +97,11 @@ def test_config_rejects_bad_speeds():
         PlateauConfig(speeds=(3.0, 3.0))
 
 
+@pytest.mark.parametrize("value", [10**400, float("nan"), float("inf"), True, "0.3", -1.0])
+def test_config_rejects_a_tolerance_that_is_no_finite_number(value):
+    with pytest.raises(ValueError, match="segmentation.tolerance_abs: must be a finite number >= 0"):
+        PlateauConfig(tolerance_abs=value)
+
 def _plateaus(speed, torque, segment, block):
     det = PlateauDetector(PlateauConfig())
     tick = np.arange(speed.size)

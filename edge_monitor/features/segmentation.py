@@ -15,7 +15,6 @@ Units: speed rad/s (motor side), torque dimensionless, time in controller ticks.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -23,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.errors import require
+from edge_monitor.records import is_finite_number
 from protocol.frames import MAX_SPEED_LEVELS, SEGMENT_PRODUCTION
 
 #: Label of samples at an (apparently) constant speed that matches no configured level.
@@ -54,20 +54,16 @@ class PlateauConfig:
         require(bool(np.all(np.diff(np.sort(speeds)) > 0)), "segmentation.speeds",
                 f"speeds must be distinct, got {list(self.speeds)}")
         for name in ("tolerance_rel", "hysteresis", "min_steady_s"):
-            require(_finite(getattr(self, name)) and getattr(self, name) > 0, f"segmentation.{name}",
-                    f"must be > 0, got {getattr(self, name)}")
+            require(is_finite_number(getattr(self, name)) and getattr(self, name) > 0, f"segmentation.{name}",
+                    f"must be a finite number > 0, got {getattr(self, name)!r:.40}")
         for name in ("tolerance_abs", "settle_s", "guard_s", "unmatched_min_speed"):
-            require(_finite(getattr(self, name)) and getattr(self, name) >= 0, f"segmentation.{name}",
-                    f"must be >= 0, got {getattr(self, name)}")
+            require(is_finite_number(getattr(self, name)) and getattr(self, name) >= 0, f"segmentation.{name}",
+                    f"must be a finite number >= 0, got {getattr(self, name)!r:.40}")
         for name in ("settle_s", "guard_s", "min_steady_s"):
             require(getattr(self, name) <= 60.0, f"segmentation.{name}", f"must be <= 60 s, got {getattr(self, name)}")
 
     def fingerprint(self) -> dict[str, Any]:
         return {**asdict(self), "speeds": list(self.speeds)}
-
-
-def _finite(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @dataclass
