@@ -9,7 +9,6 @@ commission`` writes the ``[friction]`` section.
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 import tomllib
 from pathlib import Path
@@ -23,6 +22,7 @@ from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.decision_config import DecisionConfig
 from edge_monitor.pipeline.fault_grouping import AlarmConfig
+from edge_monitor.records import is_finite_number
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import FrictionParams
@@ -31,6 +31,12 @@ from protocol.frames import MAX_JOINTS
 
 __all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "ModelConfig", "PlateauConfig", "WearConfig",
            "config_from_mapping", "load_config", "with_overrides"]
+
+
+def _shown(value: Any, width: int = 40) -> str:
+    """``repr(value)`` cut to ``width`` characters (a 400-digit integer is not a message)."""
+    text = repr(value)
+    return text if len(text) <= width else f"{text[:width]}… ({len(text)} characters)"
 
 
 def _coerce(where: str, value: Any, default: Any) -> Any:
@@ -44,16 +50,16 @@ def _coerce(where: str, value: Any, default: Any) -> Any:
             raise ConfigError(f"{where}: expected an integer, got {value!r}")
         return value
     if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        if not is_finite_number(value):
+            raise ConfigError(f"{where}: expected a finite number, got {_shown(value)}")
         return float(value)
     if isinstance(default, str) or (default is None and isinstance(value, str)):
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
         return value
     if default is None and isinstance(value, (int, float)) and not isinstance(value, bool):   # optional number
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        if not is_finite_number(value):
+            raise ConfigError(f"{where}: expected a finite number, got {_shown(value)}")
         return float(value)
     if isinstance(default, tuple) or default is None:
         if not isinstance(value, list):

@@ -12,9 +12,11 @@ import math
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Any, TypeGuard
+from typing import Any
 
 import numpy as np
+
+from protocol.numbers import finite_or_none, is_finite_number  # noqa: F401 (part of this module's interface)
 
 #: Version of every published record (symptom, alarm, friction, health): the "schema" field. Fields are
 #: only ever added within a version (``utc`` was), so a reader of version 1 ignores what it does not know.
@@ -63,21 +65,6 @@ def to_json(value: Any, **kwargs: Any) -> str:
     """Compact strict JSON text of ``value`` (``kwargs`` go to ``json.dumps``, e.g. ``indent``)."""
     kwargs.setdefault("separators", (",", ":"))
     return json.dumps(to_strict(value), allow_nan=False, **kwargs)
-
-
-def finite_or_none(value: Any) -> float | None:
-    """``float(value)`` if it is a finite number, else None (for JSON-ready record fields)."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError, OverflowError):          # OverflowError: an int beyond a float's range
-        return None
-    return number if math.isfinite(number) else None
-
-
-def is_finite_number(value: Any) -> TypeGuard[float]:
-    """Whether ``value`` is an int or float (not a bool, not a string) with a finite float value (for saved
-    states, where a string or a bool is damage, not a number)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and finite_or_none(value) is not None
 
 
 @dataclass(frozen=True)

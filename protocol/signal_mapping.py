@@ -9,7 +9,6 @@ whether the named messages, signals and objects exist is checked against the DBC
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any, Mapping
 
 from protocol.catalogue import MAX_JOINTS
 from protocol.files import read_regular_or
+from protocol.numbers import is_finite_number
 from protocol.units import UnitError, speed_factor, temperature_conversion, torque_factor
 
 KINDS = ("dbc", "cia402", "trace")
@@ -176,7 +176,7 @@ def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Sign
     cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles")
     e2e = tuple(_e2e(t, f"{where}: e2e[{i}]") for i, t in enumerate(_list(data.get("e2e", []), f"{where}: e2e")))
     rate = data.get("rate_hz")
-    if rate is not None and not (_number(rate) and rate > 0):
+    if rate is not None and not (is_finite_number(rate) and rate > 0):
         raise MappingError(f"{where}: rate_hz: must be > 0, got {rate!r}")
     return SignalMapping(kind, path, joints, cycles, dbc, e2e, listen_only, read_mapping, trace,
                          None if rate is None else float(rate))
@@ -190,11 +190,11 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
     if side not in ("motor", "joint"):
         raise MappingError(f"{where}: side: motor or joint (joint: speeds × gear_ratio, torques / gear_ratio)")
     ratio = t.get("gear_ratio", 1.0)
-    if not (_number(ratio) and ratio > 0):
+    if not (is_finite_number(ratio) and ratio > 0):
         raise MappingError(f"{where}: gear_ratio: must be > 0, got {ratio!r}")
     ref, rated = t.get("reference_torque_nm"), t.get("rated_torque_nm")
     for name, value in (("reference_torque_nm", ref), ("rated_torque_nm", rated)):
-        if value is not None and not (_number(value) and value > 0):
+        if value is not None and not (is_finite_number(value) and value > 0):
             raise MappingError(f"{where}: {name}: must be > 0 N·m, got {value!r}")
     jm = JointMapping(joint=joint, reference_torque_nm=None if ref is None else float(ref),
                       rated_torque_nm=None if rated is None else float(rated), gear_ratio=float(ratio), side=side,
@@ -213,7 +213,7 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
             raise MappingError(f"{where}: give eds = \"drive.eds\" or the TPDO mapping as "
                                "tpdo = [{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}]")
         vf = t.get("velocity_factor")
-        if vf is not None and not (_number(vf) and vf > 0):
+        if vf is not None and not (is_finite_number(vf) and vf > 0):
             raise MappingError(f"{where}: velocity_factor: rad/s per velocity unit, > 0, got {vf!r}")
         jm = JointMapping(**{**jm.__dict__, "node": node, "eds": eds, "tpdo": tpdo,
                              "velocity_factor": None if vf is None else float(vf)})
@@ -240,7 +240,7 @@ def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> S
     except UnitError as exc:
         raise MappingError(str(exc)) from None
     scale = t.get("scale", 1.0)
-    if not (_number(scale) and scale != 0):
+    if not (is_finite_number(scale) and scale != 0):
         raise MappingError(f"{where}: scale: a non-zero number applied before the unit, got {scale!r}")
     ref = SignalRef(message=t.get("message"), signal=t.get("signal"), column=t.get("column"),
                     index=None if t.get("index") is None else _int(t["index"], f"{where}.index"),
@@ -273,7 +273,7 @@ def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> C
     if source not in CYCLE_SOURCES:
         raise MappingError(f"{where}: from: one of {list(CYCLE_SOURCES)}, got {source!r}")
     speeds = tuple(_list(t.get("speeds", []), f"{where}.speeds"))
-    if any(not (_number(v) and v > 0) for v in speeds):
+    if any(not (is_finite_number(v) and v > 0) for v in speeds):
         raise MappingError(f"{where}: speeds: positive rad/s (motor side), the test cycle's levels in order")
     if source in ("motion", "trigger") and not speeds:
         raise MappingError(f"{where}: speeds: cycles found from the {source} need the designed speed levels "
@@ -295,7 +295,7 @@ def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> C
         raise MappingError(f"{where}: from = \"trigger\" needs trigger = {{ … }} (a program number or a "
                            "digital output) and value = the value that marks the test cycle")
     value = t.get("value", 1)
-    if not _number(value):
+    if not is_finite_number(value):
         raise MappingError(f"{where}: value: a number, got {value!r}")
     return CycleMapping(**{**cyc.__dict__, **refs, "trigger_value": float(value)})
 
@@ -351,10 +351,6 @@ def _only(t: Mapping[str, Any], allowed: set[str], where: str) -> None:
     unknown = sorted(set(t) - allowed)
     if unknown:
         raise MappingError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _list(value: Any, where: str) -> list[Any]:

@@ -13,9 +13,10 @@ the event's ambient, and its new load range etc. apply from cycle N.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields, replace
 from typing import Any, Iterable, Mapping, Sequence
+
+from protocol.numbers import is_finite_number
 
 #: The plant conditions an event can change (the SimConfig fields of the same names).
 CONDITIONS = ("load_range", "ambient", "payload_error", "load_std")
@@ -29,28 +30,24 @@ class TimelineError(ValueError):
     """Invalid timeline event; the message names the field."""
 
 
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def check_condition(name: str, value: Any, where: str) -> None:
     """Raise :class:`TimelineError` naming ``where.name`` unless ``value`` is valid for the condition
     ``name`` (the ranges of the SimConfig fields of the same names)."""
     field_name = f"{where}.{name}" if where else name
     if name == "load_range":
-        ok = (isinstance(value, (tuple, list)) and len(value) == 2 and all(_number(v) for v in value)
+        ok = (isinstance(value, (tuple, list)) and len(value) == 2 and all(is_finite_number(v) for v in value)
               and 0.0 <= value[0] <= value[1] <= 1.0)
         if not ok:
             raise TimelineError(f"{field_name}: need 0 ≤ LOW ≤ HIGH ≤ 1 (|τl|, fraction of max torque), "
                                 f"got {value!r}")
     elif name == "ambient":
-        if not (_number(value) and -40.0 <= value <= 150.0):
+        if not (is_finite_number(value) and -40.0 <= value <= 150.0):
             raise TimelineError(f"{field_name}: must be −40 … 150 °C, got {value!r}")
     elif name == "payload_error":
-        if not (_number(value) and -0.5 <= value <= 0.5):
+        if not (is_finite_number(value) and -0.5 <= value <= 0.5):
             raise TimelineError(f"{field_name}: must be −0.5 … 0.5 (a fraction of the payload mass), got {value!r}")
     elif name == "load_std":
-        if not (_number(value) and 0.0 <= value <= 0.5):
+        if not (is_finite_number(value) and 0.0 <= value <= 0.5):
             raise TimelineError(f"{field_name}: must be 0 … 0.5, got {value!r}")
     else:
         raise TimelineError(f"{field_name}: not a plant condition; use one of {', '.join(CONDITIONS)}")
@@ -108,7 +105,7 @@ def check_event(values: Mapping[str, Any], where: str) -> None:
     for name, value in changes.items():
         check_condition(name, value, where)
     stop = values.get("stop_hours")
-    if stop is not None and not (_number(stop) and 0 < stop <= MAX_STOP_HOURS):
+    if stop is not None and not (is_finite_number(stop) and 0 < stop <= MAX_STOP_HOURS):
         raise TimelineError(f"{where}.stop_hours: must be > 0 and ≤ {MAX_STOP_HOURS:g} h, got {stop!r}")
     if not changes and stop is None:
         raise TimelineError(f"{where}: changes nothing; give one or more of {', '.join(EVENT_KEYS[1:])}")
@@ -167,7 +164,7 @@ def plant_event_from_mapping(doc: Mapping[str, Any], where: str) -> PlantEvent:
         if name == "load_range":
             check_condition(name, value, where)
             values[name] = (float(value[0]), float(value[1]))
-        elif _number(value):
+        elif is_finite_number(value):
             values[name] = float(value)
         else:
             raise TimelineError(f"{where}.{name}: expected a finite number, got {value!r}")

@@ -30,7 +30,7 @@ def _paths(table: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[st
 
 
 PATHS = _paths(DEFAULTS) + [("joints",), ("robot",), ("status_interval_s",), ("no_such_key",)]
-VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30),
+VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30), st.sampled_from([10 ** 400, -10 ** 400]),
                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
                    st.lists(st.integers(-5, 100), max_size=5), st.dictionaries(st.text(max_size=3), st.integers(),
                                                                               max_size=2))
@@ -40,6 +40,8 @@ VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30),
 @given(path=st.sampled_from(PATHS), value=VALUES)
 @example(path=("segmentation",), value={"\n": 0})    # found by CI: the key was echoed raw, splitting the line
 @example(path=("joint",), value={"\u00b2": 0})       # "²".isdigit() is True, int("²") raises
+@example(path=("segmentation", "tolerance_abs"), value=10 ** 400)   # beyond a float: OverflowError
+@example(path=("decision", "arl0_cycles"), value=10 ** 400)
 def test_any_value_for_any_key_is_accepted_within_bounds_or_refused_by_name(path, value):
     doc = copy.deepcopy(DEFAULTS)
     node = doc

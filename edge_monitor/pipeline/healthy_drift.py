@@ -5,11 +5,11 @@ validation (a :class:`~edge_monitor.errors.ConfigError` naming the key)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 from edge_monitor.errors import ConfigError, require
+from edge_monitor.records import is_finite_number
 from edge_monitor.stats.calibration import MAX_DRIFT
 
 #: Healthy drift of each detector input after warm-up: (mean, sd) over joints of the shift from what
@@ -49,12 +49,8 @@ def _per_input(given: Any, key: str, defaults: Mapping[str, T], parse: Callable[
     return out
 
 
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _drift_pair(pair: Any) -> tuple[float, float] | None:
-    ok = isinstance(pair, (list, tuple)) and len(pair) == 2 and all(_number(v) for v in pair)
+    ok = isinstance(pair, (list, tuple)) and len(pair) == 2 and all(is_finite_number(v) for v in pair)
     return (float(pair[0]), float(pair[1])) if ok and -MAX_DRIFT <= pair[0] <= MAX_DRIFT \
         and 0 <= pair[1] <= MAX_DRIFT else None
 
@@ -69,4 +65,5 @@ def healthy_drift(given: Any, key: str = "healthy_drift",
 def steady_wander(given: Any) -> dict[str, float]:
     """``decision.steady_wander``: input → variance fraction of the slow wander."""
     return _per_input(given, "steady_wander", STEADY_WANDER,
-                      lambda v: float(v) if _number(v) and 0.0 <= v < 1.0 else None, "a variance fraction 0 … <1")
+                      lambda v: float(v) if is_finite_number(v) and 0.0 <= v < 1.0 else None,
+                      "a variance fraction 0 … <1")

@@ -122,7 +122,8 @@ class SymptomPublisher:
         Samples put before that are routed nowhere; a subscriber that connects later recovers them
         from the publishers' caches only if it sees them published after it came (a Zenoh race of
         "publication before discovery"), so wait for this before a burst that must arrive whole."""
-        return bool(self._health.matching_status.matching)
+        status: Any = self._health.matching_status     # MatchingStatus (the type stubs say bool)
+        return bool(status.matching)
 
     # -- publication -------------------------------------------------------------------------------
 
