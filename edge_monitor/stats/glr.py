@@ -231,13 +231,18 @@ class WindowedGLR:
         self._glr = BatchWindowedGLR(g.mix, self.window, self.gamma0, self.rho, self.mode,
                                      null_box=(g.lower, g.upper), clip=(g.clip_lo, g.clip_hi))
 
-    def update(self, y: ArrayLike) -> GLRDecision:
-        """Process one finite observation (d,) and return the decision at this step."""
+    def update_statistic(self, y: ArrayLike) -> float:
+        """Process one finite observation (d,) and return only the statistic (no decision; for replays
+        of one path against many thresholds)."""
         obs = as_observations(y, self.density.dim, name="observation")[0]
         if not np.all(np.isfinite(obs)):
             raise GLRError("observation must be finite; skip NaN/inf before calling update()")
+        return float(self._glr.update(obs[None, :])[0])
+
+    def update(self, y: ArrayLike) -> GLRDecision:
+        """Process one finite observation (d,) and return the decision at this step."""
+        s = self.update_statistic(y)
         glr = self._glr
-        s = float(glr.update(obs[None, :])[0])
         best = int(glr.best[0])
         delta = glr.delta[0, best]
         n_seg = int(glr.segment_length()[0])
