@@ -135,7 +135,7 @@ def test_on_skewed_values_the_transform_makes_the_stated_run_length_true_and_wit
     assert without * 4 < with_transform, (without, with_transform)
 
 
-def test_only_the_selected_axes_are_bent_and_the_agent_selects_those_watched_as_logs() -> None:
+def test_only_the_selected_axes_are_bent_and_the_agent_selects_every_scalar_and_the_vectors_log_axes() -> None:
     rng = np.random.default_rng(4)
     values = np.column_stack([-rng.gamma(4.0, size=240), -rng.gamma(4.0, size=240)])
     transform = YeoJohnson.fit(values, (False, True))
@@ -144,8 +144,9 @@ def test_only_the_selected_axes_are_bent_and_the_agent_selects_those_watched_as_
         YeoJohnson.fit(values, (True,))
     config = DecisionConfig()
     axes = {q: config.detector_config(q).transform_axes for q in config.quantities}
-    assert axes == {"wear": (False,), "kl_raw": (True,), "kl_weighted": (True,), "joint": (False, True, True)}
+    assert axes == {"wear": (True,), "kl_raw": (True,), "kl_weighted": (True,), "joint": (False, True, True)}
     assert DecisionConfig(log_scale=False).detector_config("joint").transform_axes == (False, False, False)
+    assert DecisionConfig(log_scale=False).detector_config("kl_raw").transform_axes == (True,)
     with pytest.raises(DetectorConfigError, match="transform_axes"):
         DetectorConfig(dim=2, transform_axes=(True,))
 

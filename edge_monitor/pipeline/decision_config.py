@@ -14,6 +14,7 @@ from edge_monitor.features.registry import LOG_SCALE, QUANTITIES
 from edge_monitor.pipeline.healthy_drift import (
     HEALTHY_DRIFT,
     STEADY_DRIFT,
+    STEADY_DRIFT_JOINT,
     STEADY_WANDER,
     healthy_drift,
     steady_wander,
@@ -61,9 +62,10 @@ class DecisionConfig:
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
     learns its nominal again, from ``steady_nominal`` cycles with the ``steady_density`` family after a
-    ``steady_transform`` ("yeo-johnson" or "none") learned from the same values for the inputs watched
-    as logs (it refines their fixed log; the wear score is near normal by construction), and calibrates
-    it at ``steady_calibrate_at`` (docs/DETECTION.md, "Two stages").
+    ``steady_transform`` ("yeo-johnson" or "none") learned from the same values — of every scalar
+    detector, and of the joint vector's inputs watched as logs — and calibrates it at
+    ``steady_calibrate_at``, for the drift ``steady_drift`` (scalars) or ``steady_drift_joint`` (the joint
+    vector's inputs) and the wander ``steady_wander`` (docs/DETECTION.md, "Two stages").
     """
 
     enabled: bool = True
@@ -92,6 +94,7 @@ class DecisionConfig:
     steady_relearn: bool = True
     steady_calibrate_at: str = "healthy_drift"
     steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
+    steady_drift_joint: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT_JOINT))
     steady_wander: Mapping[str, float] = field(default_factory=lambda: dict(STEADY_WANDER))
     steady_nominal: int = DEFAULT_STEADY_NOMINAL
     steady_density: str = "gauss"
@@ -135,6 +138,8 @@ class DecisionConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", healthy_drift(self.healthy_drift))
         object.__setattr__(self, "steady_drift", healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
+        object.__setattr__(self, "steady_drift_joint", healthy_drift(self.steady_drift_joint, "steady_drift_joint",
+                                                                     STEADY_DRIFT_JOINT))
         object.__setattr__(self, "steady_wander", steady_wander(self.steady_wander))
         for name in ("calibrate_at", "steady_calibrate_at"):
             require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
@@ -183,6 +188,7 @@ class DecisionConfig:
         vector = spec.dim > 1
         drifting = self.calibrate_at == "healthy_drift"
         steady_drifting = self.steady_calibrate_at == "healthy_drift"
+        steady_drift = self.steady_drift_joint if vector else self.steady_drift
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
@@ -193,17 +199,19 @@ class DecisionConfig:
                               steady_at=self.steady_calibrate_at, steady_nominal=self.steady_nominal,
                               steady_density=self.steady_density, steady_transform=self.steady_transform,
                               steady_simulate_from=self.steady_simulate_from,
-                              transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs),
+                              transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs) if vector
+                              else (True,),     # a scalar: its one input (the wear score is skewed too)
                               drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
                               drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting),
-                              steady_drift_mean=tuple(self.steady_drift[q][0] for q in spec.inputs if steady_drifting),
-                              steady_drift_sd=tuple(self.steady_drift[q][1] for q in spec.inputs if steady_drifting),
+                              steady_drift_mean=tuple(steady_drift[q][0] for q in spec.inputs if steady_drifting),
+                              steady_drift_sd=tuple(steady_drift[q][1] for q in spec.inputs if steady_drifting),
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
 
     def fingerprint(self) -> dict[str, Any]:
         out = {**asdict(self), "quantities": list(self.quantities), "warm_up_hold": list(self.warm_up_hold),
                "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())},
                "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())},
+               "steady_drift_joint": {q: list(v) for q, v in sorted(self.steady_drift_joint.items())},
                "steady_wander": dict(sorted(self.steady_wander.items()))}
         if self.calibrate_at == "boundary":
             del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
