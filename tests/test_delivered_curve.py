@@ -12,7 +12,14 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 
-from delivered_curve import Tally, poisson_interval, replay_joint, statistic_paths, summary  # noqa: E402
+from delivered_curve import (  # noqa: E402
+    Tally,
+    check_variant,
+    poisson_interval,
+    replay_joint,
+    statistic_paths,
+    summary,
+)
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
 
@@ -53,6 +60,7 @@ def test_alarms_restart_the_statistic_like_an_acknowledge() -> None:
     glr.restart()
     replayed = np.array([glr.update_statistic(y) for y in wear.inputs])
     assert len(replayed) == len(wear.inputs) > 400
+    np.testing.assert_allclose(replayed, wear.statistics, rtol=1e-12, atol=1e-12)   # the agent's own path
     assert wear.alarms(float(replayed.max()) + 1.0) == 0
     level = float(np.quantile(replayed, 0.9))
     assert 0 < wear.alarms(level) < np.count_nonzero(replayed >= level)
@@ -74,3 +82,21 @@ def test_boundary_calibration_runs_quieter_than_the_nominal_one_on_the_same_path
     assert counts["boundary"].crossings[50.0] < exposure / 50.0
     for target in (50.0, 200.0):
         assert counts["nominal"].crossings[target] > counts["boundary"].crossings[target]
+
+
+def test_a_variant_may_change_the_calibration_only() -> None:
+    base = config_from_mapping({}).decision
+    check_variant(base, config_from_mapping({"decision": {"steady_drift": {"kl_raw": [0.1, 0.09]}}}).decision, "ok")
+    for other in ({"allowance": 0.5}, {"steady_transform": "none"}, {"window": 50}):
+        with pytest.raises(ValueError, match="a variant may only change"):
+            check_variant(base, config_from_mapping({"decision": other}).decision, "bad")
+
+
+def test_a_replay_that_alarms_is_refused() -> None:
+    """A target the paths reach would latch a detector and cut its path: the tool says so."""
+    decision = config_from_mapping({"decision": {"arl0_cycles": 1.0e7}}).decision
+    rows = _gaussian_rows(300, 5)
+    for row in rows[150:]:
+        row["wear_score"] = 50.0                                   # far beyond anything learned
+    with pytest.raises(RuntimeError, match="alarmed at cycle"):
+        statistic_paths(rows, decision)

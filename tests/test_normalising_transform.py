@@ -154,7 +154,7 @@ def test_only_the_selected_axes_are_bent_and_the_agent_selects_every_scalar_and_
 def test_a_steady_detector_with_no_axis_selected_has_no_transform() -> None:
     config = DecisionConfig(n_nominal=20, steady_nominal=40, density="gauss", calibration_draws=16,
                             calibration_steps=400, quantities=("wear",))
-    det = SequentialDetector(config.detector_config("wear"))
+    det = SequentialDetector(replace(config.detector_config("wear"), transform_axes=(False,)))
     rng = np.random.default_rng(8)
     det.begin_steady()
     for i, v in enumerate(-rng.gamma(4.0, size=40)):

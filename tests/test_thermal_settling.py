@@ -255,6 +255,22 @@ def test_maintenance_forgets_the_temperature_history_and_keep_keeps_the_schedule
     assert kept.decision.steady_relearn is False and kept.decision.settling_window == 60
 
 
+def test_keep_gives_the_joint_vector_the_drift_a_state_saved_before_steady_drift_joint_had() -> None:
+    """Before ``steady_drift_joint`` the vector was calibrated for ``steady_drift``; "keep" rebuilds it so,
+    and the scalars keep the saved ``steady_drift``."""
+    from edge_monitor.pipeline.agent_config import AgentConfig
+
+    old_drift = {"wear_score": (0.0, 0.2), "kl_raw": (0.3, 0.1), "kl_weighted": (0.2, 0.1)}
+    saved = AgentConfig(decision=DecisionConfig(steady_drift=old_drift)).fingerprint(0)
+    del saved["decision"]["steady_drift_joint"]
+    kept, names = AgentConfig().with_learned(0, saved)
+    assert names == ["decision"]
+    assert kept.decision.steady_drift == old_drift and kept.decision.steady_drift_joint == old_drift
+    assert kept.decision.detector_config("joint").steady_drift_mean == (0.0, 0.3, 0.2)
+    assert AgentConfig(decision=kept.decision).fingerprint(0)["decision"]["steady_drift_joint"] == \
+        {q: list(v) for q, v in sorted(old_drift.items())}
+
+
 # ------------------------------------------------ a restart after a stop: colder than the steady nominal
 def _steady_bank(seed: int) -> tuple[DetectorBank, np.random.Generator, int]:
     """A bank whose detectors are all steady, learned at 50 ± 3 °C (the wear score N(0, 1), the logs of

@@ -2,18 +2,19 @@
 
 Each healthy joint of the kept fleet series (``tools/fleet_series.py``: the default robots and the plant
 weeks) is replayed through the agent's own :class:`DetectorBank` with a target so deep (10⁷ cycles) that
-nothing alarms. Every detector's statistic path is kept, and for each target T of ``--targets`` its
-threshold h(T) is read for the same nominal and settings (the table, as the agent would). A false alarm
-at T is an up-crossing of h(T) (the statistic was below h(T) at the last monitored cycle and is at or
-above it now), as if the alarm had been acknowledged and the statistic restarted (docs/DETECTION.md,
-"Delivered against stated, target by target"). Delivered / stated = crossings · T / monitored cycles,
-per stage (warm-up, steady) and quantity, with a 95 % Poisson interval.
+nothing alarms (a replay that does stops with an error). Every detector's GLR inputs are kept, per
+nominal and stage; for each target T of ``--targets`` its threshold h(T) is read for the same nominal
+and settings (the table, as the agent would), and the same GLR replays its inputs from fresh, restarted
+at each alarm as an acknowledge restarts it (docs/DETECTION.md, "Delivered against stated, target by
+target"). Delivered / stated = alarms · T / monitored cycles, per stage (warm-up, steady) and quantity,
+with a 95 % Poisson interval. Not modelled: an acknowledge in the warm-up stage also drops the steady
+values collected so far, which delays the steady stage.
 
 One replay gives the whole curve, so the calibration is checked where alarms are many (10³–10⁴) as well
 as at the budget's depth (≈ 5·10⁴), where a fleet of 30 robots gives a handful.
 
     python tools/delivered_curve.py --json out.json            # 27 default robots + 3 plant weeks, ≈ 5 min
-    python tools/delivered_curve.py --set 'decision.steady_drift={"kl_raw":[0.05,0.05]}'
+    python tools/delivered_curve.py --variant 'old:decision.steady_drift={"kl_raw":[0.10,0.09]}'
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import sys
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +130,10 @@ def statistic_paths(rows: list[dict[str, Any]], decision: Any) -> list[Statistic
                 detector = bank.detectors[q]
                 glr = getattr(detector, "_glr", None)
                 job = getattr(detector, "_done", None) or getattr(detector, "_job", None)
+                if d.alarm:
+                    raise RuntimeError(f"the replay's {q} detector alarmed at cycle {row['cycle']}: its target "
+                                       f"({REPLAY_ARL0:g}) is too shallow for these settings, so the paths would "
+                                       "not be the agent's")
                 if d.state != "monitoring" or d.statistic is None or glr is None or job is None:
                     continue
                 inputs = fed.get(id(glr), (glr, []))[1]
@@ -151,6 +156,25 @@ def variant_job(job: Any, stage: str, config: Any) -> Any:
         return replace(job, at=config.steady_at, drift_mean=tuple(config.steady_drift_mean),
                        drift_sd=tuple(config.steady_drift_sd), wander=tuple(config.steady_wander))
     return replace(job, at=config.calibrate_at, drift_mean=tuple(config.drift_mean), drift_sd=tuple(config.drift_sd))
+
+
+#: The calibration fields a variant may change (:func:`variant_job` carries them to the job).
+CALIBRATION_FIELDS = ("calibrate_at", "drift_mean", "drift_sd", "steady_at", "steady_drift_mean", "steady_drift_sd",
+                      "steady_wander", "arl0")
+
+
+def check_variant(base: Any, variant: Any, name: str) -> None:
+    """Refuse a variant that changes more than the scalar detectors' calibration: anything else would
+    change the statistic paths, which a variant does not replay."""
+    for q in VARIED:
+        mine, theirs = base.detector_config(q), variant.detector_config(q)
+        other = {f: getattr(theirs, f) for f in CALIBRATION_FIELDS}
+        if replace(mine, **other) != theirs:
+            changed = [f.name for f in fields(mine) if getattr(mine, f.name) != getattr(theirs, f.name)
+                       and f.name not in CALIBRATION_FIELDS]
+            raise ValueError(f"variant {name!r} changes {q}'s {', '.join(changed)}: a variant may only change "
+                             f"where the calibration simulates ({', '.join(CALIBRATION_FIELDS[:-1])}); "
+                             "run the tool with --set for anything else")
 
 
 def replay_joint(rows: list[dict[str, Any]], decision: Any, targets: tuple[float, ...],
@@ -180,6 +204,8 @@ def replay_robot(job: tuple[Any, ...]) -> dict[str, Tally]:
     replay = overrides + (("decision.arl0_cycles", REPLAY_ARL0),)
     decision = config_from_mapping(settings_from(replay)).decision
     configs = {name: config_from_mapping(settings_from(replay + extra)).decision for name, extra in variants}
+    for name, config in configs.items():
+        check_variant(decision, config, name)
     out: dict[str, Tally] = {}
     for rows in robot_series(seed, cycles, 6, scenario).values():
         for key, tally in replay_joint(rows, decision, targets, configs).items():

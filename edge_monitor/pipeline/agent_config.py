@@ -35,6 +35,14 @@ ON_CONFIG_CHANGE = ("relearn", "keep")
 ROBOT_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
+def _with_vector_drift(saved: dict[str, Any]) -> dict[str, Any]:
+    """A saved decision fingerprint from before ``steady_drift_joint`` existed: the joint vector was
+    calibrated for ``steady_drift`` then, so that is what it keeps."""
+    if "steady_drift_joint" in saved or "steady_drift" not in saved:
+        return saved
+    return {**saved, "steady_drift_joint": saved["steady_drift"]}
+
+
 @dataclass(frozen=True)
 class AgentConfig:
     """Everything that configures an agent (see ``edge_monitor/defaults/agent.toml`` for every key)."""
@@ -112,8 +120,8 @@ class AgentConfig:
             "segmentation": lambda d: PlateauConfig(**{**d, "speeds": tuple(d["speeds"])}),
             "wear": lambda d: WearConfig(**d, enabled=self.wear.enabled, critical=self.wear.critical),
             "kl": lambda d: KLConfig(**d, enabled=self.kl.enabled),
-            "decision": lambda d: DecisionConfig(**{**{k: getattr(self.decision, k) for k in SCHEDULE_KEYS}, **d,
-                                                   "quantities": tuple(d["quantities"])}),
+            "decision": lambda d: DecisionConfig(**{**{k: getattr(self.decision, k) for k in SCHEDULE_KEYS},
+                                                   **_with_vector_drift(d), "quantities": tuple(d["quantities"])}),
         }
         changes: dict[str, Any] = {}
         for name, build in builders.items():
