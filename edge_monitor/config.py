@@ -14,7 +14,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Mapping
 
-from edge_monitor.errors import ConfigError, key_name
+from edge_monitor.errors import ConfigError, key_name, shown
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
@@ -33,12 +33,6 @@ __all__ = ["AgentConfig", "ConfigError", "DecisionConfig", "KLConfig", "ModelCon
            "config_from_mapping", "load_config", "with_overrides"]
 
 
-def _shown(value: Any, width: int = 40) -> str:
-    """``repr(value)`` cut to ``width`` characters (a 400-digit integer is not a message)."""
-    text = repr(value)
-    return text if len(text) <= width else f"{text[:width]}… ({len(text)} characters)"
-
-
 def _coerce(where: str, value: Any, default: Any) -> Any:
     """Convert a TOML value to the type of the dataclass default, with a message naming ``where``."""
     if isinstance(default, bool):
@@ -51,7 +45,7 @@ def _coerce(where: str, value: Any, default: Any) -> Any:
         return value
     if isinstance(default, float):
         if not is_finite_number(value):
-            raise ConfigError(f"{where}: expected a finite number, got {_shown(value)}")
+            raise ConfigError(f"{where}: expected a finite number, got {shown(value)}")
         return float(value)
     if isinstance(default, str) or (default is None and isinstance(value, str)):
         if not isinstance(value, str):
@@ -59,7 +53,7 @@ def _coerce(where: str, value: Any, default: Any) -> Any:
         return value
     if default is None and isinstance(value, (int, float)) and not isinstance(value, bool):   # optional number
         if not is_finite_number(value):
-            raise ConfigError(f"{where}: expected a finite number, got {_shown(value)}")
+            raise ConfigError(f"{where}: expected a finite number, got {shown(value)}")
         return float(value)
     if isinstance(default, tuple) or default is None:
         if not isinstance(value, list):

@@ -60,3 +60,9 @@ def key_name(key: object) -> str:
     hostile key (newlines, control characters) cannot forge or split a log line."""
     text = str(key)
     return text if _BARE_KEY.fullmatch(text) else json.dumps(text)
+
+
+def shown(value: object, width: int = 40) -> str:
+    """``repr(value)`` cut to ``width`` characters, saying so (a 400-digit integer is not a message)."""
+    text = repr(value)
+    return text if len(text) <= width else f"{text[:width]}… ({len(text)} characters)"

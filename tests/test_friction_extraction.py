@@ -102,6 +102,7 @@ def test_config_rejects_a_tolerance_that_is_no_finite_number(value):
     with pytest.raises(ValueError, match="segmentation.tolerance_abs: must be a finite number >= 0"):
         PlateauConfig(tolerance_abs=value)
 
+
 def _plateaus(speed, torque, segment, block):
     det = PlateauDetector(PlateauConfig())
     tick = np.arange(speed.size)

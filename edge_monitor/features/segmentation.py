@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.errors import require
+from edge_monitor.errors import require, shown
 from edge_monitor.records import is_finite_number
 from protocol.frames import MAX_SPEED_LEVELS, SEGMENT_PRODUCTION
 
@@ -55,10 +55,10 @@ class PlateauConfig:
                 f"speeds must be distinct, got {list(self.speeds)}")
         for name in ("tolerance_rel", "hysteresis", "min_steady_s"):
             require(is_finite_number(getattr(self, name)) and getattr(self, name) > 0, f"segmentation.{name}",
-                    f"must be a finite number > 0, got {getattr(self, name)!r:.40}")
+                    f"must be a finite number > 0, got {shown(getattr(self, name))}")
         for name in ("tolerance_abs", "settle_s", "guard_s", "unmatched_min_speed"):
             require(is_finite_number(getattr(self, name)) and getattr(self, name) >= 0, f"segmentation.{name}",
-                    f"must be a finite number >= 0, got {getattr(self, name)!r:.40}")
+                    f"must be a finite number >= 0, got {shown(getattr(self, name))}")
         for name in ("settle_s", "guard_s", "min_steady_s"):
             require(getattr(self, name) <= 60.0, f"segmentation.{name}", f"must be <= 60 s, got {getattr(self, name)}")
 

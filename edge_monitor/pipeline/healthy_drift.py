@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
-from edge_monitor.errors import ConfigError, require
+from edge_monitor.errors import ConfigError, require, shown
 from edge_monitor.records import is_finite_number
 from edge_monitor.stats.calibration import MAX_DRIFT
 
@@ -50,7 +50,7 @@ def _per_input(given: Any, key: str, defaults: Mapping[str, T], parse: Callable[
         require(name in defaults, f"decision.{key}.{name}", f"unknown input; known: {sorted(defaults)}")
         parsed = parse(value)
         if parsed is None:
-            raise ConfigError(f"decision.{key}.{name}: expected {expected}, got {value!r}")
+            raise ConfigError(f"decision.{key}.{name}: expected {expected}, got {shown(value)}")
         out[name] = parsed
     return out
 

@@ -117,7 +117,8 @@ class SymptomPublisher:
         return sorted(self._joint_publishers)
 
     def has_subscriber(self) -> bool:
-        """True once this session knows a subscriber whose key expression covers this agent's keys.
+        """True once this session knows a subscriber whose key expression covers this agent's health key
+        (``edge/<robot>/health``: ``edge/**`` and ``edge/<robot>/**`` do, a joint's keys alone do not).
 
         Samples put before that are routed nowhere; a subscriber that connects later recovers them
         from the publishers' caches only if it sees them published after it came (a Zenoh race of
