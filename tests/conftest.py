@@ -1,6 +1,9 @@
 """Test-session set-up shared by all tests."""
 
+import logging
 import os
+
+import pytest
 
 # Same as the command-line entry points: single-threaded BLAS (see edge_monitor/cli.py).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -26,3 +29,19 @@ def pytest_collection_modifyitems(config, items):
     keep = [item for item in items if getattr(getattr(item, "obj", None), "is_hypothesis_test", False)]
     config.hook.pytest_deselected(items=[item for item in items if item not in keep])
     items[:] = keep
+
+
+@pytest.fixture(autouse=True)
+def _logging_as_the_session_had_it():
+    """A CLI entry point or a study tool run in-process sets logger levels for good (``-q``: the root at
+    ERROR; a study: ``edge_monitor`` at ERROR for its thousands of expected alarms). Each test starts from
+    the levels the session had, so a later test still sees the warnings it checks for."""
+    manager = logging.Logger.manager
+    levels = {name: lg.level for name, lg in manager.loggerDict.items() if isinstance(lg, logging.Logger)}
+    root, disabled = logging.getLogger().level, manager.disable
+    yield
+    for name, lg in list(manager.loggerDict.items()):
+        if isinstance(lg, logging.Logger) and lg.level != levels.get(name, logging.NOTSET):
+            lg.setLevel(levels.get(name, logging.NOTSET))
+    logging.getLogger().setLevel(root)
+    logging.disable(disabled)

@@ -4,6 +4,7 @@ where it does not (no /dev/shm, as in minimal containers or an initramfs), the s
 from __future__ import annotations
 
 import concurrent.futures
+import logging
 import time
 
 import numpy as np
@@ -37,6 +38,7 @@ def test_worker_process_and_thread_fallback_give_the_same_threshold(monkeypatch,
         raise FileNotFoundError(2, "No such file or directory")   # what SemLock raises without /dev/shm
 
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_semaphores)
+    caplog.set_level(logging.WARNING, logger="edge_monitor.stats.calibrators")
     in_thread = _wait(ProcessCalibrator())
     assert "background thread" in caplog.text
     expected = _job().run()
