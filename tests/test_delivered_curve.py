@@ -100,3 +100,10 @@ def test_a_replay_that_alarms_is_refused() -> None:
         row["wear_score"] = 50.0                                   # far beyond anything learned
     with pytest.raises(RuntimeError, match="alarmed at cycle"):
         statistic_paths(rows, decision)
+
+
+def test_the_command_refuses_a_bad_variant_with_a_message_before_replaying(capsys) -> None:
+    from delivered_curve import main
+
+    assert main(["--fleet", "101", "--plant", "--variant", "bad:decision.allowance=0.5"]) == 2
+    assert "a variant may only change" in capsys.readouterr().err

@@ -56,7 +56,8 @@ VARIED = ("wear", "kl_raw", "kl_weighted")
 
 @dataclass
 class Tally:
-    """Monitored cycles and up-crossings per target, of one stage and quantity."""
+    """Monitored cycles and false alarms per target (``crossings``: alarms, each followed by a restart),
+    of one stage and quantity."""
 
     exposure: int = 0
     crossings: dict[float, int] = field(default_factory=dict)
@@ -129,7 +130,7 @@ def statistic_paths(rows: list[dict[str, Any]], decision: Any) -> list[Statistic
             for q, d in decisions.items():
                 detector = bank.detectors[q]
                 glr = getattr(detector, "_glr", None)
-                job = getattr(detector, "_done", None) or getattr(detector, "_job", None)
+                job = detector.calibration_job
                 if d.alarm:
                     raise RuntimeError(f"the replay's {q} detector alarmed at cycle {row['cycle']}: its target "
                                        f"({REPLAY_ARL0:g}) is too shallow for these settings, so the paths would "
@@ -196,7 +197,8 @@ def replay_joint(rows: list[dict[str, Any]], decision: Any, targets: tuple[float
 
 
 def replay_robot(job: tuple[Any, ...]) -> dict[str, Tally]:
-    """All joints of one kept robot (seed, cycles, scenario, overrides, targets, variants)."""
+    """All joints of one kept robot (seed, cycles, scenario, overrides, targets, variants; the variants as
+    :func:`check_variant` accepts them)."""
     from fleet_series import robot_series
     from healthy_fleet_study import settings_from
 
@@ -204,8 +206,6 @@ def replay_robot(job: tuple[Any, ...]) -> dict[str, Tally]:
     replay = overrides + (("decision.arl0_cycles", REPLAY_ARL0),)
     decision = config_from_mapping(settings_from(replay)).decision
     configs = {name: config_from_mapping(settings_from(replay + extra)).decision for name, extra in variants}
-    for name, config in configs.items():
-        check_variant(decision, config, name)
     out: dict[str, Tally] = {}
     for rows in robot_series(seed, cycles, 6, scenario).values():
         for key, tally in replay_joint(rows, decision, targets, configs).items():
@@ -248,7 +248,7 @@ def parse_variant(text: str) -> tuple[str, tuple[tuple[str, Any], ...]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from healthy_fleet_study import parse_set
+    from healthy_fleet_study import parse_set, settings_from
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fleet", type=int, nargs="*", default=list(DEFAULT_FLEET), help="default robots (1 100 cycles)")
@@ -264,13 +264,24 @@ def main(argv: list[str] | None = None) -> int:
     targets = tuple(args.targets)
     overrides = tuple(args.overrides)
     variants = tuple(args.variant)
+    try:
+        base = config_from_mapping(settings_from(overrides)).decision
+        for name, extra in variants:           # once, here: a refused variant is a message, not a worker's traceback
+            check_variant(base, config_from_mapping(settings_from(overrides + extra)).decision, name)
+    except ValueError as exc:                  # ConfigError is a ValueError too
+        print(f"delivered_curve: {exc}", file=sys.stderr)
+        return 2
     jobs = [(s, 1100, None, overrides, targets, variants) for s in args.fleet] + \
            [(s, 4400, "plant_week", overrides, targets, variants) for s in args.plant]
     total: dict[str, Tally] = {}
-    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        for result in pool.map(replay_robot, jobs):
-            for key, tally in result.items():
-                total.setdefault(key, Tally()).merge(tally)
+    try:
+        with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+            for result in pool.map(replay_robot, jobs):
+                for key, tally in result.items():
+                    total.setdefault(key, Tally()).merge(tally)
+    except RuntimeError as exc:                # a replay that alarmed (statistic_paths)
+        print(f"delivered_curve: {exc}", file=sys.stderr)
+        return 2
     rows = summary(total, targets)
     for r in rows:
         lo, hi = r["ratio_95"]
