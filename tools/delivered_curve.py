@@ -130,7 +130,7 @@ def statistic_paths(rows: list[dict[str, Any]], decision: Any) -> list[Statistic
             for q, d in decisions.items():
                 detector = bank.detectors[q]
                 glr = getattr(detector, "_glr", None)
-                job = detector.calibration_job
+                job = getattr(detector, "_done", None) or getattr(detector, "_job", None)   # its calibration
                 if d.alarm:
                     raise RuntimeError(f"the replay's {q} detector alarmed at cycle {row['cycle']}: its target "
                                        f"({REPLAY_ARL0:g}) is too shallow for these settings, so the paths would "

@@ -120,12 +120,6 @@ class SequentialDetector:
         return None if self._glr is None else self._glr.density
 
     @property
-    def calibration_job(self) -> CalibrationJob | None:
-        """The calibration of the current nominal: the one under way, else the one whose threshold is in use
-        (None while learning, or with ``pf``)."""
-        return self._job or self._done
-
-    @property
     def threshold(self) -> float | None:
         """The alarm threshold [nats] once known (learned and calibrated)."""
         if self._glr is None or not math.isfinite(self._glr.threshold):
@@ -226,7 +220,7 @@ class SequentialDetector:
         if self.config.pf is not None or arl0 == self.arl0:
             return False
         self.arl0 = arl0
-        job = self.calibration_job
+        job = self._job or self._done
         if self._glr is None or job is None:
             return False
         self._job, self._waiting_max = replace(job, arl0=arl0), 0.0
