@@ -171,6 +171,33 @@ def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_witho
     assert after.threshold is not None and after.threshold < before.threshold    # a shorter run length
 
 
+@pytest.mark.parametrize("on_change", ["relearn", "keep"])
+def test_new_calibration_settings_after_a_restart_rederive_the_thresholds_without_relearning(tmp_path, caplog,
+                                                                                             on_change):
+    """Where the calibration simulates (the allowance boundary, a measured drift) is not learned either: an
+    upgrade that changes it keeps every nominal and re-derives the thresholds, under "keep" too."""
+    frames = make_frames(8, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=3)
+    split = len(frames[0]) * 6 // 8 + 123
+    calibrated = small_config(on_config_change=on_change)
+    calibrated = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, pf=None,
+                                                                             arl0_cycles=1e4))
+    first = Agent(calibrated, state_store=StateStore(tmp_path))
+    feed(first, frames, stop=split)
+    first.close()
+    before = first.joints[0].detectors.detectors["wear"]
+    assert before.state == "monitoring" and before.calibration is not None and before.calibration.at == "boundary"
+    changed = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision,
+                                                                           calibrate_at="healthy_drift"))
+    with caplog.at_level("WARNING"):
+        second = Agent(changed, state_store=StateStore(tmp_path))
+        outs = feed(second, frames, start=split) + second.finish()
+    after = second.joints[0].detectors.detectors["wear"]
+    assert outs[-1].decisions["wear"].state == "monitoring"              # not relearned
+    assert not any("relearning" in r.getMessage() or "keeping the models" in r.getMessage() for r in caplog.records)
+    assert after.calibration is not None and after.calibration.at == "healthy_drift"
+    assert after.threshold is not None and before.threshold is not None and after.threshold != before.threshold
+
+
 def test_config_errors_name_the_field():
     from edge_monitor.config import ConfigError, config_from_mapping
     with pytest.raises(ConfigError, match=r"decision\.pf"):

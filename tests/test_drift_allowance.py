@@ -296,15 +296,16 @@ def test_a_fleet_counts_the_mean_rate_of_its_learned_nominals_not_the_pooled_fir
     assert mean_run_lengths(statistics, np.array([1.0]))[0][0] == 1010.0
 
 
-def test_the_default_calibration_keeps_the_fingerprints_of_states_saved_before_it_existed() -> None:
-    """At the default ``calibrate_at = "boundary"`` neither the decision nor a detector fingerprint
-    names the new settings, so an upgraded agent keeps what it learned; with ``healthy_drift`` both do
-    (changing the drift is then a config change)."""
-    from edge_monitor.pipeline.detectors import HEALTHY_DRIFT, DecisionConfig
+def test_no_fingerprint_names_where_the_calibration_simulates() -> None:
+    """Neither the decision nor a detector fingerprint names the calibration point or the drifts: they are
+    not learned (a changed one re-derives the saved nominal's threshold, tests/test_sequential_detector.py),
+    and states saved before these settings existed match."""
+    from edge_monitor.pipeline.detectors import DecisionConfig
 
-    default = DecisionConfig()
-    assert not {"calibrate_at", "healthy_drift"} & set(default.fingerprint())
-    assert not {"calibrate_at", "drift_mean", "drift_sd"} & set(default.detector_config("joint").fingerprint())
-    drifting = DecisionConfig(calibrate_at="healthy_drift")
-    assert drifting.fingerprint()["healthy_drift"]["kl_raw"] == list(HEALTHY_DRIFT["kl_raw"])
-    assert drifting.detector_config("kl_raw").fingerprint()["drift_mean"] == [HEALTHY_DRIFT["kl_raw"][0]]
+    for config in (DecisionConfig(), DecisionConfig(calibrate_at="healthy_drift", steady_calibrate_at="nominal")):
+        assert not {"calibrate_at", "healthy_drift", "steady_calibrate_at", "steady_drift", "steady_drift_joint",
+                    "steady_wander"} & set(config.fingerprint())
+        for quantity in ("kl_raw", "joint"):
+            assert not {"calibrate_at", "drift_mean", "drift_sd", "steady_at", "steady_drift_mean",
+                        "steady_drift_sd", "steady_wander"} & set(config.detector_config(quantity).fingerprint())
+    assert DecisionConfig().fingerprint() == DecisionConfig(calibrate_at="healthy_drift").fingerprint()

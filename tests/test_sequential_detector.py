@@ -189,3 +189,35 @@ def test_a_failed_inline_calibration_falls_back_to_the_asymptotic_threshold(monk
     assert decisions[-1].state == "monitoring"
     assert det.calibration.method == "fallback" and det.threshold == pytest.approx(threshold_from_pf(1e-9, 1))
     assert any("threshold calibration failed" in r.getMessage() for r in caplog.records)
+
+
+def test_new_calibration_settings_rederive_a_restored_threshold_on_the_same_nominal() -> None:
+    """Where the calibration simulates is not learned: a detector restored under another calibration point
+    and drift keeps its nominal and statistic and re-derives its threshold (here the measured warm-up drift
+    instead of the allowance boundary: a lower threshold); restored under its own settings it keeps its
+    threshold; a learned setting changed is still a mismatch (the detector relearns)."""
+    import dataclasses
+
+    from edge_monitor.errors import StateMismatch
+
+    rng = np.random.default_rng(11)
+    config = DetectorConfig(n_nominal=60, window=100, direction="increase", allowance=0.75, clip_sigma=3.0,
+                            arl0=1000.0)
+    det = SequentialDetector(config)
+    for i, v in enumerate(rng.normal(size=80)):
+        det.update(v, i)
+    assert det.calibration is not None and det.calibration.at == "boundary"
+    saved = json.loads(json.dumps(det.state_dict()))
+    drifting = dataclasses.replace(config, calibrate_at="healthy_drift", drift_mean=(0.05,), drift_sd=(0.41,))
+    same, back = SequentialDetector.from_state(config, saved), SequentialDetector.from_state(drifting, saved)
+    v = float(rng.normal())
+    a, b = same.update(v, 80), back.update(v, 80)
+    assert a.state == b.state == "monitoring" and a.statistic == pytest.approx(b.statistic)   # not relearned
+    assert same.threshold == det.threshold
+    assert back.calibration is not None and back.calibration.at == "healthy_drift"
+    assert back.threshold is not None and det.threshold is not None and back.threshold < det.threshold
+    again = SequentialDetector.from_state(config, json.loads(json.dumps(back.state_dict())))
+    again.update(v, 81)
+    assert again.threshold == pytest.approx(det.threshold)               # back to the boundary's
+    with pytest.raises(StateMismatch, match="allowance"):
+        SequentialDetector.from_state(dataclasses.replace(config, allowance=0.5), saved)

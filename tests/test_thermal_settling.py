@@ -255,20 +255,25 @@ def test_maintenance_forgets_the_temperature_history_and_keep_keeps_the_schedule
     assert kept.decision.steady_relearn is False and kept.decision.settling_window == 60
 
 
-def test_keep_gives_the_joint_vector_the_drift_a_state_saved_before_steady_drift_joint_had() -> None:
-    """Before ``steady_drift_joint`` the vector was calibrated for ``steady_drift``; "keep" rebuilds it so,
-    and the scalars keep the saved ``steady_drift``."""
+def test_keep_takes_the_current_calibration_settings_and_an_old_state_s_still_match() -> None:
+    """Where a calibration simulates (the point, the drifts, the wander) is not learned: a state saved with
+    other calibration settings, or by a version whose fingerprint still named them (before
+    ``steady_drift_joint`` existed), matches the current config; "keep" keeps nothing and the thresholds
+    are re-derived for the current settings (``SequentialDetector.from_state``)."""
     from edge_monitor.pipeline.agent_config import AgentConfig
 
     old_drift = {"wear_score": (0.0, 0.2), "kl_raw": (0.3, 0.1), "kl_weighted": (0.2, 0.1)}
-    saved = AgentConfig(decision=DecisionConfig(steady_drift=old_drift)).fingerprint(0)
-    del saved["decision"]["steady_drift_joint"]
+    saved = AgentConfig(decision=DecisionConfig(steady_drift=old_drift, calibrate_at="healthy_drift")).fingerprint(0)
+    assert saved == AgentConfig().fingerprint(0)
+    saved["decision"].update(steady_drift={q: list(v) for q, v in old_drift.items()}, steady_calibrate_at="nominal",
+                             calibrate_at="healthy_drift", healthy_drift={"kl_raw": [0.3, 0.2]})   # an older file
     kept, names = AgentConfig().with_learned(0, saved)
-    assert names == ["decision"]
-    assert kept.decision.steady_drift == old_drift and kept.decision.steady_drift_joint == old_drift
-    assert kept.decision.detector_config("joint").steady_drift_mean == (0.0, 0.3, 0.2)
-    assert AgentConfig(decision=kept.decision).fingerprint(0)["decision"]["steady_drift_joint"] == \
-        {q: list(v) for q, v in sorted(old_drift.items())}
+    assert names == [] and kept == AgentConfig()
+    saved["decision"]["allowance"] = 0.5                     # a learned setting: kept, with the current drifts
+    kept, names = AgentConfig().with_learned(0, saved)
+    assert names == ["decision"] and kept.decision.allowance == 0.5
+    assert kept.decision.steady_drift == DecisionConfig().steady_drift
+    assert kept.decision.steady_drift_joint == DecisionConfig().steady_drift_joint
 
 
 # ------------------------------------------------ a restart after a stop: colder than the steady nominal

@@ -40,6 +40,7 @@ from scipy.stats import chi2  # noqa: E402
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.pipeline.detectors import DetectorBank  # noqa: E402
+from edge_monitor.stats.detector_config import CALIBRATION_KEYS  # noqa: E402
 from edge_monitor.stats.glr import WindowedGLR  # noqa: E402
 
 log = logging.getLogger("delivered_curve")
@@ -153,15 +154,11 @@ def statistic_paths(rows: list[dict[str, Any]], decision: Any) -> list[Statistic
 def variant_job(job: Any, stage: str, config: Any) -> Any:
     """``job`` calibrated as the detector ``config`` would for ``stage``: where its streams sit, their drift
     and wander (the statistic path does not depend on these, only its thresholds do)."""
-    if stage == "steady":
-        return replace(job, at=config.steady_at, drift_mean=tuple(config.steady_drift_mean),
-                       drift_sd=tuple(config.steady_drift_sd), wander=tuple(config.steady_wander))
-    return replace(job, at=config.calibrate_at, drift_mean=tuple(config.drift_mean), drift_sd=tuple(config.drift_sd))
+    return replace(job, **config.calibration(stage))
 
 
 #: The calibration fields a variant may change (:func:`variant_job` carries them to the job).
-CALIBRATION_FIELDS = ("calibrate_at", "drift_mean", "drift_sd", "steady_at", "steady_drift_mean", "steady_drift_sd",
-                      "steady_wander", "arl0")
+CALIBRATION_FIELDS = (*CALIBRATION_KEYS, "arl0")
 
 
 def check_variant(base: Any, variant: Any, name: str) -> None:

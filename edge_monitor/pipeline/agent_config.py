@@ -18,7 +18,12 @@ from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
-from edge_monitor.pipeline.decision_config import SCHEDULE_KEYS, DecisionConfig
+from edge_monitor.pipeline.decision_config import (
+    CALIBRATION_KEYS,
+    SCHEDULE_KEYS,
+    DecisionConfig,
+    learned_settings,
+)
 from edge_monitor.pipeline.fault_grouping import AlarmConfig
 from edge_monitor.sinks.acknowledge import AcknowledgeConfig
 from edge_monitor.sinks.jsonl import Rotation
@@ -33,14 +38,14 @@ MAX_BLOCK = 1_000_000           # frames per processing block
 ON_CONFIG_CHANGE = ("relearn", "keep")
 #: Robot names: Zenoh key segment and file-name safe.
 ROBOT_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+#: Decision settings a restored joint takes from the current config even under "keep": they are not learned.
+LIVE_DECISION_KEYS = SCHEDULE_KEYS + CALIBRATION_KEYS
 
 
-def _with_vector_drift(saved: dict[str, Any]) -> dict[str, Any]:
-    """A saved decision fingerprint from before ``steady_drift_joint`` existed: the joint vector was
-    calibrated for ``steady_drift`` then, so that is what it keeps."""
-    if "steady_drift_joint" in saved or "steady_drift" not in saved:
-        return saved
-    return {**saved, "steady_drift_joint": saved["steady_drift"]}
+def _learned(section: str, saved: Any) -> Any:
+    """What of a saved fingerprint ``section`` was learned (a decision one saved with settings that are
+    not learned, by an older version, compares without them)."""
+    return learned_settings(saved) if section == "decision" and isinstance(saved, dict) else saved
 
 
 @dataclass(frozen=True)
@@ -120,12 +125,12 @@ class AgentConfig:
             "segmentation": lambda d: PlateauConfig(**{**d, "speeds": tuple(d["speeds"])}),
             "wear": lambda d: WearConfig(**d, enabled=self.wear.enabled, critical=self.wear.critical),
             "kl": lambda d: KLConfig(**d, enabled=self.kl.enabled),
-            "decision": lambda d: DecisionConfig(**{**{k: getattr(self.decision, k) for k in SCHEDULE_KEYS},
-                                                   **_with_vector_drift(d), "quantities": tuple(d["quantities"])}),
+            "decision": lambda d: DecisionConfig(**{**{k: getattr(self.decision, k) for k in LIVE_DECISION_KEYS},
+                                                   **learned_settings(d), "quantities": tuple(d["quantities"])}),
         }
         changes: dict[str, Any] = {}
         for name, build in builders.items():
-            if name in saved and saved[name] != current[name]:
+            if name in saved and _learned(name, saved[name]) != current[name]:
                 try:
                     changes[name] = build(saved[name])
                 except (TypeError, ValueError, KeyError):

@@ -36,6 +36,12 @@ from edge_monitor.stats.detector_config import (
 SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold", "warm_up_hold_margin",
                  "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
+#: Where the calibrations simulate the detectors (the point, the healthy drift after learning, the wander): not
+#: what a detector learned either, so not in the fingerprint; a saved nominal's threshold is re-derived for the
+#: current ones (``SequentialDetector.from_state``), and "keep" keeps the current ones.
+CALIBRATION_KEYS = ("calibrate_at", "healthy_drift", "steady_calibrate_at", "steady_drift", "steady_drift_joint",
+                    "steady_wander")
+
 #: The periods a false-alarm budget may be stated per [days].
 BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
 #: Test cycles a day the thresholds are derived for until the agent has measured its own rate.
@@ -208,19 +214,16 @@ class DecisionConfig:
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
 
     def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "quantities": list(self.quantities), "warm_up_hold": list(self.warm_up_hold),
-               "healthy_drift": {q: list(v) for q, v in sorted(self.healthy_drift.items())},
-               "steady_drift": {q: list(v) for q, v in sorted(self.steady_drift.items())},
-               "steady_drift_joint": {q: list(v) for q, v in sorted(self.steady_drift_joint.items())},
-               "steady_wander": dict(sorted(self.steady_wander.items()))}
-        if self.calibrate_at == "boundary":
-            del out["calibrate_at"], out["healthy_drift"]   # the default: states saved before these settings
-        steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform",
-                  "steady_simulate_from")
-        if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
+        out = {**asdict(self), "quantities": list(self.quantities)}
+        steady = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
+        if tuple(out[key] for key in steady) == STEADY_DEFAULTS[1:]:
             for key in steady:      # the default: states saved before these settings still match
                 del out[key]
-        for key in SCHEDULE_KEYS:
-            del out[key]
-        return out
+        return learned_settings(out)
+
+
+def learned_settings(fingerprint: dict[str, Any]) -> dict[str, Any]:
+    """A decision fingerprint without what is not learned (:data:`SCHEDULE_KEYS`, :data:`CALIBRATION_KEYS`;
+    a saved one may hold them)."""
+    return {k: v for k, v in fingerprint.items() if k not in SCHEDULE_KEYS and k not in CALIBRATION_KEYS}
 

@@ -30,6 +30,11 @@ DEFAULT_NOMINAL = 60
 #: Learning phase of the steady nominal [cycles]: 4 × the first, a margin against the learning error
 #: (a nominal learned too narrow alarms early; docs/DETECTION.md, "Two stages").
 DEFAULT_STEADY_NOMINAL = 240
+#: Settings of where a calibration simulates the detector (the point, the drift after learning, the wander): not
+#: what the detector learned, so a saved nominal stays valid when they change and its threshold is re-derived
+#: (``SequentialDetector.from_state``), like a changed target.
+CALIBRATION_KEYS = ("calibrate_at", "drift_mean", "drift_sd", "steady_at", "steady_drift_mean", "steady_drift_sd",
+                    "steady_wander")
 #: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
 #: fingerprint, so that states saved before the steady stage existed still match (a saved steady
 #: nominal without a transform is watched untransformed, as it was learned).
@@ -161,16 +166,28 @@ class DetectorConfig:
                "steady_drift_mean": list(self.steady_drift_mean), "steady_drift_sd": list(self.steady_drift_sd),
                "steady_wander": list(self.steady_wander),
                "transform_axes": list(self.transform_axes)}
-        del out["arl0"]          # the target is not what was learned: a changed one is re-derived (retarget)
-        if self.calibrate_at == "boundary" and not (self.drift_mean or self.drift_sd):
-            for key in ("calibrate_at", "drift_mean", "drift_sd"):     # the default: states saved before
-                del out[key]                                           # these settings existed still match
-        steady = ("steady_at", "steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
-        if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
-            for key in (*steady, "transform_axes"):
-                del out[key]
-        return out
+        steady = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
+        if tuple(out[key] for key in steady) == STEADY_DEFAULTS[1:]:
+            for key in (*steady, "transform_axes"):     # the default: states saved before these settings
+                del out[key]                            # existed still match
+        return learned_part(out)
+
+    def calibration(self, stage: str) -> dict[str, Any]:
+        """Where the calibration of ``stage`` ("warm-up" | "steady") simulates the detector, as the
+        :class:`~edge_monitor.stats.calibration.CalibrationJob` fields ``at``, ``drift_mean``, ``drift_sd``,
+        ``wander`` (standard units; docs/DETECTION.md, "Two stages")."""
+        if stage == "steady":
+            return {"at": self.steady_at, "drift_mean": tuple(self.steady_drift_mean),
+                    "drift_sd": tuple(self.steady_drift_sd), "wander": tuple(self.steady_wander)}
+        return {"at": self.calibrate_at, "drift_mean": tuple(self.drift_mean), "drift_sd": tuple(self.drift_sd),
+                "wander": ()}
 
     @property
     def budget(self) -> CalibrationBudget:
         return CalibrationBudget(draws=self.calibration_draws, max_steps=self.calibration_steps)
+
+
+def learned_part(fingerprint: dict[str, Any]) -> dict[str, Any]:
+    """A detector fingerprint without what is re-derived rather than learned: the target and
+    :data:`CALIBRATION_KEYS` (a saved one may hold them)."""
+    return {k: v for k, v in fingerprint.items() if k != "arl0" and k not in CALIBRATION_KEYS}

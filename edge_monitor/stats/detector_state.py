@@ -44,3 +44,9 @@ def saved_steady_values(saved: Any, det: Any) -> list[list[float]] | None:
         raise ValueError("saved detector state: steady values that no detector could have collected")
     return values
 
+
+def recalibrated(job: Any, calibration: dict[str, Any]) -> bool:
+    """Whether a restored calibration ``job`` was calibrated elsewhere than ``calibration`` (the
+    :class:`~edge_monitor.stats.calibration.CalibrationJob` fields its config gives now): the settings changed
+    since, and the saved nominal's threshold is re-derived rather than the nominal relearned."""
+    return job is not None and any(getattr(job, k) != v for k, v in calibration.items())

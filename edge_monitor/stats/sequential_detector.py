@@ -44,8 +44,9 @@ from edge_monitor.stats.detector_config import (  # noqa: F401  (re-exported: th
     MAX_NOMINAL,
     DetectorConfig,
     DetectorConfigError,
+    learned_part,
 )
-from edge_monitor.stats.detector_state import saved_steady_values, saved_target, saved_transform
+from edge_monitor.stats.detector_state import recalibrated, saved_steady_values, saved_target, saved_transform
 from edge_monitor.stats.glr import GLRError, WindowedGLR, threshold_from_pf
 from edge_monitor.stats.glr_batch import clip_range, null_box
 from edge_monitor.stats.normalising_transform import TransformError, YeoJohnson
@@ -131,7 +132,7 @@ class SequentialDetector:
         if self.config.pf is not None:
             return {"method": "asymptotic", "pf": self.config.pf}
         out: dict[str, Any] = {"arl0": self.calibration.arl0 if self.calibration is not None else self.arl0,
-                               "at": self._calibrate_at, "stage": self.stage}
+                               "at": self._calibration["at"], "stage": self.stage}
         if self.calibration is not None:
             out["method"] = self.calibration.method
             if self.calibration.h_se is not None:
@@ -149,18 +150,11 @@ class SequentialDetector:
         return self.config.steady_nominal if self.stage == "steady" else self.n_nominal
 
     @property
-    def _calibrate_at(self) -> str:
-        return self.config.steady_at if self.stage == "steady" else self.config.calibrate_at
-
-    @property
-    def _healthy_data(self) -> dict[str, Any]:
-        """What the calibration of the current stage assumes of healthy data after learning: the drift
-        (σ units, per dimension), the slow wander (variance fractions) and what it simulates from."""
-        c = self.config
-        if self.stage == "steady":
-            return {"drift_mean": tuple(c.steady_drift_mean), "drift_sd": tuple(c.steady_drift_sd),
-                    "wander": tuple(c.steady_wander), "simulate_from": c.steady_simulate_from}
-        return {"drift_mean": tuple(c.drift_mean), "drift_sd": tuple(c.drift_sd)}
+    def _calibration(self) -> dict[str, Any]:
+        """Where the calibration of the current stage simulates the detector (the point, the drift after
+        learning in σ units, the slow wander) and, once steady, what it simulates from."""
+        out = self.config.calibration(self.stage)
+        return {**out, "simulate_from": self.config.steady_simulate_from} if self.stage == "steady" else out
 
     def begin_steady(self) -> None:
         """The joint's temperature has settled: learn the nominal again from the next ``steady_nominal``
@@ -276,7 +270,7 @@ class SequentialDetector:
             self._job = CalibrationJob(tuple(map(tuple, nominal.tolist())), self._density_kind, self.window,
                                        self.arl0, self.gamma0, self.rho, self.mode, self.config.budget,
                                        self.config.direction, float(self.config.allowance),
-                                       float(self.config.clip_sigma), self._calibrate_at, **self._healthy_data)
+                                       float(self.config.clip_sigma), **self._calibration)
             self._pending = self.calibrator.submit(self._job)
         self._nominal.clear()
         self._learning_note = ""
@@ -390,9 +384,9 @@ class SequentialDetector:
                    calibrator: Calibrator | None = None) -> "SequentialDetector":
         """Restore a detector learned with ``config``; :class:`StateMismatch` if it was learned with
         another. A calibration that was under way is started again (it is deterministic)."""
-        saved = state.get("config")          # states saved with the target in it: a target is no longer
-        if isinstance(saved, dict):          # what was learned (it is re-derived, :meth:`retarget`)
-            state = {**state, "config": {k: v for k, v in saved.items() if k != "arl0"}}
+        saved = state.get("config")          # states saved with the target or the calibration settings in
+        if isinstance(saved, dict):          # it: those are not learned, they are re-derived (below)
+            state = {**state, "config": learned_part(saved)}
         check_learned_with("detector", state, config.fingerprint())
         det = cls(config, calibrator)
         det.arl0 = saved_target(state.get("arl0", config.arl0))
@@ -404,12 +398,15 @@ class SequentialDetector:
             det._done = CalibrationJob.from_dict(state["calibrated_job"])
         if state.get("calibration_job") is not None and det._glr is not None:
             det._job = CalibrationJob.from_dict(state["calibration_job"])
-            det._pending = det.calibrator.submit(det._job)
         det._waiting_max = float(state.get("waiting_max", 0.0))
         det._cycles = [None if c is None else int(c) for c in state["cycles"]]
         det._latched = None if state["latched"] is None else dict(state["latched"])
         det._learning_note = state.get("learning_note", "")
         det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
+        if config.pf is None and recalibrated(det._job or det._done, det._calibration):   # calibrated elsewhere
+            det._job = replace(det._job or det._done, **det._calibration)   # than the config says: re-derived
+        if det._job is not None:                    # (the saved threshold decides until then)
+            det._pending = det.calibrator.submit(det._job)
         det._steady_values = saved_steady_values(state.get("steady_values"), det)
         det._transform = saved_transform(state.get("transform"), det)
         counters = state.get("counters", {})
