@@ -49,4 +49,4 @@ def recalibrated(job: Any, calibration: dict[str, Any]) -> bool:
     """Whether a restored calibration ``job`` was calibrated elsewhere than ``calibration`` (the
     :class:`~edge_monitor.stats.calibration.CalibrationJob` fields its config gives now): the settings changed
     since, and the saved nominal's threshold is re-derived rather than the nominal relearned."""
-    return job is not None and any(getattr(job, k) != v for k, v in calibration.items())
+    return any(getattr(job, k) != v for k, v in calibration.items())

@@ -403,8 +403,9 @@ class SequentialDetector:
         det._latched = None if state["latched"] is None else dict(state["latched"])
         det._learning_note = state.get("learning_note", "")
         det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
-        if config.pf is None and recalibrated(det._job or det._done, det._calibration):   # calibrated elsewhere
-            det._job = replace(det._job or det._done, **det._calibration)   # than the config says: re-derived
+        job = det._job or det._done
+        if config.pf is None and job is not None and recalibrated(job, det._calibration):   # calibrated elsewhere
+            det._job = replace(job, **det._calibration)             # than the config says: re-derived
         if det._job is not None:                    # (the saved threshold decides until then)
             det._pending = det.calibrator.submit(det._job)
         det._steady_values = saved_steady_values(state.get("steady_values"), det)
