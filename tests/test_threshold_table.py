@@ -112,3 +112,22 @@ def test_one_winsorised_value_cannot_raise_a_joint_alarm_on_the_default_budget(s
         worst = max(_one_value_statistic(corr, 3.0 * np.array(signs))
                     for signs in itertools.product((-1.0, 1.0), repeat=3))
         assert worst < bound, (corr, worst, bound, found)
+
+
+def test_the_table_tool_can_recompute_one_quantitys_entry_alone() -> None:
+    """``--quantity wear --stage steady --only scalar`` selects the steady wear score's entry and nothing
+    else (a deeper simulation of one entry, docs/DETECTION.md "Thresholds")."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from threshold_table import wanted
+
+    from edge_monitor.pipeline.detectors import DecisionConfig
+
+    wear = DecisionConfig().detector_config("wear")
+    one = wanted("scalar", [], "steady", "wear")
+    assert [(s.n0, s.at, s.drift_mean, s.drift_sd, dim) for s, dim, _ in one] == \
+        [(wear.steady_nominal, wear.steady_at, tuple(wear.steady_drift_mean), tuple(wear.steady_drift_sd), 1)]
+    assert len(wanted("scalar", [], "steady")) > 1
+    assert {dim for _, dim, _ in wanted("vector", [0.0, 0.5], "steady", "joint")} == {3}

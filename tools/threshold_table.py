@@ -12,7 +12,7 @@ read, to ``edge_monitor/stats/data/gaussian_thresholds.json``. A threshold is re
 holds stay unless ``--recompute``; ``--jobs`` computes entries in parallel processes.
 
 Usage: ``python tools/threshold_table.py [--nominals 4096] [--steps 4000] [--jobs 2] [--only
-scalar|vector] [--stage warm-up|steady] [--out PATH]`` (scalar entries ≈ 3–8 min, vector ones ≈ 10–20 min CPU each here;
+scalar|vector] [--stage warm-up|steady] [--quantity Q] [--out PATH]`` (scalar entries ≈ 3–8 min, vector ones ≈ 10–20 min CPU each here;
 progress every 512 detectors).
 """
 
@@ -101,15 +101,18 @@ def _entry_key(e: dict[str, Any]) -> tuple[str, float]:
     return key(entry_settings(e), len(entry_correlation(e))), round(entry_rho(e), 6)
 
 
-def wanted(only: str, vector_rho: list[float], stage: str = "all") -> list[tuple[GaussianSettings, int, float]]:
-    """The (settings, dim, ρ) the table should hold (of the warm-up or the steady nominal only: ``stage``)."""
+def wanted(only: str, vector_rho: list[float], stage: str = "all",
+           quantity: str | None = None) -> list[tuple[GaussianSettings, int, float]]:
+    """The (settings, dim, ρ) the table should hold (of the warm-up or the steady nominal only: ``stage``;
+    of one quantity's detector only: ``quantity``)."""
     out: list[tuple[GaussianSettings, int, float]] = []
     if only in ("all", "scalar"):
         out += [(s, 1, 0.0) for s in scalar_settings()]
     if only in ("all", "vector"):
         dim = DecisionConfig().detector_config("joint").dim
         out += [(s, dim, rho) for s in shipped_settings(quantities=("joint",)) for rho in vector_rho]
-    return [(s, dim, rho) for s, dim, rho in out if in_stage(s, stage)]
+    mine = shipped_settings(quantities=(quantity,)) if quantity else None
+    return [(s, dim, rho) for s, dim, rho in out if in_stage(s, stage) and (mine is None or s in mine)]
 
 
 def in_stage(settings: GaussianSettings, stage: str) -> bool:
@@ -127,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", choices=("all", "scalar", "vector"), default="all")
     parser.add_argument("--stage", choices=("all", "warm-up", "steady"), default="all",
                         help="only the entries of the warm-up or of the steady nominal")
+    parser.add_argument("--quantity", choices=("wear", "kl_raw", "kl_weighted", "joint"), default=None,
+                        help="only the entries of this quantity's detector (a deeper simulation of one entry)")
     parser.add_argument("--jobs", type=int, default=1, help="entries computed in parallel processes")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--recompute", action="store_true", help="recompute entries the table already holds")
@@ -139,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         old = json.loads(args.out.read_text())
         kept = {_entry_key(e): e for e in old.get("entries", [])}
         commands = list(old.get("commands") or ([old["command"]] if old.get("command") else []))
-    todo = wanted(args.only, [float(x) for x in args.vector_rho.split(",") if x.strip()], args.stage)
+    todo = wanted(args.only, [float(x) for x in args.vector_rho.split(",") if x.strip()], args.stage, args.quantity)
     missing = [(s, dim, rho) for s, dim, rho in todo if args.recompute or (key(s, dim), round(rho, 6)) not in kept]
     log.info("%d entries to compute, %d kept", len(missing), len(kept))
     with concurrent.futures.ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
