@@ -221,3 +221,75 @@ def test_new_calibration_settings_rederive_a_restored_threshold_on_the_same_nomi
     assert again.threshold == pytest.approx(det.threshold)               # back to the boundary's
     with pytest.raises(StateMismatch, match="allowance"):
         SequentialDetector.from_state(dataclasses.replace(config, allowance=0.5), saved)
+
+
+def _old_fingerprint(config: DetectorConfig) -> dict:
+    """A detector fingerprint as the versions before 2026-11-28 saved it (their rule, verbatim): the
+    calibration point and drifts in it unless at the boundary default, the steady settings unless all five
+    (the calibration point among them) were the defaults."""
+    from dataclasses import asdict
+
+    from edge_monitor.stats.detector_config import STEADY_DEFAULTS
+
+    out = {**asdict(config), "drift_mean": list(config.drift_mean), "drift_sd": list(config.drift_sd),
+           "steady_drift_mean": list(config.steady_drift_mean), "steady_drift_sd": list(config.steady_drift_sd),
+           "steady_wander": list(config.steady_wander), "transform_axes": list(config.transform_axes)}
+    del out["arl0"]
+    if config.calibrate_at == "boundary" and not (config.drift_mean or config.drift_sd):
+        for key in ("calibrate_at", "drift_mean", "drift_sd"):
+            del out[key]
+    steady = ("steady_at", "steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
+    if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
+        for key in (*steady, "transform_axes"):
+            del out[key]
+    return json.loads(json.dumps(out))
+
+
+@pytest.mark.parametrize("changes", [{}, {"steady_at": "boundary"}, {"steady_at": "nominal"},
+                                     {"calibrate_at": "healthy_drift", "drift_mean": (0.1,), "drift_sd": (0.2,)},
+                                     {"steady_drift_mean": (0.04,), "steady_drift_sd": (0.03,),
+                                      "steady_wander": (0.09,), "transform_axes": (True,)}])
+def test_a_state_saved_by_an_older_version_matches_whatever_its_calibration_settings(changes: dict) -> None:
+    """An older version's fingerprint (with calibration settings in it, and with the steady group kept
+    where the calibration point alone differed from the default) matches the same config now: the
+    detector is restored, not relearned; a learned setting changed still does not match."""
+    import dataclasses
+
+    from edge_monitor.errors import StateMismatch
+    from edge_monitor.stats.detector_config import learned_part
+
+    config = dataclasses.replace(DetectorConfig(n_nominal=20, window=30, direction="increase", allowance=0.75,
+                                                arl0=200.0), **changes)
+    assert learned_part(_old_fingerprint(config)) == config.fingerprint()
+    det = SequentialDetector(config)
+    for i, v in enumerate(np.random.default_rng(2).normal(size=25)):
+        det.update(v, i)
+    state = {**json.loads(json.dumps(det.state_dict())), "config": _old_fingerprint(config)}
+    assert SequentialDetector.from_state(config, state).state == "monitoring"
+    with pytest.raises(StateMismatch):
+        SequentialDetector.from_state(dataclasses.replace(config, window=31), state)
+
+
+def test_a_rederived_threshold_does_not_inherit_the_first_calibrations_waiting_maximum() -> None:
+    """The largest statistic seen while the first threshold was computed (kept in the state) decides only
+    that first threshold: a threshold re-derived on restore (here lower) must not latch an alarm from it,
+    while a first calibration still under way at the save does."""
+    import dataclasses
+
+    config = DetectorConfig(n_nominal=60, window=100, direction="increase", allowance=0.75, clip_sigma=3.0,
+                            arl0=1000.0)
+    det = SequentialDetector(config)
+    rng = np.random.default_rng(4)
+    for i, v in enumerate(rng.normal(size=70)):
+        det.update(v, i)
+    assert det.threshold is not None
+    saved = {**json.loads(json.dumps(det.state_dict())), "waiting_max": 0.9 * det.threshold}
+    drifting = dataclasses.replace(config, calibrate_at="healthy_drift", drift_mean=(0.05,), drift_sd=(0.41,))
+    back = SequentialDetector.from_state(drifting, saved)
+    back.update(0.0, 70)
+    assert back.threshold is not None and back.threshold < 0.9 * det.threshold and not back.alarmed
+    first = {**saved, "calibration": None, "calibrated_job": None, "calibration_job": saved["calibrated_job"],
+             "glr": {**saved["glr"], "threshold": math.inf}}       # saved before its first threshold arrived
+    pending = SequentialDetector.from_state(drifting, first)
+    pending.update(0.0, 70)
+    assert pending.threshold == pytest.approx(back.threshold) and pending.alarmed

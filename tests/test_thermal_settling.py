@@ -276,6 +276,44 @@ def test_keep_takes_the_current_calibration_settings_and_an_old_state_s_still_ma
     assert kept.decision.steady_drift_joint == DecisionConfig().steady_drift_joint
 
 
+def _old_decision_fingerprint(config: DecisionConfig) -> dict:
+    """A decision fingerprint as the versions before 2026-11-28 saved it (their rule, verbatim)."""
+    from dataclasses import asdict
+
+    from edge_monitor.pipeline.decision_config import SCHEDULE_KEYS
+    from edge_monitor.stats.detector_config import STEADY_DEFAULTS
+
+    out = {**asdict(config), "quantities": list(config.quantities), "warm_up_hold": list(config.warm_up_hold),
+           "healthy_drift": {q: list(v) for q, v in sorted(config.healthy_drift.items())},
+           "steady_drift": {q: list(v) for q, v in sorted(config.steady_drift.items())},
+           "steady_drift_joint": {q: list(v) for q, v in sorted(config.steady_drift_joint.items())},
+           "steady_wander": dict(sorted(config.steady_wander.items()))}
+    if config.calibrate_at == "boundary":
+        del out["calibrate_at"], out["healthy_drift"]
+    steady = ("steady_calibrate_at", "steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
+    if tuple(out[key] for key in steady) == STEADY_DEFAULTS:
+        for key in steady:
+            del out[key]
+    for key in SCHEDULE_KEYS:
+        del out[key]
+    return json.loads(json.dumps(out))
+
+
+@pytest.mark.parametrize("changes", [{}, {"steady_calibrate_at": "boundary"}, {"calibrate_at": "healthy_drift"}])
+def test_keep_finds_nothing_to_keep_in_an_older_versions_fingerprint_of_the_same_settings(changes: dict) -> None:
+    """An older version's decision fingerprint of the same settings (calibration settings in it, the steady
+    group kept where only the calibration point differed) compares equal: "keep" keeps nothing; a damaged
+    decision section is skipped (the detectors then relearn alone), not the joint's other models."""
+    import dataclasses
+
+    from edge_monitor.pipeline.agent_config import AgentConfig
+
+    mine = AgentConfig(decision=dataclasses.replace(DecisionConfig(), **changes))
+    saved = {**mine.fingerprint(0), "decision": _old_decision_fingerprint(mine.decision)}
+    assert mine.with_learned(0, saved) == (mine, [])
+    assert mine.with_learned(0, {**saved, "decision": ["damaged"]}) == (mine, [])
+
+
 # ------------------------------------------------ a restart after a stop: colder than the steady nominal
 def _steady_bank(seed: int) -> tuple[DetectorBank, np.random.Generator, int]:
     """A bank whose detectors are all steady, learned at 50 ± 3 °C (the wear score N(0, 1), the logs of

@@ -133,7 +133,7 @@ class AgentConfig:
             if name in saved and _learned(name, saved[name]) != current[name]:
                 try:
                     changes[name] = build(saved[name])
-                except (TypeError, ValueError, KeyError):
+                except (TypeError, ValueError, KeyError, AttributeError):   # a damaged section
                     continue
         if "friction" in saved and saved["friction"] != current["friction"]:
             try:

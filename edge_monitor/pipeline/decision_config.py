@@ -25,8 +25,8 @@ from edge_monitor.stats.detector_config import (
     DEFAULT_NOMINAL,
     DEFAULT_STEADY_NOMINAL,
     DEFAULT_WINDOW,
-    STEADY_DEFAULTS,
     DetectorConfig,
+    without_default_steady,
 )
 
 #: Settings that are not what a detector learned — when the steady stage starts, and the false-alarm
@@ -214,16 +214,13 @@ class DecisionConfig:
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
 
     def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "quantities": list(self.quantities)}
-        steady = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
-        if tuple(out[key] for key in steady) == STEADY_DEFAULTS[1:]:
-            for key in steady:      # the default: states saved before these settings still match
-                del out[key]
-        return learned_settings(out)
+        return learned_settings({**asdict(self), "quantities": list(self.quantities)})
 
 
 def learned_settings(fingerprint: dict[str, Any]) -> dict[str, Any]:
-    """A decision fingerprint without what is not learned (:data:`SCHEDULE_KEYS`, :data:`CALIBRATION_KEYS`;
-    a saved one may hold them)."""
-    return {k: v for k, v in fingerprint.items() if k not in SCHEDULE_KEYS and k not in CALIBRATION_KEYS}
+    """A decision fingerprint, current or saved, without what is not learned (:data:`SCHEDULE_KEYS`,
+    :data:`CALIBRATION_KEYS`) and without the steady settings where they are the defaults (states saved
+    before these settings existed still match)."""
+    return without_default_steady({k: v for k, v in fingerprint.items()
+                                   if k not in SCHEDULE_KEYS and k not in CALIBRATION_KEYS})
 

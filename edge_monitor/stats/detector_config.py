@@ -35,6 +35,8 @@ DEFAULT_STEADY_NOMINAL = 240
 #: (``SequentialDetector.from_state``), like a changed target.
 CALIBRATION_KEYS = ("calibrate_at", "drift_mean", "drift_sd", "steady_at", "steady_drift_mean", "steady_drift_sd",
                     "steady_wander")
+#: The steady settings a detector learns with (the rest of :data:`STEADY_DEFAULTS`, after the calibration point).
+STEADY_LEARNED = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
 #: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
 #: fingerprint, so that states saved before the steady stage existed still match (a saved steady
 #: nominal without a transform is watched untransformed, as it was learned).
@@ -166,10 +168,6 @@ class DetectorConfig:
                "steady_drift_mean": list(self.steady_drift_mean), "steady_drift_sd": list(self.steady_drift_sd),
                "steady_wander": list(self.steady_wander),
                "transform_axes": list(self.transform_axes)}
-        steady = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
-        if tuple(out[key] for key in steady) == STEADY_DEFAULTS[1:]:
-            for key in (*steady, "transform_axes"):     # the default: states saved before these settings
-                del out[key]                            # existed still match
         return learned_part(out)
 
     def calibration(self, stage: str) -> dict[str, Any]:
@@ -188,6 +186,15 @@ class DetectorConfig:
 
 
 def learned_part(fingerprint: dict[str, Any]) -> dict[str, Any]:
-    """A detector fingerprint without what is re-derived rather than learned: the target and
-    :data:`CALIBRATION_KEYS` (a saved one may hold them)."""
-    return {k: v for k, v in fingerprint.items() if k != "arl0" and k not in CALIBRATION_KEYS}
+    """A detector fingerprint, current or saved, without what is re-derived rather than learned (the target
+    and :data:`CALIBRATION_KEYS`) and without the steady settings where they are the defaults (with
+    ``transform_axes``: states saved before these settings existed still match)."""
+    return without_default_steady({k: v for k, v in fingerprint.items() if k != "arl0" and k not in CALIBRATION_KEYS},
+                                  ("transform_axes",))
+
+
+def without_default_steady(fingerprint: dict[str, Any], also: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``fingerprint`` without :data:`STEADY_LEARNED` (and ``also``) where those are the shipped defaults."""
+    if tuple(fingerprint.get(key) for key in STEADY_LEARNED) != STEADY_DEFAULTS[1:]:
+        return fingerprint
+    return {k: v for k, v in fingerprint.items() if k not in STEADY_LEARNED and k not in also}

@@ -131,10 +131,9 @@ class SequentialDetector:
         """How the threshold is set, for every decision: the ARL0 target and the method, or the Pf."""
         if self.config.pf is not None:
             return {"method": "asymptotic", "pf": self.config.pf}
-        out: dict[str, Any] = {"arl0": self.calibration.arl0 if self.calibration is not None else self.arl0,
-                               "at": self._calibration["at"], "stage": self.stage}
-        if self.calibration is not None:
-            out["method"] = self.calibration.method
+        out: dict[str, Any] = {"arl0": self.arl0, "at": self._calibration["at"], "stage": self.stage}
+        if self.calibration is not None:       # the threshold in use (a re-derived one may be on its way)
+            out.update(arl0=self.calibration.arl0, at=self.calibration.at, method=self.calibration.method)
             if self.calibration.h_se is not None:
                 out["h_se"] = self.calibration.h_se
         elif self._glr is not None:
@@ -291,7 +290,7 @@ class SequentialDetector:
         except (CalibrationError, DensityError, ValueError) as exc:    # degenerate nominal: asymptotic fallback
             log.warning("threshold calibration failed (%s); using the asymptotic threshold for Pf = 1e-9", exc)
             calibration = Calibration(threshold_from_pf(1e-9, self.dim), self.arl0, "fallback",
-                                      0, 0, 0, None, 0.0)
+                                      0, 0, 0, None, 0.0, self._calibration["at"])
         if calibration is None:
             return
         self.calibration, self._pending, self._job, self._done = calibration, None, None, self._job
@@ -405,7 +404,8 @@ class SequentialDetector:
         det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
         job = det._job or det._done
         if config.pf is None and job is not None and recalibrated(job, det._calibration):   # calibrated elsewhere
-            det._job = replace(job, **det._calibration)             # than the config says: re-derived
+            det._job = replace(job, **det._calibration)      # than the config says: re-derived; a threshold in
+            det._waiting_max = det._waiting_max if det.calibration is None else 0.0   # use decides meanwhile
         if det._job is not None:                    # (the saved threshold decides until then)
             det._pending = det.calibrator.submit(det._job)
         det._steady_values = saved_steady_values(state.get("steady_values"), det)
