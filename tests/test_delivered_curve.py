@@ -19,6 +19,7 @@ from delivered_curve import (  # noqa: E402
     replay_joint,
     statistic_paths,
     summary,
+    variant_job,
 )
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
@@ -87,6 +88,12 @@ def test_boundary_calibration_runs_quieter_than_the_nominal_one_on_the_same_path
 def test_a_variant_may_change_the_calibration_only() -> None:
     base = config_from_mapping({}).decision
     check_variant(base, config_from_mapping({"decision": {"steady_drift": {"kl_raw": [0.1, 0.09]}}}).decision, "ok")
+    deeper = config_from_mapping({"decision": {"calibrate_at": "healthy_drift", "calibration_draws": 512,
+                                               "calibration_steps": 4000}}).decision
+    check_variant(base, deeper, "ok")          # how much is simulated does not change a path either
+    job = variant_job(statistic_paths(_gaussian_rows(300, 5), config_from_mapping(
+        {"decision": {"arl0_cycles": 1.0e7}}).decision)[0].job, "warm-up", deeper.detector_config("wear"))
+    assert job.at == "healthy_drift" and job.budget == deeper.detector_config("wear").budget
     for other in ({"allowance": 0.5}, {"steady_transform": "none"}, {"window": 50}):
         with pytest.raises(ValueError, match="a variant may only change"):
             check_variant(base, config_from_mapping({"decision": other}).decision, "bad")

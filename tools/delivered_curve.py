@@ -154,11 +154,12 @@ def statistic_paths(rows: list[dict[str, Any]], decision: Any) -> list[Statistic
 def variant_job(job: Any, stage: str, config: Any) -> Any:
     """``job`` calibrated as the detector ``config`` would for ``stage``: where its streams sit, their drift
     and wander (the statistic path does not depend on these, only its thresholds do)."""
-    return replace(job, **config.calibration(stage))
+    return replace(job, budget=config.budget, **config.calibration(stage))
 
 
-#: The calibration fields a variant may change (:func:`variant_job` carries them to the job).
-CALIBRATION_FIELDS = (*CALIBRATION_KEYS, "arl0")
+#: The calibration fields a variant may change (:func:`variant_job` carries them to the job): where it
+#: simulates, and how much it simulates where the table does not hold its settings.
+CALIBRATION_FIELDS = (*CALIBRATION_KEYS, "calibration_draws", "calibration_steps", "arl0")
 
 
 def check_variant(base: Any, variant: Any, name: str) -> None:
