@@ -145,11 +145,9 @@ def test_a_config_change_after_a_restart_takes_effect_or_is_kept_and_is_reported
         assert second.joints[0].detectors.detectors["wear"].config.allowance == 0.5
 
 
-@pytest.mark.parametrize("on_change", ["relearn", "keep"])
-def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_without_relearning(tmp_path, caplog,
-                                                                                              on_change):
-    """The ARL0 target is not what a detector learned: a restart with another budget keeps the nominals
-    and re-derives every threshold for the new target (tests/test_false_alarm_budget.py has the maths)."""
+def _restarted_with(tmp_path, caplog, on_change: str, **decision_changes):
+    """A calibrated agent stopped at a split, restarted with ``decision_changes`` and fed the rest: the wear
+    detector before and after, after checking that nothing was relearned or kept under old settings."""
     frames = make_frames(8, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=3)
     split = len(frames[0]) * 6 // 8 + 123
     calibrated = small_config(on_config_change=on_change)
@@ -159,14 +157,22 @@ def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_witho
     feed(first, frames, stop=split)
     first.close()
     before = first.joints[0].detectors.detectors["wear"]
-    assert before.state == "monitoring" and before.threshold is not None
-    changed = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, arl0_cycles=500.0))
+    assert before.state == "monitoring" and before.threshold is not None and before.calibration is not None
+    changed = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, **decision_changes))
     with caplog.at_level("WARNING"):
         second = Agent(changed, state_store=StateStore(tmp_path))
         outs = feed(second, frames, start=split) + second.finish()
-    after = second.joints[0].detectors.detectors["wear"]
     assert outs[-1].decisions["wear"].state == "monitoring"              # not relearned
     assert not any("relearning" in r.getMessage() or "keeping the models" in r.getMessage() for r in caplog.records)
+    return before, second.joints[0].detectors.detectors["wear"]
+
+
+@pytest.mark.parametrize("on_change", ["relearn", "keep"])
+def test_a_new_false_alarm_target_after_a_restart_rederives_the_thresholds_without_relearning(tmp_path, caplog,
+                                                                                              on_change):
+    """The ARL0 target is not what a detector learned: a restart with another budget keeps the nominals
+    and re-derives every threshold for the new target (tests/test_false_alarm_budget.py has the maths)."""
+    before, after = _restarted_with(tmp_path, caplog, on_change, arl0_cycles=500.0)
     assert after.arl0 == 500.0 and after.calibration is not None and after.calibration.arl0 == 500.0
     assert after.threshold is not None and after.threshold < before.threshold    # a shorter run length
 
@@ -176,26 +182,10 @@ def test_new_calibration_settings_after_a_restart_rederive_the_thresholds_withou
                                                                                              on_change):
     """Where the calibration simulates (the allowance boundary, a measured drift) is not learned either: an
     upgrade that changes it keeps every nominal and re-derives the thresholds, under "keep" too."""
-    frames = make_frames(8, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=3)
-    split = len(frames[0]) * 6 // 8 + 123
-    calibrated = small_config(on_config_change=on_change)
-    calibrated = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision, pf=None,
-                                                                             arl0_cycles=1e4))
-    first = Agent(calibrated, state_store=StateStore(tmp_path))
-    feed(first, frames, stop=split)
-    first.close()
-    before = first.joints[0].detectors.detectors["wear"]
-    assert before.state == "monitoring" and before.calibration is not None and before.calibration.at == "boundary"
-    changed = dataclasses.replace(calibrated, decision=dataclasses.replace(calibrated.decision,
-                                                                           calibrate_at="healthy_drift"))
-    with caplog.at_level("WARNING"):
-        second = Agent(changed, state_store=StateStore(tmp_path))
-        outs = feed(second, frames, start=split) + second.finish()
-    after = second.joints[0].detectors.detectors["wear"]
-    assert outs[-1].decisions["wear"].state == "monitoring"              # not relearned
-    assert not any("relearning" in r.getMessage() or "keeping the models" in r.getMessage() for r in caplog.records)
+    before, after = _restarted_with(tmp_path, caplog, on_change, calibrate_at="healthy_drift")
+    assert before.calibration.at == "boundary"
     assert after.calibration is not None and after.calibration.at == "healthy_drift"
-    assert after.threshold is not None and before.threshold is not None and after.threshold != before.threshold
+    assert after.threshold is not None and after.threshold != before.threshold
 
 
 def test_config_errors_name_the_field():
