@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -114,3 +115,20 @@ def test_the_command_refuses_a_bad_variant_with_a_message_before_replaying(capsy
 
     assert main(["--fleet", "101", "--plant", "--variant", "bad:decision.allowance=0.5"]) == 2
     assert "a variant may only change" in capsys.readouterr().err
+
+
+def test_a_scalar_gaussian_threshold_is_computed_once_per_setting_and_is_the_agents() -> None:
+    """Thresholds of scalar Gaussian nominals depend on their number of values and the settings only, so
+    the tool computes them once: the same as each job's own calibration, for two nominals of one length."""
+    import delivered_curve
+
+    rows = _gaussian_rows(300, 5)
+    jobs = [p.job for p in statistic_paths(rows, config_from_mapping({"decision": {"arl0_cycles": 1.0e7}}).decision)
+            if p.quantity == "wear"]
+    first = jobs[0]
+    other = replace(first, nominal=tuple((v[0] * 2.0 + 1.0,) for v in first.nominal))
+    targets = (100.0, 1000.0)
+    delivered_curve._STANDARD.clear()
+    got = [delivered_curve._thresholds(job, targets) for job in (first, other)]
+    assert len(delivered_curve._STANDARD) == 1 and got[0] == got[1]
+    assert got[1] == {t: replace(other, arl0=t).run().threshold for t in targets}

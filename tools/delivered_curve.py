@@ -69,9 +69,22 @@ class Tally:
             self.crossings[t] = self.crossings.get(t, 0) + n
 
 
+#: Thresholds of scalar Gaussian jobs by everything but their nominal's values (see :func:`_thresholds`).
+_STANDARD: dict[tuple[Any, ...], dict[float, float]] = {}
+
+
 def _thresholds(job: Any, targets: tuple[float, ...]) -> dict[float, float]:
-    """h(T) for a detector's calibration job (its nominal and settings) at each target T."""
-    return {t: replace(job, arl0=t).run().threshold for t in targets}
+    """h(T) for a detector's calibration job (its nominal and settings) at each target T. A scalar Gaussian
+    nominal's threshold does not depend on its values, only on their number and the settings (standard
+    units, edge_monitor/stats/gaussian_calibration.py): computed once per process for those."""
+    standard = job.kind == "gauss" and len(job.nominal[0]) == 1 and job.simulate_from == "model"
+    key = (len(job.nominal), targets, *sorted((k, v) for k, v in vars(job).items() if k not in ("nominal", "arl0")))
+    if standard and key in _STANDARD:
+        return _STANDARD[key]
+    out = {t: replace(job, arl0=t).run().threshold for t in targets}
+    if standard:
+        _STANDARD[key] = out
+    return out
 
 
 @dataclass
