@@ -218,8 +218,13 @@ def replay_robot(job: tuple[Any, ...]) -> dict[str, Tally]:
     decision = config_from_mapping(settings_from(replay)).decision
     configs = {name: config_from_mapping(settings_from(replay + extra)).decision for name, extra in variants}
     out: dict[str, Tally] = {}
-    for rows in robot_series(seed, cycles, 6, scenario).values():
-        for key, tally in replay_joint(rows, decision, targets, configs).items():
+    for joint, rows in robot_series(seed, cycles, 6, scenario).items():
+        try:
+            tallies = replay_joint(rows, decision, targets, configs)
+        except RuntimeError as exc:            # say which robot and joint (a healthy path beyond 10⁷)
+            raise RuntimeError(f"seed {seed} joint {joint}: {exc}; leave that robot out (--fleet, --plant) "
+                               "to measure the others") from None
+        for key, tally in tallies.items():
             out.setdefault(key, Tally()).merge(tally)
     log.info("seed %d done", seed)
     return out
