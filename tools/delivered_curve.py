@@ -77,14 +77,12 @@ def _thresholds(job: Any, targets: tuple[float, ...]) -> dict[float, float]:
     """h(T) for a detector's calibration job (its nominal and settings) at each target T. A scalar Gaussian
     nominal's threshold does not depend on its values, only on their number and the settings (standard
     units, edge_monitor/stats/gaussian_calibration.py): computed once per process for those."""
-    standard = job.kind == "gauss" and len(job.nominal[0]) == 1 and job.simulate_from == "model"
+    if not (job.kind == "gauss" and len(job.nominal[0]) == 1 and job.simulate_from == "model"):
+        return {t: replace(job, arl0=t).run().threshold for t in targets}
     key = (len(job.nominal), targets, *sorted((k, v) for k, v in vars(job).items() if k not in ("nominal", "arl0")))
-    if standard and key in _STANDARD:
-        return _STANDARD[key]
-    out = {t: replace(job, arl0=t).run().threshold for t in targets}
-    if standard:
-        _STANDARD[key] = out
-    return out
+    if key not in _STANDARD:
+        _STANDARD[key] = {t: replace(job, arl0=t).run().threshold for t in targets}
+    return _STANDARD[key]
 
 
 @dataclass

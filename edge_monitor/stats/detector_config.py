@@ -164,11 +164,7 @@ class DetectorConfig:
                 raise DetectorConfigError(f"pf: {exc}") from None
 
     def fingerprint(self) -> dict[str, Any]:
-        out = {**asdict(self), "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd),
-               "steady_drift_mean": list(self.steady_drift_mean), "steady_drift_sd": list(self.steady_drift_sd),
-               "steady_wander": list(self.steady_wander),
-               "transform_axes": list(self.transform_axes)}
-        return learned_part(out)
+        return learned_part({**asdict(self), "transform_axes": list(self.transform_axes)})
 
     def calibration(self, stage: str) -> dict[str, Any]:
         """Where the calibration of ``stage`` ("warm-up" | "steady") simulates the detector, as the
