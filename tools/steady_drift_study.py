@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""How the detector inputs of warm healthy joints move after their steady nominal is learned: the numbers
-behind ``[decision.steady_drift]`` and ``[decision.steady_wander]`` (docs/DETECTION.md, "The steady
-stage's healthy drift").
+"""How the detector inputs of warm healthy joints move after their steady nominal is learned, on default
+robots at one load range: the numbers behind ``[decision.steady_wander]`` and the default robots'
+``[decision.steady_drift]`` (docs/DETECTION.md, "The steady stage's healthy drift"); the shipped drift is a
+plant week's, from ``tools/plant_drift_study.py``.
 
 For every joint of the cached fast-path series (``tools/fleet_series.py``; default seeds 101–108, 6 joints,
 1 100 cycles), in the units the detectors watch (the wear score; the logs of the KL distances): the
