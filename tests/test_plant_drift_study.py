@@ -15,7 +15,7 @@ from plant_drift_study import STEADY_NOMINAL, input_summary, period_of  # noqa: 
 
 
 def _rows(seed: int, shifts: tuple[float, float], joints: int = 40, per_period: int = 600
-          ) -> list[tuple[str, int, int, float]]:
+          ) -> list[tuple[str, tuple[int, int], int, float]]:
     """``joints`` joints of independent N(shift, 1) values: ``per_period`` cycles before cycle 2 000 at
     ``shifts[0]``, as many from 2 000 at ``shifts[1]``."""
     rng = np.random.default_rng(seed)
@@ -23,7 +23,7 @@ def _rows(seed: int, shifts: tuple[float, float], joints: int = 40, per_period: 
     for joint in range(joints):
         for k in range(2 * per_period):
             cycle = 1400 + k
-            rows.append(("kl_weighted", joint, cycle, float(rng.normal(shifts[cycle >= 2000], 1.0))))
+            rows.append(("kl_weighted", (seed, joint), cycle, float(rng.normal(shifts[cycle >= 2000], 1.0))))
     return rows
 
 

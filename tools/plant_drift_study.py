@@ -37,16 +37,20 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from fleet_series import parse_seeds, robot_series  # noqa: E402
+from steady_drift_study import variance_ratio  # noqa: E402
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
+from edge_monitor.features.registry import QUANTITIES  # noqa: E402
 from edge_monitor.pipeline.detectors import DetectorBank  # noqa: E402
 
-#: Scalar detectors and the series field each watches.
-INPUTS = {"wear": "wear_score", "kl_raw": "kl_raw", "kl_weighted": "kl_weighted"}
+#: The scalar detectors (each watches one series field, ``QUANTITIES[name].inputs[0]``).
+INPUTS = ("wear", "kl_raw", "kl_weighted")
 BLOCKS = (5, 10, 30, 60)
+#: Fewest k-cycle blocks a variance ratio is read from.
+MIN_BLOCKS = 10
 STEADY_NOMINAL = 240
 
-Rows = list[tuple[str, int, int, float]]          # (detector, joint, cycle, value in standard units)
+Rows = list[tuple[str, tuple[int, int], int, float]]   # (detector, (seed, joint), cycle, value in standard units)
 
 
 def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
@@ -59,16 +63,16 @@ def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
             bank.observe_temperature(row.get("motor_temperature"))
             decisions, _ = bank.update(row, "r", joint, int(row["cycle"]))
             watched = bank.watched(row)
-            for name, field in INPUTS.items():
-                det, decision_q = bank.detectors[name], decisions[name]
-                value = watched.get(field, np.nan)
-                if det.stage != "steady" or det._glr is None or decision_q.statistic is None or not np.isfinite(value):
+            for name in INPUTS:
+                det, density = bank.detectors[name], bank.detectors[name].density
+                value = watched.get(QUANTITIES[name].inputs[0], np.nan)
+                if det.stage != "steady" or density is None or decisions[name].statistic is None \
+                        or not np.isfinite(value):
                     continue
                 x = np.array([[value]])
                 x = det._transform.apply(x) if det._transform is not None else x
-                density = det._glr.density
                 z = (float(np.ravel(x)[0]) - float(density.means[0, 0])) / float(np.sqrt(np.ravel(density.cov)[0]))
-                out.append((name, joint + 10 * seed, int(row["cycle"]), z))
+                out.append((name, (seed, joint), int(row["cycle"]), z))
     return out
 
 
@@ -76,16 +80,11 @@ def period_of(cycle: int, edges: list[int]) -> int:
     return int(np.searchsorted(edges, cycle, side="right"))
 
 
-def variance_ratio(z: np.ndarray, k: int) -> float:
-    n = z.size // k
-    return float(k * z[:n * k].reshape(n, k).mean(axis=1).var() / z.var()) if n >= 10 else float("nan")
-
-
 def input_summary(rows: Rows, name: str, edges: list[int]) -> dict[str, Any]:
     """One input's numbers: per period the mean and sd over joints of the joints' period means
     (``periods``, None where no joint has more than 50 values there), the within-period variance ratios at
     :data:`BLOCKS` (``ratios``) and the pooled drift ``(mean, sd)`` (see the module docstring)."""
-    by_joint: dict[int, list[tuple[int, float]]] = {}
+    by_joint: dict[tuple[int, int], list[tuple[int, float]]] = {}
     for q, joint, cycle, z in rows:
         if q == name:
             by_joint.setdefault(joint, []).append((cycle, z))
@@ -104,7 +103,7 @@ def input_summary(rows: Rows, name: str, edges: list[int]) -> dict[str, Any]:
                 centred.append(part - part.mean())
         if centred:
             flat = np.concatenate(centred)
-            ratios.append([variance_ratio(flat, k) for k in BLOCKS])
+            ratios.append([variance_ratio(flat, k) if flat.size >= MIN_BLOCKS * k else float("nan") for k in BLOCKS])
     if not weighted:
         return {"periods": [None] * (len(edges) + 1), "ratios": [], "drift": (float("nan"), float("nan"))}
     m = np.array([w[0] for w in weighted])
@@ -126,8 +125,7 @@ def report(rows: Rows, edges: list[int]) -> None:
     print("|---" * (len(names) + 3) + "|")
     for name in INPUTS:
         summary = input_summary(rows, name, edges)
-        cells = [f"{m:+.2f} ± {sd:.2f}" if cell else "–" for cell in summary["periods"]
-                 for m, sd in [cell or (0.0, 0.0)]]
+        cells = ["–" if cell is None else f"{cell[0]:+.2f} ± {cell[1]:.2f}" for cell in summary["periods"]]
         mean, sd = summary["drift"]
         print(f"| {name} | " + " | ".join(cells) + " | " + ", ".join(f"{r:.2f}" for r in summary["ratios"])
               + f" | ({mean:+.3f}, {sd:.3f}) |")
