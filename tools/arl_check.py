@@ -58,7 +58,7 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     rng = np.random.default_rng(seed)
     noise = gc._Noise(np.linalg.cholesky(r), settings.wander, rng)
     glr = gc._detectors(settings, *gc._fit(noise.sequence(detectors, settings.n0)), 1)   # plain learning sets
-    shift = gc._shifts(settings, detectors, r.shape[0])
+    shift = gc._shifts(settings, detectors, r.shape[0])[0]       # plain draws: every weight 1
     if settings.at == "healthy_drift":             # the check's own fleet drift, not the calibration's order
         shift = shift[rng.permutation(detectors)]
     noise.start(detectors)

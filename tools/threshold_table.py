@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from edge_monitor.pipeline.detectors import DecisionConfig  # noqa: E402
 from edge_monitor.stats.gaussian_calibration import (  # noqa: E402
+    DRIFT_TILTS,
     GaussianBudget,
     GaussianSettings,
     thresholds,
@@ -93,7 +94,7 @@ def entry(settings: GaussianSettings, budget: GaussianBudget, dim: int = 1, rho:
             "threshold": [round(t.threshold, 4) for t in found], "h_se": [round(t.h_se, 4) for t in found],
             "method": [t.method for t in found], "events": [t.events for t in found],
             "events_min": min(t.events for t in found), "detectors": budget.nominals * budget.streams,
-            "steps": budget.steps, "cpu_s": round(found[0].cpu_s, 1)}
+            "steps": budget.steps, "drift_tilts": list(budget.drift_tilts), "cpu_s": round(found[0].cpu_s, 1)}
 
 
 def _entry_key(e: dict[str, Any]) -> tuple[str, float]:
@@ -132,12 +133,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="only the entries of the warm-up or of the steady nominal")
     parser.add_argument("--quantity", choices=("wear", "kl_raw", "kl_weighted", "joint"), default=None,
                         help="only the entries of this quantity's detector (a deeper simulation of one entry)")
+    parser.add_argument("--drift-tilts", default=",".join(f"{t:g}" for t in DRIFT_TILTS),
+                        help="importance sampling of the healthy drift: the proposals' tilts (comma-separated; "
+                             "0: plain draws)")
     parser.add_argument("--jobs", type=int, default=1, help="entries computed in parallel processes")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--recompute", action="store_true", help="recompute entries the table already holds")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    budget = GaussianBudget(nominals=args.nominals, streams=4, steps=args.steps)
+    budget = GaussianBudget(nominals=args.nominals, streams=4, steps=args.steps,
+                            drift_tilts=tuple(float(x) for x in args.drift_tilts.split(",") if x.strip()))
     kept: dict[tuple[str, float], dict[str, Any]] = {}
     commands: list[str] = []
     if args.out.exists():

@@ -20,7 +20,10 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
 2. ``streams`` detectors per nominal on independent streams from N(0, R) moved by the calibration
    point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
    ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
-   stratified normal quantiles in a fixed random order — a fleet whose joints drift after learning),
+   stratified normal quantiles in a fixed random order — a fleet whose joints drift after learning; with
+   ``GaussianBudget.drift_tilts`` moved by the tilt of nominal g's proposal, ``tilts[g mod K]``, and
+   weighted by φ(z)/mean_k φ(z − t_k) (the balance heuristic): a deep-tail threshold is decided by the
+   few joints that drift furthest, which plain draws hardly hold),
    ``steps`` cycles each; with ``wander`` (per axis, a fraction f of the variance), each value is
    √(1 − f)·e + √f·a with a a unit AR(1) process of coefficient :data:`WANDER_COEFFICIENT` — the slow
    wander of a warm joint's quantities, which makes consecutive values, learning sets included, dependent;
@@ -47,6 +50,7 @@ from numpy.typing import NDArray
 from scipy.stats import norm
 
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
+from edge_monitor.stats.learning_error import TILTS as FIT_TILTS
 from edge_monitor.stats.learning_error import scalar_fits, vector_fits
 
 log = logging.getLogger(__name__)
@@ -68,6 +72,11 @@ CHUNK = 512
 SEGMENT = 2000
 #: Top of the threshold grid [nats].
 H_MAX = 60.0
+#: Importance sampling of the healthy drift (``GaussianBudget.drift_tilts``; the table's deep entries, and
+#: a run-time calibration whose target plain draws do not reach): the proposals' shifts of the drift draw z. At one false alarm per robot-year (ARL0 ≈ 2.6·10⁶) the steady KL detectors' rate comes
+#: from joints drifting z ≈ 2.5 … 4.5 of the drift law's standard deviations up (just past the allowance),
+#: ≈ 1 % of the plain draws (docs/DETECTION.md, "Deep-tail thresholds").
+DRIFT_TILTS = (0.0, 1.5, 3.0, 4.5)
 #: Lag-1 coefficient of the slow wander's AR(1) component (``GaussianSettings.wander``): fitted to the
 #: variance ratios k·var(k-cycle mean)/var = 1.19, 1.32, 1.39 at k = 5, 10, 30 of the log KL distances
 #: of 48 warm healthy joints (docs/DETECTION.md).
@@ -102,6 +111,13 @@ class GaussianBudget:
     nominals: int = 256
     streams: int = 4
     steps: int = 2000
+    #: "healthy_drift": the proposals' tilts of the drift draw z (standard normal units); (0,): plain draws
+    drift_tilts: tuple[float, ...] = (0.0,)
+
+    def reaches(self, arl0: float) -> bool:
+        """Whether plain draws can read a threshold for ``arl0`` off directly: the simulated detector-cycles
+        hold :data:`MIN_EVENTS_DIRECT` false alarms at that run length."""
+        return self.nominals * self.streams * self.steps >= MIN_EVENTS_DIRECT * arl0
 
 
 @dataclass(frozen=True)
@@ -188,7 +204,7 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     rng = np.random.default_rng(SEED)
     grid = np.arange(H_STEP, H_MAX, H_STEP)
     per_chunk = max(1, CHUNK // budget.streams)
-    shifts = _shifts(settings, budget.nominals, r.shape[0])
+    shifts, drift_weights = _shifts(settings, budget.nominals, r.shape[0], budget.drift_tilts)
     events, exposure, weights = [], [], []
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
@@ -201,7 +217,7 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
             means, covs = _fit(noise.sequence(g, settings.n0))
             weight = np.ones(g)
         glr = _detectors(settings, means, covs, budget.streams)
-        weights.append(weight)
+        weights.append(weight * drift_weights[first:first + g])
         shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
         passage = _passages(glr, shift, noise, budget.steps, grid)
         alarmed = passage < budget.steps
@@ -239,16 +255,38 @@ def _detectors(settings: GaussianSettings, means: NDArray[np.float64], covs: NDA
                             (rep(lower), rep(upper)), (rep(clip[0]), rep(clip[1])))
 
 
-def _shifts(settings: GaussianSettings, nominals: int, d: int) -> NDArray[np.float64]:
-    """Where each nominal's streams sit (nominals × d), in standard units (step 2 of the module docstring)."""
+def _shifts(settings: GaussianSettings, nominals: int, d: int, tilts: tuple[float, ...] = (0.0,)
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where each nominal's streams sit (nominals × d), in standard units, and the importance weight of
+    that draw (nominals,) (step 2 of the module docstring)."""
+    ones = np.ones(nominals)
     if settings.at == "boundary":
-        return np.full((nominals, d), settings.allowance)
+        return np.full((nominals, d), settings.allowance), ones
     if settings.at != "healthy_drift":
-        return np.zeros((nominals, d))
-    z = np.random.default_rng([SEED, 3]).permutation(norm.ppf((np.arange(nominals) + 0.5) / nominals))
+        return np.zeros((nominals, d)), ones
+    z, weight = drift_draws(nominals, tilts)
     mean = np.broadcast_to(np.asarray(settings.drift_mean or (0.0,), dtype=float), (d,))
     sd = np.broadcast_to(np.asarray(settings.drift_sd or (0.0,), dtype=float), (d,))
-    return mean[None, :] + z[:, None] * sd[None, :]
+    return mean[None, :] + z[:, None] * sd[None, :], weight
+
+
+def drift_draws(nominals: int, tilts: tuple[float, ...] = (0.0,)) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The drift draw z of each nominal and its importance weight: nominal g draws from proposal
+    N(t_k, 1), k = ⌊g / 4⌋ mod K, as the stratified quantiles of that proposal in a fixed random order;
+    weights φ(z)/mean_k φ(z − t_k), mean ≈ 1 (all 1 for the plain draws, ``tilts`` (0,)). The learning
+    error's proposal is g mod 4 (:data:`~edge_monitor.stats.learning_error.TILTS`), so every pair of
+    the two proposals is drawn equally often and the two weights multiply."""
+    rng = np.random.default_rng([SEED, 3])
+    t = np.asarray(tilts, dtype=float)
+    component = (np.arange(nominals) // len(FIT_TILTS)) % t.size
+    z = np.empty(nominals)
+    for k in range(t.size):
+        members = np.flatnonzero(component == k)
+        z[members] = t[k] + rng.permutation(norm.ppf((np.arange(members.size) + 0.5) / members.size))
+    if not np.any(t):
+        return z, np.ones(nominals)
+    log_mixture = np.logaddexp.reduce(norm.logpdf(z[:, None] - t[None, :]), axis=1) - math.log(t.size)
+    return z, np.exp(norm.logpdf(z) - log_mixture)
 
 
 class _Noise:
