@@ -13,11 +13,14 @@ from scipy.stats import gamma, norm
 from edge_monitor.stats.calibration import CalibrationBudget, calibrate
 from edge_monitor.stats.gaussian_calibration import (
     DRIFT_TILTS,
+    H_STEP,
+    SEED,
     WANDER_COEFFICIENT,
     GaussianBudget,
     GaussianSettings,
     _Noise,
     drift_draws,
+    read_from_curve,
     threshold,
     thresholds,
 )
@@ -74,10 +77,11 @@ def _delivered(settings: GaussianSettings, h: float, corr: np.ndarray, detectors
     return detectors * cycles / max(alarms, 1), alarms
 
 
-def _tolerance(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], target: float, alarms: int) -> float:
+def _tolerance(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], target: float, alarms: int,
+               budget: GaussianBudget = BUDGET) -> float:
     """3 standard errors of log(delivered / target): the calibration's (h_se times the slope of log ARL0
     in h, from the thresholds of target and e·target) and the measurement's (1/√alarms)."""
-    low, high = threshold(settings, corr, target, BUDGET), threshold(settings, corr, math.e * target, BUDGET)
+    low, high = threshold(settings, corr, target, budget), threshold(settings, corr, math.e * target, budget)
     slope = 1.0 / (high.threshold - low.threshold)
     return 3.0 * math.hypot(slope * low.h_se, 1.0 / math.sqrt(max(alarms, 1)))
 
@@ -183,16 +187,21 @@ def test_the_joint_vector_threshold_is_delivered_on_correlated_values() -> None:
 
 
 @pytest.mark.slow
-def test_a_healthy_drift_after_learning_is_calibrated_for_and_delivered() -> None:
+@pytest.mark.parametrize("tilts", [(0.0,), DRIFT_TILTS], ids=["plain", "drift-importance-sampled"])
+def test_a_healthy_drift_after_learning_is_calibrated_for_and_delivered(tilts: tuple[float, ...]) -> None:
     """Both sides: on streams that drift N(0.1, 0.09²) σ after learning (the KL distances' steady drift),
     the threshold calibrated for that drift delivers the target within its stated error, the one
-    calibrated at the nominal (no drift) delivers clearly less."""
+    calibrated at the nominal (no drift) delivers clearly less. With the drift importance-sampled too:
+    its weights multiply the learning error's (independent values), the product must stay unbiased (when
+    the two proposals were drawn together, this delivered 1 569 for 1 000)."""
     drifting = GaussianSettings(240, 100, 0.6, 1.0, "increase", 0.75, 3.0, "healthy_drift", (0.1,), (0.09,))
-    found = threshold(drifting, ((1.0,),), 1000.0, BUDGET)
+    budget = dataclasses.replace(BUDGET, drift_tilts=tilts)
+    found = threshold(drifting, ((1.0,),), 1000.0, budget)
     at_nominal = threshold(STEADY, ((1.0,),), 1000.0, BUDGET)
     assert found.threshold > at_nominal.threshold + 3 * math.hypot(found.h_se, at_nominal.h_se)
     delivered, alarms = _delivered(drifting, found.threshold, np.eye(1), 256, 6000, seed=80, drift=(0.1, 0.09))
-    assert abs(math.log(delivered / 1000.0)) <= _tolerance(drifting, ((1.0,),), 1000.0, alarms), (found, delivered)
+    tolerance = _tolerance(drifting, ((1.0,),), 1000.0, alarms, budget)
+    assert abs(math.log(delivered / 1000.0)) <= tolerance, (found, delivered)
     naive, _ = _delivered(drifting, at_nominal.threshold, np.eye(1), 256, 6000, seed=81, drift=(0.1, 0.09))
     assert naive < 0.7 * 1000.0
 
@@ -204,7 +213,8 @@ def test_the_drift_draws_are_plain_without_tilts_and_weighted_without_bias_with_
     P(z > 3), is right while 50× more often drawn. Tolerances: 4 standard errors of each weighted mean
     as if the draws were independent (stratified draws are more precise)."""
     plain, ones = drift_draws(1000, (0.0,))
-    np.testing.assert_allclose(np.sort(plain), norm.ppf((np.arange(1000) + 0.5) / 1000))
+    before = np.random.default_rng([SEED, 3]).permutation(norm.ppf((np.arange(1000) + 0.5) / 1000))
+    np.testing.assert_array_equal(plain, before)          # the draws of the entries computed before the tilts
     assert np.all(ones == 1.0)
     n = 1024
     z, w = drift_draws(n, DRIFT_TILTS)
@@ -212,6 +222,26 @@ def test_the_drift_draws_are_plain_without_tilts_and_weighted_without_bias_with_
     for value, expected in ((np.ones(n), 1.0), (z, 0.0), (z * z, 1.0), ((z > 3.0).astype(float), norm.sf(3.0))):
         assert abs(np.mean(w * value) - expected) < 4 * np.std(w * value) / math.sqrt(n), expected
     assert np.mean(z > 3.0) > 50 * norm.sf(3.0)
+    with pytest.raises(ValueError, match="multiple of 16"):      # every pair of the two proposals equally often
+        GaussianBudget(nominals=100, drift_tilts=DRIFT_TILTS)
+    for tilts in ((), (1.5, 3.0), (0.0, math.inf)):              # no untilted proposal: unbounded weights
+        with pytest.raises(ValueError, match="hold 0"):
+            GaussianBudget(drift_tilts=tilts)
+
+
+def test_a_threshold_is_read_only_from_grid_thresholds_with_enough_weighted_alarms() -> None:
+    """With importance weights the effective count of alarms need not fall with h. On a curve with
+    log ARL0 = h: across a dip of the count below 30 the threshold is interpolated between the grid
+    thresholds either side (the count it reports is ≥ 30); past the last reliable one it is extrapolated
+    along the last nat (here exactly, the curve being straight)."""
+    grid = np.arange(1, 201) * H_STEP
+    rate, total = np.exp(-grid), np.full(grid.size, 100.0)
+    total[(grid > 1.9) & (grid < 2.1)] = 10.0
+    h, method, count = read_from_curve(rate, total, grid, math.exp(2.0))
+    assert method == "simulated" and h == pytest.approx(2.0) and count >= 30
+    total[grid > 3.0] = 10.0
+    h, method, count = read_from_curve(rate, total, grid, math.exp(4.0))
+    assert method == "extrapolated" and h == pytest.approx(4.0) and count >= 30
 
 
 def test_drift_importance_sampling_reads_deep_thresholds_directly_and_agrees_with_plain_draws() -> None:

@@ -21,7 +21,7 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
    point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
    ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
    stratified normal quantiles in a fixed random order — a fleet whose joints drift after learning; with
-   ``GaussianBudget.drift_tilts`` moved by the tilt of nominal g's proposal, ``tilts[g mod K]``, and
+   ``GaussianBudget.drift_tilts`` drawn from proposal N(t_k, 1), k = ⌊g/4⌋ mod K (:func:`drift_draws`), and
    weighted by φ(z)/mean_k φ(z − t_k) (the balance heuristic): a deep-tail threshold is decided by the
    few joints that drift furthest, which plain draws hardly hold),
    ``steps`` cycles each; with ``wander`` (per axis, a fraction f of the variance), each value is
@@ -30,9 +30,10 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
 3. per nominal g and candidate threshold h its false-alarm rate from its first passages (e/X, events
    over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(w_g·rate)
    with w_g the nominal's importance weight (1 where its learning set was drawn as it is);
-4. h where that run length is the target: interpolated where the alarms are worth at least
-   :data:`MIN_EVENTS_DIRECT` unweighted ones ((Σ w·e)² / Σ w²·e, Kish's effective count), else
-   extrapolated along log E[T] = a + c·h over the upper reliable range;
+4. h where that run length is the target: interpolated between grid thresholds whose alarms are worth at
+   least :data:`MIN_EVENTS_DIRECT` unweighted ones ((Σ w·e)² / Σ w²·e, Kish's effective count; with
+   weights it need not fall monotonically with h, so each grid threshold is judged on its own), else
+   extrapolated along log E[T] = a + c·h over the last nat of those;
 5. its precision: the standard error of h from a bootstrap over the nominals (both the learning
    error and the Monte Carlo error), reported with the threshold.
 """
@@ -72,10 +73,11 @@ CHUNK = 512
 SEGMENT = 2000
 #: Top of the threshold grid [nats].
 H_MAX = 60.0
-#: Importance sampling of the healthy drift (``GaussianBudget.drift_tilts``; the table's deep entries, and
-#: a run-time calibration whose target plain draws do not reach): the proposals' shifts of the drift draw z. At one false alarm per robot-year (ARL0 ≈ 2.6·10⁶) the steady KL detectors' rate comes
-#: from joints drifting z ≈ 2.5 … 4.5 of the drift law's standard deviations up (just past the allowance),
-#: ≈ 1 % of the plain draws (docs/DETECTION.md, "Deep-tail thresholds").
+#: Importance sampling of the healthy drift (``GaussianBudget.drift_tilts``; the table's wide-drift entries,
+#: and a run-time calibration whose target plain draws do not reach): the proposals' shifts of the drift
+#: draw z. At one false alarm per robot-year (ARL0 ≈ 2.6·10⁶) kl_weighted's steady rate comes from joints
+#: drifting z > 2 of the drift law's standard deviations up (64 % from z > 3, just past the allowance),
+#: ≈ 2 % of the plain draws (docs/DETECTION.md, "Deep-tail thresholds").
 DRIFT_TILTS = (0.0, 1.5, 3.0, 4.5)
 #: Lag-1 coefficient of the slow wander's AR(1) component (``GaussianSettings.wander``): fitted to the
 #: variance ratios k·var(k-cycle mean)/var = 1.19, 1.32, 1.39 at k = 5, 10, 30 of the log KL distances
@@ -113,6 +115,16 @@ class GaussianBudget:
     steps: int = 2000
     #: "healthy_drift": the proposals' tilts of the drift draw z (standard normal units); (0,): plain draws
     drift_tilts: tuple[float, ...] = (0.0,)
+
+    def __post_init__(self) -> None:
+        tilts = self.drift_tilts
+        if not tilts or 0.0 not in tilts or not all(math.isfinite(t) for t in tilts):
+            raise ValueError(f"drift_tilts must be finite and hold 0 (the weights are then at most their number), "
+                             f"got {tilts!r}")
+        if any(tilts) and self.nominals % pairing(tilts) != 0:
+            raise ValueError(f"with drift tilts the nominals must be a multiple of {pairing(tilts)} (every pair "
+                             f"of the learning error's and the drift's proposals drawn equally often), "
+                             f"got {self.nominals}")
 
     def reaches(self, arl0: float) -> bool:
         """Whether plain draws can read a threshold for ``arl0`` off directly: the simulated detector-cycles
@@ -270,6 +282,11 @@ def _shifts(settings: GaussianSettings, nominals: int, d: int, tilts: tuple[floa
     return mean[None, :] + z[:, None] * sd[None, :], weight
 
 
+def pairing(tilts: tuple[float, ...]) -> int:
+    """The nominals over which every pair of the learning error's and the drift's proposals is drawn once."""
+    return len(FIT_TILTS) * len(tilts)
+
+
 def drift_draws(nominals: int, tilts: tuple[float, ...] = (0.0,)) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The drift draw z of each nominal and its importance weight: nominal g draws from proposal
     N(t_k, 1), k = ⌊g / 4⌋ mod K, as the stratified quantiles of that proposal in a fixed random order;
@@ -380,21 +397,20 @@ def read_from_curve(rate: NDArray[np.float64], total: NDArray[np.float64], grid:
                     arl0: float) -> tuple[float, str, int]:
     """h for ``arl0`` from the fleet's rate and the (effective) alarmed detectors per grid threshold
     (:func:`fleet_curve`)."""
-    reliable = (total >= MIN_EVENTS_DIRECT) & (rate > 0)
-    if not reliable.any():
+    reliable = np.flatnonzero((total >= MIN_EVENTS_DIRECT) & (rate > 0))
+    if not reliable.size:
         raise ValueError("too few simulated alarms to calibrate; give a larger calibration budget")
-    last = int(np.flatnonzero(reliable)[-1])
-    log_arl = -np.log(rate[: last + 1])
+    h, log_arl, counts = grid[reliable], -np.log(rate[reliable]), total[reliable]
     target = math.log(arl0)
-    if log_arl[last] >= target:
+    if log_arl[-1] >= target:
         k = int(np.argmax(log_arl >= target))
         if k == 0:
-            return float(grid[0]), "simulated", int(total[0])
-        return float(np.interp(target, log_arl[k - 1:k + 1], grid[k - 1:k + 1])), "simulated", int(total[k])
-    lo = max(0, last - int(round(1.0 / H_STEP)))                  # the last nat of the reliable range
-    if last - lo < 2:
+            return float(h[0]), "simulated", int(counts[0])
+        return float(np.interp(target, log_arl[k - 1:k + 1], h[k - 1:k + 1])), "simulated", int(counts[k])
+    tail = h >= h[-1] - 1.0 - 0.5 * H_STEP                        # the last nat of the reliable thresholds
+    if tail.sum() < 3:
         raise ValueError("too few reliable simulated thresholds to extrapolate along")
-    slope, intercept = np.polyfit(grid[lo:last + 1], log_arl[lo:last + 1], 1)
+    slope, intercept = np.polyfit(h[tail], log_arl[tail], 1)
     if not slope > 0:
         raise ValueError("the simulated run lengths do not grow with the threshold; cannot extrapolate")
-    return max(float((target - intercept) / slope), float(grid[last])), "extrapolated", int(total[last])
+    return max(float((target - intercept) / slope), float(h[-1])), "extrapolated", int(counts[-1])
