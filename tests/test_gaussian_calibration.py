@@ -229,6 +229,18 @@ def test_the_drift_draws_are_plain_without_tilts_and_weighted_without_bias_with_
             GaussianBudget(drift_tilts=tilts)
 
 
+def test_a_run_time_calibration_tilts_the_drift_only_for_a_target_its_plain_draws_cannot_reach() -> None:
+    """Settings outside the table, 20 bootstrap draws (160 simulated detectors, 40 nominals × 4 streams ×
+    2 000 cycles): for 10³ the plain draws reach, the budget is as given; for 10⁶ they cannot, the drift is
+    tilted and the nominals rounded up to whole pairs of the two proposals (48: 192 detectors)."""
+    values = np.random.default_rng(1).normal(size=(240, 1))
+    args = dict(kind="gauss", window=100, direction="increase", allowance=0.75, clip_sigma=3.0, at="healthy_drift",
+                drift_mean=(0.3,), drift_sd=(0.15,), budget=CalibrationBudget(draws=20))
+    near, deep = calibrate(values, arl0=1e3, **args), calibrate(values, arl0=1e6, **args)
+    assert near.draws == 160 and deep.draws == 192
+    assert math.isfinite(deep.threshold) and deep.threshold > near.threshold
+
+
 def test_a_threshold_is_read_only_from_grid_thresholds_with_enough_weighted_alarms() -> None:
     """With importance weights the effective count of alarms need not fall with h. On a curve with
     log ARL0 = h: across a dip of the count below 30 the threshold is interpolated between the grid
