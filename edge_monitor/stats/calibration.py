@@ -33,7 +33,6 @@ B·steps·W·K mixture evaluations; deterministic for a given seed.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -46,7 +45,7 @@ from scipy.stats import norm
 
 from edge_monitor.stats import threshold_table
 from edge_monitor.stats.densities import DensityError, GaussianMixture, as_observations, fit_density
-from edge_monitor.stats.gaussian_calibration import DRIFT_TILTS, GaussianBudget, GaussianSettings, correlation, pairing
+from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSettings, correlation
 from edge_monitor.stats.gaussian_calibration import threshold as gaussian_threshold
 from edge_monitor.stats.glr_batch import (
     BatchWindowedGLR,
@@ -153,9 +152,7 @@ def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, g
         gauss_budget = GaussianBudget(nominals=max(detectors // STREAMS_PER_NOMINAL, 8), streams=STREAMS_PER_NOMINAL,
                                       steps=budget.steps(arl0))
         if not gauss_budget.reaches(arl0):     # a deep target: the drift's tail importance-sampled
-            pairs = pairing(DRIFT_TILTS)
-            gauss_budget = dataclasses.replace(gauss_budget, nominals=-(-gauss_budget.nominals // pairs) * pairs,
-                                               drift_tilts=DRIFT_TILTS)
+            gauss_budget = gauss_budget.tilted()
         try:
             found = gaussian_threshold(settings, corr, arl0, gauss_budget)
         except (ValueError, np.linalg.LinAlgError) as exc:

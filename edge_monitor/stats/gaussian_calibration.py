@@ -44,7 +44,7 @@ import functools
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,6 +125,10 @@ class GaussianBudget:
             raise ValueError(f"with drift tilts the nominals must be a multiple of {pairing(tilts)} (every pair "
                              f"of the learning error's and the drift's proposals drawn equally often), "
                              f"got {self.nominals}")
+
+    def tilted(self, tilts: tuple[float, ...] = DRIFT_TILTS) -> "GaussianBudget":
+        """This budget with the drift importance-sampled, its nominals rounded up to whole :func:`pairing` s."""
+        return replace(self, nominals=-(-self.nominals // pairing(tilts)) * pairing(tilts), drift_tilts=tuple(tilts))
 
     def reaches(self, arl0: float) -> bool:
         """Whether plain draws can read a threshold for ``arl0`` off directly: the simulated detector-cycles
