@@ -53,8 +53,8 @@ def record_fields(record: dict, prefix: str = "") -> set[str]:
     out = set()
     for key, value in record.items():
         path = f"{prefix}{key}"
-        if prefix == "decisions.":
-            path = "decisions.<q>"
+        if prefix in ("decisions.", "coverage."):
+            path = prefix + "<q>"
         if isinstance(value, dict) and path not in LEAF_OBJECTS:
             out |= record_fields(value, path + ".")
         else:

@@ -128,18 +128,28 @@ def wear_text(wear: dict[str, Any]) -> str:
     return f"{estimate:.1f} ± {fmt(std, '.1f')}"
 
 
+def coverage_text(record: dict[str, Any]) -> str:
+    """"lowest–highest" share [%] of the cycles a joint's detectors tested (its symptom's ``coverage``)."""
+    shares = [c.get("share") for c in (record.get("coverage") or {}).values() if c.get("share") is not None]
+    if not shares:
+        return "–"
+    low, high = round(100 * min(shares)), round(100 * max(shares))
+    return f"{low}" if low == high else f"{low}–{high}"
+
+
 def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig) -> str:
     """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
     estimated lubricant temperature, the detectors' stage (warm-up or steady, docs/DETECTION.md), alarms
     (quantity@cycle), the false-alarm setting and the smallest estimated miss probability over the
-    joint's detectors."""
+    joint's detectors, and the share of the cycles they tested since they first learned (coverage, lowest –
+    highest over the joint's detectors, docs/DETECTION.md)."""
     held = decision.warm_up_hold
     warm_up = ("for drifts up to the allowance during the warm-up"
                + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
                   f"they learned at)" if held else ""))
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
                else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, {warm_up}")
-    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'alarms':<44} {'Pm':>7}"]
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'tested %':>8} {'alarms':<44} {'Pm':>7}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
@@ -152,9 +162,10 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         stages = {(d.get("calibration") or {}).get("stage") for d in rec.get("decisions", {}).values()} - {None}
         stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms[:44]:<44} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {coverage_text(rec):>8} {alarms[:44]:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
-    lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
+    lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors; "
+                 f"tested %: share of the cycles the joint's detectors tested since they first learned")
     return "\n".join(lines)
 
 

@@ -347,6 +347,7 @@ class Agent:
                 "segmentation": {str(j): m.counters()["segmentation"] for j, m in self.joints.items()},
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
                 "detector_cycles_held": {str(j): m.counters()["held"] for j, m in self.joints.items()},
+                "coverage": {str(j): m.coverage_summary() for j, m in self.joints.items()},
                 "e2e": dict(self.ingest.e2e.stats),
                 "no_new_data": self.ingest.e2e.stats["no_new_data"],
                 **self.budget.counters(),

@@ -19,6 +19,7 @@ from typing import Any
 
 from edge_monitor.errors import StateMismatch
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES, QuantitySpec, feature_of
+from edge_monitor.pipeline.coverage import coverage_reason
 from edge_monitor.pipeline.decision_config import (  # noqa: F401  (re-exported: the [decision] table lives there)
     BUDGET_PERIODS,
     DEFAULT_CYCLES_PER_DAY,
@@ -87,6 +88,7 @@ class DetectorBank:
         self.spans = NominalSpans(warm_up_hold=config.warm_up_hold,   # the temperatures of the nominals (holds)
                                   warm_margin=config.warm_up_hold_margin, warm_side=config.steady_relearn)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
+        self.reasons: dict[str, str] = {}   # this cycle's coverage reason per quantity (pipeline/coverage.py)
 
     def observe_temperature(self, temperature: float | None, source: str = MOTOR_TEMPERATURE) -> None:
         """A cycle's mean temperature [°C] (None: unknown), ``source`` saying which (the motor's, or the
@@ -144,15 +146,18 @@ class DetectorBank:
         watched = self.watched(values)
         decisions: dict[str, Decision] = {}
         alarms: list[Alarm] = []
+        self.reasons = {}
         for quantity, detector in self.detectors.items():
             spec = QUANTITIES[quantity]
             value = [watched.get(q, math.nan) for q in spec.inputs]
             fed = value[0] if spec.dim == 1 else value
             was_alarmed, collecting, fits = detector.alarmed, detector.collecting, detector.fits
+            learning = detector.state == "learning"
             held = self.spans.held(quantity, detector, self.smoothed, self.temperature_source)
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)
+            self.reasons[quantity] = coverage_reason(decision, learning, all(map(math.isfinite, value)), held)
             self.spans.track(quantity, detector, collecting, detector.fits > fits, self._span_temperature)
             decisions[quantity] = decision
             if decision.alarm and not was_alarmed:
@@ -176,8 +181,10 @@ class DetectorBank:
         """Nominals fitted by the detectors so far (grows when one is learned)."""
         return sum(d.fits for d in self.detectors.values())
 
-    def idle(self, reason: str = PARTIAL_REASON) -> dict[str, Decision]:
-        """Decisions of a cycle that did not enter the detectors (state unchanged)."""
+    def idle(self, reason: str = PARTIAL_REASON, coverage: str = "partial") -> dict[str, Decision]:
+        """Decisions of a cycle that did not enter the detectors (state unchanged); ``coverage``: why, as
+        :mod:`~edge_monitor.pipeline.coverage` counts it (``partial`` or ``model``)."""
+        self.reasons = dict.fromkeys(self.detectors, coverage)
         return {q: d.idle(reason) for q, d in self.detectors.items()}
 
     def reset(self, robot: str, joint: int, cycle: int) -> list[Alarm]:

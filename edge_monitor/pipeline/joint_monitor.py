@@ -30,6 +30,7 @@ from edge_monitor.features.base import CycleInput, Feature
 from edge_monitor.features.joint_model_learning import JointModelLearner
 from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
+from edge_monitor.pipeline.coverage import Coverage
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
 from edge_monitor.pipeline.detectors import SETTLING_KEY, Acknowledgement, DetectorBank
 from edge_monitor.pipeline.fault_grouping import FaultTracker
@@ -78,6 +79,7 @@ class JointMonitor:
         self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean) \
             if config.model.enabled else None
         self.operating = OperatingRange()
+        self.coverage = Coverage(self.detectors_watched)   # how much of the time each detector tests
         self.faults = FaultTracker(config.alarms, config.robot, joint)   # one alarm record per fault
         self._build()
         self.maintenances = 0
@@ -95,6 +97,11 @@ class JointMonitor:
         self.detectors = DetectorBank(self.config.decision, self._sources(), self.calibrator)
         if previous is not None:
             self.detectors.keep_settling(previous)
+
+    @property
+    def detectors_watched(self) -> list[str]:
+        """The quantities this joint's detectors watch (none with the decision layer off)."""
+        return list(self.config.decision.quantities) if self.config.decision.enabled else []
 
     def retarget(self, arl0: float) -> int:
         """Every detector's threshold re-derived for ``arl0`` [cycles] (:meth:`DetectorBank.retarget`)."""
@@ -209,7 +216,7 @@ class JointMonitor:
         advisories: list[Advisory] = []
         covariates = _covariates(cycle)
         if learning_model and self.model is not None:
-            decisions = self.detectors.idle(self.model.progress)
+            decisions = self.detectors.idle(self.model.progress, coverage="model")
             if self.model.update(cycle):                    # this cycle completed the model: rebuild
                 self._report_model("")
                 self._build()
@@ -224,6 +231,8 @@ class JointMonitor:
             alarms = [replace(a, cause=self._cause(decisions[a.quantity], covariates)) for a in alarms]
             alarms = self.faults.crossings(alarms, cycle.cycle)
         sections["operating"] = self.operating.section(covariates)
+        self.coverage.update(self.detectors.reasons)
+        sections["coverage"] = self.coverage.section(self.detectors.reasons)
         return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
                        friction=cycle.friction.to_record(), sections=sections, decisions=decisions,
                        load={"mean": finite_or_none(cycle.load_mean), "std": finite_or_none(cycle.load_std),
@@ -293,6 +302,10 @@ class JointMonitor:
         detector-cycles held per quantity (docs/DETECTION.md, "Operating conditions")."""
         return {**self.assembler.counters(), "held": dict(self.detectors.held)}
 
+    def coverage_summary(self) -> dict[str, Any]:
+        """Per watched quantity: the share of cycles tested (overall and recent) and why not otherwise."""
+        return self.coverage.summary()
+
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
         """Learned models, counters and the open cycle's KL window. A read without side effects (status
@@ -305,6 +318,7 @@ class JointMonitor:
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
+                "coverage": self.coverage.state_dict(),
                 "faults": self.faults.state_dict()}
 
     @classmethod
@@ -338,6 +352,7 @@ class JointMonitor:
         for message in monitor.detectors.load_state(state.get("detectors", {}), joint):
             log.warning("%s", message)
         monitor.operating = OperatingRange.from_state(state.get("operating"))
+        monitor.coverage = Coverage.from_state(monitor.detectors_watched, state.get("coverage"))
         monitor.faults = FaultTracker.from_state(config.alarms, config.robot, joint, state.get("faults"))
         monitor.faults.reconcile([q for q, d in monitor.detectors.detectors.items() if d.alarmed])
         monitor._report_model(" (learned before the restart)")

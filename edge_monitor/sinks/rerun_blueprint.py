@@ -35,6 +35,8 @@ def fleet_blueprint(layout: Mapping[str, set[int]], health_robots: set[str]) -> 
                                   time_ranges=[all_cycles]),
                 rrb.Spatial2DView(origin=f"{base}/density", name="torque density: cycle vs nominal"),
                 rrb.TimeSeriesView(origin=f"{base}/temperature", name="lubricant temperature °C"),
+                rrb.TimeSeriesView(origin=f"{base}/coverage", name="share of cycles tested, per detector",
+                                   axis_y=rrb.ScalarAxis(range=(0.0, 1.0))),
                 rrb.TextLogView(origin=f"{base}/alarms", name="alarms"),
                 rrb.TextLogView(origin=f"{base}/advisories", name="advisories (not faults)"),
                 grid_columns=2, name=f"{robot} · joint {joint}"))

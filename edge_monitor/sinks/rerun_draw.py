@@ -150,6 +150,7 @@ class Drawer:
             series[f"glr/{q}/threshold"] = (column("decisions", q, "threshold"), f"{q} threshold",
                                             [c // 2 for c in color], 1.0)
             series[f"miss/{q}"] = (column("decisions", q, "miss_probability"), f"{q} miss probability", color, 2.0)
+            series[f"coverage/{q}"] = (column("coverage", q, "recent"), f"{q} tested (last 300 cycles)", color, 2.0)
         for sub, (values, name, color, width) in series.items():
             if np.isfinite(values).any():
                 self._style(f"{base}/{sub}", name, color, width)
