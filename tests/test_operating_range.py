@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import jsonschema
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -81,7 +82,7 @@ def test_unknown_covariates_are_ignored_and_the_state_round_trips() -> None:
     again = OperatingRange.from_state(json.loads(json.dumps(rng.state_dict())))
     assert again.state_dict() == rng.state_dict()
     assert OperatingRange.from_state({"learned": {"load": ["x", 1]}, "outside": ["load"]}).state_dict() == {
-        "learned": {}, "collecting": {}, "outside": [], "inside_run": {}, "was_collecting": False}
+        "learned": {}, "collecting": {}, "outside": [], "inside_run": {}, "was_collecting": False, "usual": {}}
 
 
 @given(st.dictionaries(st.text(max_size=12), st.one_of(st.none(), st.floats(), st.lists(st.floats(), max_size=3),
@@ -98,3 +99,21 @@ def test_the_advisory_says_what_it_is_and_fits_its_shipped_schema() -> None:
     jsonschema.validate(record, load_schema("advisory"))
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate({**record, "state": "raised"}, load_schema("advisory"))
+
+
+def test_the_usual_warming_path_widens_the_learned_temperatures_and_makes_no_advisory():
+    """While the joint warms up (``usual``), each temperature it reaches widens the learned range: a joint that
+    warmed 35 → 58 °C and comes back from a stop at 36 °C is on its usual path, no advisory; one hotter than
+    ever (a hot day: 70 °C) is news. A load never learned is news whatever the temperature."""
+    rng = _learned([0.3, 0.7], [34.0, 36.0])
+    events = []
+    for t in np.linspace(36.0, 58.0, 200):
+        events += rng.update({"load": 0.5, "motor_temperature": float(t)}, False, False, usual=("motor_temperature",))
+    assert events == [] and rng.learned["motor_temperature"].hi == pytest.approx(58.0)
+    assert rng.update({"load": 0.5, "motor_temperature": 36.0}, False, False) == []
+    hot = rng.update({"load": 0.5, "motor_temperature": 70.0}, False, False)
+    assert [(e.covariate, e.state) for e in hot] == [("motor_temperature", "entered")]
+    heavy = rng.update({"load": 0.95, "motor_temperature": 40.0}, False, False, usual=("motor_temperature",))
+    assert ("load", "entered") in [(e.covariate, e.state) for e in heavy]
+    again = OperatingRange.from_state(json.loads(json.dumps(rng.state_dict())))
+    assert again.usual["motor_temperature"].hi == pytest.approx(58.0)

@@ -1,7 +1,8 @@
-"""The warm-up hold: the detectors of the temperature-sensitive quantities (``decision.warm_up_hold``: the
-KL distances and the joint vector) skip the cycles warmer than the span their warm-up nominal was learned
-in, until the steady stage replaces it; the wear evidence watches on (docs/DETECTION.md, "Operating
-conditions"). Both sides: what the hold keeps quiet, and that it masks nothing it should not."""
+"""The warm-up hold, the option (``decision.warm_up_hold``, default off: the temperature slack watches instead,
+tests/test_temperature_slack.py): the detectors of the quantities it names (here the KL distances and the
+joint vector) skip the cycles warmer than the span their warm-up nominal was learned in, until the steady
+stage replaces it; the wear evidence watches on (docs/DETECTION.md, "Operating conditions"). Both sides: what
+the hold keeps quiet, and that it masks nothing it should not."""
 
 from __future__ import annotations
 
@@ -21,6 +22,9 @@ NOISE = 3.0
 #: Where the warm-up nominals are learned [°C] (a cold joint).
 COLD = 35.0
 HELD = {"kl_raw", "kl_weighted", "joint"}
+#: The option under test: these detectors hold, and test with no temperature slack.
+HOLD = {"warm_up_hold": ("kl_raw", "kl_weighted", "joint"),
+        "temperature_slack": {"wear_score": 0.0, "kl_raw": 0.0, "kl_weighted": 0.0}}
 
 
 def _inputs(rng: np.random.Generator, kl_shift: float = 0.0, wear_shift: float = 0.0) -> dict[str, float]:
@@ -35,7 +39,7 @@ def _warm_up_bank(seed: int, **settings) -> tuple[DetectorBank, np.random.Genera
     """A bank whose detectors have learned their warm-up nominals at 35 ± 3 °C and are monitoring; the
     settling window (1 000 cycles) keeps them in the warm-up stage for the test."""
     config = DecisionConfig(n_nominal=20, density="gauss", density_joint="gauss", calibration_draws=16,
-                            calibration_steps=400, settling_window=1000, arl0_cycles=1000, **settings)
+                            calibration_steps=400, settling_window=1000, arl0_cycles=1000, **{**HOLD, **settings})
     bank = DetectorBank(config, {})
     rng = np.random.default_rng(seed)
     cycle = 0
@@ -95,7 +99,8 @@ def test_held_detectors_still_learn_their_steady_nominal_from_the_settled_joint(
     learn their steady nominals (their spans now around 60 °C) and decide again; the wear detector's
     nominal is learned the same way."""
     config = DecisionConfig(n_nominal=20, steady_nominal=30, density="gauss", density_joint="gauss",
-                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000,
+                            **HOLD)
     bank = DetectorBank(config, {})
     rng = np.random.default_rng(3)
     temperature = np.concatenate([np.full(20, COLD), np.linspace(COLD, 60.0, 60), np.full(200, 60.0)])
@@ -268,7 +273,7 @@ def test_the_spans_and_holds_read_the_smoothed_temperature() -> None:
     3·√(0.25/1.75) = 1.13 °C, and its start at 35 makes it smaller over these cycles; the raw span of 20
     readings would reach ≈ ±5.6 °C). The smoothing state is saved with the detectors and restored."""
     config = DecisionConfig(n_nominal=20, density="gauss", density_joint="gauss", calibration_draws=16,
-                            calibration_steps=400, settling_window=1000, arl0_cycles=1000)
+                            calibration_steps=400, settling_window=1000, arl0_cycles=1000, **HOLD)
     bank = DetectorBank(config, {})
     rng = np.random.default_rng(5)
     cycle = 0
@@ -289,7 +294,8 @@ def test_a_wild_reading_does_not_widen_a_span_and_the_cold_side_holds_without_th
     span (spans are min/max: it would widen one for good). With ``steady_relearn = false`` the warm side
     does not hold (nothing would end it) but the cold side does (the joint's warming ends it)."""
     config = DecisionConfig(n_nominal=60, density="gauss", density_joint="gauss", calibration_draws=16,
-                            calibration_steps=400, settling_window=1000, arl0_cycles=1000, steady_relearn=False)
+                            calibration_steps=400, settling_window=1000, arl0_cycles=1000, steady_relearn=False,
+                            **HOLD)
     bank = DetectorBank(config, {})
     rng = np.random.default_rng(7)
     for cycle in range(60):           # learning; the smoothing trusts its spread from cycle 33 on

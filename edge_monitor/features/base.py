@@ -67,6 +67,9 @@ class Feature(Protocol):
         """Close the cycle: the section, the quantities, learning steps. ``context``: the quantities
         the features registered before this one produced for this cycle (e.g. ``temperature``)."""
 
+    def pause(self, seconds: float) -> None:
+        """The joint stood still (sent no samples) for ``seconds`` before the next block."""
+
     def discard_cycle(self) -> None:
         """Drop the open cycle's samples (duplicate or partial cycle)."""
 

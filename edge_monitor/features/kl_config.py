@@ -29,7 +29,8 @@ class KLConfig:
     model, using the load torque measured at the plateaus ("measured", falling back to the
     controller's estimate), the controller's estimate ("estimate") or not at all ("off");
     ``alpha``, ``beta`` [s/rad]: weights w(v) = sech(β·v)·tanh(α·v); ``min_samples``: fewest samples a
-    cycle needs for a KL value.
+    cycle needs for a KL value; ``cooling_time_constant_h``: the lubricant's thermal time constant, with which
+    the temperature compensation predicts how far a joint cooled while it stood (a pause in its samples).
     """
 
     enabled: bool = True
@@ -43,6 +44,7 @@ class KLConfig:
     alpha: float = DEFAULT_ALPHA
     beta: float = DEFAULT_BETA
     min_samples: int = 1000
+    cooling_time_constant_h: float = 3.04   # [h] how fast the lubricant cools while the joint stands (pauses)
 
     def __post_init__(self) -> None:
         require(2 <= self.n_nominal_cycles <= 1000, "kl.n_nominal_cycles",
@@ -57,11 +59,15 @@ class KLConfig:
         require(2 <= self.min_samples <= 10_000_000, "kl.min_samples", f"need 2 … 1e7, got {self.min_samples}")
         require(math.isfinite(self.min_speed) and 0 <= self.min_speed <= 100, "kl.min_speed",
                 f"must be 0 … 100 rad/s, got {self.min_speed}")
+        require(isinstance(self.cooling_time_constant_h, (int, float)) and not isinstance(self.cooling_time_constant_h,
+                bool) and math.isfinite(self.cooling_time_constant_h) and 0.05 <= self.cooling_time_constant_h <= 100,
+                "kl.cooling_time_constant_h", f"must be 0.05 … 100 h, got {self.cooling_time_constant_h!r}")
 
     def fingerprint(self) -> dict[str, Any]:
-        """The settings the learned grid and nominal densities depend on."""
+        """The settings the learned grid and nominal densities depend on (not the cooling time constant:
+        it only predicts the temperature after a pause)."""
         out = asdict(self)
-        del out["enabled"]
+        del out["enabled"], out["cooling_time_constant_h"]
         return out
 
     @property

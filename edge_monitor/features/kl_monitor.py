@@ -250,6 +250,11 @@ class KLMonitor:
         extras = {"density": result.density} if result.density is not None else {}
         return FeatureOutput(section=result.to_section(), values=values, reason=result.reason, extras=extras)
 
+    def pause(self, seconds: float) -> None:
+        """The joint stood still for ``seconds`` before its next samples: its lubricant cooled meanwhile."""
+        if self.compensation is not None:
+            self.compensation.cool(seconds, 3600.0 * self.config.cooling_time_constant_h)
+
     def discard_cycle(self) -> None:
         """Drop the open window without evaluating or learning (partial or duplicate cycles)."""
         for ch in self.channels.values():

@@ -10,8 +10,14 @@ reference temperature ξref (the joint's temperature when its nominal density wa
 
 with ξc the joint's current lubricant temperature, estimated from the friction data of the previous
 cycles (the wear feature's ξ̂, smoothed exponentially: the lubricant moves ≲ 0.1 °C per cycle). The
-load terms of τ0 do not depend on ξ and cancel; wear is not touched. Units: torque dimensionless,
-speed rad/s, temperature °C.
+load terms of τ0 do not depend on ξ and cancel; wear is not touched.
+
+While the joint stands (a pause in its samples, :meth:`TemperatureCompensation.cool`) the lubricant cools
+towards the coldest temperature the joint has shown (its idle temperature, ≈ ambient) with the thermal
+time constant (≈ 3 h): ξc ← ξamb + (ξc − ξamb)·exp(−pause/τth). Without that the smoothed ξ̂ of the warm
+joint compensated the first cycles after an overnight stop by ≈ 25 °C too much: the KL distances stood
+3–7 σ above their nominal for ≈ 10 cycles (plant-week scenario, every long stop). Units: torque
+dimensionless, speed rad/s, temperature °C, time s.
 """
 
 from __future__ import annotations
@@ -33,6 +39,14 @@ class TemperatureCompensation:
         self.smoothing = float(smoothing)
         self.reference: float | None = None
         self.current: float | None = None
+        self.coldest: float | None = None          # lowest smoothed ξ so far: the idle temperature a pause cools to
+
+    def cool(self, seconds: float, time_constant_s: float) -> None:
+        """The joint stood still for ``seconds``: its lubricant cooled towards :attr:`coldest` with the time
+        constant ``time_constant_s`` [s] (first-order thermal model)."""
+        if self.current is None or self.coldest is None or not (math.isfinite(seconds) and seconds > 0):
+            return
+        self.current = self.coldest + (self.current - self.coldest) * math.exp(-seconds / time_constant_s)
 
     def observe(self, temperature: float | None) -> None:
         """The lubricant temperature estimated from a closed cycle [°C]; the first one is the reference."""
@@ -44,6 +58,7 @@ class TemperatureCompensation:
             self.current += self.smoothing * (float(temperature) - self.current)
         if self.reference is None:
             self.reference = self.current
+        self.coldest = self.current if self.coldest is None else min(self.coldest, self.current)
 
     @property
     def shift(self) -> float:
@@ -66,9 +81,9 @@ class TemperatureCompensation:
         self.reference = None
 
     def state_dict(self) -> dict[str, Any]:
-        return {"reference": self.reference, "current": self.current}
+        return {"reference": self.reference, "current": self.current, "coldest": self.coldest}
 
     def load_state(self, state: dict[str, Any]) -> None:
-        for key in ("reference", "current"):
+        for key in ("reference", "current", "coldest"):
             value = state.get(key)
             setattr(self, key, float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None)

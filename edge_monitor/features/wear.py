@@ -114,6 +114,9 @@ class WearFeature:
         section = {**estimate.to_record(), "temperature_prior": _prior_record(prior)}
         return FeatureOutput(section=section, values=values, reason=estimate.reason)
 
+    def pause(self, seconds: float) -> None:
+        """Nothing to do: the temperature prior follows the motor temperature, which cools by itself."""
+
     def discard_cycle(self) -> None:
         """Nothing is accumulated during the cycle."""
 

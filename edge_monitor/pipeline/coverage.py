@@ -43,8 +43,8 @@ def coverage_reason(decision: Decision, learning: bool, finite: bool, held: str 
     was learning before the cycle, ``finite`` whether the cycle's value was, ``held`` its hold reason."""
     if held:
         return "held_warm" if "above" in held else "held_cold" if "below" in held else "held"
-    if learning or decision.state == "learning":
-        return "learning"
+    if learning or decision.state == "learning" or decision.reason.startswith("nominal density learned"):
+        return "learning"          # (the last: the cycle whose value completed a new nominal)
     if not finite:
         return "no_value"
     if decision.statistic is None:

@@ -16,8 +16,10 @@ from edge_monitor.pipeline.healthy_drift import (
     STEADY_DRIFT,
     STEADY_DRIFT_JOINT,
     STEADY_WANDER,
+    TEMPERATURE_SLACK,
     healthy_drift,
     steady_wander,
+    temperature_slack,
 )
 from edge_monitor.pipeline.thermal_settling import SettlingConfig
 from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MIN_ARL0, CalibrationBudget
@@ -34,6 +36,7 @@ from edge_monitor.stats.detector_config import (
 #: :meth:`DetectorBank.retarget`): not in the fingerprint (a saved state stays valid when they change),
 #: and kept from the current config on "keep".
 SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold", "warm_up_hold_margin",
+                 "temperature_slack",
                  "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
 #: Where the calibrations simulate the detectors (the point, the healthy drift after learning, the wander): not
@@ -63,6 +66,11 @@ class DecisionConfig:
     ``pf``/``pf_joint`` (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
     the scalar / vector quantities. ``density`` applies to scalar quantities, ``density_joint`` to the
     vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
+    ``temperature_slack`` (input → c [σ/√°C]): while the joint's temperature is d °C outside the span a
+    detector's nominal was learned in, it tests its value less c·√d nominal standard deviations per input
+    (:meth:`~edge_monitor.pipeline.nominal_temperature.NominalSpans.slack`); ``warm_up_hold`` (quantities)
+    makes their warm-up detectors hold instead while the joint is warmer than that span by more than
+    ``warm_up_hold_margin`` [°C], as before 2026-11-28.
     ``calibrate_at``: where the calibration simulates each detector (default at the drift allowance);
     ``"healthy_drift"`` (a study option) uses ``healthy_drift`` (input → (mean, sd) [σ]) instead.
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
@@ -108,8 +116,9 @@ class DecisionConfig:
     steady_simulate_from: str = "model"
     settling_window: int = SettlingConfig().window
     settling_max_rate: float = SettlingConfig().max_rate
-    warm_up_hold: tuple[str, ...] = ("kl_raw", "kl_weighted", "joint")
+    warm_up_hold: tuple[str, ...] = ()
     warm_up_hold_margin: float = 6.0
+    temperature_slack: Mapping[str, float] = field(default_factory=lambda: dict(TEMPERATURE_SLACK))
 
     @property
     def settling(self) -> SettlingConfig:
@@ -147,6 +156,7 @@ class DecisionConfig:
         object.__setattr__(self, "steady_drift_joint", healthy_drift(self.steady_drift_joint, "steady_drift_joint",
                                                                      STEADY_DRIFT_JOINT))
         object.__setattr__(self, "steady_wander", steady_wander(self.steady_wander))
+        object.__setattr__(self, "temperature_slack", temperature_slack(self.temperature_slack))
         for name in ("calibrate_at", "steady_calibrate_at"):
             require(getattr(self, name) in CALIBRATE_AT, f"decision.{name}",
                     f"{getattr(self, name)!r}; choose one of {CALIBRATE_AT}")

@@ -86,7 +86,8 @@ class DetectorBank:
         self.smoothed: float | None = None            # the current cycle's smoothed temperature [°C] (holds)
         self.temperature_source = MOTOR_TEMPERATURE
         self.spans = NominalSpans(warm_up_hold=config.warm_up_hold,   # the temperatures of the nominals (holds)
-                                  warm_margin=config.warm_up_hold_margin, warm_side=config.steady_relearn)
+                                  warm_margin=config.warm_up_hold_margin, warm_side=config.steady_relearn,
+                                  slack=config.temperature_slack)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
         self.reasons: dict[str, str] = {}   # this cycle's coverage reason per quantity (pipeline/coverage.py)
 
@@ -156,7 +157,8 @@ class DetectorBank:
             held = self.spans.held(quantity, detector, self.smoothed, self.temperature_source)
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
-            decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle)
+            slack = None if held else self.spans.slack(quantity, spec.inputs, detector, self.smoothed)
+            decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle, slack)
             self.reasons[quantity] = coverage_reason(decision, learning, all(map(math.isfinite, value)), held)
             self.spans.track(quantity, detector, collecting, detector.fits > fits, self._span_temperature)
             decisions[quantity] = decision
@@ -170,6 +172,12 @@ class DetectorBank:
         """What this cycle adds to a span being collected: the smoothed temperature, not a jump awaiting
         confirmation (one wild reading would widen a span for good)."""
         return self.smoothed if self.hold_temperature.confirmed else None
+
+    @property
+    def warming_up(self) -> bool:
+        """Whether the joint is on its first warming path: a detector monitors on its warm-up nominal (the
+        temperature slack covers what the joint's temperature does meanwhile)."""
+        return any(d.state == "monitoring" and d.stage == "warm-up" for d in self.detectors.values())
 
     @property
     def collecting(self) -> bool:
@@ -251,7 +259,8 @@ class DetectorBank:
         self.hold_temperature = HoldTemperature.from_state(state.get(HOLD_KEY)) if HOLD_KEY in state else \
             HoldTemperature.replayed(self.settling.recent())      # saved before the holds smoothed
         self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self.config.warm_up_hold,
-                                             self.config.warm_up_hold_margin, self.config.steady_relearn)
+                                             self.config.warm_up_hold_margin, self.config.steady_relearn,
+                                             self.config.temperature_slack)
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:

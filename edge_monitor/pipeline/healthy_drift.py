@@ -1,5 +1,6 @@
 """What healthy data do after a detector has learned its nominal, as the calibration assumes it: the
-``[decision.healthy_drift]``, ``[decision.steady_drift]`` and ``[decision.steady_wander]`` tables, their
+``[decision.healthy_drift]``, ``[decision.steady_drift]``, ``[decision.steady_wander]`` and
+``[decision.temperature_slack]`` tables, their
 shipped values (measured on the simulator's healthy default robots, docs/DETECTION.md) and their
 validation (a :class:`~edge_monitor.errors.ConfigError` naming the key)."""
 
@@ -40,6 +41,16 @@ STEADY_DRIFT_JOINT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08),
 #: variance ratios of k-cycle means of the same joints: the log KL distances 1.19, 1.32, 1.39 at k = 5,
 #: 10, 30 (iid: 1), the wear score ≤ 1 (docs/DETECTION.md, "The steady stage's healthy drift").
 STEADY_WANDER: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.09, "kl_weighted": 0.09}
+#: How far a healthy joint's inputs may drift while its temperature is outside the span their nominal was
+#: learned in, d °C away: c·√d standard deviations of the learned values (the detectors test the value less
+#: that, so they keep watching while the joint warms, or is cold after a stop). The KL distances' temperature
+#: compensation leaves a drift that grows fast over the first few °C and slowly after (measured on healthy
+#: default robots: the largest joint's log kl_weighted +0.7 σ at 3 °C, +1.5 σ at 17 °C beyond its warm-up
+#: span); c keeps every measured joint within half the drift allowance (docs/DETECTION.md, "Watching while
+#: the joint warms"). The wear score is compensated through the friction model and gets none.
+TEMPERATURE_SLACK: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.21, "kl_weighted": 0.27}
+#: Largest slack coefficient a config may state [σ/√°C] (at 25 °C: 15 σ, nothing would alarm beyond it).
+MAX_SLACK = 3.0
 
 
 T = TypeVar("T")
@@ -71,6 +82,13 @@ def healthy_drift(given: Any, key: str = "healthy_drift",
     """``decision.healthy_drift`` (or ``key``): input → [mean, sd] [σ]."""
     return _per_input(given, key, defaults, _drift_pair, f"[mean, sd] in standard deviations (mean "
                       f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g})")
+
+
+def temperature_slack(given: Any) -> dict[str, float]:
+    """``decision.temperature_slack``: input → slack coefficient [σ/√°C]."""
+    return _per_input(given, "temperature_slack", TEMPERATURE_SLACK,
+                      lambda v: float(v) if is_finite_number(v) and 0.0 <= v <= MAX_SLACK else None,
+                      f"a slack coefficient 0 … {MAX_SLACK:g} standard deviations per √°C")
 
 
 def steady_wander(given: Any) -> dict[str, float]:

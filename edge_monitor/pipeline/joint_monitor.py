@@ -36,6 +36,7 @@ from edge_monitor.pipeline.detectors import SETTLING_KEY, Acknowledgement, Detec
 from edge_monitor.pipeline.fault_grouping import FaultTracker
 from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
 from edge_monitor.pipeline.operating_range import OperatingRange
+from edge_monitor.pipeline.pauses import PauseFinder
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Advisory, Alarm, Decision, Symptom, finite_or_none
 from edge_monitor.stats.sequential_detector import Calibrator
@@ -84,6 +85,7 @@ class JointMonitor:
         self._build()
         self.maintenances = 0
         self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
+        self.pauses = PauseFinder(config.rate_hz)   # where the joint stood still (the features are told)
         self.motor_temperature_seen = False    # whether the controller ever sent this joint's motor temperature
         self.friction_temperature_used = False  # whether the detectors followed the friction's temperature
 
@@ -154,6 +156,17 @@ class JointMonitor:
 
     def _process(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
                  segment: NDArray[np.int64] | None) -> list[Symptom]:
+        symptoms: list[Symptom] = []
+        for part, pause in self.pauses.split(tick):
+            if pause > 0:
+                for feature in self.features.values():
+                    feature.pause(pause)
+            symptoms += self._process_run(tick[part], speed[part], torque[part],
+                                          None if segment is None else segment[part])
+        return symptoms
+
+    def _process_run(self, tick: NDArray[np.int64], speed: NDArray[np.float64], torque: NDArray[np.float64],
+                     segment: NDArray[np.int64] | None) -> list[Symptom]:
         symptoms = [self.update_cycle(cycle) for cycle in self.assembler.update(tick, speed, torque, segment)]
         for feature in self.features.values():
             feature.update_samples(torque, speed, segment)
@@ -225,7 +238,8 @@ class JointMonitor:
         else:
             collecting, fits = self.detectors.collecting, self.detectors.fits
             decisions, alarms = self.detectors.update(values, robot, self.joint, cycle.cycle)
-            events = self.operating.update(covariates, collecting, self.detectors.fits > fits)
+            events = self.operating.update(covariates, collecting, self.detectors.fits > fits,
+                                           usual=("motor_temperature",) if self.detectors.warming_up else ())
             advisories = [Advisory(robot, self.joint, cycle.cycle, "operating_range", e.state, e.covariate, e.value,
                                    e.learned) for e in events]
             alarms = [replace(a, cause=self._cause(decisions[a.quantity], covariates)) for a in alarms]
@@ -315,6 +329,7 @@ class JointMonitor:
                 "maintenances": self.maintenances, "acknowledgements": self.acknowledgements,
                 "motor_temperature_seen": self.motor_temperature_seen,
                 "friction_temperature_used": self.friction_temperature_used, "assembly": self.assembler.state_dict(),
+                "pauses": self.pauses.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
@@ -338,6 +353,7 @@ class JointMonitor:
         monitor.maintenances = int(state.get("maintenances", 0))
         monitor.acknowledgements = int(state.get("acknowledgements", 0))
         monitor.motor_temperature_seen, monitor.friction_temperature_used = _temperature_sources(state)
+        monitor.pauses = PauseFinder.from_state(config.rate_hz, state.get("pauses"))
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
             monitor.assembler.load_state(assembly)

@@ -1,40 +1,34 @@
-"""The temperatures each detector's nominal was learned at, and the cycles a detector holds because
-the joint is far from them (docs/DETECTION.md, "Operating conditions").
+"""The temperatures each detector's nominal was learned at, and what a detector does when the joint is far
+from them (docs/DETECTION.md, "Watching while the joint warms").
 
-The temperature compensation of the KL distances is identified over a few °C; carried much further, it
-leaves a drift a detector reads as a fault. Two cases meet every plant:
+The KL distances' temperature compensation (through the joint's friction model) leaves a drift that grows
+with the distance from the temperatures a nominal was learned at: over the first few °C fast, then slowly
+(on healthy default robots the largest joint's log kl_weighted drifted +0.7 σ at 3 °C and +1.5 σ at 17 °C
+beyond its warm-up span; the median joint +0.2 and +0.4 σ). Two cases meet every plant: the warm-up after
+commissioning or a maintenance (the warm-up nominal is learned cold, the joint then warms ≈ 25 °C), and a
+restart after a stop (a nominal learned warm, a joint back near ambient).
 
-* **warming after commissioning or a maintenance** (the warm-up stage): the warm-up nominal is learned
-  in the first cycles, cold; as the lubricant warms by ≈ 25 °C the KL distances of some joints drift up
-  by more than the detectors' drift allowance (measured on 162 healthy joints: ≈ +0.035 σ per °C for
-  kl_weighted, +0.02 σ per °C for kl_raw, with a joint-to-joint spread that grows as they warm; the wear
-  score, compensated through the friction model, drifts down). So the warm-up detectors of the
-  temperature-sensitive quantities (``decision.warm_up_hold``) skip the cycles warmer than the span
-  they learned in, by more than the operating range's margin, until the steady stage replaces their
-  nominal; the values a held detector would add to its steady nominal still go in. The wear evidence
-  keeps watching throughout.
-* **a restart after a stop**: a nominal learned warm describes the joint warm; after a long stop the
-  lubricant is back near ambient, and a cold joint's KL distances sit well above it. So a steady
-  detector skips the cycles colder than its span by more than the margin, until the joint is back in
-  range; so does a warm-up detector of ``decision.warm_up_hold`` (a joint that stops before it settled:
-  its warm-up nominal was learned in its first, already warming cycles; seed 401 of the plant week
-  restarted 10 °C below them and raised a kl_raw false alarm).
+:class:`NominalSpans` keeps, per detector, the span of the joint's temperature [°C] over the cycles whose
+values went into its current nominal, and says how far a cycle lies outside it (:meth:`NominalSpans.distance`).
+By default a detector then keeps testing with a **slack** (:meth:`NominalSpans.slack`): its value less
+c·√d nominal standard deviations per input, d the distance, c from ``[decision.temperature_slack]`` (the
+KL distances; the wear score, compensated through the model, gets none). A detector of a quantity listed in
+``decision.warm_up_hold`` holds instead (:meth:`NominalSpans.held`, the earlier design: it tests nothing while
+the joint is warmer, in the warm-up stage, or colder, in either stage, than its span).
 
-:class:`NominalSpans` keeps, per detector, the span of the joint's temperature [°C] over the cycles
-whose values went into its current nominal; both the spans and the holds read the temperature smoothed
-over a few cycles (:mod:`~edge_monitor.pipeline.hold_temperature`: the per-cycle scatter would widen a
-span by its extremes and make a hold flicker). Unknown temperature, or no span: no hold. A joint whose
-controller sends no motor temperature is followed by the lubricant temperature its wear estimate reads from
-the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`),
-for both holds and its settling. Its price: wear reads as a slightly warmer lubricant (the two are estimated
-together; +1.5 … 4 °C at wear 20 on a warm joint), so a worn joint's warm-up KL detectors hold a little
-sooner; without the hold such a joint's warm-up KL detectors false-alarm in storms (docs/DETECTION.md,
-"A robot without motor temperature"). The wear evidence never holds while the joint warms.
+Both the spans and the distance read the temperature smoothed over a few cycles
+(:mod:`~edge_monitor.pipeline.hold_temperature`: the per-cycle scatter would widen a span by its extremes).
+Unknown temperature, or no span: no slack and no hold. A joint whose controller sends no motor temperature
+is followed by the lubricant temperature its wear estimate reads from the friction curve instead
+(:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor.joint_temperature`): wear reads as a slightly warmer
+lubricant (+1.5 … 4 °C at wear 20 on a warm joint), which adds a little slack (0.27·(√(d + 4) − √d) σ, 0.13 σ
+at d = 16 °C) — far less than a hold, which such a joint's wear used to trip for good.
 """
 
 from __future__ import annotations
 
-from typing import Any, Collection
+import math
+from typing import Any, Collection, Mapping, Sequence
 
 from edge_monitor.pipeline.operating_range import Span, is_span
 from edge_monitor.stats.sequential_detector import SequentialDetector
@@ -52,29 +46,32 @@ class NominalSpans:
     the joint is outside their span (warmer: only with ``warm_side``, by more than ``warm_margin``)."""
 
     def __init__(self, learned: dict[str, Span] | None = None, collecting: dict[str, Span] | None = None,
-                 warm_up_hold: Collection[str] = (), warm_margin: float = 0.0, warm_side: bool = True) -> None:
+                 warm_up_hold: Collection[str] = (), warm_margin: float = 0.0, warm_side: bool = True,
+                 slack: Mapping[str, float] | None = None) -> None:
         self.learned: dict[str, Span] = dict(learned or {})
         self.collecting: dict[str, Span] = dict(collecting or {})
+        self.slack_per_root_degree = dict(slack or {})   # per detector input [σ/√°C] (:meth:`slack`)
         self.warm_up_hold = frozenset(warm_up_hold)
         self.warm_margin = float(warm_margin)      # the least margin [°C] above a warm-up span before it holds
         self.warm_side = warm_side                 # False without the steady stage: nothing would end that hold
 
     def held(self, quantity: str, detector: SequentialDetector, temperature: float | None,
              source: str = MOTOR_TEMPERATURE) -> str:
-        """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does): a steady
-        detector while the joint is colder than its span by more than the operating range's margin
-        (max(2 °C, 10 % of the span)); a warm-up one of :attr:`warm_up_hold` while it is colder by that much,
-        or warmer by more than :attr:`warm_margin` (at least that margin; only with :attr:`warm_side`).
-        ``source``: what the temperature is (named in the reason)."""
+        """Why ``quantity``'s monitoring detector does not decide at ``temperature`` ("" if it does), for the
+        quantities of :attr:`warm_up_hold` only (the others test with the temperature slack, :meth:`slack`): a
+        steady detector while the joint is colder than its span by more than the operating range's margin
+        (max(2 °C, 10 % of the span)); a warm-up one while it is colder by that much, or warmer by more than
+        :attr:`warm_margin` (at least that margin; only with :attr:`warm_side`). ``source``: what the
+        temperature is (named in the reason)."""
         span = self.learned.get(quantity)
-        if span is None or temperature is None or detector.state != "monitoring":
+        if span is None or temperature is None or detector.state != "monitoring" or quantity not in self.warm_up_hold:
             return ""
         margin = span.margin(COVARIATE)
         if detector.stage == "steady" and temperature < span.lo - margin:
             return (f"held: {source} {temperature:.1f} °C (smoothed) below the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the steady nominal was learned in (warming again after a stop); monitoring resumes when it "
                     f"is back")
-        if detector.stage == "steady" or quantity not in self.warm_up_hold:
+        if detector.stage == "steady":
             return ""
         if self.warm_side and temperature > span.hi + max(margin, self.warm_margin):
             return (f"held: {source} {temperature:.1f} °C (smoothed) above the {span.lo:.1f} … {span.hi:.1f} °C "
@@ -84,6 +81,26 @@ class NominalSpans:
             return (f"held: {source} {temperature:.1f} °C (smoothed) below the {span.lo:.1f} … {span.hi:.1f} °C "
                     f"the warm-up nominal was learned in (cold again after a stop); monitoring resumes when it is back")
         return ""
+
+    def distance(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> float:
+        """How far [°C] ``temperature`` lies outside the span ``quantity``'s monitoring nominal was learned in
+        (0 inside it, with no span, no temperature, or while the detector learns)."""
+        span = self.learned.get(quantity)
+        if span is None or span.empty or temperature is None or detector.state != "monitoring":
+            return 0.0
+        return max(0.0, temperature - span.hi, span.lo - temperature)
+
+    def slack(self, quantity: str, inputs: Sequence[str], detector: SequentialDetector,
+              temperature: float | None) -> tuple[float, ...] | None:
+        """The drift [nominal standard deviations] a healthy joint's ``inputs`` may show at ``temperature``
+        beyond what ``quantity``'s detector learned: ``c·√d`` per input, ``d`` the :meth:`distance` [°C] and
+        ``c`` its :attr:`slack_per_root_degree` (0 for an input without one). The detector tests the value
+        less this slack (docs/DETECTION.md, "Watching while the joint warms"); None when there is none."""
+        d = self.distance(quantity, detector, temperature)
+        if d <= 0.0:
+            return None
+        out = tuple(self.slack_per_root_degree.get(name, 0.0) * math.sqrt(d) for name in inputs)
+        return out if any(out) else None
 
     def track(self, quantity: str, detector: SequentialDetector, collected: bool, fitted: bool,
               temperature: float | None) -> None:
@@ -127,12 +144,13 @@ class NominalSpans:
 
     @classmethod
     def from_state(cls, state: Any, warm_up_hold: Collection[str] = (), warm_margin: float = 0.0,
-                   warm_side: bool = True) -> "NominalSpans":
+                   warm_side: bool = True, slack: Mapping[str, float] | None = None) -> "NominalSpans":
         """From :meth:`state_dict`; anything else (a state saved before spans were kept, a damaged span)
         is left out: no hold for that detector. (A state saved before 2026-11-27 holds only the steady
         nominals' spans; its warm-up detectors do not hold until they learn again.)"""
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
-        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin, warm_side)
+        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin, warm_side,
+                   slack)
 
 
 def _spans(saved: Any) -> dict[str, Span]:

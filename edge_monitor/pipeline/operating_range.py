@@ -11,10 +11,12 @@ reports each cycle's covariates, which of them lie outside the learned range wid
 an advisory when a covariate leaves the range ("entered", at once) or is back for good ("left", after
 :data:`RETURN_CYCLES` cycles in a row inside: a new load range that overlaps the learned one would
 otherwise flap between the two every few cycles). The detectors keep monitoring (their
-quantities are compensated, and holding them would blind the agent to wear during a new regime),
-except where the motor temperature is far from the one a nominal was learned at
-(:mod:`~edge_monitor.pipeline.nominal_temperature`: a warm-up KL detector while the joint warms, a steady
-one while it is colder after a stop); every alarm carries the covariates next to the learned range.
+quantities are compensated, and holding them would blind the agent to wear during a new regime; where the
+motor temperature is far from the one a nominal was learned at they test with a temperature slack,
+:mod:`~edge_monitor.pipeline.nominal_temperature`); every alarm carries the covariates next to the learned
+range. Only news makes an advisory: the temperatures a joint passes while it warms up after commissioning or
+a maintenance are its usual path (they widen the learned range), so a cold restart after a stop, back along
+that path, is not news; a hotter day than any seen, or a load never learned, is.
 
 Covariates: ``load`` — |load torque| of the cycle (measured at the plateaus, else the controller's
 estimate; dimensionless); ``motor_temperature`` — the cycle's mean motor temperature [°C].
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Collection
 
 #: Covariates tracked, and the smallest margin around a learned range that still counts as inside:
 #: a load 0.02 (≈ the scatter of the plateau measurement and the wire resolution many times over),
@@ -74,13 +76,27 @@ class OperatingRange:
     advised: dict[str, int] = field(default_factory=dict)  # open advisories: cycles in a row back inside
     was_collecting: bool = False
     now_outside: set[str] = field(default_factory=set)     # covariates outside in the last cycle
+    usual: dict[str, Span] = field(default_factory=dict)    # values seen on the joint's usual path (``update``)
 
-    def update(self, values: dict[str, float | None], collecting: bool, fitted: bool) -> list[RangeEvent]:
+    def _widened(self, name: str, span: Span) -> Span:
+        """A new learned range: ``span``, and the usual path seen so far."""
+        out = Span(span.lo, span.hi)
+        usual = self.usual.get(name)
+        if usual is not None and not usual.empty:
+            out.add(usual.lo)
+            out.add(usual.hi)
+        return out
+
+    def update(self, values: dict[str, float | None], collecting: bool, fitted: bool,
+               usual: Collection[str] = ()) -> list[RangeEvent]:
         """One cycle's covariates; ``collecting``: its values went into a nominal being learned;
         ``fitted``: a nominal was fitted this cycle. The detectors of a joint learn together but fit
         one after the other (their inputs start at different cycles), so a learning period — the
         cycles while any detector collects — is one range, and every fit in it makes that range, as
-        collected so far, the learned one; a new period (after a pause) starts a new range."""
+        collected so far, the learned one; a new period (after a pause) starts a new range. ``usual``:
+        covariates whose value this cycle is on the joint's usual path (the motor temperature while the joint
+        warms up after commissioning or a maintenance: the detectors' temperature slack covers it), so it
+        widens their learned range instead of making an advisory; a later nominal keeps what was so widened."""
         known = {k: float(v) for k, v in values.items() if v is not None and math.isfinite(v) and k in MARGINS}
         if collecting and not self.was_collecting:
             self.collecting = {}
@@ -90,7 +106,11 @@ class OperatingRange:
                 self.collecting.setdefault(name, Span()).add(value)
         refit = fitted and bool(self.collecting)
         if refit:
-            self.learned = {name: Span(span.lo, span.hi) for name, span in self.collecting.items()}
+            self.learned = {name: self._widened(name, span) for name, span in self.collecting.items()}
+        for name in usual:
+            if name in known and name in self.learned:
+                self.learned[name].add(known[name])
+                self.usual.setdefault(name, Span()).add(known[name])
         self.now_outside = {name for name, value in known.items() if self._beyond(name, value)}
         return [event for name, value in known.items() if (event := self._advise(name, value, refit)) is not None]
 
@@ -125,13 +145,14 @@ class OperatingRange:
     def reset(self) -> None:
         """A declared maintenance: the nominals are learned again, and so is their range."""
         self.learned, self.collecting, self.advised, self.was_collecting = {}, {}, {}, False
-        self.now_outside = set()
+        self.now_outside, self.usual = set(), {}
 
     def state_dict(self) -> dict[str, Any]:
         return {"learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
                 "collecting": {k: [s.lo, s.hi] for k, s in self.collecting.items() if not s.empty},
                 "outside": sorted(self.advised), "inside_run": dict(self.advised),
-                "was_collecting": self.was_collecting}
+                "was_collecting": self.was_collecting,
+                "usual": {k: [s.lo, s.hi] for k, s in self.usual.items() if not s.empty}}
 
     @classmethod
     def from_state(cls, state: Any) -> "OperatingRange":
@@ -139,7 +160,7 @@ class OperatingRange:
         out = cls()
         if not isinstance(state, dict):
             return out
-        for key in ("learned", "collecting"):
+        for key in ("learned", "collecting", "usual"):
             spans = state.get(key)
             if isinstance(spans, dict):
                 getattr(out, key).update({name: Span(float(v[0]), float(v[1])) for name, v in spans.items()

@@ -112,6 +112,12 @@ class GaussianMixture:
         """Mixture mean Σk πk μk, (d,)."""
         return self.weights @ self.means
 
+    @property
+    def spread(self) -> NDArray[np.float64]:
+        """Standard deviation of the mixture along each axis, (d,): √diag(S + Σk πk μk μkᵀ − μ̄ μ̄ᵀ)."""
+        centred = self.means - self.mean
+        return np.sqrt(np.diag(self.cov) + self.weights @ (centred * centred))
+
     def component_logpdf(self, y: ArrayLike) -> NDArray[np.float64]:
         """log(πk·N(yn; μk, S)) for every observation and component, (n, K)."""
         yw = as_observations(y, self.dim) @ self._whiten.T

@@ -170,15 +170,16 @@ class SequentialDetector:
         """The joint warms again: drop the steady values collected so far (a steady nominal stays)."""
         self._steady_values = None
 
-    def update(self, value: float | Sequence[float], cycle: int) -> Decision:
-        """Fold in one per-cycle value (scalar or ``dim``-vector) and return the decision."""
+    def update(self, value: float | Sequence[float], cycle: int, slack: Sequence[float] | None = None) -> Decision:
+        """Fold in one per-cycle value (scalar or ``dim``-vector) and return the decision; a monitoring detector
+        tests the value less ``slack`` [nominal std per axis], a healthy drift its nominal does not describe."""
         self._collect_calibration(cycle)
         vec, problem = self._as_vector(value)
         if vec is None:
             return replace(self._current(), reason=problem)
         if self._glr is None:
             return self._learn(vec, cycle)
-        return self._monitor(vec, cycle)
+        return self._monitor(vec, cycle, slack)
 
     def collect(self, value: float | Sequence[float], cycle: int, reason: str) -> Decision:
         """A cycle on which the detector holds (does not decide, for ``reason``): its value still goes into
@@ -305,7 +306,7 @@ class SequentialDetector:
         return self._learning_note or f"learning {len(self._nominal)}/{self._n_learn}"
 
     # ------------------------------------------------------------------ monitoring
-    def _monitor(self, vec: np.ndarray, cycle: int) -> Decision:
+    def _monitor(self, vec: np.ndarray, cycle: int, slack: Sequence[float] | None = None) -> Decision:
         assert self._glr is not None
         fitted = self._add_steady_value(vec, cycle)
         if fitted is not None:
@@ -315,6 +316,7 @@ class SequentialDetector:
             if not np.all(np.isfinite(vec)):       # a finite value too large for the transform
                 self.skipped_nonfinite += 1
                 return replace(self._current(), reason="value skipped: too large to transform")
+        vec = vec if slack is None else vec - np.asarray(slack, dtype=float) * self._glr.density.spread
         result = self._glr.update(vec)
         self._cycles[result.index % self.window] = int(cycle)
         change_cycle = self._cycles[result.change_index % self.window]
