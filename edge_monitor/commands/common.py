@@ -149,7 +149,8 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
                   f"they learned at)" if held else ""))
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
                else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, {warm_up}")
-    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'tested %':>8} {'alarms':<44} {'Pm':>7}"]
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'tested %':>8} "
+             f"{'alarms':<44} {'Pm':>7}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
