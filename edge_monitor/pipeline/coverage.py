@@ -21,7 +21,7 @@ tested cycles overall (``share``) and over the window (``recent``) go into every
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Any, Iterable, TypeGuard
 
 import numpy as np
 
@@ -148,14 +148,14 @@ class Coverage:
 
     @classmethod
     def from_state(cls, quantities: Iterable[str], state: Any) -> "Coverage":
-        saved = state if isinstance(state, dict) else {}
-        window = saved.get("window")
-        window = window if _count(window) and 1 <= window <= MAX_WINDOW else DEFAULT_WINDOW
+        saved: dict[str, Any] = state if isinstance(state, dict) else {}
+        given = saved.get("window")
+        window = given if _count(given) and 1 <= given <= MAX_WINDOW else DEFAULT_WINDOW
         out = cls(quantities, window)
-        detectors = saved.get("detectors") if isinstance(saved.get("detectors"), dict) else {}
+        detectors: dict[str, Any] = saved["detectors"] if isinstance(saved.get("detectors"), dict) else {}
         out.detectors = {q: DetectorCoverage.from_state(detectors.get(q), window) for q in out.detectors}
         return out
 
 
-def _count(x: Any) -> bool:
+def _count(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool) and x >= 0
