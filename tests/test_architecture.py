@@ -17,6 +17,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("edge_monitor.stats",),
     ("edge_monitor.features",),
     ("edge_monitor.sinks",),
+    ("edge_monitor.sources",),          # bytes → per-joint samples; the pipeline takes them from here
     ("edge_monitor.pipeline",),
     ("edge_monitor.config", "edge_monitor.app"),
     ("edge_monitor.offline",),
@@ -72,8 +73,8 @@ def test_every_import_points_down_the_layers():
 def test_the_running_agent_never_imports_the_simulator():
     """Only the offline studies (and tools) may drive the agent with the simulator."""
     for module, path in _modules().items():
-        if module.startswith(("edge_monitor.pipeline", "edge_monitor.features", "edge_monitor.stats",
-                              "edge_monitor.sinks")):
+        if module.startswith(("edge_monitor.pipeline", "edge_monitor.sources", "edge_monitor.features",
+                              "edge_monitor.stats", "edge_monitor.sinks")):
             assert not any(t.startswith("sim_controller") for t in _imports(path, module)), module
 
 

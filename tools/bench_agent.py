@@ -39,7 +39,7 @@ from benchmark_report import write_report
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, WearConfig
 from edge_monitor.features.wear_estimation import WearEstimator
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.log_source import log_blocks
+from edge_monitor.sources.log_source import log_blocks
 from sim_controller.config import SimConfig
 from sim_controller.output import record
 
@@ -48,7 +48,7 @@ PROFILE_NOTE = (
     "process, python-can's `BLFReader` (one `struct.unpack` and one `can.Message` per frame, then "
     "`messages_to_arrays` back to arrays) took ≈ 40 %, start-up imports (scipy.optimize/signal/stats for "
     "the wear fit, KDE and GLR) ≈ 33 %, the agent itself (`Agent.update`) only ≈ 11 %. `.blf` files are now "
-    "read a container at a time (`edge_monitor/pipeline/blf_blocks.py`): every 48-byte stride of a "
+    "read a container at a time (`edge_monitor/sources/blf_blocks.py`): every 48-byte stride of a "
     "decompressed container is checked at once with numpy and runs of CAN_MESSAGE objects become frame "
     "arrays directly, bit-identical to python-can's messages (tests/test_blf_blocks.py compares both paths "
     "on simulator logs, python-can-written logs with extended/remote/short/error frames, cut and damaged "
@@ -127,7 +127,7 @@ def whole_processes(path: Path, tmp: Path, repeats: int) -> tuple[float, float]:
 #: py-spy frames (function (file)) that mark where a sample's time went, checked in this order.
 BUCKETS = (
     ("start-up: imports and argument parsing", ("_find_and_load", "build_parser")),
-    ("reading the log (edge_monitor/pipeline/log_source.py, blf_blocks.py, python-can)", ("_blocks (",)),
+    ("reading the log (edge_monitor/sources/log_source.py, blf_blocks.py, python-can)", ("_blocks (",)),
     ("the agent: decode, E2E, cycles, features, detectors, JSONL (Agent.update / finish)",
      ("Agent.update (", "Agent.finish (")),
 )

@@ -721,7 +721,7 @@ def segments(name: str, out: Path, default_dir: Path, joints: Iterable[int] | No
     from edge_monitor.disturbance_weights import WeightFunction
     from edge_monitor.ingest import Ingest
     from edge_monitor.kl_monitor import KLMonitor
-    from edge_monitor.pipeline.log_source import log_blocks
+    from edge_monitor.sources.log_source import log_blocks
     from sim_controller.config import DEFAULT_SPEEDS
 
     d = scenario_dir(out, name, default_dir)

@@ -47,7 +47,7 @@ CACHE = ROOT / ".cache" / "fleet_series"
 SOURCES = ("joint_model", "sim_controller", "protocol/frames.py", "edge_monitor/features", "edge_monitor/config.py",
            "edge_monitor/defaults/agent.toml", "edge_monitor/offline/fast_path.py",
            "edge_monitor/pipeline/cycle_assembly.py", "edge_monitor/pipeline/joint_monitor.py",
-           "edge_monitor/pipeline/agent.py", "edge_monitor/pipeline/ingest.py")
+           "edge_monitor/pipeline/agent.py", "edge_monitor/sources/ingest.py")
 
 Series = dict[int, list[dict[str, float]]]
 

@@ -179,7 +179,7 @@ class LinkLedger:
 
     def numbering(self) -> dict[int, int]:
         """Per simulator run, the offset the agent adds to the raw cycle number (its cycle numbers go on
-        across controller restarts, edge_monitor.pipeline.ingest); runs whose start no agent saw after
+        across controller restarts, edge_monitor.sources.ingest); runs whose start no agent saw after
         a status frame of the run before are missing."""
         offsets = {0: 0} if self.runs else {}
         switches = {t.key[0]: t for life in self.lives for t in life.transitions
@@ -189,7 +189,7 @@ class LinkLedger:
             if t is None or t.last_status is None or run - 1 not in offsets:
                 continue
             # a new simulator process starts its tick at 0: the agent sees the tick go back, a controller
-            # restart, and numbers on from the last cycle + 1 (edge_monitor.pipeline.cycle_numbering)
+            # restart, and numbers on from the last cycle + 1 (edge_monitor.sources.cycle_numbering)
             offsets[run] = t.last_status[1] + offsets[run - 1] + 1 - t.key[1]
         return offsets
 

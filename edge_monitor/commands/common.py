@@ -163,7 +163,8 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
     does not load or does not match its DBC/EDS raises MappingError (a ValueError: exit code 2)."""
     if not path:
         return cfg, None
-    from edge_monitor.pipeline.sources import config_for, open_source
+    from edge_monitor.pipeline.agent_config import config_for
+    from edge_monitor.sources.foreign_source import open_source
     from protocol.signal_mapping import load_mapping
     try:
         mapping = load_mapping(path)

@@ -29,13 +29,13 @@ from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.decision_config import DecisionConfig
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
+from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, verbosity
 
 log = logging.getLogger(__name__)

@@ -33,10 +33,10 @@ from edge_monitor.commands.common import (
     setup_failure,
     zenoh_options,
 )
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
 from edge_monitor.sinks.jsonl import JsonlOpenError
+from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,

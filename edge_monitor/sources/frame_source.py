@@ -1,4 +1,4 @@
-"""Frame blocks from a live bus (bounded queue); log files are :mod:`~edge_monitor.pipeline.log_source`.
+"""Frame blocks from a live bus (bounded queue); log files are :mod:`~edge_monitor.sources.log_source`.
 
 The live path follows python-can's Bus/Listener boundary: the listener runs on the Notifier's
 receive thread and only enqueues into a bounded queue (a full queue drops and counts the frame);

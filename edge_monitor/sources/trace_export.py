@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.pipeline.samples import IngestBlock
+from edge_monitor.sources.samples import IngestBlock
 
 
 class TraceWriter:

@@ -24,8 +24,8 @@ from typing import Any, Iterator
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.pipeline.log_source import LogReport
-from edge_monitor.pipeline.samples import DecodedSamples, JointColumns, StatusColumns
+from edge_monitor.sources.log_source import LogReport
+from edge_monitor.sources.samples import DecodedSamples, JointColumns, StatusColumns
 from protocol.files import NotARegularFile, open_regular
 from protocol.signal_mapping import SignalMapping, SignalRef, TraceFormat, load_mapping
 

@@ -17,8 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.features.segmentation import PlateauConfig, PlateauDetector
-from edge_monitor.pipeline.sample_stream import PLAUSIBLE, SampleStream
-from edge_monitor.pipeline.samples import DecodedSamples
+from edge_monitor.sources.sample_stream import PLAUSIBLE, SampleStream
+from edge_monitor.sources.samples import DecodedSamples
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""Decoded samples of a foreign source → labelled :class:`~edge_monitor.pipeline.samples.IngestBlock` s.
+"""Decoded samples of a foreign source → labelled :class:`~edge_monitor.sources.samples.IngestBlock` s.
 
 Times [s] become controller ticks at the agent's ``rate_hz`` (tick = round((t − t₀)·rate), t₀ the first
 time seen). Samples wait in a buffer until the labeller's horizon has passed them (a plateau is known
@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.pipeline.cycle_labels import CycleLabeller, Marks
-from edge_monitor.pipeline.samples import CycleRun, DecodedSamples, IngestBlock, JointSamples, JointStatusBlock
+from edge_monitor.sources.cycle_labels import CycleLabeller, Marks
+from edge_monitor.sources.samples import CycleRun, DecodedSamples, IngestBlock, JointSamples, JointStatusBlock
 
 #: Values beyond these are taken as a wrong unit, scale or reference torque (speed [rad/s, motor side],
 #: torque and load [fraction of T_ref], temperature [°C]).

@@ -21,9 +21,9 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.pipeline.foreign_source import BoundSignal, ForeignCounters, status_columns
-from edge_monitor.pipeline.ingest import _forward_index
-from edge_monitor.pipeline.samples import DecodedSamples, JointColumns
+from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, status_columns
+from edge_monitor.sources.ingest import _forward_index
+from edge_monitor.sources.samples import DecodedSamples, JointColumns
 from protocol.cia402 import (
     OPERATION_ENABLED,
     OPERATION_ENABLED_MASK,

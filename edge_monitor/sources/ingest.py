@@ -6,20 +6,19 @@ never averaged in. The motor-state counter (controller tick mod 256) is unwrappe
 monotone controller tick; controller time = tick / rate. Every sample is labelled with the cycle and
 segment of the controller status frame in force when it arrived (stream order); which status frames
 may change the cycle (progress, a confirmed controller restart, not a jump of a reordered or replayed
-stream) is :mod:`edge_monitor.pipeline.cycle_numbering`. Its output is the sample interface of
-:mod:`edge_monitor.pipeline.samples`, which every source produces.
+stream) is :mod:`edge_monitor.sources.cycle_numbering`. Its output is the sample interface of
+:mod:`edge_monitor.sources.samples`, which every source produces.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.pipeline.cycle_numbering import MAX_CYCLE_STEP, CycleNumbering, tick_step
-from edge_monitor.pipeline.samples import CycleRun, IngestBlock, JointSamples, JointStatusBlock
+from edge_monitor.sources.cycle_numbering import MAX_CYCLE_STEP, CycleNumbering, tick_step
+from edge_monitor.sources.samples import CycleRun, IngestBlock, JointSamples, JointStatusBlock, SourceConfig
 from protocol.e2e import E2EReceiver, E2EStatus
 from protocol.frames import (
     MOTOR_COUNTER_MODULUS,
@@ -27,9 +26,6 @@ from protocol.frames import (
     FrameKind,
     decode_block,
 )
-
-if TYPE_CHECKING:
-    from edge_monitor.pipeline.agent_config import AgentConfig
 
 __all__ = ["MAX_CYCLE_STEP", "CycleRun", "Ingest", "IngestBlock", "IngestCounters", "JointSamples",
            "JointStatusBlock"]
@@ -70,7 +66,7 @@ class Ingest:
         self._last_tick: dict[int, int] = {}
 
     @classmethod
-    def for_config(cls, config: AgentConfig) -> Ingest:
+    def for_config(cls, config: SourceConfig) -> Ingest:
         """The ingest of our own frames for an agent's ``config`` (its default sample source)."""
         return cls(rate_hz=config.rate_hz, joints=config.joints)
 

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.pipeline.foreign_source import BoundSignal, ForeignCounters, status_columns, take
-from edge_monitor.pipeline.samples import DecodedSamples, JointColumns
+from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, status_columns, take
+from edge_monitor.sources.samples import DecodedSamples, JointColumns
 from protocol.bitfields import BitFieldError, resolve
 from protocol.files import NotARegularFile, read_regular
 from protocol.signal_mapping import E2EMapping, MappingError, SignalMapping, SignalRef, UnreadableFile

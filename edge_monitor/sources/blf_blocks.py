@@ -20,7 +20,7 @@ bounded): a damaged container is skipped and counted and the next one read, a co
 inflates past :data:`MAX_CONTAINER_BYTES`, and an object size the file cannot hold ends the walk as
 truncation (:class:`BLFDamage`) instead of swallowing the rest of the file. Used only while
 python-can has the private parts used here (:func:`supported`); otherwise
-:mod:`edge_monitor.pipeline.log_source` iterates ``LogReader``.
+:mod:`edge_monitor.sources.log_source` iterates ``LogReader``.
 """
 
 from __future__ import annotations

@@ -1,30 +1,32 @@
 """A source for a controller that does not speak our frames: a frame decoder (DBC or CiA 402) or a trace
-table gives :class:`~edge_monitor.pipeline.samples.DecodedSamples`; a
-:class:`~edge_monitor.pipeline.sample_stream.SampleStream` labels them with cycles and segments.
+table gives :class:`~edge_monitor.sources.samples.DecodedSamples`; a
+:class:`~edge_monitor.sources.sample_stream.SampleStream` labels them with cycles and segments.
 
-:class:`ForeignSource` has the shape of :class:`~edge_monitor.pipeline.ingest.Ingest` (``update`` of a
+:class:`ForeignSource` has the shape of :class:`~edge_monitor.sources.ingest.Ingest` (``update`` of a
 frame block → ``IngestBlock``, ``counters``, ``c``, ``e2e``, ``state_dict``/``load_state``), so the agent
-takes it in its place (``Agent(config, source=…)``). :class:`BoundSignal` is one mapped quantity resolved
-against a DBC or an EDS: its frame identifier, bit field, multiplexer and conversion to the agent's unit.
+takes it in its place (``Agent(config, source=…)``); :func:`open_source` builds the one a mapping file
+needs. :class:`BoundSignal` is one mapped quantity resolved against a DBC or an EDS: its frame identifier,
+bit field, multiplexer and conversion to the agent's unit.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.features.segmentation import PlateauConfig
-from edge_monitor.pipeline.cycle_labels import ControllerLabels, CycleLabeller, MotionLabels, TriggerLabels
-from edge_monitor.pipeline.ingest import IngestCounters
-from edge_monitor.pipeline.sample_stream import SampleStream
-from edge_monitor.pipeline.samples import DecodedSamples, IngestBlock, StatusColumns
+from edge_monitor.sources.cycle_labels import ControllerLabels, CycleLabeller, MotionLabels, TriggerLabels
+from edge_monitor.sources.ingest import IngestCounters
+from edge_monitor.sources.sample_stream import SampleStream
+from edge_monitor.sources.samples import DecodedSamples, IngestBlock, SourceConfig, StatusColumns
 from protocol.bitfields import BitField
 from protocol.e2e import E2EReceiver
-from protocol.signal_mapping import CycleMapping
+from protocol.signal_mapping import CycleMapping, SignalMapping, load_mapping
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +111,27 @@ class ForeignSource:
 
     def load_state(self, state: dict[str, Any]) -> None:
         self.stream.labeller.load_state(state)
+
+
+def decoder_for(mapping: SignalMapping) -> FrameDecoder | None:
+    """The frame decoder of a mapping (None for trace tables)."""
+    if mapping.kind == "dbc":
+        from edge_monitor.sources.dbc_source import DbcDecoder
+        return DbcDecoder(mapping)
+    if mapping.kind == "cia402":
+        from edge_monitor.sources.cia402_source import Cia402Decoder
+        return Cia402Decoder(mapping)
+    return None
+
+
+def open_source(mapping: SignalMapping | str | Path, config: SourceConfig) -> ForeignSource:
+    """A source for ``mapping`` (a path or a loaded mapping) at the tick rate ``config.rate_hz`` (the
+    agent's config after :func:`~edge_monitor.pipeline.agent_config.config_for`); raises MappingError
+    with the fix."""
+    m = mapping if isinstance(mapping, SignalMapping) else load_mapping(mapping)
+    labeller = make_labeller(m.cycles, config.rate_hz, config.segmentation)
+    stream = SampleStream(labeller, config.rate_hz, int(m.cycles.reference_joint or 0))
+    return ForeignSource(stream, decoder_for(m))
 
 
 def take(bound: BoundSignal, ids: NDArray[np.int64], data: NDArray[np.uint8], times: NDArray[np.float64],

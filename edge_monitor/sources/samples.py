@@ -1,4 +1,4 @@
-"""The sample interface under the pipeline: what every source hands the agent.
+"""The sample interface between the sources and the pipeline: what every source hands the agent.
 
 Everything above the sources (cycle assembly, features, detectors, sinks) works on per-joint samples:
 controller time (ticks at the agent's ``rate_hz``), motor speed [rad/s, motor side], motor torque [fraction
@@ -6,19 +6,21 @@ of the joint's reference torque T_ref] and the segment code in force (speed leve
 transition, 200 production motion, −1 unknown); per joint, where the controller has them, its load
 estimate μl, σl [fraction of T_ref] and motor temperature [°C], one entry per status frame; and the cycle
 they belong to. A source produces an :class:`IngestBlock` of :class:`CycleRun` s, which
-``Agent.update_ingested`` takes. Sources: our native frames (:mod:`~edge_monitor.pipeline.ingest`), any
-DBC (:mod:`~edge_monitor.pipeline.dbc_source`), CiA 402 drives (:mod:`~edge_monitor.pipeline.cia402_source`),
-trace tables (:mod:`~edge_monitor.pipeline.trace_source`) and the simulator's cycle-level mode
-(:mod:`~edge_monitor.offline.fast_path`). A source whose controller sends no cycle marks gets them from
-:mod:`~edge_monitor.pipeline.cycle_labels` through :mod:`~edge_monitor.pipeline.sample_stream`.
+``Agent.update_ingested`` takes; a source of frames has the shape of :class:`SampleSource` and the agent
+takes it whole (``Agent(config, source=…)``). The sources are listed in :mod:`edge_monitor.sources`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from edge_monitor.features.segmentation import PlateauConfig
+    from protocol.e2e import E2EReceiver
 
 
 @dataclass
@@ -87,3 +89,37 @@ class DecodedSamples:
     joints: dict[int, JointColumns] = field(default_factory=dict)
     status: dict[int, StatusColumns] = field(default_factory=dict)
     marks: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]] = field(default_factory=dict)
+
+
+class SourceConfig(Protocol):
+    """What a source reads of the agent's config (``AgentConfig`` has it): the tick rate [Hz] sample times
+    are converted to, the joints to keep (None: all), the plateau settings (cycles found from the motion)."""
+
+    @property
+    def rate_hz(self) -> float: ...
+    @property
+    def joints(self) -> tuple[int, ...] | None: ...
+    @property
+    def segmentation(self) -> PlateauConfig: ...
+
+
+class FrameCounters(Protocol):
+    """A source's counters (a dataclass: its fields go to the health record); ``frames_total`` at least."""
+
+    frames_total: int
+
+
+class SampleSource(Protocol):
+    """A source of frames as the agent takes it (``Agent(config, source=…)``): a block of frames in
+    (``ids`` (n,), ``data`` (n, 8) uint8, ``dlc`` (n,), ``timestamps`` [s]), labelled samples out; its
+    counters and E2E statistics for the health record; the cycle numbering in the agent's state (flat JSON).
+    A source that holds samples back (cycles found from the motion) also has ``flush() -> IngestBlock``."""
+
+    @property
+    def c(self) -> FrameCounters: ...
+    @property
+    def e2e(self) -> E2EReceiver: ...
+    def update(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> IngestBlock: ...
+    def counters(self) -> dict[str, Any]: ...
+    def state_dict(self) -> dict[str, Any]: ...
+    def load_state(self, state: dict[str, Any]) -> None: ...

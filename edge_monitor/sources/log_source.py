@@ -9,7 +9,7 @@ the file as hostile (memory and time bounded by the file's size, whatever it hol
   skipped and counted, and reading goes on with the next line, so each costs at most its own frame;
 * a BLF container that cannot be read (damaged zlib data, one inflating past its cap, a damaged
   object inside) is skipped, counted with an estimate of its frames, and the next one is read
-  (:mod:`edge_monitor.pipeline.blf_blocks`); an object header or size the file cannot hold ends the
+  (:mod:`edge_monitor.sources.blf_blocks`); an object header or size the file cannot hold ends the
   walk there: truncation.
 
 A log cut short (a BLF smaller than its header says or never finalised, or whose walk ended on
@@ -36,8 +36,8 @@ from can.io.asc import ASCReader
 from can.io.blf import BLFReader
 from can.io.canutils import CanutilsLogReader
 
-from edge_monitor.pipeline import blf_blocks
-from edge_monitor.pipeline.frame_source import FrameArrays
+from edge_monitor.sources import blf_blocks
+from edge_monitor.sources.frame_source import FrameArrays
 from protocol.files import NotARegularFile, require_regular
 from protocol.frames import messages_to_arrays
 
@@ -172,7 +172,7 @@ def _message_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator
 
 def _blf_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tuple[FrameArrays, int]]:
     """A .blf file's frames in blocks of ``block_size`` (as the per-message path cuts them), read a
-    container at a time (:mod:`edge_monitor.pipeline.blf_blocks`); damage ends the file as there."""
+    container at a time (:mod:`edge_monitor.sources.blf_blocks`); damage ends the file as there."""
     parts: list[FrameArrays] = []
     held = 0
     try:
