@@ -23,7 +23,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from edge_monitor.app import build_app
-from edge_monitor.commands.common import output_failures, setup_failure
+from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sources.samples import IngestBlock
@@ -43,7 +43,7 @@ class MonitorProcessError(RuntimeError):
 @dataclass
 class MonitorResult:
     """What the child returns at the end: the run statistics, the last symptom per joint (JSON form),
-    what it could not write (:func:`~edge_monitor.commands.common.output_failures`), or the exit code
+    what it could not write (:func:`~edge_monitor.run_failures.output_failures`), or the exit code
     and message of an output it could not open."""
 
     statistics: dict[str, Any] = field(default_factory=dict)

@@ -19,10 +19,13 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("edge_monitor.sinks",),
     ("edge_monitor.sources",),          # bytes → per-joint samples; the pipeline takes them from here
     ("edge_monitor.pipeline",),
-    ("edge_monitor.config", "edge_monitor.app"),
+    # how the agent is built and run: the builder, replay's monitoring process, run failures → exit codes
+    ("edge_monitor.config", "edge_monitor.app", "edge_monitor.monitor_process", "edge_monitor.run_failures"),
     ("edge_monitor.offline",),
     ("edge_monitor.commands", "edge_monitor.cli", "edge_monitor"),
 )
+#: The catch-all of the top layer: only the package itself may fall to it, every module has a named layer.
+TOP = "edge_monitor"
 #: Lines a module may have (docs/ARCHITECTURE.md: "no module over ~400 lines").
 MAX_LINES = 420
 
@@ -36,14 +39,19 @@ def _modules() -> dict[str, Path]:
     return {_module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
 
 
-def _layer(module: str) -> int:
-    best, best_len = None, -1
+def _placement(module: str) -> tuple[int, str]:
+    """The layer of ``module`` and the prefix that puts it there (the longest that matches)."""
+    best, best_prefix = None, ""
     for i, prefixes in enumerate(LAYERS):
         for prefix in prefixes:
-            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best_len:
-                best, best_len = i, len(prefix)
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > len(best_prefix):
+                best, best_prefix = i, prefix
     assert best is not None, f"{module} is in no layer of LAYERS"
-    return best
+    return best, best_prefix
+
+
+def _layer(module: str) -> int:
+    return _placement(module)[0]
 
 
 def _imports(path: Path, module: str) -> set[str]:
@@ -68,6 +76,13 @@ def test_every_import_points_down_the_layers():
             if _layer(target) > _layer(module):
                 upward.append(f"{module} (layer {_layer(module)}) imports {target} (layer {_layer(target)})")
     assert not upward, "\n".join(sorted(upward))
+
+
+def test_every_module_of_the_agent_has_a_named_layer():
+    """A new top-level module states its layer in LAYERS instead of falling to the top one (where it could
+    import commands: monitor_process once did)."""
+    unplaced = [m for m in _modules() if m.startswith(TOP + ".") and _placement(m)[1] == TOP]
+    assert not unplaced, f"add these modules to a layer of LAYERS: {unplaced}"
 
 
 def test_the_running_agent_never_imports_the_simulator():

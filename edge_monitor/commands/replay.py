@@ -31,13 +31,12 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
-    output_failures,
     print_json,
-    setup_failure,
     summary_table,
 )
 from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
 from edge_monitor.pipeline.agent import Agent
+from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sources.frame_source import FrameArrays
