@@ -1,4 +1,4 @@
-"""The shipped table's thresholds deliver their run length in an independent simulation (tools/arl_check.py:
+"""The shipped table's thresholds deliver their run length in an independent simulation (tools/studies/arl_check.py:
 another seed, every alarm acknowledged as the agent does), and a lower threshold does not."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from arl_check import delivered  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""tools/delivered_curve.py: a detector path replayed against many thresholds, alarms restarting it as
+"""tools/studies/delivered_curve.py: a detector path replayed against many thresholds, alarms restarting it as
 an acknowledge does."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from delivered_curve import (  # noqa: E402
     Tally,

@@ -1,5 +1,5 @@
-"""tools/healthy_fleet_study.py --from-series (only the detectors, over the per-cycle quantities
-tools/fleet_series.py keeps) finds what the whole agent on the fast path finds."""
+"""tools/studies/healthy_fleet_study.py --from-series (only the detectors, over the per-cycle quantities
+tools/studies/fleet_series.py keeps) finds what the whole agent on the fast path finds."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 import fleet_series  # noqa: E402
 from healthy_fleet_study import RunSpec, run_robot, run_robot_series  # noqa: E402

@@ -20,7 +20,7 @@ import pytest
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 
-_TOOL = Path(__file__).resolve().parents[1] / "tools" / "healthy_fleet_study.py"
+_TOOL = Path(__file__).resolve().parents[1] / "tools" / "studies" / "healthy_fleet_study.py"
 
 
 def _study():

@@ -120,7 +120,7 @@ def test_the_table_tool_can_recompute_one_quantitys_entry_alone() -> None:
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools" / "studies"))
     from threshold_table import wanted
 
     from edge_monitor.pipeline.detectors import DecisionConfig

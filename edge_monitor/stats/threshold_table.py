@@ -13,7 +13,7 @@ the correlation matrix R of its learned values (:mod:`edge_monitor.stats.gaussia
   The wear score's correlations with the KL axes (−0.4 … +0.3 on healthy joints) move the threshold
   far less than its standard error (docs/DETECTION.md, "Thresholds").
 
-``tools/threshold_table.py`` computes the entries over ARL0 = 10^1.5 … 10^7 with their bootstrap
+``tools/studies/threshold_table.py`` computes the entries over ARL0 = 10^1.5 … 10^7 with their bootstrap
 standard errors; :func:`lookup` interpolates in log ARL0 (a detector with other settings, or a target
 outside the table, is simulated at run time).
 """
