@@ -13,11 +13,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studi
 
 from arl_check import delivered  # noqa: E402
 
-from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
+from edge_monitor.stats.threshold_table import entries_by_key, entry_correlation, entry_settings, lookup  # noqa: E402
 
 
 def _entry(at: str, dim: int, rho: float = 0.0, drifting: bool = True) -> dict:
-    for group in _table().values():
+    for group in entries_by_key().values():
         for e in group:
             corr = entry_correlation(e)
             if e["settings"]["at"] == at and len(corr) == dim and (dim == 1 or corr[1][2] == rho) \

@@ -36,7 +36,7 @@ STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_r
 STEADY_DRIFT_JOINT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.11, 0.14),
                                                       "kl_weighted": (0.24, 0.21)}
 #: And how they wander once warm: the fraction of each input's variance in a slow AR(1) component
-#: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_calibration.WANDER_COEFFICIENT`), from the
+#: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_fleet.WANDER_COEFFICIENT`), from the
 #: variance ratios of k-cycle means of the same joints: the log KL distances 1.19, 1.32, 1.39 at k = 5,
 #: 10, 30 (iid: 1), the wear score ≤ 1 (docs/DETECTION.md, "The steady stage's healthy drift").
 STEADY_WANDER: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.09, "kl_weighted": 0.09}

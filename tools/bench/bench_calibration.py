@@ -52,7 +52,7 @@ def _values(n: int, d: int, seed: int = 0) -> np.ndarray:
 
 def _timed(call: Callable[[], Any]) -> tuple[float, Any]:
     gaussian_calibration.simulate.cache_clear()
-    threshold_table._table.cache_clear()
+    threshold_table.entries_by_key.cache_clear()
     started = time.process_time()
     result = call()
     return time.process_time() - started, result

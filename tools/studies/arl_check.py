@@ -39,12 +39,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from threshold_table import in_stage  # noqa: E402  (tools/studies/threshold_table.py)
 
 from edge_monitor.stats import gaussian_calibration as gc  # noqa: E402
+from edge_monitor.stats import gaussian_fleet as gf  # noqa: E402
 from edge_monitor.stats.gaussian_calibration import GaussianSettings  # noqa: E402
-from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
+from edge_monitor.stats.threshold_table import entries_by_key, entry_correlation, entry_settings, lookup  # noqa: E402
 
 log = logging.getLogger("arl_check")
 
-#: Seed of the check's draws (the calibration's is gaussian_calibration.SEED).
+#: Seed of the check's draws (the calibration's is gaussian_fleet.SEED).
 CHECK_SEED = 20261127
 #: Alarms the check expects per entry and target: a 95 % interval of about ±15 % (more with clustering).
 ALARMS = 200
@@ -56,9 +57,9 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     with threshold ``h`` over ``cycles`` cycles each, every alarm acknowledged."""
     r = np.asarray(corr, dtype=float)
     rng = np.random.default_rng(seed)
-    noise = gc._Noise(np.linalg.cholesky(r), settings.wander, rng)
-    glr = gc._detectors(settings, *gc._fit(noise.sequence(detectors, settings.n0)), 1)   # plain learning sets
-    shift = gc._shifts(settings, detectors, r.shape[0])[0]       # plain draws: every weight 1
+    noise = gf.StreamNoise(np.linalg.cholesky(r), settings.wander, rng)
+    glr = gf.fleet_detectors(settings, *gf.fit_nominals(noise.sequence(detectors, settings.n0)), 1)   # plain sets
+    shift = gf.stream_shifts(settings, detectors, r.shape[0])[0]       # plain draws: every weight 1
     if settings.at == "healthy_drift":             # the check's own fleet drift, not the calibration's order
         shift = shift[rng.permutation(detectors)]
     noise.start(detectors)
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     rows = []
-    entries = [e for group in _table().values() for e in group]
+    entries = [e for group in entries_by_key().values() for e in group]
     for k, e in enumerate(entries):
         dim = len(entry_correlation(e))
         if (args.only == "scalar" and dim > 1) or (args.only == "vector" and dim == 1):

@@ -501,8 +501,8 @@ def simulated_quantities(seed: int, cycles: int, joints: int = 6,
     """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults or
     the simulator ``scenario``: a file or packaged name), with the cycle's motor temperature [°C] as the
     controller reports it (``"motor_temperature"``; the detectors' thermal settling test watches it):
-    tools/studies/fleet_series.py, computed once per code version and kept in ``.cache/fleet_series``."""
-    from fleet_series import robot_series
+    studies.series, computed once per code version and kept in ``.cache/fleet_series``."""
+    from studies.series import robot_series
 
     return robot_series(seed, cycles, joints, scenario)
 
@@ -591,18 +591,23 @@ def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: i
                boundary: bool) -> dict[tuple[str, str], tuple[int, int, int]]:
     """One joint's ``(quantity, stage) → (monitored cycles, false alarms, runs)`` (see :func:`agent_arl`)."""
     from edge_monitor.features.registry import QUANTITIES
-    from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
+    from edge_monitor.pipeline.detectors import DecisionConfig
+    from studies.bank_replay import new_bank, replay_bank
 
     out: dict[tuple[str, str], tuple[int, int, int]] = {}
     for q in DecisionConfig().quantities:
         config = DecisionConfig(arl0_cycles=target, calibration_draws=draws, quantities=(q,), **extra)
-        bank = DetectorBank(config, {})
+        bank = new_bank(config)
         shift = _BoundaryShift(bank, QUANTITIES[q].inputs) if boundary else None
         counts = {"warm-up": [0, 0, 0], "steady": [0, 0, 0]}
         learning, stage = True, None
-        for cycle, values in enumerate(rows):
-            bank.observe_temperature(values.get("motor_temperature"))
-            decision = bank.update(shift(values, learning) if shift else values, "r", joint, cycle)[0][q]
+
+        def fed(values: dict[str, float]) -> dict[str, float]:
+            """What this cycle feeds: at the edge of the null with ``boundary`` (read after the last step)."""
+            return shift(values, learning) if shift is not None else values
+
+        for step in replay_bank(bank, rows, joint, "r", fed):
+            decision = step.decisions[q]
             now = str((decision.calibration or {}).get("stage", "warm-up"))
             if now != stage:                              # a new run: learning (again) or the steady nominal
                 counts[now][2] += 1
@@ -803,7 +808,7 @@ def _agent_main(args: argparse.Namespace) -> int:
             return 2
     seeds = None
     if args.seeds:
-        from fleet_series import parse_seeds
+        from studies.settings import parse_seeds
 
         seeds = parse_seeds(args.seeds)
         robots = len(seeds)

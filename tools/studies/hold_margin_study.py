@@ -3,7 +3,7 @@
 its smoothed temperature is above the span its warm-up nominal was learned in, and when the shipped holds
 begin (docs/DETECTION.md, "Operating conditions", "Why 6 °C").
 
-Reads the per-cycle quantities tools/studies/fleet_series.py keeps (computed there if missing). Per joint the
+Reads the per-cycle quantities studies.series keeps (computed there if missing). Per joint the
 warm-up nominal is its first ``decision.n_nominal`` values (log of the KL distance), the span is the
 smoothed temperature's (edge_monitor/pipeline/hold_temperature.py) over those cycles, and every later
 cycle up to ``--until`` is binned by the smoothed temperature's excess over the span's top. Per bin:
@@ -13,7 +13,7 @@ cycle up to ``--until`` is binned by the smoothed temperature's excess over the 
 * the share of the bin's cycles the former hold tested: a raw cycle temperature at most max(2 °C, 10 % of
   the raw span) above the raw span's top.
 
-Then the shipped :class:`~edge_monitor.pipeline.detectors.DetectorBank` over each joint: the first cycle a
+Then the shipped :class:`~edge_monitor.pipeline.detectors.DetectorBank` over each joint (studies.bank_replay): the first cycle a
 warm-up detector of ``--quantity`` holds and the share of its warm-up cycles 90–750 held.
 
 Usage: ``python tools/studies/hold_margin_study.py --seeds 101-127 [--quantity kl_weighted] [--json OUT]``
@@ -32,15 +32,13 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tools" / "studies"))
-
-from fleet_series import parse_seeds, robot_series  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
-from edge_monitor.pipeline.detectors import DetectorBank  # noqa: E402
 from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
+from studies.bank_replay import new_bank, replay_bank  # noqa: E402
+from studies.series import robot_series  # noqa: E402
+from studies.settings import parse_seeds  # noqa: E402
 
 #: Bins of the smoothed temperature's excess over the learning span's top [°C].
 BINS = ((-math.inf, 0.0), (0.0, 2.0), (2.0, 4.0), (4.0, 6.0), (6.0, 8.0), (8.0, 10.0), (10.0, 14.0), (14.0, 20.0))
@@ -90,16 +88,13 @@ def drift_table(per_joint: list[list[tuple[float, float, bool]]]) -> list[dict[s
 def hold_onset(rows: list[dict[str, float]], quantity: str, config: DecisionConfig) -> tuple[int | None, float]:
     """The shipped bank over one joint: the first cycle ``quantity``'s detector holds, and the share of its
     warm-up cycles 90–750 it holds."""
-    bank = DetectorBank(config, {})
+    bank = new_bank(config)
     first, warm_up, held = None, 0, 0
-    for row in rows:
-        cycle = int(row["cycle"])
-        bank.observe_temperature(row.get("motor_temperature"))
-        decisions, _ = bank.update(row, "study", 0, cycle)
-        is_held = decisions[quantity].reason.startswith("held")
+    for step in replay_bank(bank, rows):
+        is_held = step.decisions[quantity].reason.startswith("held")
         if is_held and first is None:
-            first = cycle
-        if 90 <= cycle < 750 and bank.detectors[quantity].stage != "steady":
+            first = step.cycle
+        if 90 <= step.cycle < 750 and bank.detectors[quantity].stage != "steady":
             warm_up += 1
             held += is_held
     return first, held / warm_up if warm_up else math.nan
@@ -119,7 +114,7 @@ def markdown(table: list[dict[str, Any]], quantity: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", default="101-127", help="kept robots, e.g. 101-127 (tools/studies/fleet_series.py)")
+    ap.add_argument("--seeds", default="101-127", help="kept robots, e.g. 101-127 (studies.series)")
     ap.add_argument("--cycles", type=int, default=1100)
     ap.add_argument("--joints", type=int, default=6)
     ap.add_argument("--quantity", default="kl_weighted", choices=("kl_raw", "kl_weighted"))

@@ -89,7 +89,8 @@ def main() -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     logging.getLogger("edge_monitor").setLevel(logging.ERROR)
     if args.no_friction_temperature:
-        JointMonitor._joint_temperature = lambda self, cycle, values: (None, MOTOR_TEMPERATURE)  # type: ignore[method-assign]
+        # the counterfactual: a joint without a motor temperature gives its detectors none (no settling, no holds)
+        JointMonitor.joint_temperature = lambda self, cycle, values: (None, MOTOR_TEMPERATURE)  # type: ignore[method-assign]
     results = [run_robot(seed, args.cycles, args.budget_period, args.with_temperature) for seed in args.seeds]
     for r in results:
         stages = Counter(c["stage"] for c in r["crossings"])

@@ -2,7 +2,7 @@
 """How the steady detectors' inputs drift over a plant's week: the numbers behind the shipped
 ``[decision.steady_drift]`` (docs/DETECTION.md, "The steady stage on a plant's week").
 
-For every joint of the kept fast-path series of a scenario (``tools/studies/fleet_series.py``; default the plant
+For every joint of the kept fast-path series of a scenario (studies.series; default the plant
 week, seeds 401–407, 4 400 cycles), the agent's own :class:`DetectorBank` (shipped defaults) is replayed;
 each cycle a scalar detector tests in its steady stage is read in that detector's standard units (the
 learned Yeo–Johnson transform, then the learned mean and standard deviation). Per operating period
@@ -32,16 +32,14 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tools" / "studies"))
-
-from fleet_series import parse_seeds, robot_series  # noqa: E402
-from steady_drift_study import variance_ratio  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
-from edge_monitor.pipeline.detectors import DetectorBank  # noqa: E402
+from studies.bank_replay import new_bank, replay_bank, standard_units  # noqa: E402
+from studies.series import robot_series  # noqa: E402
+from studies.settings import parse_seeds  # noqa: E402
+from studies.statistics import variance_ratio  # noqa: E402
 
 #: The scalar detectors (each watches one series field, ``QUANTITIES[name].inputs[0]``).
 INPUTS = ("wear", "kl_raw", "kl_weighted")
@@ -58,21 +56,16 @@ def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
     decision = config_from_mapping({}).decision
     out: Rows = []
     for joint, rows in robot_series(seed, cycles, 6, scenario).items():
-        bank = DetectorBank(decision, {})
-        for row in rows:
-            bank.observe_temperature(row.get("motor_temperature"))
-            decisions, _ = bank.update(row, "r", joint, int(row["cycle"]))
-            watched = bank.watched(row)
+        bank = new_bank(decision)
+        for step in replay_bank(bank, rows, joint):
+            watched = bank.watched(step.row)
             for name in INPUTS:
-                det, density = bank.detectors[name], bank.detectors[name].density
+                det = bank.detectors[name]
                 value = watched.get(QUANTITIES[name].inputs[0], np.nan)
-                if det.stage != "steady" or density is None or decisions[name].statistic is None \
+                if det.stage != "steady" or det.density is None or step.decisions[name].statistic is None \
                         or not np.isfinite(value):
                     continue
-                x = np.array([[value]])
-                x = det._transform.apply(x) if det._transform is not None else x
-                z = (float(np.ravel(x)[0]) - float(density.means[0, 0])) / float(np.sqrt(np.ravel(density.cov)[0]))
-                out.append((name, (seed, joint), int(row["cycle"]), z))
+                out.append((name, (seed, joint), step.cycle, standard_units(det, value)))
     return out
 
 

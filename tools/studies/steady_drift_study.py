@@ -4,7 +4,7 @@ robots at one load range: the numbers behind ``[decision.steady_wander]`` and th
 ``[decision.steady_drift]`` (docs/DETECTION.md, "The steady stage's healthy drift"); the shipped drift is a
 plant week's, from ``tools/studies/plant_drift_study.py``.
 
-For every joint of the cached fast-path series (``tools/studies/fleet_series.py``; default seeds 101–108, 6 joints,
+For every joint of the cached fast-path series (studies.series; default seeds 101–108, 6 joints,
 1 100 cycles), in the units the detectors watch (the wear score; the logs of the KL distances): the
 values of cycles ``--learn-from`` … +240 are the steady nominal (every joint of the default robot has
 settled by then), the rest are watched. Per input it prints, over joints:
@@ -28,9 +28,11 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from fleet_series import fleet, parse_seeds  # noqa: E402
+from studies.series import fleet  # noqa: E402
+from studies.settings import parse_seeds  # noqa: E402
+from studies.statistics import variance_ratio  # noqa: E402
 
 INPUTS = ("wear_score", "kl_raw", "kl_weighted")
 LOGS = ("kl_raw", "kl_weighted")
@@ -47,11 +49,6 @@ def watched(rows: list[dict[str, float]], name: str) -> tuple[np.ndarray, np.nda
             values = np.log(values)
     ok = np.isfinite(values)
     return cycles[ok], values[ok]
-
-
-def variance_ratio(z: np.ndarray, k: int) -> float:
-    n = z.size // k
-    return float(k * z[:n * k].reshape(n, k).mean(axis=1).var() / z.var())
 
 
 def joint_numbers(cycles: np.ndarray, values: np.ndarray, learn_from: int) -> dict[str, Any] | None:

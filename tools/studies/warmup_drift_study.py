@@ -46,9 +46,7 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from healthy_fleet_study import parse_set, settings_from  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from edge_monitor.features.registry import LOG_SCALE  # noqa: E402
 from edge_monitor.features.temperature_compensation import TemperatureCompensation  # noqa: E402
@@ -59,6 +57,7 @@ from sim_controller.config import JointOverride, SimConfig  # noqa: E402
 from sim_controller.controller import VARIED_PARAMS, Controller  # noqa: E402
 from sim_controller.cycle_mode import cycle_signals  # noqa: E402
 from sim_controller.scenario import scenario_config  # noqa: E402
+from studies.settings import parse_set, settings_from  # noqa: E402
 
 log = logging.getLogger("warmup_drift_study")
 
