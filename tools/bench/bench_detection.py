@@ -168,17 +168,19 @@ def ours_run(seq: Sequence, quantity: str, target: float, draws: int, start: int
              ) -> tuple[int, int, list[int]]:
     """Our detector over one sequence with renewal: (monitored cycles, alarms before ``start``,
     cycles of the alarms at or after ``start`` (all alarms if ``start`` is None))."""
-    from edge_monitor.pipeline.detectors import DecisionConfig, DetectorBank
+    from edge_monitor.pipeline.detectors import DecisionConfig
+    from studies.bank_replay import new_bank, replay_bank
 
     config = DecisionConfig(arl0_cycles=target, calibration_draws=draws, quantities=(quantity,))
-    bank = DetectorBank(config, {})
+    bank = new_bank(config)
     monitored = false_alarms = 0
     hits: list[int] = []
-    for k, cycle in enumerate(seq.cycle.tolist()):
+    rows = ({"cycle": int(cycle), **{INPUT[q]: float(seq.values[q][k]) for q in QUANTITIES}}
+            for k, cycle in enumerate(seq.cycle.tolist()))          # no motor temperature: warm-up stage only
+    for step in replay_bank(bank, rows, seq.joint, "r"):
         if start is not None and hits:
             break
-        values = {INPUT[q]: float(seq.values[q][k]) for q in QUANTITIES}
-        decision = bank.update(values, "r", seq.joint, int(cycle))[0][quantity]
+        cycle, decision = step.cycle, step.decisions[quantity]
         if decision.state == "monitoring" and decision.threshold is not None:
             monitored += 1
         if decision.alarm:

@@ -590,8 +590,9 @@ def plot(runs: dict[str, dict[int, JointSeries]], sigma_noise: dict[str, float],
 # ------------------------------------------------------------------------------------------------ biasmap
 
 def biasmap(n_joints: int, n_noisy_joints: int, draws: int, seed: int, out_json: Path | None) -> None:
-    from edge_monitor.friction_model import DEFAULT_PARAMS, FRICTION_NOISE_STD, friction_magnitude
-    from edge_monitor.wear_estimation import WearEstimator
+    from edge_monitor.features.wear_estimation import WearEstimator
+    from joint_model import DEFAULT_PARAMS, FRICTION_NOISE_STD
+    from joint_model.friction import friction_magnitude
     from sim_controller.config import DEFAULT_SPEEDS
     from sim_controller.controller import VARIED_PARAMS
 
@@ -718,9 +719,9 @@ def _subsets(levels: int) -> dict[str, Any]:
 
 def segments(name: str, out: Path, default_dir: Path, joints: Iterable[int] | None, cycles: int | None) -> dict:
     """KL distances of parts of the cycle, per cycle, from the decoded log of a finished run."""
-    from edge_monitor.disturbance_weights import WeightFunction
-    from edge_monitor.ingest import Ingest
-    from edge_monitor.kl_monitor import KLMonitor
+    from edge_monitor.features.disturbance_weights import WeightFunction
+    from edge_monitor.features.kl_monitor import KLMonitor
+    from edge_monitor.sources.ingest import Ingest
     from edge_monitor.sources.log_source import log_blocks
     from sim_controller.config import DEFAULT_SPEEDS
 
