@@ -702,80 +702,15 @@ def plot_biasmap(results_json: Path, plot_dir: Path) -> None:
 
 # ------------------------------------------------------------------------------------------------ segments
 
-def _subsets(levels: int) -> dict[str, Any]:
-    """Name → predicate on the segment codes (numpy array) selecting the samples of that part."""
-    subsets: dict[str, Any] = {"all": lambda seg: np.ones(seg.shape, bool)}
-    for k in range(levels):
-        subsets[f"level{k}"] = lambda seg, k=k: seg == k + 1
-    subsets["production"] = lambda seg: seg == 200
-    subsets["friction (all levels)"] = lambda seg: (seg >= 1) & (seg <= levels)
-    subsets["levels 0–6 (≤ 41.7)"] = lambda seg: (seg >= 1) & (seg <= 7)
-    subsets["levels 7–11 (≥ 82.2)"] = lambda seg: (seg >= 8) & (seg <= levels)
-    subsets["all but production"] = lambda seg: seg != 200
-    subsets["all but levels 0–6"] = lambda seg: ~((seg >= 1) & (seg <= 7))
-    subsets["all but levels 7–11"] = lambda seg: ~((seg >= 8) & (seg <= levels))
-    return subsets
-
-
 def segments(name: str, out: Path, default_dir: Path, joints: Iterable[int] | None, cycles: int | None) -> dict:
-    """KL distances of parts of the cycle, per cycle, from the decoded log of a finished run."""
-    from edge_monitor.features.disturbance_weights import WeightFunction
-    from edge_monitor.features.kl_monitor import KLMonitor
-    from edge_monitor.sources.ingest import Ingest
-    from edge_monitor.sources.log_source import log_blocks
-    from sim_controller.config import DEFAULT_SPEEDS
-
-    d = scenario_dir(out, name, default_dir)
-    log = log_path(d)
-    subsets = _subsets(len(DEFAULT_SPEEDS))
-    monitors: dict[tuple[int, str], KLMonitor] = {}
-    pending: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
-    current: dict[int, int] = {}
-    values: dict[tuple[int, str], dict[int, tuple[float, float]]] = {}
-    wanted = None if joints is None else set(joints)
-
-    def close(j: int, cycle: int) -> None:
-        parts = pending.pop(j, [])
-        if not parts:
-            return
-        tau = np.concatenate([p[0] for p in parts])
-        v = np.concatenate([p[1] for p in parts])
-        seg = np.concatenate([p[2] for p in parts])
-        for sub, pred in subsets.items():
-            key = (j, sub)
-            mon = monitors.setdefault(key, KLMonitor(n_nominal_cycles=10, n_grid=512, weights=WeightFunction(),
-                                                     window="cycle", min_samples=500, center=True))
-            m = pred(seg)
-            mon.add(tau[m], v[m])
-            res = mon.end_cycle(cycle)
-            values.setdefault(key, {})[cycle] = (_num(res.raw), _num(res.weighted))
-
-    ingest = Ingest(rate_hz=500.0)
-    for ids, data, dlc, ts in log_blocks(log, 65536):
-        block = ingest.process(ids, data, dlc, ts)
-        for run in block.runs:
-            if run.cycle is None:
-                continue
-            if cycles is not None and run.cycle >= cycles:
-                break
-            for j, smp in run.samples.items():
-                if wanted is not None and j not in wanted:
-                    continue
-                if current.get(j) is not None and current[j] != run.cycle:
-                    close(j, current[j])
-                current[j] = run.cycle
-                pending.setdefault(j, []).append((smp.torque, smp.speed, smp.segment))
-        if cycles is not None and all(c >= cycles for c in current.values()) and current:
-            break
-    for j, c in list(current.items()):
-        if cycles is None or c < cycles:
-            close(j, c)
-    result = {f"{j}|{sub}": {str(c): v for c, v in vals.items()} for (j, sub), vals in values.items()}
-    dest = out / name / "segments.json"      # never into the (read-only) external run's directory
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(json.dumps(result) + "\n")
-    print(f"segments of {name}: {len(values)} series written to {dest}")
-    return result
+    """KL distances of parts of the cycle, per cycle, from the decoded log of a finished run. Written (commit
+    583d7d1) for the KL monitor and ingest of the layout before commit 410bf98 (``edge_monitor.kl_monitor``:
+    a ``KLMonitor`` with keyword settings and ``add``; ``Ingest.process``); the agent's KL distances have
+    changed since (``KLConfig``: load and temperature compensation, ``min_speed``), so it is not ported: the
+    segment tables of docs/studies/DISTURBANCE_STUDY.md are that agent's."""
+    raise SystemExit("disturbance_study segments: written for the agent before commit 410bf98 (its KL monitor is "
+                     "gone); to rerun it, check out 9601fea and take this part from commit 583d7d1 "
+                     "(segments-table still reads the segments.json files it wrote)")
 
 
 def _load_segments(out: Path, default_dir: Path, name: str) -> dict[str, dict[int, dict[int, tuple[float, float]]]]:
@@ -791,7 +726,6 @@ def _log_series(vals: dict[int, tuple[float, float]], ch: int) -> tuple[np.ndarr
     cyc = np.array(sorted(vals))
     with np.errstate(divide="ignore", invalid="ignore"):
         return cyc, np.log(np.array([vals[c][ch] for c in cyc], dtype=float))
-
 
 def segments_table(out: Path, default_dir: Path, pairs: list[str], plot_dir: Path | None) -> None:
     """Per part of the cycle: σ of log KL in the noise run, and for each drift run the shift of log KL
