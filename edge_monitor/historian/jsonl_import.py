@@ -39,7 +39,7 @@ class ImportReport:
     lines: int = 0
     stored: int = 0
     duplicates: int = 0
-    derived_present: int = 0
+    friction_present: int = 0
     expired: int = 0
     bad_lines: Counter = field(default_factory=Counter)
     examples: list[str] = field(default_factory=list)
@@ -54,7 +54,7 @@ class ImportReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {"files": self.files, "lines": self.lines, "stored": self.stored, "duplicates": self.duplicates,
-                "derived_present": self.derived_present, "expired": self.expired,
+                "friction_present": self.friction_present, "expired": self.expired,
                 "bad_lines": dict(self.bad_lines), "bad_line_examples": self.examples,
                 "robots": sorted(self.robots), "unreadable": self.unreadable}
 
@@ -134,7 +134,7 @@ def _store(conn: Connection, rows: list[Row], report: ImportReport) -> None:
     result = insert_rows(conn, rows)
     report.stored += result.stored
     report.duplicates += result.duplicates
-    report.derived_present += result.derived_present
+    report.friction_present += result.friction_present
     report.expired += result.expired
     for row in rows:
         report.robots.add(row.robot)

@@ -172,7 +172,8 @@ class Writer:
         with self._lock:
             self.counts["stored"] += result.stored
             self.counts["duplicates"] += result.duplicates
-            self.counts["derived_present"] += result.derived_present
+            self.counts["friction_present"] += result.friction_present
+            self.counts["health_sampled_out"] += result.health_sampled_out
             self.counts["expired"] += result.expired
             self.counts["batches"] += 1
             for kind, n in result.by_kind.items():

@@ -2,8 +2,9 @@
 transaction.
 
 ``INSERT … ON CONFLICT (robot, kind, ident) DO NOTHING``: a row whose identity is stored already changes
-nothing and is counted as a duplicate (a friction curve made from a symptom, which the live friction
-sample may have brought before, is counted apart as ``derived_present``). Only rows stored now update
+nothing and is counted as a duplicate — apart from a friction curve (each comes twice: in its symptom and
+as the friction sample; ``friction_present``) and a health record of a sampling period already stored
+(``health_sampled_out``). Only rows stored now update
 ``joints`` (a joint's newest symptom), ``faults`` (a fault's newest alarm record) and ``agents`` (when
 each robot was last heard, its newest health record); each of those upserts keeps the newer of the two
 by the record's time, then cycle, so the order in which records arrive (live, from the publishers'
@@ -20,7 +21,7 @@ from dataclasses import dataclass, field
 
 from edge_monitor.historian.database import Connection
 from edge_monitor.historian.identity import THINNED_KINDS, Row
-from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM
+from edge_monitor.sinks.keys import ALARM, FRICTION, HEALTH, SYMPTOM
 
 WATERMARK = "thinned_before_day"
 
@@ -45,12 +46,14 @@ _HEALTH = "UPDATE agents SET health_at = ?, health = ? WHERE robot = ? AND (heal
 
 @dataclass
 class WriteResult:
-    """What one batch did: rows ``stored``, ``duplicates``, ``derived_present``, ``expired``; ``stored_rows``
+    """What one batch did: rows ``stored``, ``duplicates``, ``friction_present``, ``health_sampled_out``,
+    ``expired``; ``stored_rows``
     the rows stored (for latency and gap bookkeeping); ``stored_at`` the commit's clock [Unix s]."""
 
     stored: int = 0
     duplicates: int = 0
-    derived_present: int = 0
+    friction_present: int = 0
+    health_sampled_out: int = 0
     expired: int = 0
     by_kind: Counter = field(default_factory=Counter)
     stored_rows: list[Row] = field(default_factory=list)
@@ -69,7 +72,9 @@ def insert_rows(conn: Connection, rows: list[Row], clock=time.time) -> WriteResu
     stored_at = clock()
     with conn.transaction():
         first_open_day = watermark(conn)
-        for row in rows:
+        # one order for every writer (two historians on one PostgreSQL): rows, and the joints and faults
+        # they update, are locked in the same sequence, so concurrent batches never deadlock
+        for row in sorted(rows, key=_lock_order):
             if row.kind in THINNED_KINDS and row.day < first_open_day:
                 result.expired += 1
                 continue
@@ -79,17 +84,23 @@ def insert_rows(conn: Connection, rows: list[Row], clock=time.time) -> WriteResu
                 result.stored_rows.append(row)
                 result.by_kind[row.kind] += 1
                 _derived_tables(conn, row)
-            elif row.derived:
-                result.derived_present += 1
+            elif row.kind == FRICTION:
+                result.friction_present += 1
+            elif row.kind == HEALTH:
+                result.health_sampled_out += 1
             else:
                 result.duplicates += 1
         _heard(conn, rows)
-        for row in rows:
+        for row in sorted(rows, key=_lock_order):
             if row.kind == HEALTH:        # the newest health of every robot, also one sampled out
                 conn.run(_HEALTH, (row.at, row.body, row.robot, row.at))
     result.stored = len(result.stored_rows)
     result.stored_at = stored_at
     return result
+
+
+def _lock_order(row: Row) -> tuple[str, int, str, str]:
+    return row.robot, -1 if row.joint is None else row.joint, row.kind, row.ident
 
 
 def _derived_tables(conn: Connection, row: Row) -> None:
