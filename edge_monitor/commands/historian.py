@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "serve":
         return _serve(args, target, retention, sampling)
     try:
-        conn = connect(target)
+        conn = connect(target, create=args.action == "import")
     except (DatabaseError, SchemaTooNew) as exc:
         print(f"{NAME}: {exc}", file=sys.stderr)
         return EXIT_FAILURE

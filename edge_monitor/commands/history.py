@@ -95,7 +95,7 @@ def query_of_args(args: argparse.Namespace) -> HistoryQuery:
 def asker(args: argparse.Namespace) -> tuple[Any, Any]:
     """(ask, closer): the database when ``--db``/``--db-url-file`` is given, else the historian over Zenoh."""
     if args.db is not None or args.db_url_file is not None:
-        conn = connect(database_target(args))
+        conn = connect(database_target(args), create=False)
         return database_asker(conn), conn.close
     from edge_monitor.commands.common import zenoh_options_with_tls
     from edge_monitor.sinks.zenoh_session import open_session

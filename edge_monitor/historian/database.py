@@ -132,8 +132,12 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())[:300]
 
 
-def connect(target: DbTarget, migrate: bool = True) -> Connection:
-    """A new connection to ``target`` with its schema at the latest version (``migrate``)."""
+def connect(target: DbTarget, migrate: bool = True, create: bool = True) -> Connection:
+    """A new connection to ``target`` with its schema at the latest version (``migrate``); ``create``: a
+    SQLite file that does not exist is made (else: DatabaseUnavailable, for commands that only read)."""
+    if target.dialect == SQLITE and not create and not Path(str(target.path)).is_file():
+        raise DatabaseUnavailable(f"no history database at {target.path}: fix --db, or start `edge-monitor historian "
+                                  f"--db {target.path}` first")
     conn = Connection(_open_sqlite(target) if target.dialect == SQLITE else _open_postgres(target), target)
     if migrate:
         try:
