@@ -70,6 +70,8 @@ def insert_rows(conn: Connection, rows: list[Row], clock=time.time) -> WriteResu
     """Store ``rows`` in one transaction (all or nothing); raises DatabaseUnavailable / RecordRefused."""
     result = WriteResult()
     stored_at = clock()
+    rows, sampled_out = _one_health_per_period(rows)
+    result.health_sampled_out += sampled_out
     with conn.transaction():
         first_open_day = watermark(conn)
         # one order for every writer (two historians on one PostgreSQL): rows, and the joints and faults
@@ -91,12 +93,29 @@ def insert_rows(conn: Connection, rows: list[Row], clock=time.time) -> WriteResu
             else:
                 result.duplicates += 1
         _heard(conn, rows)
-        for row in sorted(rows, key=_lock_order):
-            if row.kind == HEALTH:        # the newest health of every robot, also one sampled out
-                conn.run(_HEALTH, (row.at, row.body, row.robot, row.at))
+        newest: dict[str, Row] = {}
+        for row in rows:
+            if row.kind == HEALTH and (row.robot not in newest or row.at >= newest[row.robot].at):
+                newest[row.robot] = row
+        for robot, row in sorted(newest.items()):      # the newest health of every robot, also one sampled out
+            conn.run(_HEALTH, (row.at, row.body, robot, row.at))
     result.stored = len(result.stored_rows)
     result.stored_at = stored_at
     return result
+
+
+def _one_health_per_period(rows: list[Row]) -> tuple[list[Row], int]:
+    """``rows`` with, of the health records of one robot and sampling period, only the first and the
+    robot's newest (health comes every few seconds: one round trip each would dominate the batch)."""
+    newest = {row.robot: row for row in rows if row.kind == HEALTH}
+    seen: set[tuple[str, str]] = set()
+    kept = []
+    for row in rows:
+        if row.kind == HEALTH and (row.robot, row.ident) in seen and newest[row.robot] is not row:
+            continue
+        seen.add((row.robot, row.ident))
+        kept.append(row)
+    return kept, len(rows) - len(kept)
 
 
 def _lock_order(row: Row) -> tuple[str, int, str, str]:
