@@ -64,8 +64,9 @@ def zenoh_options_with_tls(args: argparse.Namespace) -> ZenohOptions:
 
     from edge_monitor.sinks.zenoh_security import TlsFiles
     options = zenoh_options(args)
-    if args.tls_ca or args.tls_cert or args.tls_key:
-        options = replace(options, tls=TlsFiles.from_paths(args.tls_ca, args.tls_cert, args.tls_key))
+    files = [getattr(args, name, None) for name in ("tls_ca", "tls_cert", "tls_key")]
+    if any(files):
+        options = replace(options, tls=TlsFiles.from_paths(*files))
     options.to_config()
     return options
 

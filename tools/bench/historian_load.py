@@ -125,10 +125,10 @@ def database_rows(db: str, env: dict[str, str], after: float = 0.0) -> tuple[dic
     if db.startswith("postgresql"):
         import psycopg
         with psycopg.connect(db, password=env["PGPASSWORD"]) as conn:
-            kinds = dict(conn.execute("SELECT kind, COUNT(*) FROM records GROUP BY kind").fetchall())
+            kinds: dict[str, int] = dict(conn.execute("SELECT kind, COUNT(*) FROM records GROUP BY kind").fetchall())
             lat = [r[0] for r in conn.execute("SELECT stored - at FROM records WHERE kind = 'symptom' AND at > %s",
                                                   (after,)).fetchall()]
-            size = conn.execute("SELECT pg_database_size(current_database())").fetchone()[0]
+            size = (conn.execute("SELECT pg_database_size(current_database())").fetchone() or (0,))[0]
         return kinds, lat, int(size)
     import sqlite3
     with sqlite3.connect(db) as conn:

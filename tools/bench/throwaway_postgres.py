@@ -132,6 +132,7 @@ class ThrowawayPostgres:
                   "-t", str(int(START_TIMEOUT_S)), "start")
 
     def _run(self, tool: str, *args: str) -> None:
+        assert self.bin is not None
         done = subprocess.run(self._command(str(self.bin / tool), *args), capture_output=True, text=True,
                               timeout=START_TIMEOUT_S * 2)
         if done.returncode != 0:
@@ -140,7 +141,8 @@ class ThrowawayPostgres:
     def pid(self) -> int | None:
         """The postmaster's process id (for kill -9 in fault runs)."""
         try:
-            return int((self.folder / "data" / "postmaster.pid").read_text().split()[0])  # type: ignore[operator]
+            assert self.folder is not None
+            return int((self.folder / "data" / "postmaster.pid").read_text().split()[0])
         except (OSError, ValueError, IndexError, TypeError):
             return None
 
