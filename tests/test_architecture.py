@@ -19,7 +19,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("edge_monitor.features",),
     ("edge_monitor.sinks",),
     ("edge_monitor.sources",),          # bytes → per-joint samples; the pipeline takes them from here
-    ("edge_monitor.pipeline",),
+    ("edge_monitor.pipeline", "edge_monitor.historian"),
     # how the agent is built and run: the builder, replay's monitoring process, run failures → exit codes
     ("edge_monitor.config", "edge_monitor.app", "edge_monitor.monitor_process", "edge_monitor.run_failures"),
     ("edge_monitor.offline",),
