@@ -66,13 +66,14 @@ class DecisionConfig:
     ``pf``/``pf_joint`` (expert option) instead set the per-test false-alarm probability of the asymptotic threshold of
     the scalar / vector quantities. ``density`` applies to scalar quantities, ``density_joint`` to the
     vector ones: a GCE mixture of 60 points in 3-d is neither sparse nor smooth, the KDE is.
-    ``temperature_slack`` (input → c [σ/√°C]): while the joint's temperature is d °C outside the span a
-    detector's nominal was learned in, it tests its value less c·√d nominal standard deviations per input
-    (:meth:`~edge_monitor.pipeline.nominal_temperature.NominalSpans.slack`); ``warm_up_hold`` (quantities)
-    makes their warm-up detectors hold instead while the joint is warmer than that span by more than
-    ``warm_up_hold_margin`` [°C], as before 2026-11-28.
-    ``calibrate_at``: where the calibration simulates each detector (default at the drift allowance);
-    ``"healthy_drift"`` (a study option) uses ``healthy_drift`` (input → (mean, sd) [σ]) instead.
+    ``temperature_slack`` (input → the fleet's law [mean, sd] of a [σ/√°C]): while the joint's temperature is
+    d °C outside the span a detector's nominal was learned in, it tests its value less its joint's learned
+    a·√d nominal standard deviations per input (:mod:`~edge_monitor.pipeline.temperature_slack`);
+    ``warm_up_hold`` (quantities) makes their detectors hold instead (warm-up: warmer than that span by more
+    than ``warm_up_hold_margin`` [°C], or colder; steady: colder).
+    ``calibrate_at``: where the calibration simulates each warm-up detector (default ``"healthy_drift"``: a fleet
+    whose joints drift as ``healthy_drift`` (input → (mean, sd) [σ]) says, beyond the temperature slack;
+    ``"boundary"``: every joint at the drift allowance, a bound; ``"nominal"``: no drift).
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
     learns its nominal again, from ``steady_nominal`` cycles with the ``steady_density`` family after a
@@ -103,7 +104,7 @@ class DecisionConfig:
     clip_sigma: float = 3.0
     calibration_draws: int = CalibrationBudget().draws
     calibration_steps: int = CalibrationBudget().max_steps
-    calibrate_at: str = "boundary"
+    calibrate_at: str = "healthy_drift"
     healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
     steady_relearn: bool = True
     steady_calibrate_at: str = "healthy_drift"
@@ -118,7 +119,7 @@ class DecisionConfig:
     settling_max_rate: float = SettlingConfig().max_rate
     warm_up_hold: tuple[str, ...] = ()
     warm_up_hold_margin: float = 6.0
-    temperature_slack: Mapping[str, float] = field(default_factory=lambda: dict(TEMPERATURE_SLACK))
+    temperature_slack: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(TEMPERATURE_SLACK))
 
     @property
     def settling(self) -> SettlingConfig:

@@ -87,7 +87,7 @@ class DetectorBank:
         self.temperature_source = MOTOR_TEMPERATURE
         self.spans = NominalSpans(warm_up_hold=config.warm_up_hold,   # the temperatures of the nominals (holds)
                                   warm_margin=config.warm_up_hold_margin, warm_side=config.steady_relearn,
-                                  slack=config.temperature_slack)
+                                  slack_prior=config.temperature_slack)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
         self.reasons: dict[str, str] = {}   # this cycle's coverage reason per quantity (pipeline/coverage.py)
 
@@ -159,6 +159,8 @@ class DetectorBank:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             slack = None if held else self.spans.slack(quantity, spec.inputs, detector, self.smoothed)
             decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle, slack)
+            if decision.statistic is not None and not held:
+                self.spans.learn(quantity, spec.inputs, detector, value, self.smoothed)
             self.reasons[quantity] = coverage_reason(decision, learning, all(map(math.isfinite, value)), held)
             self.spans.track(quantity, detector, collecting, detector.fits > fits, self._span_temperature)
             decisions[quantity] = decision
@@ -260,7 +262,8 @@ class DetectorBank:
             HoldTemperature.replayed(self.settling.recent())      # saved before the holds smoothed
         self.spans = NominalSpans.from_state(state.get(SPANS_KEY, state.get(OLD_SPANS_KEY)), self.config.warm_up_hold,
                                              self.config.warm_up_hold_margin, self.config.steady_relearn,
-                                             self.config.temperature_slack)
+                                             self.config.temperature_slack,
+                                             {q: QUANTITIES[q].inputs for q in self.detectors})
         for quantity in self.detectors:
             saved = state.get(quantity)
             if saved is None:

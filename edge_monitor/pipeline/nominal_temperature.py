@@ -27,10 +27,12 @@ at d = 16 °C) — far less than a hold, which such a joint's wear used to trip 
 
 from __future__ import annotations
 
-import math
 from typing import Any, Collection, Mapping, Sequence
 
+import numpy as np
+
 from edge_monitor.pipeline.operating_range import Span, is_span
+from edge_monitor.pipeline.temperature_slack import SlackProfile, prior_for, standardized
 from edge_monitor.stats.sequential_detector import SequentialDetector
 
 #: The covariate whose span is kept (the operating range's name for it, and its margin).
@@ -47,10 +49,11 @@ class NominalSpans:
 
     def __init__(self, learned: dict[str, Span] | None = None, collecting: dict[str, Span] | None = None,
                  warm_up_hold: Collection[str] = (), warm_margin: float = 0.0, warm_side: bool = True,
-                 slack: Mapping[str, float] | None = None) -> None:
+                 slack_prior: Mapping[str, tuple[float, float]] | None = None) -> None:
         self.learned: dict[str, Span] = dict(learned or {})
         self.collecting: dict[str, Span] = dict(collecting or {})
-        self.slack_per_root_degree = dict(slack or {})   # per detector input [σ/√°C] (:meth:`slack`)
+        self.slack_prior = dict(slack_prior or {})      # per detector input: the fleet's law (mean, sd) [σ/√°C]
+        self.profiles: dict[str, SlackProfile] = {}     # per quantity: its joint's law, learned (:meth:`learn`)
         self.warm_up_hold = frozenset(warm_up_hold)
         self.warm_margin = float(warm_margin)      # the least margin [°C] above a warm-up span before it holds
         self.warm_side = warm_side                 # False without the steady stage: nothing would end that hold
@@ -82,25 +85,42 @@ class NominalSpans:
                     f"the warm-up nominal was learned in (cold again after a stop); monitoring resumes when it is back")
         return ""
 
-    def distance(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> float:
-        """How far [°C] ``temperature`` lies outside the span ``quantity``'s monitoring nominal was learned in
-        (0 inside it, with no span, no temperature, or while the detector learns)."""
+    def outside(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> tuple[str, float]:
+        """Which side of the span ``quantity``'s monitoring nominal was learned in ``temperature`` lies on
+        ("warm" or "cold"), and how far [°C] (0.0 inside it, with no span, no temperature, or while the
+        detector learns)."""
         span = self.learned.get(quantity)
         if span is None or span.empty or temperature is None or detector.state != "monitoring":
-            return 0.0
-        return max(0.0, temperature - span.hi, span.lo - temperature)
+            return "warm", 0.0
+        if temperature > span.hi:
+            return "warm", temperature - span.hi
+        return "cold", max(0.0, span.lo - temperature)
 
     def slack(self, quantity: str, inputs: Sequence[str], detector: SequentialDetector,
               temperature: float | None) -> tuple[float, ...] | None:
-        """The drift [nominal standard deviations] a healthy joint's ``inputs`` may show at ``temperature``
-        beyond what ``quantity``'s detector learned: ``c·√d`` per input, ``d`` the :meth:`distance` [°C] and
-        ``c`` its :attr:`slack_per_root_degree` (0 for an input without one). The detector tests the value
-        less this slack (docs/DETECTION.md, "Watching while the joint warms"); None when there is none."""
-        d = self.distance(quantity, detector, temperature)
-        if d <= 0.0:
-            return None
-        out = tuple(self.slack_per_root_degree.get(name, 0.0) * math.sqrt(d) for name in inputs)
-        return out if any(out) else None
+        """The drift [nominal standard deviations] ``quantity``'s ``inputs`` may show at ``temperature``
+        beyond what its detector learned (:class:`~edge_monitor.pipeline.temperature_slack.SlackProfile`: the
+        joint's own law, learned from the fleet's); the detector tests the value less it. None when there is
+        none (inside the span, no temperature, no law)."""
+        side, d = self.outside(quantity, detector, temperature)
+        return self._profile(quantity, inputs).slack(side, d) if d > 0 else None
+
+    def learn(self, quantity: str, inputs: Sequence[str], detector: SequentialDetector, value: Sequence[float],
+              temperature: float | None) -> None:
+        """A cycle ``quantity``'s detector tested (no alarm latched) at ``temperature``: its value, in standard
+        deviations of the nominal, teaches the joint's law of that side (inside the span: nothing)."""
+        side, d = self.outside(quantity, detector, temperature)
+        density = detector.density
+        if d <= 0 or density is None or detector.alarmed:
+            return
+        vec = np.asarray(value, dtype=float).ravel()
+        vec = vec if detector.transform is None else detector.transform.apply(vec)
+        self._profile(quantity, inputs).update(side, d, standardized(vec, density.mean, density.spread))
+
+    def _profile(self, quantity: str, inputs: Sequence[str]) -> SlackProfile:
+        if quantity not in self.profiles:
+            self.profiles[quantity] = SlackProfile(prior_for(inputs, self.slack_prior))
+        return self.profiles[quantity]
 
     def track(self, quantity: str, detector: SequentialDetector, collected: bool, fitted: bool,
               temperature: float | None) -> None:
@@ -115,6 +135,7 @@ class NominalSpans:
         if temperature is not None:
             span.add(temperature)
         if fitted:
+            self.profiles.pop(quantity, None)         # a new nominal: its law is learned again from the prior
             span = self.collecting.pop(quantity)
             if span.empty:
                 self.learned.pop(quantity, None)
@@ -127,6 +148,7 @@ class NominalSpans:
         """``quantity``'s detector learns from scratch (its saved state was not usable): no span."""
         self.learned.pop(quantity, None)
         self.collecting.pop(quantity, None)
+        self.profiles.pop(quantity, None)
 
     def restart(self, quantity: str) -> None:
         """``quantity``'s detector starts collecting its nominal over (what it collected is dropped)."""
@@ -136,21 +158,30 @@ class NominalSpans:
         """A declared maintenance: every detector learns again."""
         self.learned.clear()
         self.collecting.clear()
+        self.profiles.clear()
 
     def state_dict(self) -> dict[str, Any]:
-        """Non-empty spans only (strict JSON: an empty span is infinite)."""
-        return {key: {q: [s.lo, s.hi] for q, s in spans.items() if not s.empty}
-                for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
+        """Non-empty spans only (strict JSON: an empty span is infinite), and the learned laws."""
+        out: dict[str, Any] = {key: {q: [s.lo, s.hi] for q, s in spans.items() if not s.empty}
+                               for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
+        out["profiles"] = {q: p.state_dict() for q, p in self.profiles.items()}
+        return out
 
     @classmethod
     def from_state(cls, state: Any, warm_up_hold: Collection[str] = (), warm_margin: float = 0.0,
-                   warm_side: bool = True, slack: Mapping[str, float] | None = None) -> "NominalSpans":
+                   warm_side: bool = True, slack_prior: Mapping[str, tuple[float, float]] | None = None,
+                   inputs: Mapping[str, Sequence[str]] | None = None) -> "NominalSpans":
         """From :meth:`state_dict`; anything else (a state saved before spans were kept, a damaged span)
         is left out: no hold for that detector. (A state saved before 2026-11-27 holds only the steady
         nominals' spans; its warm-up detectors do not hold until they learn again.)"""
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
-        return cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin, warm_side,
-                   slack)
+        out = cls(_spans(saved.get("learned")), _spans(saved.get("collecting")), warm_up_hold, warm_margin, warm_side,
+                  slack_prior)
+        profiles: dict[str, Any] = saved["profiles"] if isinstance(saved.get("profiles"), dict) else {}
+        for quantity, names in (inputs or {}).items():
+            if quantity in profiles and quantity in out.learned:
+                out.profiles[quantity] = SlackProfile.from_state(prior_for(names, out.slack_prior), profiles[quantity])
+        return out
 
 
 def _spans(saved: Any) -> dict[str, Span]:
