@@ -12,8 +12,10 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Iterator
+
+import numpy as np
 
 from edge_monitor.config import config_from_mapping
 from edge_monitor.offline.fast_path import run_cycles
@@ -43,6 +45,7 @@ class RunSpec:
     overrides: Overrides = ()
     progress: int = 50
     scenario: str | None = None
+    motor_temperature: bool = True      # False: the controller sends none (every status frame's is removed)
 
     def sim_config(self) -> SimConfig:
         return scenario_config(self.scenario, {"seed": self.seed, "joints": self.joints, "cycles": self.cycles},
@@ -67,20 +70,31 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             if spec.progress and signals.cycle % spec.progress == 0 and signals.cycle:
                 log.info("seed %d: cycle %d/%d, %d alarms, %.0f s", spec.seed, signals.cycle, sim.cycles,
                          len(agent.stats.alarms), time.monotonic() - started)
-            yield signals
+            yield signals if spec.motor_temperature else without_motor_temperature(signals)
 
     tally = DecisionTally()
+    stages: dict[tuple[int, int, str], str | None] = {}
     for symptom in run_cycles(agent, cycles()):
         tally.add(symptom.joint, symptom.cycle, symptom.decisions)
+        stages.update({(symptom.joint, symptom.cycle, a.quantity):
+                       (symptom.decisions[a.quantity].calibration or {}).get("stage") for a in symptom.alarms})
     for alarm in agent.stats.alarms:
         joint, cycle = int(alarm["joint"]), int(alarm["cycle"])
         alarms.append({"joint": joint, "cycle": cycle, "quantity": alarm["quantity"],
-                       "wear": wear_truth.get((joint, cycle), math.nan)})
+                       "wear": wear_truth.get((joint, cycle), math.nan),
+                       "stage": stages.get((joint, cycle, alarm["quantity"]))})
     worn = sorted({j for (j, _), w in wear_truth.items() if w > 0})
     return {"seed": spec.seed, "alarms": alarms, "worn": worn, **tally.fields(worn),
             "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(sim.cycles) if (j, c) in wear_truth]
                            for j in worn},
-            "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started}
+            "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started,
+            "coverage": {str(j): m.coverage_summary() for j, m in agent.joints.items()}}
+
+
+def without_motor_temperature(signals: CycleSignals) -> CycleSignals:
+    """The cycle as a controller that sends no motor temperature sends it."""
+    joints = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]
+    return replace(signals, joints=joints)
 
 
 def run_robot_series(spec: RunSpec) -> dict[str, Any]:
