@@ -54,7 +54,7 @@ def coverage_rows(run: dict[str, Any]) -> list[dict[str, Any]]:
 
 def false_alarms(runs: list[dict[str, Any]], arl0: float) -> dict[str, dict[str, float]]:
     """Per stage: false alarms of unworn joints, their tested detector-cycles, and those due at ``arl0``."""
-    out = {stage: {"alarms": 0, "cycles": 0} for stage in ("warm-up", "steady")}
+    out: dict[str, dict[str, float]] = {stage: {"alarms": 0, "cycles": 0} for stage in ("warm-up", "steady")}
     for run in runs:
         worn = set(run["worn"])
         for joint, counts in run["monitored"].items():
