@@ -20,6 +20,7 @@ import numpy as np
 from edge_monitor.config import config_from_mapping
 from edge_monitor.offline.fast_path import run_cycles
 from edge_monitor.pipeline.agent import Agent
+from edge_monitor.pipeline.coverage import Coverage
 from sim_controller.config import SimConfig
 from sim_controller.cycle_mode import CycleSignals, cycle_signals
 from sim_controller.scenario import scenario_config
@@ -112,13 +113,18 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     tally = DecisionTally()
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[int, list[float]] = {}
+    coverage: dict[str, Any] = {}
     for joint, rows in series.items():
         truth = wear_truth.setdefault(joint, [float(rows[0]["wear"])] * sim.cycles if rows else [])
-        for step in replay_bank(new_bank(decision), rows, joint, "robot"):
+        bank, tested = new_bank(decision), Coverage(decision.quantities)
+        for step in replay_bank(bank, rows, joint, "robot"):
             truth[step.cycle] = float(step.row["wear"])
             tally.add(joint, step.cycle, step.decisions)
+            tested.update(bank.reasons)
             alarms += [{"joint": joint, "cycle": step.cycle, "quantity": a.quantity, "wear": float(step.row["wear"]),
                         "stage": (step.decisions[a.quantity].calibration or {}).get("stage")} for a in step.raised]
+        coverage[str(joint)] = tested.summary()
     worn = sorted(j for j, w in wear_truth.items() if w and max(w) > 0)
     return {"seed": spec.seed, "alarms": alarms, "worn": worn, **tally.fields(worn),
-            "wear_truth": {str(j): wear_truth[j] for j in worn}, "seconds": time.monotonic() - started}
+            "wear_truth": {str(j): wear_truth[j] for j in worn}, "seconds": time.monotonic() - started,
+            "coverage": coverage}

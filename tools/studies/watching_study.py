@@ -7,8 +7,9 @@ joint (cycle, detector, stage, true wear); the false alarms of the unworn joints
 the stated run length.
 
 Usage: ``python tools/studies/watching_study.py --seeds 7101-7104 [--cycles 1000] [--scenario plant_week]
-[--no-motor-temperature] [--wear-ramp 2:300:450:0:50 ...] [--set decision.budget_period=week] [--jobs 2]
-[--json OUT]``; one status line per robot every 200 cycles.
+[--no-motor-temperature] [--wear-ramp 2:300:450:0:50 ...] [--set decision.budget_period=week] [--from-series]
+[--jobs 2] [--json OUT]``; one status line per robot every 200 cycles. ``--from-series`` runs only the detectors
+over kept per-cycle quantities (studies/series.py), for many robots or many settings.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
-from studies.robots import RunSpec, run_robot  # noqa: E402
+from studies.robots import RunSpec, run_robot, run_robot_series  # noqa: E402
 from studies.settings import parse_seeds, parse_set, settings_from  # noqa: E402
 from studies.statistics import poisson_interval  # noqa: E402
 from studies.tally import earliest_alarm  # noqa: E402
@@ -106,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO")
     parser.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
                         help="agent setting (TOML value), e.g. decision.budget_period=\"week\"")
+    parser.add_argument("--from-series", action="store_true",
+                        help="only the detectors, over the per-cycle quantities studies/series.py keeps (computed once "
+                             "per code version; with motor temperature only, wear from the scenario file only)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write the run records here")
     args = parser.parse_args(argv)
@@ -119,8 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     specs = [RunSpec(seed, cycles, wear_ramps=tuple(args.wear_ramp), overrides=overrides, progress=200,
                      scenario=args.scenario, motor_temperature=not args.no_motor_temperature)
              for seed in parse_seeds(args.seeds)]
+    if args.from_series and (args.no_motor_temperature or args.wear_ramp):
+        parser.error("--from-series keeps the motor temperature and takes wear from the scenario file only")
     with ProcessPoolExecutor(max(1, min(args.jobs, len(specs)))) as pool:
-        runs = list(pool.map(run_robot, specs))
+        runs = list(pool.map(run_robot_series if args.from_series else run_robot, specs))
     print(report(runs, arl0))
     if args.json:
         args.json.write_text(json.dumps(runs, indent=1) + "\n")
