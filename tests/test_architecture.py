@@ -17,7 +17,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("edge_monitor.stats",),
     ("edge_monitor.features",),
     ("edge_monitor.sinks",),
-    ("edge_monitor.pipeline",),
+    ("edge_monitor.pipeline", "edge_monitor.historian"),
     ("edge_monitor.config", "edge_monitor.app"),
     ("edge_monitor.offline",),
     ("edge_monitor.commands", "edge_monitor.cli", "edge_monitor"),

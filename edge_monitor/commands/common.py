@@ -49,6 +49,28 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh JSON5 config file; the flags above override it")
 
 
+def add_tls_arguments(parser: argparse.ArgumentParser, who: str) -> None:
+    """``--tls-ca/--tls-cert/--tls-key``: connect to the router over TLS as ``who`` (docs/SECURITY.md)."""
+    tls = parser.add_argument_group("TLS", f"connect to the router over TLS (docs/SECURITY.md), as {who}")
+    tls.add_argument("--tls-ca", metavar="PEM", help="CA certificate the router's certificate is checked against")
+    tls.add_argument("--tls-cert", metavar="PEM", help=f"{who}'s certificate (mTLS identity)")
+    tls.add_argument("--tls-key", metavar="PEM", help="its private key")
+
+
+def zenoh_options_with_tls(args: argparse.Namespace) -> ZenohOptions:
+    """:func:`zenoh_options` plus the ``--tls-*`` files; ZenohSetupError for a bad config file or a plain
+    endpoint with TLS."""
+    from dataclasses import replace
+
+    from edge_monitor.sinks.zenoh_security import TlsFiles
+    options = zenoh_options(args)
+    files = [getattr(args, name, None) for name in ("tls_ca", "tls_cert", "tls_key")]
+    if any(files):
+        options = replace(options, tls=TlsFiles.from_paths(*files))
+    options.to_config()
+    return options
+
+
 def add_subscriber_arguments(parser: argparse.ArgumentParser, counted: str) -> None:
     """``--no-history``, ``--duration S`` and ``--count N`` of a command that follows what agents publish."""
     parser.add_argument("--no-history", action="store_true",
