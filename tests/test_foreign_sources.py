@@ -16,9 +16,9 @@ import pytest
 
 from edge_monitor.config import load_config
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.cia402_source import Cia402Decoder
-from edge_monitor.pipeline.log_source import log_blocks
-from edge_monitor.pipeline.sources import open_source
+from edge_monitor.sources.cia402_source import Cia402Decoder
+from edge_monitor.sources.foreign_source import open_source
+from edge_monitor.sources.log_source import log_blocks
 from protocol.signal_mapping import load_mapping
 
 from foreign_mappings import SPEEDS, mapping

@@ -54,7 +54,7 @@ def installed(tmp_path_factory) -> dict:
     names = zipfile.ZipFile(wheel).namelist()
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     assert "edge_monitor/schemas/symptom.schema.json" in names and "protocol/dbc/robot_joints.dbc" in names
-    assert not any(n.startswith(("tests/", "tools/")) for n in names)
+    assert not any(n.startswith(("tests/", "tools/", "studies/")) for n in names)
     venv = root / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     done = subprocess.run([str(venv / "bin" / "pip"), "install", "-q", str(wheel)], capture_output=True, text=True,

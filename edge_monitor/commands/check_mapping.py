@@ -21,11 +21,11 @@ from typing import Any, Iterator
 import numpy as np
 
 from edge_monitor.commands.common import load_agent_config, print_json
-from edge_monitor.pipeline.frame_source import FrameArrays
-from edge_monitor.pipeline.ingest import Ingest
-from edge_monitor.pipeline.log_source import LogReadError, log_blocks
-from edge_monitor.pipeline.samples import DecodedSamples, IngestBlock, JointColumns, StatusColumns
-from edge_monitor.pipeline.signal_check import SignalCheck
+from edge_monitor.sources.frame_source import FrameArrays
+from edge_monitor.sources.ingest import Ingest
+from edge_monitor.sources.log_source import LogReadError, log_blocks
+from edge_monitor.sources.samples import DecodedSamples, IngestBlock, JointColumns, StatusColumns
+from edge_monitor.sources.signal_check import SignalCheck
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, add_can_arguments, can_options
 
 FALLBACK = {"temperature": "site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
@@ -78,7 +78,8 @@ def _prepare(cfg: Any, mapping_path: str | None) -> tuple[SignalCheck, Any]:
         ingest = Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
         return SignalCheck([], cfg.rate_hz, None, cfg.segmentation), lambda *block: _native(ingest.update(*block),
                                                                                           cfg.rate_hz)
-    from edge_monitor.pipeline.sources import config_for, decoder_for, open_source
+    from edge_monitor.pipeline.agent_config import config_for
+    from edge_monitor.sources.foreign_source import decoder_for, open_source
     from protocol.signal_mapping import load_mapping
     mapping = load_mapping(mapping_path)
     cfg = config_for(cfg, mapping)
@@ -106,7 +107,7 @@ def _native(block: IngestBlock, rate_hz: float) -> DecodedSamples:
 
 def _decoded(args: argparse.Namespace, decode: Any, cfg: Any) -> Iterator[DecodedSamples]:
     if not callable(decode):                  # a trace mapping: read the table
-        from edge_monitor.pipeline.trace_source import decoded_batches
+        from edge_monitor.sources.trace_source import decoded_batches
         if not args.capture:
             raise ValueError("a trace mapping checks a table: give the CSV/Parquet file")
         for decoded in decoded_batches(args.capture, decode):

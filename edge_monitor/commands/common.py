@@ -13,7 +13,6 @@ from protocol.console import EXIT_FAILURE, EXIT_USAGE
 
 if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
     from edge_monitor.config import AgentConfig
-    from edge_monitor.pipeline.agent import Agent
     from edge_monitor.pipeline.decision_config import DecisionConfig
     from edge_monitor.pipeline.state_store import StateStore
 
@@ -120,17 +119,6 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
         raise SystemExit(EXIT_FAILURE) from None
 
 
-def output_failures(agent: Agent, store: StateStore | None) -> list[str]:
-    """What the agent could not write (each makes ``run``/``replay`` exit with code 1)."""
-    problems = []
-    if agent.sink_errors():
-        problems.append(f"{agent.sink_errors()} record(s) could not be written to an output (sink_errors; "
-                        "e.g. a full disk under the JSONL file)")
-    if store is not None and store.last_save_error:
-        problems.append(f"the last state save failed ({store.last_save_error}); the previous state file is kept")
-    return problems
-
-
 def print_json(obj: Any) -> None:
     sys.stdout.write(to_json(obj, indent=2, separators=(",", ": ")) + "\n")
 
@@ -185,7 +173,8 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
     does not load or does not match its DBC/EDS raises MappingError (a ValueError: exit code 2)."""
     if not path:
         return cfg, None
-    from edge_monitor.pipeline.sources import config_for, open_source
+    from edge_monitor.pipeline.agent_config import config_for
+    from edge_monitor.sources.foreign_source import open_source
     from protocol.signal_mapping import load_mapping
     try:
         mapping = load_mapping(path)
@@ -197,13 +186,3 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
     except OSError as exc:          # a mapping, DBC or EDS file that cannot be read
         print(f"edge-monitor: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_FAILURE) from None
-
-
-def setup_failure(command: str, exc: Exception) -> int:
-    """Report an output that could not be opened; the exit code by the README's rule: 1 when valid
-    options met a runtime failure (unreachable router, occupied port, unwritable recording, a JSONL
-    file that cannot be opened: an ``OSError``), else 2."""
-    from edge_monitor.sinks.rerun_view import RerunUnavailable
-    from edge_monitor.sinks.zenoh_session import ZenohUnavailable
-    print(f"edge-monitor {command}: {exc}", file=sys.stderr)
-    return EXIT_FAILURE if isinstance(exc, (OSError, ZenohUnavailable, RerunUnavailable)) else EXIT_USAGE

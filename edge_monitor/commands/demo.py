@@ -22,20 +22,21 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import open_state_store, setup_failure, summary_table
+from edge_monitor.commands.common import open_state_store, summary_table
 from edge_monitor.errors import ConfigError
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.decision_config import DecisionConfig
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
+from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, verbosity
 
 log = logging.getLogger(__name__)

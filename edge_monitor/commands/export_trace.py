@@ -9,10 +9,10 @@ import sys
 from pathlib import Path
 
 from edge_monitor.commands.common import load_agent_config, open_mapped_source
-from edge_monitor.pipeline.ingest import Ingest
-from edge_monitor.pipeline.log_source import LogReadError, log_blocks
-from edge_monitor.pipeline.samples import IngestBlock
-from edge_monitor.pipeline.trace_export import TraceWriter
+from edge_monitor.sources.ingest import Ingest
+from edge_monitor.sources.log_source import LogReadError, log_blocks
+from edge_monitor.sources.samples import IngestBlock
+from edge_monitor.sources.trace_export import TraceWriter
 from protocol.console import EXIT_FAILURE
 
 

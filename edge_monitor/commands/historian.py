@@ -23,7 +23,6 @@ from edge_monitor.commands.common import (
     add_tls_arguments,
     add_zenoh_arguments,
     print_json,
-    setup_failure,
     zenoh_options_with_tls,
 )
 from edge_monitor.historian.database import DatabaseError, connect
@@ -34,6 +33,7 @@ from edge_monitor.historian.migrations import SchemaTooNew
 from edge_monitor.historian.retention import Retention, thin
 from edge_monitor.historian.times import TimeFormatError, parse_time
 from edge_monitor.historian.writer import DEFAULT_QUEUE
+from edge_monitor.run_failures import setup_failure
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals, verbosity
 
 log = logging.getLogger(__name__)

@@ -18,7 +18,7 @@ import csv
 import sys
 from typing import Any, Iterator
 
-from edge_monitor.commands.common import add_tls_arguments, add_zenoh_arguments, print_json, setup_failure
+from edge_monitor.commands.common import add_tls_arguments, add_zenoh_arguments, print_json
 from edge_monitor.commands.historian import add_database_arguments, database_target
 from edge_monitor.historian.client import HistoryRefused, HistoryUnavailable, database_asker, pages, zenoh_asker
 from edge_monitor.historian.database import DatabaseError, connect
@@ -26,6 +26,7 @@ from edge_monitor.historian.identity import STORED_KINDS
 from edge_monitor.historian.query_spec import MAX_FLEET_LIMIT, RANKS, HistoryQuery, QueryError
 from edge_monitor.historian.times import TimeFormatError, parse_age, parse_time
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import setup_failure
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError
 
 NAME = "edge-monitor history"

@@ -6,9 +6,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from edge_monitor.commands.common import setup_failure
 from edge_monitor.historian.client import HistoryRefused, HistoryUnavailable
 from edge_monitor.historian.database import DatabaseError
+from edge_monitor.run_failures import setup_failure
 from protocol.console import EXIT_FAILURE, UsageError
 
 #: Most records one view draws (a robot's year: 6 joints × 300 cycles × 365 ≈ 660 000).

@@ -25,10 +25,10 @@ from typing import Any
 from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
-    setup_failure,
     zenoh_options,
 )
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import setup_failure
 from edge_monitor.sinks.keys import PREFIX, check_robot_name
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import open_session

@@ -29,14 +29,13 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
-    output_failures,
-    setup_failure,
     zenoh_options,
 )
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.jsonl import JsonlOpenError
+from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,

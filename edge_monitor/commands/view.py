@@ -16,10 +16,10 @@ import time
 from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
-    setup_failure,
     zenoh_options,
 )
 from edge_monitor.commands.history_view import add_history_view_arguments, draw_history
+from edge_monitor.run_failures import setup_failure
 from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
 from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from edge_monitor.errors import require
 from edge_monitor.features.joint_model_learning import ModelConfig
@@ -30,6 +30,9 @@ from edge_monitor.sinks.jsonl import Rotation
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import DEFAULT_PARAMS, FrictionParams
 from protocol.frames import MAX_JOINTS
+
+if TYPE_CHECKING:
+    from protocol.signal_mapping import SignalMapping
 
 #: Bounds of the sizes a config may ask for (memory and time stay bounded whatever the file says).
 MAX_QUEUE = 10_000_000          # frames
@@ -142,3 +145,15 @@ class AgentConfig:
                 pass
         kept = sorted("friction" if k == "joint_friction" else k for k in changes)
         return (replace(self, **changes) if changes else self), kept
+
+
+def config_for(config: AgentConfig, mapping: SignalMapping) -> AgentConfig:
+    """The agent config a mapping file needs: its rate (the tick rate the samples' times are converted
+    to; a mapping that states ``rate_hz`` overrides the config's), its joints, and (cycles from a trigger)
+    the designed speeds as the plateau levels (the trigger marks the cycle, not the levels)."""
+    out = config
+    if mapping.rate_hz is not None:
+        out = replace(out, rate_hz=mapping.rate_hz)
+    if mapping.cycles.source == "trigger" and not out.segmentation.speeds:
+        out = replace(out, segmentation=replace(out.segmentation, speeds=mapping.cycles.speeds))
+    return out

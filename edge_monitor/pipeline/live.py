@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.records import Health
+from edge_monitor.sources.frame_source import LiveSource
 
 log = logging.getLogger(__name__)
 status_log = logging.getLogger("edge_monitor.status")
