@@ -1,0 +1,122 @@
+#!/usr/bin/env python3
+"""How a healthy joint's detector inputs drift with the temperature while it warms, and what the learned
+temperature slack leaves of it (docs/DETECTION.md, "Watching while the joint warms").
+
+Reads the per-cycle quantities studies.series keeps (computed there if missing). Per joint the warm-up nominal
+is its first ``decision.n_nominal`` values, the span the smoothed motor temperature's over those cycles
+(edge_monitor/pipeline/hold_temperature.py), d the smoothed temperature's distance outside it; over the warm-up
+(the first ``--until`` rows) each input in standard deviations of its nominal is fitted by z = a·√d:
+
+* the fleet's law: mean, sd and the largest a over joints, per input (the prior of ``[decision.temperature_slack]``);
+* what the shipped detectors test, replayed over the same rows (studies.bank_replay): per joint the mean of a warm-up
+  scalar detector's value less its slack over the cycles more than 5 °C out, in standard deviations of its
+  nominal; mean, sd and the largest over joints (the drift ``[decision.healthy_drift]`` calibrates for).
+
+Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--json OUT]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from edge_monitor.features.registry import QUANTITIES  # noqa: E402
+from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
+from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
+from studies.bank_replay import new_bank, replay_bank  # noqa: E402
+from studies.series import robot_series  # noqa: E402
+from studies.settings import parse_seeds  # noqa: E402
+
+INPUTS = ("wear_score", "kl_raw", "kl_weighted")
+SCALARS = ("wear", "kl_raw", "kl_weighted")
+#: Only the cycles this far [°C] outside the span count for what the slack leaves.
+OUT_BY = 5.0
+
+
+def _watched(row: dict[str, Any], name: str) -> float:
+    return math.log(row[name]) if name.startswith("kl") else float(row[name])
+
+
+def law(rows: list[dict[str, Any]], n0: int, until: int) -> dict[str, float]:
+    """Per input, a of z = a·√d over rows n0 … until (see the module docstring)."""
+    smoothing = HoldTemperature()
+    smoothed = np.array([np.nan if (t := smoothing.update(r.get("motor_temperature"))) is None else t
+                         for r in rows[:until]])
+    lo, hi = np.nanmin(smoothed[:n0]), np.nanmax(smoothed[:n0])
+    root = np.sqrt(np.maximum(0.0, np.maximum(smoothed - hi, lo - smoothed)))[n0:]
+    out = {}
+    for name in INPUTS:
+        y = np.array([_watched(r, name) for r in rows[:until]])
+        z = (y[n0:] - y[:n0].mean()) / y[:n0].std(ddof=1)
+        ok = np.isfinite(root) & np.isfinite(z)
+        out[name] = float(np.sum(root[ok] * z[ok]) / np.sum(root[ok] ** 2)) if np.any(root[ok] > 0) else math.nan
+    return out
+
+
+def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: int) -> dict[str, float]:
+    """Per warm-up scalar detector, the mean of its tested value less its slack [σ] over the cycles more than
+    :data:`OUT_BY` °C out (NaN with fewer than 30 of them)."""
+    bank = new_bank(decision)
+    left: dict[str, list[float]] = {q: [] for q in SCALARS}
+
+    def before(row: dict[str, Any]) -> dict[str, Any]:
+        for q in SCALARS:
+            detector = bank.detectors[q]
+            side, d = bank.spans.outside(q, detector, bank.smoothed)
+            density = detector.density
+            if detector.stage != "warm-up" or density is None or d <= OUT_BY:
+                continue
+            slack = bank.spans.slack(q, QUANTITIES[q].inputs, detector, bank.smoothed)
+            z = (_watched(row, QUANTITIES[q].inputs[0]) - density.mean[0]) / density.spread[0]
+            left[q].append(z - (slack[0] if slack else 0.0))
+        return row
+
+    for step in replay_bank(bank, rows[:until], values=before):
+        for alarm in step.raised:
+            bank.detectors[alarm.quantity].acknowledge()
+    return {q: float(np.mean(v)) if len(v) >= 30 else math.nan for q, v in left.items()}
+
+
+def _summary(values: list[float]) -> dict[str, float]:
+    v = np.array([x for x in values if math.isfinite(x)])
+    return {"joints": int(v.size), "mean": float(v.mean()), "sd": float(v.std(ddof=1)), "max": float(v.max()),
+            "min": float(v.min())} if v.size > 1 else {"joints": int(v.size)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", required=True)
+    parser.add_argument("--cycles", type=int, default=1000)
+    parser.add_argument("--until", type=int, default=700, help="rows of the warm-up per joint (default 700)")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    decision = DecisionConfig()
+    laws: dict[str, list[float]] = {name: [] for name in INPUTS}
+    left: dict[str, list[float]] = {q: [] for q in SCALARS}
+    for seed in parse_seeds(args.seeds):
+        for _, rows in sorted(robot_series(seed, args.cycles).items()):
+            for name, a in law(rows, decision.n_nominal, args.until).items():
+                laws[name].append(a)
+            for q, mean in left_by_slack(rows, decision, args.until).items():
+                left[q].append(mean)
+    out = {"law": {k: _summary(v) for k, v in laws.items()}, "left_by_slack": {k: _summary(v) for k, v in left.items()}}
+    for part, table in out.items():
+        for name, s in table.items():
+            if "mean" in s:
+                print(f"{part:>14} {name:>12}: {s['mean']:+.3f} ± {s['sd']:.3f} (min {s['min']:+.3f}, "
+                      f"max {s['max']:+.3f}) over {s['joints']} joints")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
