@@ -113,7 +113,9 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
     if not cfg.state_dir:
         return None
     try:
-        return StateStore(cfg.state_dir)
+        store = StateStore(cfg.state_dir)
+        store.claim()           # one agent per state directory
+        return store
     except StateError as exc:
         print(f"edge-monitor: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_FAILURE) from None
@@ -168,16 +170,20 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
     return "\n".join(lines)
 
 
-def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig, Any]:
+def open_mapped_source(cfg: AgentConfig, path: str | None, table: bool = False) -> tuple[AgentConfig, Any]:
     """``(config, source)`` for ``--mapping`` (``(cfg, None)`` without one: our frames). A mapping that
-    does not load or does not match its DBC/EDS raises MappingError (a ValueError: exit code 2)."""
+    does not load or does not match its DBC/EDS, or a trace mapping where the input is frames (not a
+    ``table``), exits with code 2."""
     if not path:
         return cfg, None
     from edge_monitor.pipeline.agent_config import config_for
     from edge_monitor.sources.foreign_source import open_source
-    from protocol.signal_mapping import load_mapping
+    from protocol.signal_mapping import MappingError, load_mapping
     try:
         mapping = load_mapping(path)
+        if mapping.kind == "trace" and not table:
+            raise MappingError(f"{path} is a trace mapping: it reads a CSV/Parquet table (edge-monitor replay "
+                               "TABLE.csv --mapping …); CAN frames need a dbc or cia402 mapping")
         cfg = config_for(cfg, mapping)
         return cfg, open_source(mapping, cfg)
     except ValueError as exc:       # MappingError and what the DBC/EDS parsers raise

@@ -155,7 +155,8 @@ class RerunSink:
         try:
             viewer = None
             if kind == "save":
-                Path(arg).parent.mkdir(parents=True, exist_ok=True)
+                if not Path(arg).parent.is_dir():    # a typo in the path must not make a directory tree
+                    raise OSError(f"its folder {Path(arg).parent} does not exist (create it, or fix the path)")
                 rec.save(arg)
             elif kind == "spawn":
                 viewer = _spawn_viewer(rec)
