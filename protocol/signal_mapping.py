@@ -140,7 +140,9 @@ class SignalMapping:
         return f"mapping {self.path.name if self.path else '<text>'}: {key}"
 
 
-def load_mapping(path: str | Path) -> SignalMapping:
+def load_mapping(path: str | Path, commissioning: bool = False) -> SignalMapping:
+    """The mapping file at ``path``, validated (``commissioning``: ``[cycles] speeds`` may still be missing,
+    for check-mapping to find them)."""
     p = Path(path)
     raw = read_regular_or(p, MAX_MAPPING_BYTES, "mapping file", MappingError, UnreadableFile)
     try:
@@ -149,10 +151,10 @@ def load_mapping(path: str | Path) -> SignalMapping:
         raise MappingError(f"mapping file {p} is not UTF-8 text: {exc}") from None
     except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise MappingError(f"mapping file {p} is not valid TOML: {exc}") from None
-    return mapping_from_dict(data, p)
+    return mapping_from_dict(data, p, commissioning)
 
 
-def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> SignalMapping:
+def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None, commissioning: bool = False) -> SignalMapping:
     where = f"mapping {path.name if path else '<text>'}"
     base = path.parent if path is not None else Path(".")
     _only(data, {"kind", "dbc", "rate_hz", "listen_only", "read_mapping", "cycles", "joint", "e2e", "trace"}, where)
@@ -185,7 +187,7 @@ def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Sign
     duplicate = duplicate_joint(joints, kind, trace is not None and trace.layout == "long")
     if duplicate:
         raise MappingError(f"{where}: {duplicate}")
-    cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles")
+    cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles", commissioning)
     e2e = tuple(_e2e(t, f"{where}: e2e[{i}]") for i, t in enumerate(_list(data.get("e2e", []), f"{where}: e2e")))
     rate = data.get("rate_hz")
     if rate is not None and not (is_finite_number(rate) and rate > 0):
@@ -280,7 +282,7 @@ def _header_unit(column: Any) -> str | None:
 _DEFAULT_UNIT = {"speed": "rad/s", "torque": "fraction", "load": "fraction", "temperature": "degC"}
 
 
-def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> CycleMapping:
+def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str, commissioning: bool) -> CycleMapping:
     if not isinstance(t, dict):
         raise MappingError(f"{where}: must be a table [cycles]")
     _only(t, {"from", "speeds", "reference_joint", "cycle", "segment", "trigger", "value"}, where)
@@ -291,7 +293,7 @@ def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> C
     if any(not (is_finite_number(v) and 0 < v <= MAX_LEVEL_SPEED) for v in speeds):
         raise MappingError(f"{where}: speeds: positive rad/s up to {MAX_LEVEL_SPEED:g} (motor side), the test "
                            "cycle's levels in order")
-    if source in ("motion", "trigger") and not speeds:
+    if source in ("motion", "trigger") and not speeds and not commissioning:
         raise MappingError(f"{where}: speeds: cycles found from the {source} need the designed speed levels "
                            "in order (rad/s, motor side); `edge-monitor check-mapping` lists the steady speeds "
                            "it finds")

@@ -76,10 +76,11 @@ class _Numbered:
 class ControllerLabels:
     """The controller's cycle and segment signals (both mapped; values as our ControllerStatus), taken as
     our own status frames are (:mod:`~edge_monitor.sources.cycle_numbering`): a cycle mark changes the
-    cycle in force only where it is plausible progress or a confirmed controller restart, so a signal that
-    is no cycle counter (a row number, a speed) finds no cycles but counts ``cycle_jumps``. A mark that is
-    no cycle or segment number (not an integer, negative, beyond :data:`MAX_CYCLE_MARK` or
-    :data:`MAX_SEGMENT_MARK`) is dropped and counted (``bad_marks``)."""
+    cycle in force only where it is plausible progress or a confirmed controller restart, and only after
+    ``MIN_CYCLE_S`` without a mark that jumped or was no number, so a signal that is no cycle counter (a row
+    number, a speed) finds no cycles but counts ``cycle_jumps``. A mark that is no cycle or segment number
+    (not an integer, negative, beyond :data:`MAX_CYCLE_MARK` or :data:`MAX_SEGMENT_MARK`) is dropped and
+    counted (``bad_marks``)."""
 
     method = "controller marks"
 
@@ -92,11 +93,14 @@ class ControllerLabels:
         self._last: tuple[float, float, int] = (np.nan, np.nan, -1)   # cycle, segment, tick of the last mark
         self._in_force: tuple[int, int] | None = None
         self._waiting: list[int] = []      # ticks of marks the numbering has not taken yet
+        self._noisy = -(1 << 62)           # tick of the last mark that jumped or was no number
+        self.held = 0                      # new cycle numbers not taken: too soon after such a mark
+        self._noisy_jump = -(1 << 62)      # tick of the last mark the numbering called a jump
 
     def update(self, tick: NDArray[np.int64], speed: NDArray[np.float64], marks: Marks, latest: int) -> int:
         if "cycle" in marks and "segment" in marks:
-            for t, cycle, segment in self._events(marks).tolist():
-                self._take(int(t), int(cycle), int(segment))
+            for t, cycle, segment, noisy in self._events(marks).tolist():
+                self._take(int(t), int(cycle), int(segment), int(noisy))
         return self._waiting[0] if self._waiting else latest + 1
 
     def _valid(self, values: NDArray[np.float64], limit: int) -> NDArray[np.bool_]:
@@ -106,10 +110,12 @@ class ControllerLabels:
         return ok
 
     def _events(self, marks: Marks) -> NDArray[np.int64]:
-        """(tick, cycle, segment) rows in time order: the marks merged and carried forward, one per tick,
-        repeats thinned to one per ``_every`` ticks (the numbering needs them only to see the stream go on)."""
+        """(tick, cycle, segment, tick of the last bad mark) rows in time order: the marks merged and carried
+        forward, one per tick, repeats thinned to one per ``_every`` ticks (the numbering needs them only to
+        see the stream go on)."""
         (t_c, cycles), (t_s, segments) = marks["cycle"], marks["segment"]
         ok_c, ok_s = self._valid(cycles, MAX_CYCLE_MARK), self._valid(segments, MAX_SEGMENT_MARK)
+        bad = np.sort(np.concatenate([t_c[~ok_c], t_s[~ok_s]]))
         tick = np.concatenate([t_c[ok_c], t_s[ok_s]])
         cycle = np.concatenate([cycles[ok_c], np.full(int(ok_s.sum()), np.nan)])
         segment = np.concatenate([np.full(int(ok_c.sum()), np.nan), segments[ok_s]])
@@ -123,11 +129,23 @@ class ControllerLabels:
         bucket = tick // self._every
         new = np.ones(tick.size, dtype=bool)
         new[1:] = (cycle[1:] != cycle[:-1]) | (segment[1:] != segment[:-1]) | (bucket[1:] != bucket[:-1])
-        return np.stack([tick[new], cycle[new], segment[new]], axis=1).astype(np.int64)
+        tick, at = tick[new], np.searchsorted(bad, tick[new], side="right") - 1
+        noisy = np.where(at >= 0, bad[np.maximum(at, 0)] if bad.size else 0, self._noisy)
+        if bad.size:
+            self._noisy = max(self._noisy, int(bad[-1]))
+        return np.stack([tick, cycle[new], segment[new], noisy], axis=1).astype(np.int64)
 
-    def _take(self, tick: int, cycle: int, segment: int) -> None:
+    def _take(self, tick: int, cycle: int, segment: int, noisy: int) -> None:
+        quiet = tick - max(noisy, self._noisy_jump) >= self.numbering.min_cycle_ticks
+        if cycle != self.numbering.cycle_raw and not quiet:
+            self.held += 1
+            self._waiting = []
+            return
         self._waiting.append(tick)
+        jumps = self.numbering.jumps
         taken = self.numbering.update(cycle, segment, tick % STATUS_TICK_MODULUS, {})
+        if self.numbering.jumps != jumps:
+            self._noisy_jump = tick
         if taken is None:
             keep = self.numbering.unconfirmed
             self._waiting = self._waiting[len(self._waiting) - keep:] if keep else []
@@ -149,7 +167,7 @@ class ControllerLabels:
         pass
 
     def counters(self) -> dict[str, int]:
-        return {"cycles_found": self.found, "cycle_jumps": self.numbering.jumps,
+        return {"cycles_found": self.found, "cycle_jumps": self.numbering.jumps + self.held,
                 "controller_restarts": self.numbering.restarts, "bad_marks": self.bad_marks}
 
     def state_dict(self) -> dict[str, Any]:
