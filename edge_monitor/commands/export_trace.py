@@ -58,6 +58,9 @@ def check_outputs(args: argparse.Namespace) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not Path(args.file).is_file():         # a recording that is not there: a runtime failure, before the outputs
+        print(f"edge-monitor export-trace: {args.file}: no such file", file=sys.stderr)
+        return EXIT_FAILURE
     mapping = check_outputs(args)
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     source = source or Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)

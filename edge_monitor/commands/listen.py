@@ -1,8 +1,9 @@
 """edge-monitor listen: print what agents publish on Zenoh as JSON lines, for jq and scripts.
 
 Subscribes to edge/<robot>/<joint>/<kind> and prints one JSON object per record on standard output:
-the record as published, with "kind" (the key's last segment: symptom, alarm, friction, health, or a
-kind added later) and "key" in front. It first recovers what the agents' publishers still cache (off
+the record as published, with "kind" (the key's last segment: symptom, alarm, advisory, friction,
+health, or a kind added later) and "key" in front; each line validates against `edge-monitor schema
+KIND`, which declares both. It first recovers what the agents' publishers still cache (off
 with --no-history), then follows live until Ctrl-C or SIGTERM, --duration or --count. With both
 --count and --duration it exits 1 when fewer than --count records came within --duration (a health
 check: --kind health --count 1 --duration 30).

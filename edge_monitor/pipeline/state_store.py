@@ -91,8 +91,11 @@ class StateStore:
             raise StateError(f"state directory {self.dir} is in use by another agent (pid {holder}): two agents "
                              "on one --state-dir would overwrite each other's learned state; stop the other one or "
                              "give each its own --state-dir") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        try:                    # who holds it, for the message of the next one (a full disk: the lock still holds)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        except OSError:
+            pass
         self._lock_fd = fd
 
     def load(self) -> dict[str, Any] | None:

@@ -134,8 +134,8 @@ class SignalCheck:
 
     def _cycle_problems(self) -> list[str]:
         if self.stream is None:
-            return ["no cycle found in the capture (no status frame took a cycle): capture at least one whole test "
-                    "cycle"] if self.cycles_seen is not None and not self.cycles_seen else []
+            return [f"no whole cycle found ({len(self.cycles_seen)} started): capture at least one whole test cycle "
+                    "(from one start to the next)"] if self.cycles_seen is not None and len(self.cycles_seen) < 2 else []
         self.stream.flush()
         c = self.stream.counters()
         out = []
@@ -143,9 +143,10 @@ class SignalCheck:
             out.append(f"the cycle marks are no cycle counter: {c.get('bad_marks', 0)} are not cycle/segment numbers "
                        f"(integers ≥ 0) and {c.get('cycle_jumps', 0)} jumped where no cycle can end: map the "
                        "controller's cycle counter, or find cycles from the motion ([cycles] from = \"motion\")")
-        if c.get("cycles_found", 0) == 0:
-            out.append(f"no cycle found (cycles from the {c.get('method')}): capture at least one whole test cycle, "
-                       "and check [cycles] (speeds in the test cycle's order, the trigger value, the cycle signal)")
+        if c.get("cycles_found", 0) < 2:          # a whole cycle: from one start to the next
+            out.append(f"no whole cycle found ({c.get('cycles_found', 0)} started; cycles from the {c.get('method')}): "
+                       "capture at least one whole test cycle (from one start to the next), and check [cycles] "
+                       "(speeds in the test cycle's order, the trigger value, the cycle signal)")
         return out
 
     def levels(self) -> dict[str, list[float]]:
