@@ -24,8 +24,8 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", help="robot name used in symptom records and Zenoh keys")
     parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
     parser.add_argument("--jsonl-max-bytes", type=int, metavar="N",
-                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes; "
-                             "0: never, the default)")
+                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes, "
+                             "default 64 MiB; 0: never, e.g. with logrotate)")
     parser.add_argument("--jsonl-keep", type=int, metavar="K",
                         help="rotated JSONL files kept, PATH.1 … PATH.K (config jsonl_keep; default 5)")
     parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")

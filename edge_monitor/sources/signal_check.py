@@ -134,8 +134,9 @@ class SignalCheck:
 
     def _cycle_problems(self) -> list[str]:
         if self.stream is None:
-            return [f"no whole cycle found ({len(self.cycles_seen)} started): capture at least one whole test cycle "
-                    "(from one start to the next)"] if self.cycles_seen is not None and len(self.cycles_seen) < 2 else []
+            seen = self.cycles_seen
+            return [f"no whole cycle found ({len(seen)} started): capture at least one whole test cycle (from one "
+                    "start to the next)"] if seen is not None and len(seen) < 2 else []
         self.stream.flush()
         c = self.stream.counters()
         out = []
