@@ -62,6 +62,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"edge-monitor export-trace: {args.file}: no such file", file=sys.stderr)
         return EXIT_FAILURE
     mapping = check_outputs(args)
+    try:
+        import pyarrow  # noqa: F401 — the table writer
+    except ImportError:
+        print("edge-monitor export-trace: writing trace tables needs pyarrow: pip install "
+              "'joint-wear-monitor[traces]'", file=sys.stderr)
+        return EXIT_FAILURE
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     source = source or Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
     blocks: list[IngestBlock] = []         # held until the first samples tell which joints there are
