@@ -32,7 +32,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
     parser.add_argument("--mapping", metavar="MAPPING.toml",
                         help="the controller is not ours: a mapping file for its DBC, CiA 402 drives or trace "
-                             "table (docs/CONNECTING.md; examples in protocol/mappings/)")
+                             "table (docs/CONNECTING.md; examples: edge-monitor deploy --list)")
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -161,10 +161,11 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
               if d.get("miss_probability") is not None]
         alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
+        alarms = alarms if len(alarms) <= 44 else alarms[:43] + "…"      # cut: said, not hidden
         stages = {(d.get("calibration") or {}).get("stage") for d in rec.get("decisions", {}).values()} - {None}
         stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms[:44]:<44} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
     return "\n".join(lines)

@@ -111,6 +111,11 @@ def choose_link(kind: str, stack: ExitStack) -> tuple[str, str, str]:
 def rerun_spec(requested: str | None, out: Path) -> str:
     if requested:
         return requested
+    import importlib.util
+    if importlib.util.find_spec("rerun") is None:     # a headless installation: the demo without its recording
+        log.warning("the Rerun viewer is not installed (pip install 'joint-wear-monitor[viewer]'): the demo runs "
+                    "without a recording")
+        return "off"
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return "spawn" if has_display else f"save:{out / 'demo.rrd'}"
 

@@ -147,8 +147,8 @@ class JsonlSink:
         """Open (create) the file for appending; on the first opening repair a torn tail and read the tail."""
         parent = Path(self.path).parent
         if not parent.is_dir():         # a typo in the path must not make a directory tree
-            raise JsonlOpenError(f"JSONL output {self.path}: its folder {parent} does not exist; create it "
-                                 "(mkdir -p) or fix the path", errno.ENOENT)
+            raise JsonlOpenError(f"its folder {parent} does not exist; create it (mkdir -p) or fix the path",
+                                 errno.ENOENT)
         try:
             fd = open_regular(self.path, _OPEN_FLAGS)
         except NotARegularFile as exc:
