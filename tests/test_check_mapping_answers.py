@@ -8,24 +8,18 @@ lists the test cycle's levels in its order, without the production motion's spee
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import hostile_files as hostile
 import pytest
 
-from foreign_mappings import SPEEDS, mapping
+from foreign_mappings import SPEEDS, mapping, record
 
 pytestmark = pytest.mark.slow
 
 
-def _sim(tmp: Path, name: str, profile: str, speeds=SPEEDS, cycles: int = 4) -> Path:
-    out = tmp / f"{name}.log"
-    subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(out), "--joints", "2",
-                    "--cycles", str(cycles), "--seed", "5", "--speeds", ",".join(map(str, speeds)), "--profile",
-                    profile, "-q"], check=True)
-    return out
+def _sim(tmp: Path, name: str, profile: str, speeds=SPEEDS) -> Path:
+    return record(tmp, name, profile, speeds=speeds, seed=5)
 
 
 @pytest.fixture(scope="module")

@@ -10,15 +10,15 @@ import hashlib
 import json
 import re
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import hostile_files as hostile
 import numpy as np
 import pytest
+from test_hostile_traces import MAPPING as TRACE
 
-from foreign_mappings import SPEEDS, mapping
+from foreign_mappings import mapping, record
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,11 +28,7 @@ MEMORY_LIMIT = 1536 << 20
 
 
 def _sim(tmp: Path, name: str, profile: str) -> Path:
-    out = tmp / f"{name}.log"
-    subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(out), "--joints", "2",
-                    "--cycles", str(CYCLES), "--seed", "4", "--speeds", ",".join(map(str, SPEEDS)), "--profile",
-                    profile, "-q"], check=True)
-    return out
+    return record(tmp, name, profile, cycles=CYCLES)
 
 
 @pytest.fixture(scope="module")
@@ -157,20 +153,6 @@ def test_a_parquet_cycle_beyond_int64_is_a_counted_mark(recs, tmp_path):
                    tmp_path / "t.parquet")
     stats = _replay(tmp_path / "t.parquet", recs["csv.toml"])
     assert stats["cycles"] == CYCLES and stats["details"]["cycle_finding"]["bad_marks"] == 1
-
-
-TRACE = """kind = "trace"
-[trace]
-separator = ";"
-time_column = "t"
-[cycles]
-from = "controller"
-cycle = { column = "cycle" }
-segment = { column = "segment" }
-[joint.0]
-speed = { column = "v0" }
-torque = { column = "tau0" }
-"""
 
 
 def test_memory_stays_bounded_for_a_huge_header_and_unmapped_or_text_parquet_columns(tmp_path):
