@@ -78,6 +78,7 @@ CASES = [
     ("edge", ["listen", "--kind", "health", "--count", "1", "--duration", "0.5", "--no-history"], 1),  # no agent
     ("edge", ["schema", "nosuchkind"], 2),
     ("edge", ["schema", "symptom", "-o", f"{MISSING}/symptom.json"], 1),
+    ("edge", ["deploy", "nosuchfile"], 2),
     # operator requests
     ("edge", ["acknowledge", "--robot", "r1"], 2),
     ("edge", ["acknowledge", "--robot", "r1", "--joint", "0", "--zenoh-mode", "client", "--zenoh-connect",

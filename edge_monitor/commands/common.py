@@ -24,15 +24,15 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", help="robot name used in symptom records and Zenoh keys")
     parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
     parser.add_argument("--jsonl-max-bytes", type=int, metavar="N",
-                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes; "
-                             "0: never, the default)")
+                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes, "
+                             "default 64 MiB; 0: never, e.g. with logrotate)")
     parser.add_argument("--jsonl-keep", type=int, metavar="K",
                         help="rotated JSONL files kept, PATH.1 … PATH.K (config jsonl_keep; default 5)")
     parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")
     parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
     parser.add_argument("--mapping", metavar="MAPPING.toml",
                         help="the controller is not ours: a mapping file for its DBC, CiA 402 drives or trace "
-                             "table (docs/CONNECTING.md; examples in protocol/mappings/)")
+                             "table (docs/CONNECTING.md; examples: edge-monitor deploy --list)")
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -113,7 +113,9 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
     if not cfg.state_dir:
         return None
     try:
-        return StateStore(cfg.state_dir)
+        store = StateStore(cfg.state_dir)
+        store.claim()           # one agent per state directory
+        return store
     except StateError as exc:
         print(f"edge-monitor: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_FAILURE) from None
@@ -170,26 +172,31 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
               if d.get("miss_probability") is not None]
         alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
+        alarms = alarms if len(alarms) <= 44 else alarms[:43] + "…"      # cut: said, not hidden
         stages = {(d.get("calibration") or {}).get("stage") for d in rec.get("decisions", {}).values()} - {None}
         stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {coverage_text(rec):>8} {alarms[:44]:<44} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {coverage_text(rec):>8} {alarms:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors; "
                  f"tested %: share of the cycles the joint's detectors tested since they first learned")
     return "\n".join(lines)
 
 
-def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig, Any]:
+def open_mapped_source(cfg: AgentConfig, path: str | None, table: bool = False) -> tuple[AgentConfig, Any]:
     """``(config, source)`` for ``--mapping`` (``(cfg, None)`` without one: our frames). A mapping that
-    does not load or does not match its DBC/EDS raises MappingError (a ValueError: exit code 2)."""
+    does not load or does not match its DBC/EDS, or a trace mapping where the input is frames (not a
+    ``table``), exits with code 2."""
     if not path:
         return cfg, None
     from edge_monitor.pipeline.agent_config import config_for
     from edge_monitor.sources.foreign_source import open_source
-    from protocol.signal_mapping import load_mapping
+    from protocol.signal_mapping import MappingError, load_mapping
     try:
         mapping = load_mapping(path)
+        if mapping.kind == "trace" and not table:
+            raise MappingError(f"{path} is a trace mapping: it reads a CSV/Parquet table (edge-monitor replay "
+                               "TABLE.csv --mapping …); CAN frames need a dbc or cia402 mapping")
         cfg = config_for(cfg, mapping)
         return cfg, open_source(mapping, cfg)
     except ValueError as exc:       # MappingError and what the DBC/EDS parsers raise

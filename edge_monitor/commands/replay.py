@@ -42,7 +42,8 @@ from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sources.frame_source import FrameArrays
 from edge_monitor.sources.ingest import Ingest
 from edge_monitor.sources.log_source import LogReadError, LogReport, log_blocks_with_position
-from edge_monitor.sources.trace_source import TraceError, TraceUnreadable, is_trace_file, replay_trace
+from edge_monitor.sources.trace_source import replay_trace
+from edge_monitor.sources.trace_table import TraceError, TraceUnreadable, is_trace_file
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, LOG_FORMAT, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
@@ -178,7 +179,7 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
+    cfg, source = open_mapped_source(load_agent_config(args), args.mapping, table=is_trace_file(args.file))
     last = LastSymptomSink()
     store = open_state_store(cfg)
     if _jobs(args, store) == 2:

@@ -166,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
         stack.callback(bus.shutdown)
         runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
-                            status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters)
+                            status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters,
+                            data_timeout_s=cfg.data_timeout_s)
         install_signal_handlers(runner.stop_event)
         runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
         if runner.stop_reason == "idle" and not args.no_close:

@@ -72,9 +72,10 @@ class AgentConfig:
     queue_size: int = 65536                    # bounded CAN receive queue [frames]
     block_size: int = 4096                     # frames per processing block
     status_interval_s: float = 10.0            # periodic status line / health publication [s]
+    data_timeout_s: float = 60.0               # no sample for this long: health data_flowing false (0: never)
     state_dir: str | None = None
     jsonl: str | None = None
-    jsonl_max_bytes: int = 0                   # rotate the JSONL file before it passes this size (0: never)
+    jsonl_max_bytes: int = 64 << 20            # rotate the JSONL file before it passes this size (0: never)
     jsonl_keep: int = 5                        # rotated JSONL files kept: PATH.1 … PATH.<keep>
     rerun: str = "off"
     zenoh: Mapping[str, Any] = field(default_factory=dict)
@@ -101,6 +102,8 @@ class AgentConfig:
                 f"must be 1 … {MAX_BLOCK} frames, got {self.block_size}")
         require(math.isfinite(self.status_interval_s) and 0.1 <= self.status_interval_s <= 86_400,
                 "status_interval_s", f"must be 0.1 … 86400 s, got {self.status_interval_s}")
+        require(math.isfinite(self.data_timeout_s) and (self.data_timeout_s == 0 or 1 <= self.data_timeout_s <= 86_400),
+                "data_timeout_s", f"must be 0 (never) or 1 … 86400 s, got {self.data_timeout_s}")
         self.jsonl_rotation()           # validates jsonl_max_bytes and jsonl_keep
 
     def jsonl_rotation(self) -> Rotation:

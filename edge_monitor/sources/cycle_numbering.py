@@ -104,6 +104,11 @@ class CycleNumbering:
         self.jumps += 1                                      # out of step within a continuous stream
         return None
 
+    @property
+    def unconfirmed(self) -> int:
+        """Frames not taken yet because they may start a discontinuity (taken back once confirmed)."""
+        return len(self._pending)
+
     def _lasted(self, tick: int) -> bool:
         """The cycle in force lasted ``min_cycle_ticks`` by ``tick`` (or its start was not seen), counted from
         the last frame of the cycle before where it was entered by progress."""

@@ -3,7 +3,9 @@
 Each mapped quantity is resolved once against the DBC (message, signal, multiplexer) and decoded
 vectorised with :class:`~protocol.bitfields.BitField` (the same values as ``Message.decode``,
 tests/test_bitfields.py). Speed and torque of a joint must come in one message: each such frame is one
-sample. Load estimate, motor temperature and cycle marks may come in any message, at any rate.
+sample. A frame shorter than a mapped signal in it needs is dropped and counted (``malformed``); a
+message with an extended (29-bit) identifier matches extended frames only. Load estimate, motor
+temperature and cycle marks may come in any message, at any rate.
 E2E (optional, per message): AUTOSAR profile 2 or 5, the CRC checked with ``cantools.autosar.end_to_end``
 and the counter (profile 2: low nibble of byte 1; profile 5: byte 2) checked for gaps and repeats;
 a frame with a wrong CRC or a repeated counter is dropped and counted.
@@ -19,10 +21,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, status_columns, take
+from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, short_frames, status_columns, take
 from edge_monitor.sources.samples import DecodedSamples, JointColumns
 from protocol.bitfields import BitFieldError, resolve
 from protocol.files import NotARegularFile, read_regular
+from protocol.frame_blocks import CAN_EFF_FLAG
 from protocol.signal_mapping import E2EMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
 
 log = logging.getLogger(__name__)
@@ -62,8 +65,14 @@ def bind(db: Any, ref: SignalRef, where: str) -> BoundSignal:
         found = resolve(db, ref.message, ref.signal)
     except BitFieldError as exc:
         raise MappingError(f"{where}: {exc}") from None
-    return BoundSignal(f"{found.message}.{found.bits.name}", found.frame_id, found.bits, ref.factor, ref.offset,
-                       found.mux, found.mux_value)
+    return BoundSignal(f"{found.message}.{found.bits.name}", frame_key(db.get_message_by_name(found.message)),
+                       found.bits, ref.factor, ref.offset, found.mux, found.mux_value)
+
+
+def frame_key(message: Any) -> int:
+    """A DBC message's identifier as frame blocks carry it: an extended (29-bit) one with ``CAN_EFF_FLAG``,
+    so it never matches a standard frame of the same number."""
+    return int(message.frame_id) | (CAN_EFF_FLAG if message.is_extended_frame else 0)
 
 
 @dataclass
@@ -97,14 +106,20 @@ class DbcDecoder:
         c = mapping.cycles
         self.marks = {name: bind(db, ref, mapping.where(f"cycles.{name}")) for name in ("cycle", "segment", "trigger")
                       if (ref := getattr(c, name)) is not None}
-        self.known = np.array(sorted({m.frame_id for m in db.messages}), dtype=np.int64)
+        self.known = np.array(sorted({frame_key(m) for m in db.messages}), dtype=np.int64)
+        self.bounds = [b for j, (s, t) in self.joints.items() for b in (s, t, *self.status[j].values())]
+        self.bounds += list(self.marks.values())
         self.protected: dict[int, _Protection] = {}
         for spec in mapping.e2e:
             try:
                 message = db.get_message_by_name(spec.message)
             except KeyError:
                 raise MappingError(f"{mapping.where('e2e')}: message {spec.message!r} is not in the DBC") from None
-            self.protected[int(message.frame_id)] = _Protection(message, spec)
+            names = [s.name for s in message.signals]
+            if spec.counter_signal is not None and spec.counter_signal not in names:
+                raise MappingError(f"{mapping.where('e2e')}: counter_signal {spec.counter_signal!r} is not a signal "
+                                   f"of {spec.message} (it has {names})")
+            self.protected[frame_key(message)] = _Protection(message, spec)
 
     def describe(self) -> dict[int, dict[str, str]]:
         return {j: {"speed": s.name, "torque": t.name, **{q: b.name for q, b in self.status[j].items()}}
@@ -118,17 +133,18 @@ class DbcDecoder:
         self.c.frames_total += int(ids.size)
         known = np.isin(ids, self.known)
         self.c.unknown_id += int((~known).sum())
-        usable = known & self._e2e(ids, data)
+        short = known & short_frames(self.bounds, ids, dlc)       # cut before a mapped signal: counted, dropped
+        self.c.malformed += int(short.sum())
+        usable = known & ~short
+        usable &= self._e2e(ids, data, usable)
         out = DecodedSamples()
         used = np.zeros(ids.size, dtype=bool)
         for j, (speed, torque) in self.joints.items():
-            ok = usable & (dlc >= max(speed.bits.end_byte, torque.bits.end_byte))
-            rows = speed.rows(ids, data, ok)
-            self.c.malformed += int(((ids == speed.frame_id) & usable & ~ok).sum())
+            rows = speed.rows(ids, data, usable)
             used[rows] = True
             out.joints[j] = JointColumns(times[rows], speed.values(data[rows]), torque.values(data[rows]))
         for j, bounds in self.status.items():
-            out.status[j] = status_columns(bounds, ids, data, times, usable & (dlc >= 1), used)
+            out.status[j] = status_columns(bounds, ids, data, times, usable, used)
         for name, bound in self.marks.items():
             rows, t, values = take(bound, ids, data, times, usable)
             used[rows] = True
@@ -136,15 +152,16 @@ class DbcDecoder:
         self.c.frames_ok += int(used.sum())
         return out
 
-    def _e2e(self, ids: NDArray[np.int64], data: NDArray[np.uint8]) -> NDArray[np.bool_]:
-        """Rows that pass their message's E2E check (all rows of unprotected messages)."""
+    def _e2e(self, ids: NDArray[np.int64], data: NDArray[np.uint8], checked: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Rows that pass their message's E2E check (all rows of unprotected messages; only ``checked`` rows
+        are checked and counted)."""
         ok = np.ones(ids.size, dtype=bool)
         if not self.protected:
             return ok
         from cantools.autosar.end_to_end import check_profile2_crc, check_profile5_crc
         for frame_id, prot in self.protected.items():
             spec = prot.spec
-            for r in np.flatnonzero(ids == frame_id).tolist():      # per frame: cantools' own check
+            for r in np.flatnonzero((ids == frame_id) & checked).tolist():      # per frame: cantools' own check
                 payload = bytes(data[r])
                 if spec.profile == 2:
                     counter = payload[1] & 0x0F

@@ -50,6 +50,12 @@ class BoundSignal:
     offset: float = 0.0
     mux: BitField | None = None
     mux_value: int = 0
+    length: int = 0           # bytes its frames must have (a CiA 402 TPDO's mapped length; 0: the signal's end)
+
+    @property
+    def min_dlc(self) -> int:
+        """Bytes a frame must carry for this value to be in it (not zero padding)."""
+        return max(self.length, self.bits.end_byte, self.mux.end_byte if self.mux is not None else 0)
 
     def rows(self, ids: NDArray[np.int64], data: NDArray[np.uint8], usable: NDArray[np.bool_]) -> NDArray[np.int64]:
         mask = usable & (ids == self.frame_id)
@@ -69,7 +75,7 @@ class FrameDecoder(Protocol):
 
 def make_labeller(cycles: CycleMapping, rate_hz: float, plateau: PlateauConfig) -> CycleLabeller:
     if cycles.source == "controller":
-        return ControllerLabels()
+        return ControllerLabels(rate_hz)
     if cycles.source == "trigger":
         return TriggerLabels(cycles.trigger_value)
     return MotionLabels(cycles.speeds, rate_hz, plateau)
@@ -132,6 +138,18 @@ def open_source(mapping: SignalMapping | str | Path, config: SourceConfig) -> Fo
     labeller = make_labeller(m.cycles, config.rate_hz, config.segmentation)
     stream = SampleStream(labeller, config.rate_hz, int(m.cycles.reference_joint or 0))
     return ForeignSource(stream, decoder_for(m))
+
+
+def short_frames(bounds: list[BoundSignal], ids: NDArray[np.int64], dlc: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Frames shorter than what a mapped value in them needs (a TPDO shorter than its PDO mapping, a DBC
+    frame cut before a signal): decoding them would read zero padding as values, so they are dropped."""
+    need: dict[int, int] = {}
+    for b in bounds:
+        need[b.frame_id] = max(need.get(b.frame_id, 0), b.min_dlc)
+    short = np.zeros(ids.size, dtype=bool)
+    for frame_id, length in need.items():
+        short |= (ids == frame_id) & (dlc < length)
+    return short
 
 
 def take(bound: BoundSignal, ids: NDArray[np.int64], data: NDArray[np.uint8], times: NDArray[np.float64],

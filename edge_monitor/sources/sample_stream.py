@@ -26,10 +26,11 @@ from numpy.typing import NDArray
 
 from edge_monitor.sources.cycle_labels import CycleLabeller, Marks
 from edge_monitor.sources.samples import CycleRun, DecodedSamples, IngestBlock, JointSamples, JointStatusBlock
+from protocol.mapping_limits import MAX_LEVEL_SPEED
 
 #: Values beyond these are taken as a wrong unit, scale or reference torque (speed [rad/s, motor side],
 #: torque and load [fraction of T_ref], temperature [°C]).
-PLAUSIBLE = {"speed": 2000.0, "torque": 3.0, "load": 3.0, "temperature": 200.0}
+PLAUSIBLE = {"speed": MAX_LEVEL_SPEED, "torque": 3.0, "load": 3.0, "temperature": 200.0}
 #: The longest time span a stream may cover [s] (ticks stay exact integers at any rate), and the
 #: largest time any clock gives [s] (Unix time in ms read as s is 1.8e12): the first time within it is t₀.
 MAX_SPAN_S, MAX_TIME_S = 1e9, 1e13

@@ -9,6 +9,7 @@ mapping (cycles from those columns) it gives the symptoms of the recording (test
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +86,7 @@ class TraceWriter:
     def mapping_text(self) -> str:
         """The ``trace`` mapping of this table (cycles from its cycle/segment columns)."""
         lines = [f"# trace mapping of {self.path.name} (edge-monitor export-trace)", 'kind = "trace"', "",
-                 "[trace]", 'layout = "wide"', f'separator = "{self.separator}"',
+                 "[trace]", 'layout = "wide"', f"separator = {json.dumps(self.separator)}",
                  f'time_column = "time [{self.time_unit}]"', f'time_unit = "{self.time_unit}"', "",
                  "[cycles]", 'from = "controller"', 'cycle = { column = "cycle" }', 'segment = { column = "segment" }',
                  ""]

@@ -7,17 +7,13 @@ header is used when the mapping states none); long tables have one row per joint
 ms (``[trace] time_unit``), any one-character separator (``;`` is common), ``,`` as decimal mark if
 stated. Empty cells are missing values: a row without speed or torque is no sample; load and temperature
 may be sparse. Cycle marks come from mapped ``cycle``/``segment`` or ``trigger`` columns, or from the
-motion. Read in batches with pyarrow (``pyarrow.csv``; Parquet needs ``pip install
-joint-wear-monitor[parquet]`` where rerun-sdk did not bring pyarrow).
+motion. Read in batches of the mapped columns only, in bounded memory, by :mod:`trace_table` (pyarrow:
+``pip install 'joint-wear-monitor[traces]'``).
 """
 
 from __future__ import annotations
 
-import codecs
 import logging
-import os
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -26,157 +22,34 @@ from numpy.typing import NDArray
 
 from edge_monitor.sources.log_source import LogReport
 from edge_monitor.sources.samples import DecodedSamples, JointColumns, StatusColumns
-from protocol.files import NotARegularFile, open_regular
+from edge_monitor.sources.trace_table import SkippedRows, TraceError, table_batches
 from protocol.signal_mapping import SignalMapping, SignalRef, TraceFormat, load_mapping
 
 log = logging.getLogger(__name__)
 
-TRACE_SUFFIXES = (".csv", ".parquet", ".pq")
-#: pyarrow reads a CSV in blocks of this size; a longer line is an error (no trace table has one).
-BLOCK_BYTES = 4 << 20
 #: Median time steps [s] no trace of a robot joint has: slower than 10 Hz, faster than 100 kHz (the
 #: agent needs >= 100 Hz); a table outside states its time in the other unit (ms read as s or back).
 SLOWEST_STEP_S, FASTEST_STEP_S = 0.1, 1e-5
 
 
-class TraceError(ValueError):
-    """A trace table that does not fit its mapping (the message names the column and the fix)."""
-
-
-class TraceUnreadable(OSError):
-    """A trace file that cannot be read: not a regular file (a FIFO, a device, a directory) or an I/O error."""
-
-
-def is_trace_file(path: str) -> bool:
-    return Path(path).suffix.lower() in TRACE_SUFFIXES
-
-
-def _regular(path: Path) -> str:
-    """``path`` if it names a regular file (checked without blocking on a FIFO or reading a device);
-    pyarrow then opens it natively (its read-ahead threads never wait for Python)."""
-    try:
-        fd = open_regular(path)
-        try:
-            head = os.read(fd, BLOCK_BYTES) if path.suffix.lower() == ".csv" else b"\n"
-        finally:
-            os.close(fd)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"trace file {path} not found") from None
-    except NotARegularFile as exc:
-        raise TraceUnreadable(f"{path}: {exc.reason}") from None
-    except IsADirectoryError:
-        raise TraceUnreadable(f"{path}: it is a directory, not a regular file") from None
-    except OSError as exc:
-        raise TraceUnreadable(f"cannot read {path}: {exc.strerror or exc}") from None
-    if len(head) == BLOCK_BYTES and b"\n" not in head:     # pyarrow may crash on such a header
-        raise TraceError(f"{path}: its first line (the header) is longer than {BLOCK_BYTES >> 20} MiB: "
-                         "not a trace table")
-    return str(path)
-
-
-@contextmanager
-def _quiet_undecodable_rows() -> Iterator[None]:
-    """pyarrow decodes a malformed row's text for the row handler and reports a row that is not text
-    as "Exception ignored" (with a traceback) before failing the table; the failure says it already."""
-    previous = sys.unraisablehook
-
-    def hook(unraisable: Any) -> None:
-        if not isinstance(unraisable.exc_value, UnicodeDecodeError):
-            previous(unraisable)
-
-    sys.unraisablehook = hook
-    try:
-        yield
-    finally:
-        sys.unraisablehook = previous
-
-
-class _SkippedRows:
-    """pyarrow's ``invalid_row_handler``: a row with too few or too many cells is skipped and counted."""
-
-    def __init__(self) -> None:
-        self.count = 0
-        self.examples: list[str] = []
-
-    def __call__(self, row: Any) -> str:
-        self.count += 1
-        if len(self.examples) < 5:
-            text = (row.text or "")[:80]
-            self.examples.append(f"a row with {row.actual_columns} cells, {row.expected_columns} expected: "
-                                 f"{text!r}")
-        return "skip"
-
-    def report_to(self, report: LogReport | None) -> None:
-        if report is not None and self.count:
-            report.skipped += self.count
-            report.frames_skipped += self.count
-            report.examples[:] = (report.examples + self.examples)[:5]
-        self.count, self.examples = 0, []
-
-
-def _codec(encoding: str) -> str:
-    """pyarrow's name of ``encoding``: UTF-8 is read natively (a byte that is not UTF-8 is a conversion
-    error), the others are transcoded."""
-    return "utf8" if encoding.lower().replace("_", "-") == "utf-8" else encoding
-
-
-def _decode_through(file: str, encoding: str) -> None:
-    """Decode the whole file in blocks (UnicodeError where it is not ``encoding`` text) before pyarrow
-    transcodes it: a decode error inside pyarrow's transcoder leaves one of its threads running, and the
-    process may then abort at exit ("terminate called without an active exception")."""
-    decoder = codecs.getincrementaldecoder(encoding)()
-    with open(file, "rb") as f:
-        while block := f.read(BLOCK_BYTES):
-            decoder.decode(block)
-    decoder.decode(b"", final=True)
-
-
-def _batches(path: Path, fmt: TraceFormat, skipped: _SkippedRows) -> Iterator[Any]:
-    """pyarrow record batches of the table; TraceError (exit 2) where it is no table, TraceUnreadable
-    (exit 1) where it cannot be read."""
-    import pyarrow as pa
-    file = _regular(path)
-    try:
-        if path.suffix.lower() == ".csv":
-            import pyarrow.csv as pcsv
-            if _codec(fmt.encoding) != "utf8":
-                _decode_through(file, fmt.encoding)
-            with _quiet_undecodable_rows():
-                reader = pcsv.open_csv(
-                    file, parse_options=pcsv.ParseOptions(delimiter=fmt.separator, invalid_row_handler=skipped),
-                    convert_options=pcsv.ConvertOptions(decimal_point=fmt.decimal),
-                    read_options=pcsv.ReadOptions(block_size=BLOCK_BYTES, encoding=_codec(fmt.encoding),
-                                                  use_threads=False))
-                _ = reader.schema.names              # the header decoded here, inside the error handling
-                yield from reader
-            return
-        try:
-            import pyarrow.parquet as pq
-        except ImportError:
-            raise TraceError("reading Parquet needs pyarrow: pip install 'joint-wear-monitor[parquet]'") from None
-        table = pq.ParquetFile(file)
-        _ = table.schema_arrow.names
-        yield from table.iter_batches(batch_size=1 << 16)
-    except OSError as exc:                   # pyarrow's I/O errors are OSErrors
-        raise TraceUnreadable(f"cannot read {path}: {exc}") from None
-    except UnicodeError as exc:              # a decode error, or UTF-16 without its byte-order mark
-        reason = exc.reason if isinstance(exc, UnicodeDecodeError) else str(exc)
-        raise TraceError(f"{path}: not {fmt.encoding} text ({reason}); a table from a Windows tool: "
-                         "[trace] encoding = \"cp1252\" (or \"utf-16\")") from None
-    except pa.ArrowException as exc:
-        first = (str(exc).strip().splitlines() or [""])[0][:300]
-        hint = (f" (a line longer than {BLOCK_BYTES >> 20} MiB)" if "straddl" in first else "")
-        raise TraceError(f"{path}: not a {path.suffix.lower()[1:]} table its mapping can read: {first}{hint}") from None
-
-
 def _column(batch: Any, name: str, where: str, decimal: str = ".") -> NDArray[np.float64]:
     """Column ``name`` as floats; empty cells NaN. pyarrow reads a column as text when one cell of the
     batch is no number: those cells become NaN (the sample stream counts them as dropped) unless half or
-    more of the cells are text, which is a column that is not numeric (TraceError)."""
+    more of the cells are text, which is a column that is not numeric (TraceError). A dictionary column
+    (Parquet text) is converted once per distinct value."""
     names = batch.schema.names
     if name not in names:
-        raise TraceError(f"{where}: column {name!r} is not in the table; its columns are {names}")
+        raise TraceError(f"{where}: column {name!r} is not in the table; its columns are {names[:20]}")
     array = batch.column(names.index(name))
+    if hasattr(array, "dictionary"):
+        values = _floats(array.dictionary, name, where, decimal, array.indices.null_count)
+        index = array.indices.to_numpy(zero_copy_only=False)
+        return np.where(np.isfinite(index), values[np.nan_to_num(index).astype(np.int64)], np.nan) \
+            if values.size else np.full(len(array), np.nan)
+    return _floats(array, name, where, decimal)
+
+
+def _floats(array: Any, name: str, where: str, decimal: str, empty: int = 0) -> NDArray[np.float64]:
     cells = array.to_numpy(zero_copy_only=False)
     if cells.dtype != object:
         try:
@@ -184,7 +57,7 @@ def _column(batch: Any, name: str, where: str, decimal: str = ".") -> NDArray[np
         except (TypeError, ValueError):                # dates, times, durations: no number of ours
             raise TraceError(f"{where}: column {name!r} is not numeric (it holds {array.type})") from None
     values, text = _numbers_of_text(cells, decimal)
-    if text and text.count >= int(np.isfinite(values).sum()):
+    if text and text.count >= int(np.isfinite(values).sum()) + empty:
         raise TraceError(f"{where}: column {name!r} is not numeric ({text.example!r} in {text.count} of "
                          f"{values.size} rows; decimal mark? [trace] decimal = \",\")")
     if text:
@@ -213,7 +86,7 @@ def _numbers_of_text(cells: NDArray[Any], decimal: str) -> tuple[NDArray[np.floa
     values = np.full(cells.size, np.nan)
     text = _TextCells()
     for i, cell in enumerate(cells):
-        if cell is None or not (cell := str(cell).strip()):
+        if cell is None or not (cell := str(cell).strip().strip('"').strip()):   # a quoted number: its number
             continue
         try:
             values[i] = float(cell.replace(decimal, ".") if decimal != "." else cell)
@@ -227,8 +100,13 @@ def _values(batch: Any, ref: SignalRef, where: str, decimal: str = ".") -> NDArr
 
 
 def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str) -> None:
-    """TraceError if the median step of the first batch's times is no robot trace's (a unit off by 1000)."""
-    ticks = np.unique(time[np.isfinite(time)])
+    """TraceError if the median step of the first batch's times is no robot trace's (a unit off by 1000),
+    or if its times do not advance at all (every row at one time)."""
+    finite = time[np.isfinite(time)]
+    ticks = np.unique(finite)
+    if finite.size >= 10 and ticks.size < 2:
+        raise TraceError(f"{where}: the time column does not advance (all of the first {finite.size} rows at "
+                         f"{finite[0]:.6g}): a trace needs the time of each sample")
     if ticks.size < 10:
         return
     step = float(np.median(np.diff(ticks)))
@@ -242,6 +120,32 @@ def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str) ->
                          f"no robot trace is that fast{hint}")
 
 
+def mapped_columns(mapping: SignalMapping) -> list[str]:
+    """The columns a trace mapping reads (time, joint column, every mapped quantity and mark), in order."""
+    fmt = mapping.trace or TraceFormat()
+    refs = [getattr(jm, q) for jm in mapping.joints.values() for q in ("speed", "torque", "load", "temperature")]
+    refs += [getattr(mapping.cycles, name) for name in ("cycle", "segment", "trigger")]
+    names = [fmt.time_column] + ([fmt.joint_column] if fmt.layout == "long" and fmt.joint_column else [])
+    return list(dict.fromkeys(names + [str(r.column) for r in refs if r is not None]))
+
+
+def _joint_rows(batch: Any, fmt: TraceFormat, mapping: SignalMapping) -> dict[int, NDArray[np.bool_]]:
+    """Rows of each joint of a long table: its joint column equals the joint's key (compared as text without
+    quotes, a dictionary column once per distinct value)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    column = batch.column(batch.schema.names.index(fmt.joint_column))
+    dictionary = hasattr(column, "dictionary")
+    values = pc.utf8_trim(pc.cast(column.dictionary if dictionary else column, pa.string()), '" ')   # "A1": A1
+    out = {}
+    for j, jm in mapping.joints.items():
+        match = pc.fill_null(pc.equal(values, jm.key if jm.key is not None else str(j)), False)
+        if dictionary:
+            match = pc.fill_null(pc.take(match, column.indices), False)
+        out[j] = np.asarray(match.to_numpy(zero_copy_only=False), dtype=bool)
+    return out
+
+
 def decoded_batches(path: str | Path, mapping: SignalMapping,
                     report: LogReport | None = None) -> Iterator[DecodedSamples]:
     """The table as :class:`DecodedSamples`, one per batch of rows (rows with the wrong number of cells
@@ -249,23 +153,15 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
     counts what it drops)."""
     fmt = mapping.trace or TraceFormat()
     scale = 1e-3 if fmt.time_unit == "ms" else 1.0
-    skipped = _SkippedRows()
+    skipped = SkippedRows()
     first = True
-    for batch in _batches(Path(path), fmt, skipped):
+    for batch in table_batches(Path(path), fmt, mapped_columns(mapping), skipped):
         skipped.report_to(report)
         time = _column(batch, fmt.time_column, mapping.where("trace.time_column"), fmt.decimal) * scale
         if first:
             _check_time_step(time, fmt, mapping.where("trace.time_column"))
             first = False
-        rows_of: dict[int, NDArray[np.bool_]] = {}
-        if fmt.layout == "long":
-            keys = batch.column(batch.schema.names.index(fmt.joint_column)).to_pylist() \
-                if fmt.joint_column in batch.schema.names else None
-            if keys is None:
-                raise TraceError(f"{mapping.where('trace.joint_column')}: column {fmt.joint_column!r} is not in "
-                                 f"the table; its columns are {batch.schema.names}")
-            text = np.asarray([str(k) for k in keys])
-            rows_of = {j: text == (jm.key if jm.key is not None else str(j)) for j, jm in mapping.joints.items()}
+        rows_of = _joint_rows(batch, fmt, mapping) if fmt.layout == "long" else {}
         out = DecodedSamples()
         for j, jm in mapping.joints.items():
             where = mapping.where(f"joint.{j}")
