@@ -84,3 +84,25 @@ def test_joint_coverage_section_and_state():
     again = Coverage.from_state(["wear", "kl_raw"], json.loads(to_json(cov.state_dict())))
     assert again.summary() == cov.summary()
     assert Coverage.from_state(["wear"], {"window": -4}).window == 300
+
+
+def test_the_agent_reports_coverage_in_every_symptom_and_in_health():
+    """A 2-joint simulated robot on the fast path (60 cycles; detectors learn from 20 values): once a detector
+    has left its first learning every symptom says it tested the cycle; the health record's counts agree with
+    the last symptom's shares."""
+    from edge_monitor.config import config_from_mapping
+    from edge_monitor.offline.fast_path import run_cycles
+    from edge_monitor.pipeline.agent import Agent
+    from sim_controller.config import SimConfig
+    from sim_controller.cycle_mode import cycle_signals
+
+    agent = Agent(config_from_mapping({"decision": {"n_nominal": 20, "arl0_cycles": 1000.0}}))
+    records = [s.to_dict() for s in run_cycles(agent, cycle_signals(SimConfig(joints=2, cycles=60, seed=3)))]
+    assert {"wear", "kl_raw", "kl_weighted", "joint"} == set(records[-1]["coverage"])
+    statuses = [r["coverage"]["wear"]["status"] for r in records if r["joint"] == 0]
+    assert statuses[0] == "model" and "learning" in statuses and statuses[-1] == "tested"
+    health = agent.health().counters["coverage"]
+    for record in records[-2:]:
+        for quantity, section in record["coverage"].items():
+            counted = health[str(record["joint"])][quantity]
+            assert section["share"] == pytest.approx(counted["share"]) and 0 < counted["cycles"] < 60
