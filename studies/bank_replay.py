@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -41,11 +41,15 @@ def new_bank(decision: DecisionConfig) -> DetectorBank:
 
 
 def replay_bank(bank: DetectorBank, rows: Iterable[Row], joint: int = 0, robot: str = "study",
-                values: Callable[[Row], Row] | None = None) -> Iterator[BankStep]:
+                values: Callable[[Row], Row] | None = None,
+                pauses: Mapping[int, float] | None = None) -> Iterator[BankStep]:
     """``bank`` over ``rows`` in order, one :class:`BankStep` each (see the module docstring); a row without a
-    ``cycle`` is numbered by its position. ``joint`` and ``robot`` only label the alarms."""
+    ``cycle`` is numbered by its position. ``joint`` and ``robot`` only label the alarms. ``pauses``: the
+    seconds the robot stood still before a cycle (the agent sees them as a gap in the samples)."""
     for position, row in enumerate(rows):
         cycle = int(row.get("cycle", position))
+        if pauses and pauses.get(cycle, 0.0) > 0:
+            bank.pause(pauses[cycle])
         bank.observe_temperature(row.get("motor_temperature"))
         decisions, raised = bank.update(values(row) if values is not None else row, robot, joint, cycle)
         yield BankStep(cycle, row, decisions, raised)

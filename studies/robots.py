@@ -92,6 +92,11 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             "coverage": {str(j): m.coverage_summary() for j, m in agent.joints.items()}}
 
 
+def pauses(sim: SimConfig) -> dict[int, float]:
+    """The seconds the simulated robot stands still before a cycle (its timeline's stops)."""
+    return {event.cycle: 3600.0 * event.stop_hours for event in sim.timeline if event.stop_hours}
+
+
 def without_motor_temperature(signals: CycleSignals) -> CycleSignals:
     """The cycle as a controller that sends no motor temperature sends it."""
     joints = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]
@@ -117,7 +122,7 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     for joint, rows in series.items():
         truth = wear_truth.setdefault(joint, [float(rows[0]["wear"])] * sim.cycles if rows else [])
         bank, tested = new_bank(decision), Coverage(decision.quantities)
-        for step in replay_bank(bank, rows, joint, "robot"):
+        for step in replay_bank(bank, rows, joint, "robot", pauses=pauses(sim)):
             truth[step.cycle] = float(step.row["wear"])
             tally.add(joint, step.cycle, step.decisions)
             tested.update(bank.reasons)

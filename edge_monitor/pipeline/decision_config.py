@@ -36,7 +36,7 @@ from edge_monitor.stats.detector_config import (
 #: :meth:`DetectorBank.retarget`): not in the fingerprint (a saved state stays valid when they change),
 #: and kept from the current config on "keep".
 SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm_up_hold", "warm_up_hold_margin",
-                 "temperature_slack",
+                 "temperature_slack", "pause_hold_cycles", "pause_hold_min_h",
                  "false_alarms_per_robot", "budget_period", "cycles_per_day", "joints_per_robot", "arl0_cycles")
 
 #: Where the calibrations simulate the detectors (the point, the healthy drift after learning, the wander): not
@@ -69,6 +69,8 @@ class DecisionConfig:
     ``temperature_slack`` (input → the fleet's law [mean, sd] of a [σ/√°C]): while the joint's temperature is
     d °C outside the span a detector's nominal was learned in, it tests its value less its joint's learned
     a·√d nominal standard deviations per input (:mod:`~edge_monitor.pipeline.temperature_slack`);
+    ``pause_hold_cycles``: after a pause of at least ``pause_hold_min_h`` [h] in the samples the KL and
+    joint-vector detectors hold for that many cycles (the KL temperature compensation settles);
     ``warm_up_hold`` (quantities) makes their detectors hold instead (warm-up: warmer than that span by more
     than ``warm_up_hold_margin`` [°C], or colder; steady: colder).
     ``calibrate_at``: where the calibration simulates each warm-up detector (default ``"healthy_drift"``: a fleet
@@ -120,6 +122,8 @@ class DecisionConfig:
     warm_up_hold: tuple[str, ...] = ()
     warm_up_hold_margin: float = 6.0
     temperature_slack: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(TEMPERATURE_SLACK))
+    pause_hold_cycles: int = 0
+    pause_hold_min_h: float = 0.25
 
     @property
     def settling(self) -> SettlingConfig:
@@ -172,6 +176,12 @@ class DecisionConfig:
         hold = self.warm_up_hold
         require(isinstance(hold, tuple) and all(q in QUANTITIES for q in hold), "decision.warm_up_hold",
                 f"a list of quantities of {sorted(QUANTITIES)}, got {hold!r}")
+        require(isinstance(self.pause_hold_cycles, int) and not isinstance(self.pause_hold_cycles, bool)
+                and 0 <= self.pause_hold_cycles <= 100, "decision.pause_hold_cycles",
+                f"must be 0 … 100 cycles, got {self.pause_hold_cycles!r}")
+        require(isinstance(self.pause_hold_min_h, (int, float)) and not isinstance(self.pause_hold_min_h, bool)
+                and 0 <= self.pause_hold_min_h <= 1000, "decision.pause_hold_min_h",
+                f"must be 0 … 1000 h, got {self.pause_hold_min_h!r}")
         margin = self.warm_up_hold_margin
         require(isinstance(margin, (int, float)) and not isinstance(margin, bool) and 0 <= margin <= 50,
                 "decision.warm_up_hold_margin", f"must be 0 … 50 °C, got {margin!r}")

@@ -90,6 +90,7 @@ class DetectorBank:
                                   slack_prior=config.temperature_slack)
         self.held: dict[str, int] = {}      # detector-cycles held per quantity (health, not persisted)
         self.reasons: dict[str, str] = {}   # this cycle's coverage reason per quantity (pipeline/coverage.py)
+        self.after_pause = (0, 0.0)         # (cycles still held, the pause [s]) after a pause (:meth:`pause`)
 
     def observe_temperature(self, temperature: float | None, source: str = MOTOR_TEMPERATURE) -> None:
         """A cycle's mean temperature [°C] (None: unknown), ``source`` saying which (the motor's, or the
@@ -154,11 +155,13 @@ class DetectorBank:
             fed = value[0] if spec.dim == 1 else value
             was_alarmed, collecting, fits = detector.alarmed, detector.collecting, detector.fits
             learning = detector.state == "learning"
-            held = self.spans.held(quantity, detector, self.smoothed, self.temperature_source)
+            settling = self._pause_hold(spec, detector)
+            held = settling or self.spans.held(quantity, detector, self.smoothed, self.temperature_source)
             if held:
                 self.held[quantity] = self.held.get(quantity, 0) + 1
             slack = None if held else self.spans.slack(quantity, spec.inputs, detector, self.smoothed)
-            decision = detector.collect(fed, cycle, held) if held else detector.update(fed, cycle, slack)
+            decision = detector.idle(held) if settling else detector.collect(fed, cycle, held) if held else \
+                detector.update(fed, cycle, slack)
             if decision.statistic is not None and not held:
                 self.spans.learn(quantity, spec.inputs, detector, value, self.smoothed)
             self.reasons[quantity] = coverage_reason(decision, learning, all(map(math.isfinite, value)), held)
@@ -167,7 +170,25 @@ class DetectorBank:
             if decision.alarm and not was_alarmed:
                 alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
                                     decision.miss_probability, decision.change_cycle))
+        self.after_pause = (max(0, self.after_pause[0] - 1), self.after_pause[1])
         return decisions, alarms
+
+    def pause(self, seconds: float) -> None:
+        """The joint stood still for ``seconds`` before its next samples. After a pause of at least
+        ``decision.pause_hold_min_h`` the monitoring detectors of the KL distances (and the joint vector) hold for
+        the next ``decision.pause_hold_cycles`` cycles: the KL temperature compensation predicts how far the joint
+        cooled, and its estimate settles on the cycles' own lubricant temperature within a few cycles."""
+        if self.config.pause_hold_cycles > 0 and seconds >= 3600.0 * self.config.pause_hold_min_h:
+            self.after_pause = (self.config.pause_hold_cycles, float(seconds))
+
+    def _pause_hold(self, spec: QuantitySpec, detector: SequentialDetector) -> str:
+        """The reason ``spec``'s detector holds this cycle after a pause ("" if it does not)."""
+        left, seconds = self.after_pause
+        if left <= 0 or detector.state != "monitoring" or not any(q in LOG_SCALE for q in spec.inputs):
+            return ""
+        done = self.config.pause_hold_cycles - left + 1
+        return (f"held: cycle {done} of {self.config.pause_hold_cycles} after a {seconds / 3600:.1f} h pause (the KL "
+                f"temperature compensation settles on the cooled joint)")
 
     @property
     def _span_temperature(self) -> float | None:

@@ -161,6 +161,7 @@ class JointMonitor:
             if pause > 0:
                 for feature in self.features.values():
                     feature.pause(pause)
+                self.detectors.pause(pause)
             symptoms += self._process_run(tick[part], speed[part], torque[part],
                                           None if segment is None else segment[part])
         return symptoms
