@@ -103,14 +103,14 @@ def test_the_law_learns_a_known_slope_and_a_step_pulls_it_little() -> None:
     (1/√(1/0.13² + Σd) = 0.014) of 0.4. A 5 σ step afterwards moves â by at most HUBER·√d/precision a cycle."""
     rng = np.random.default_rng(4)
     law = SlackLaw([(0.10, 0.13)])
-    assert law.slack(16.0)[0] == pytest.approx((0.10 + MARGIN_SDS * 0.13) * 4.0)
+    assert law.slack(4.0)[0] == pytest.approx((0.10 + MARGIN_SDS * 0.13) * 4.0)        # 16 °C out: x = √16
     ds = np.linspace(1.0, 25.0, 200)
     for d in ds:
-        law.update(float(d), [0.4 * math.sqrt(d) + rng.normal()])
+        law.update(math.sqrt(d), [0.4 * math.sqrt(d) + rng.normal()])
     sd = 1.0 / math.sqrt(1 / 0.13 ** 2 + ds.sum())
     assert law.sd[0] == pytest.approx(sd) and law.mean[0] == pytest.approx(0.4, abs=4 * sd)
     before, precision = law.mean[0], law.precision[0]
-    law.update(25.0, [0.4 * 5.0 + 5.0])
+    law.update(5.0, [0.4 * 5.0 + 5.0])
     assert 0 < law.mean[0] - before <= HUBER * 5.0 / precision + 1e-12
 
 
@@ -125,11 +125,15 @@ def test_spans_say_the_side_and_distance_and_the_profiles_survive_a_restart() ->
     assert spans.slack("joint", inputs, monitoring, 54.0) == pytest.approx((0.0, 0.36 * 3.0, 0.42 * 3.0))
     assert spans.slack("joint", inputs, monitoring, None) is None
     profile = SlackProfile([(0.1, 0.13), (0.0, 0.0)])
-    profile.update("warm", 9.0, [2.0, 5.0])
+    profile.update("warm", 3.0, [2.0, 5.0])
     again = SlackProfile.from_state([(0.1, 0.13), (0.0, 0.0)], json.loads(json.dumps(profile.state_dict())))
-    assert again.slack("warm", 9.0) == pytest.approx(profile.slack("warm", 9.0))
+    assert again.slack("warm", 3.0) == pytest.approx(profile.slack("warm", 3.0))
     assert SlackProfile.from_state([(0.1, 0.13)], {"warm": {"precision": [-1], "weighted": [0]}}).slack(
-        "warm", 4.0) == pytest.approx(((0.1 + MARGIN_SDS * 0.13) * 2.0,))
+        "warm", 2.0) == pytest.approx(((0.1 + MARGIN_SDS * 0.13) * 2.0,))
+    falling = SlackProfile([(0.1, 0.13)])
+    for _ in range(200):
+        falling.update("cold", 3.0, [-4.0])            # a law that says the values fall: no negative slack
+    assert falling.slack("cold", 3.0) is None
 
 
 def test_the_bank_keeps_its_learned_laws_over_a_restart_and_bad_priors_are_refused() -> None:
@@ -143,3 +147,28 @@ def test_the_bank_keeps_its_learned_laws_over_a_restart_and_bad_priors_are_refus
             DecisionConfig(temperature_slack={"kl_raw": bad})
     with pytest.raises(ConfigError, match=r"decision\.temperature_slack\.kl_rwa"):
         DecisionConfig(temperature_slack={"kl_rwa": [0.1, 0.1]})
+
+
+def test_a_steady_nominal_keeps_the_warm_up_law_re_anchored() -> None:
+    """The steady nominal is learned warm, but the KL distances are still measured against the joint's first
+    cycles: 5 °C above a steady span that lies 17 °C above the warm-up span the law says √22 − √17 = 0.57 √°C,
+    not √5 = 2.24. A maintenance (a new warm-up nominal) starts from the prior again."""
+    spans = NominalSpans({"kl_raw": Span(35.0, 38.0)}, slack_prior=PRIOR)
+    warm_up = SimpleNamespace(state="monitoring", stage="warm-up", collecting=True)
+    spans.profiles["kl_raw"] = SlackProfile([PRIOR["kl_raw"]])
+    spans.profiles["kl_raw"].update("warm", 4.0, [1.5])
+    learned = spans.profiles["kl_raw"].state_dict()
+    steady = SimpleNamespace(state="monitoring", stage="steady", collecting=True)
+    spans.track("kl_raw", steady, True, False, 52.0)        # the steady values …
+    spans.track("kl_raw", steady, True, True, 55.0)         # … and the fit
+    assert spans.learned["kl_raw"] == Span(52.0, 55.0) and spans.origins["kl_raw"] == 38.0
+    assert spans.profiles["kl_raw"].state_dict() == learned
+    side, x = spans.regressor("kl_raw", steady, 60.0)
+    assert side == "warm" and x == pytest.approx(math.sqrt(22.0) - math.sqrt(17.0))
+    assert spans.regressor("kl_raw", steady, 42.0) == ("cold", pytest.approx(math.sqrt(10.0)))
+    again = NominalSpans.from_state(json.loads(json.dumps(spans.state_dict())), slack_prior=PRIOR,
+                                    inputs={"kl_raw": ("kl_raw",)})
+    assert again.origins == {"kl_raw": 38.0} and again.profiles["kl_raw"].state_dict() == learned
+    spans.clear()
+    spans.track("kl_raw", warm_up, True, True, 36.0)
+    assert "kl_raw" not in spans.origins and "kl_raw" not in spans.profiles

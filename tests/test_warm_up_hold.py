@@ -24,7 +24,7 @@ COLD = 35.0
 HELD = {"kl_raw", "kl_weighted", "joint"}
 #: The option under test: these detectors hold, and test with no temperature slack.
 HOLD = {"warm_up_hold": ("kl_raw", "kl_weighted", "joint"),
-        "temperature_slack": {"wear_score": 0.0, "kl_raw": 0.0, "kl_weighted": 0.0}}
+        "temperature_slack": {"wear_score": (0.0, 0.0), "kl_raw": (0.0, 0.0), "kl_weighted": (0.0, 0.0)}}
 
 
 def _inputs(rng: np.random.Generator, kl_shift: float = 0.0, wear_shift: float = 0.0) -> dict[str, float]:

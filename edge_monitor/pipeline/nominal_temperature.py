@@ -27,6 +27,7 @@ at d = 16 °C) — far less than a hold, which such a joint's wear used to trip 
 
 from __future__ import annotations
 
+import math
 from typing import Any, Collection, Mapping, Sequence
 
 import numpy as np
@@ -54,6 +55,7 @@ class NominalSpans:
         self.collecting: dict[str, Span] = dict(collecting or {})
         self.slack_prior = dict(slack_prior or {})      # per detector input: the fleet's law (mean, sd) [σ/√°C]
         self.profiles: dict[str, SlackProfile] = {}     # per quantity: its joint's law, learned (:meth:`learn`)
+        self.origins: dict[str, float] = {}             # per steady quantity: its warm-up span's top [°C]
         self.warm_up_hold = frozenset(warm_up_hold)
         self.warm_margin = float(warm_margin)      # the least margin [°C] above a warm-up span before it holds
         self.warm_side = warm_side                 # False without the steady stage: nothing would end that hold
@@ -96,26 +98,38 @@ class NominalSpans:
             return "warm", temperature - span.hi
         return "cold", max(0.0, span.lo - temperature)
 
+    def regressor(self, quantity: str, detector: SequentialDetector, temperature: float | None) -> tuple[str, float]:
+        """The side and the regressor x [√°C] of ``quantity``'s temperature law at ``temperature``
+        (:mod:`~edge_monitor.pipeline.temperature_slack`): √d outside its nominal's span; on the warm side of a
+        steady nominal whose joint's warm-up span is known (:attr:`origins`), √(T − o) − √(hi − o), o that span's
+        top and hi the steady span's (0.0 inside, with no span or temperature, or while the detector learns)."""
+        side, d = self.outside(quantity, detector, temperature)
+        origin = self.origins.get(quantity)
+        if d <= 0 or side == "cold" or origin is None or detector.stage != "steady" or temperature is None:
+            return side, math.sqrt(d)
+        top = self.learned[quantity].hi
+        return side, math.sqrt(max(0.0, temperature - origin)) - math.sqrt(max(0.0, top - origin))
+
     def slack(self, quantity: str, inputs: Sequence[str], detector: SequentialDetector,
               temperature: float | None) -> tuple[float, ...] | None:
         """The drift [nominal standard deviations] ``quantity``'s ``inputs`` may show at ``temperature``
         beyond what its detector learned (:class:`~edge_monitor.pipeline.temperature_slack.SlackProfile`: the
         joint's own law, learned from the fleet's); the detector tests the value less it. None when there is
         none (inside the span, no temperature, no law)."""
-        side, d = self.outside(quantity, detector, temperature)
-        return self._profile(quantity, inputs).slack(side, d) if d > 0 else None
+        side, x = self.regressor(quantity, detector, temperature)
+        return self._profile(quantity, inputs).slack(side, x) if x > 0 else None
 
     def learn(self, quantity: str, inputs: Sequence[str], detector: SequentialDetector, value: Sequence[float],
               temperature: float | None) -> None:
         """A cycle ``quantity``'s detector tested (no alarm latched) at ``temperature``: its value, in standard
         deviations of the nominal, teaches the joint's law of that side (inside the span: nothing)."""
-        side, d = self.outside(quantity, detector, temperature)
+        side, x = self.regressor(quantity, detector, temperature)
         density = detector.density
-        if d <= 0 or density is None or detector.alarmed:
+        if x <= 0 or density is None or detector.alarmed:
             return
         vec = np.asarray(value, dtype=float).ravel()
         vec = vec if detector.transform is None else detector.transform.apply(vec)
-        self._profile(quantity, inputs).update(side, d, standardized(vec, density.mean, density.spread))
+        self._profile(quantity, inputs).update(side, x, standardized(vec, density.mean, density.spread))
 
     def _profile(self, quantity: str, inputs: Sequence[str]) -> SlackProfile:
         if quantity not in self.profiles:
@@ -135,7 +149,7 @@ class NominalSpans:
         if temperature is not None:
             span.add(temperature)
         if fitted:
-            self.profiles.pop(quantity, None)         # a new nominal: its law is learned again from the prior
+            self._new_nominal(quantity, detector)
             span = self.collecting.pop(quantity)
             if span.empty:
                 self.learned.pop(quantity, None)
@@ -144,11 +158,23 @@ class NominalSpans:
         elif not detector.collecting:
             self.collecting.pop(quantity, None)
 
+    def _new_nominal(self, quantity: str, detector: SequentialDetector) -> None:
+        """``quantity``'s detector fitted a new nominal: a steady one after a warm-up one keeps the warm-up's law
+        (its warm side re-anchored at the warm-up span's top, :meth:`regressor`); any other starts from the
+        prior (a maintenance, a relearn)."""
+        warm_up = self.learned.get(quantity)
+        if detector.stage == "steady" and warm_up is not None and not warm_up.empty and quantity not in self.origins:
+            self.origins[quantity] = warm_up.hi
+            return
+        self.profiles.pop(quantity, None)
+        self.origins.pop(quantity, None)
+
     def forget(self, quantity: str) -> None:
         """``quantity``'s detector learns from scratch (its saved state was not usable): no span."""
         self.learned.pop(quantity, None)
         self.collecting.pop(quantity, None)
         self.profiles.pop(quantity, None)
+        self.origins.pop(quantity, None)
 
     def restart(self, quantity: str) -> None:
         """``quantity``'s detector starts collecting its nominal over (what it collected is dropped)."""
@@ -159,12 +185,14 @@ class NominalSpans:
         self.learned.clear()
         self.collecting.clear()
         self.profiles.clear()
+        self.origins.clear()
 
     def state_dict(self) -> dict[str, Any]:
         """Non-empty spans only (strict JSON: an empty span is infinite), and the learned laws."""
         out: dict[str, Any] = {key: {q: [s.lo, s.hi] for q, s in spans.items() if not s.empty}
                                for key, spans in (("learned", self.learned), ("collecting", self.collecting))}
         out["profiles"] = {q: p.state_dict() for q, p in self.profiles.items()}
+        out["origins"] = dict(self.origins)
         return out
 
     @classmethod
@@ -181,6 +209,9 @@ class NominalSpans:
         for quantity, names in (inputs or {}).items():
             if quantity in profiles and quantity in out.learned:
                 out.profiles[quantity] = SlackProfile.from_state(prior_for(names, out.slack_prior), profiles[quantity])
+        origins: dict[str, Any] = saved["origins"] if isinstance(saved.get("origins"), dict) else {}
+        out.origins = {str(q): float(o) for q, o in origins.items()
+                       if q in out.profiles and isinstance(o, (int, float)) and math.isfinite(o)}
         return out
 
 

@@ -9,13 +9,17 @@ healthy default robots the log KL distances of most joints drift 0.05 … 0.3 σ
 many blind, one for the many makes the few alarm. So each detector learns its joint's own law while the joint
 warms, per axis (input) z = a·√d + e, z the value in standard deviations of the nominal, e ~ N(0, 1):
 
-* a Bayesian line through the origin with the fleet's law as prior, a ~ N(ā, s²) (``[decision.slack_prior]``),
-  updated each tested cycle outside the span (precision 1/s² + Σ d, mean (ā/s² + Σ √d·z)/precision);
+* a Bayesian line through the origin with the fleet's law as prior, a ~ N(ā, s²) (``[decision.temperature_slack]``),
+  updated each tested cycle outside the span (regressor x = √d: precision 1/s² + Σ x², mean (ā/s² + Σ x·z)/precision);
 * one cycle's pull is bounded: its innovation z − â·√d is clipped to ±:data:`HUBER` before it enters, so a
   wear step is not learned at once (a slow drift is: the price of learning while watching, which the wear
   score, compensated through the friction model and with no slack, does not pay);
-* the detector tests its value less the slack (â + :data:`MARGIN_SDS`·sd(â))·√d, per axis; no learning while
-  an alarm is latched.
+* the detector tests its value less the slack (â + :data:`MARGIN_SDS`·sd(â))·x, never below 0, per axis; no
+  learning while an alarm is latched;
+* the steady nominal, learned warm, keeps the warm-up's law: the KL distances are still measured against the
+  reference density of the joint's first cycles, so a steady joint d₁ °C above its warm-up span whose steady
+  nominal lies d₀ above it has drifted a·(√d₁ − √d₀) further, not a·√(d₁ − d₀) (the law is flat there): the
+  regressor on the warm side becomes √d₁ − √d₀, and the law goes on learning from it.
 
 Warm side (hotter than the span: warming up, a hot day) and cold side (colder: after a stop) are learned apart;
 a new nominal (the steady one, or after a maintenance) starts again from the prior. Memory: two numbers per
@@ -60,21 +64,21 @@ class SlackLaw:
         """Standard deviation of â per axis [σ/√°C]."""
         return 1.0 / np.sqrt(self.precision)
 
-    def slack(self, d: float) -> np.ndarray:
-        """The slack at distance ``d`` [°C]: (â + MARGIN_SDS·sd)·√d per axis [nominal std]."""
-        return (self.mean + MARGIN_SDS * self.sd) * math.sqrt(max(d, 0.0))
+    def slack(self, x: float) -> np.ndarray:
+        """The slack at regressor ``x`` [√°C] (√d outside the span): (â + MARGIN_SDS·sd)·x per axis [nominal std],
+        never below 0 (a law that says the values fall does not make the detector stricter)."""
+        return np.maximum(0.0, (self.mean + MARGIN_SDS * self.sd) * max(x, 0.0))
 
-    def update(self, d: float, z: ArrayLike) -> None:
-        """One tested cycle at distance ``d`` > 0 [°C] with axis values ``z`` [nominal std] (non-finite axes
+    def update(self, x: float, z: ArrayLike) -> None:
+        """One tested cycle at regressor ``x`` > 0 [√°C] with axis values ``z`` [nominal std] (non-finite axes
         are skipped)."""
-        root = math.sqrt(d)
-        if not (math.isfinite(root) and root > 0):
+        if not (math.isfinite(x) and x > 0):
             return
         values = np.asarray(z, dtype=float)
-        innovation = np.clip(values - self.mean * root, -HUBER, HUBER)
+        innovation = np.clip(values - self.mean * x, -HUBER, HUBER)
         learn = np.isfinite(values) & np.isfinite(self.precision)
-        self.weighted = np.where(learn, self.weighted + root * (self.mean * root + innovation), self.weighted)
-        self.precision = np.where(learn, self.precision + d, self.precision)
+        self.weighted = np.where(learn, self.weighted + x * (self.mean * x + innovation), self.weighted)
+        self.precision = np.where(learn, self.precision + x * x, self.precision)
 
     def state_dict(self) -> dict[str, Any]:
         return {"precision": [_finite(p) for p in self.precision], "weighted": self.weighted.tolist()}
@@ -99,16 +103,16 @@ class SlackProfile:
     def __init__(self, prior: Sequence[tuple[float, float]]) -> None:
         self.laws = {side: SlackLaw(prior) for side in SIDES}
 
-    def slack(self, side: str, d: float) -> tuple[float, ...] | None:
-        """The slack per axis [nominal std] at ``d`` °C on ``side``; None where it is 0 on every axis."""
-        if d <= 0:
+    def slack(self, side: str, x: float) -> tuple[float, ...] | None:
+        """The slack per axis [nominal std] at regressor ``x`` on ``side``; None where it is 0 on every axis."""
+        if x <= 0:
             return None
-        out = tuple(float(v) for v in self.laws[side].slack(d))
+        out = tuple(float(v) for v in self.laws[side].slack(x))
         return out if any(out) else None
 
-    def update(self, side: str, d: float, z: ArrayLike) -> None:
-        if d > 0:
-            self.laws[side].update(d, z)
+    def update(self, side: str, x: float, z: ArrayLike) -> None:
+        if x > 0:
+            self.laws[side].update(x, z)
 
     def state_dict(self) -> dict[str, Any]:
         return {side: law.state_dict() for side, law in self.laws.items()}
