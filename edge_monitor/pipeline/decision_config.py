@@ -122,8 +122,8 @@ class DecisionConfig:
     warm_up_hold: tuple[str, ...] = ()
     warm_up_hold_margin: float = 6.0
     temperature_slack: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(TEMPERATURE_SLACK))
-    pause_hold_cycles: int = 0
-    pause_hold_min_h: float = 0.25
+    pause_hold_cycles: int = 5
+    pause_hold_min_h: float = 1.0
 
     @property
     def settling(self) -> SettlingConfig:
