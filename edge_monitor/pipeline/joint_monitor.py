@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from edge_monitor.errors import StateMismatch
 from edge_monitor.features.base import CycleInput, Feature
 from edge_monitor.features.joint_model_learning import JointModelLearner
+from edge_monitor.features.prognosis import JointPrognosis
 from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
@@ -79,6 +80,8 @@ class JointMonitor:
             if config.model.enabled else None
         self.operating = OperatingRange()
         self.faults = FaultTracker(config.alarms, config.robot, joint)   # one alarm record per fault
+        self.prognosis = self._new_prognosis()
+        self.rate: Any = None           # the agent's cycle rate (``cycles_per_day``); None: the configured one
         self._build()
         self.maintenances = 0
         self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
@@ -95,6 +98,10 @@ class JointMonitor:
         self.detectors = DetectorBank(self.config.decision, self._sources(), self.calibrator)
         if previous is not None:
             self.detectors.keep_settling(previous)
+
+    def _new_prognosis(self) -> JointPrognosis | None:
+        c = self.config
+        return JointPrognosis(c.prognosis, c.critical_wear_for(self.joint)) if c.prognosis.enabled else None
 
     def retarget(self, arl0: float) -> int:
         """Every detector's threshold re-derived for ``arl0`` [cycles] (:meth:`DetectorBank.retarget`)."""
@@ -224,12 +231,28 @@ class JointMonitor:
             alarms = [replace(a, cause=self._cause(decisions[a.quantity], covariates)) for a in alarms]
             alarms = self.faults.crossings(alarms, cycle.cycle)
         sections["operating"] = self.operating.section(covariates)
+        if self.prognosis is not None:
+            sections["prognosis"], alarms, advisories = self._prognosis(cycle, sections.get("wear") or {}, decisions,
+                                                                        alarms, advisories, learning_model)
         return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
                        friction=cycle.friction.to_record(), sections=sections, decisions=decisions,
                        load={"mean": finite_or_none(cycle.load_mean), "std": finite_or_none(cycle.load_std),
                              "measured": finite_or_none(cycle.friction.load_torque)},
-                       skipped=cycle.friction.skipped, critical_wear=self.config.wear.critical,
+                       skipped=cycle.friction.skipped, critical_wear=self.config.critical_wear_for(self.joint),
                        reasons=reasons, partial=cycle.partial, alarms=alarms, advisories=advisories, extras=extras)
+
+    def _prognosis(self, cycle: CycleInput, wear: dict[str, Any], decisions: dict[str, Decision], alarms: list[Alarm],
+                   advisories: list[Advisory], learning: bool) -> tuple[dict[str, Any], list[Alarm], list[Advisory]]:
+        """This cycle's prognosis section (:mod:`edge_monitor.features.prognosis`), the alarm records carrying it,
+        and the advisories with its early warning, if any."""
+        assert self.prognosis is not None
+        rate = self.config.decision.cycles_per_day if self.rate is None else self.rate.cycles_per_day
+        forecast = self.prognosis.update(cycle.cycle, wear.get("estimate"), wear.get("std"),
+                                         use=not (learning or cycle.partial),
+                                         alarm=any(d.alarm for d in decisions.values()), cycles_per_day=rate)
+        section = forecast.section()
+        warning = self.prognosis.warning_advisory(self.config.robot, self.joint, cycle.cycle, forecast)
+        return section, [replace(a, prognosis=section) for a in alarms], advisories + ([warning] if warning else [])
 
     def _joint_temperature(self, cycle: CycleInput, values: dict[str, float]) -> tuple[float | None, str]:
         """The temperature [°C] the detectors' stages and holds follow, and what it is: the cycle's motor
@@ -273,6 +296,7 @@ class JointMonitor:
                                        self.config.wear.default_load_mean) if self.config.model.enabled else None
         self._build()
         self.operating.reset()
+        self.prognosis = self._new_prognosis()        # a new gearbox: its wear history starts again
         self.detectors.settling = ThermalSettling(self.config.decision.settling)   # it may have cooled meanwhile
         self.maintenances += 1
         return cleared
@@ -305,7 +329,8 @@ class JointMonitor:
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
-                "faults": self.faults.state_dict()}
+                "faults": self.faults.state_dict(),
+                "prognosis": None if self.prognosis is None else self.prognosis.state_dict()}
 
     @classmethod
     def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any],
@@ -340,6 +365,7 @@ class JointMonitor:
         monitor.operating = OperatingRange.from_state(state.get("operating"))
         monitor.faults = FaultTracker.from_state(config.alarms, config.robot, joint, state.get("faults"))
         monitor.faults.reconcile([q for q, d in monitor.detectors.detectors.items() if d.alarmed])
+        monitor._restore_prognosis(state.get("prognosis"))
         monitor._report_model(" (learned before the restart)")
         return monitor
 
@@ -348,6 +374,16 @@ class JointMonitor:
         warning = self.model.report.get("warning") if self.model is not None and self.model.learned else None
         if warning:
             log.warning("%s joint %d: joint model%s: %s", self.config.robot, self.joint, when, warning)
+
+    def _restore_prognosis(self, state: Any) -> None:
+        if self.prognosis is None or not isinstance(state, dict):
+            return
+        try:
+            self.prognosis = JointPrognosis.from_state(self.config.prognosis, self.prognosis.critical_wear, state)
+        except StateMismatch as exc:
+            log.warning("joint %d: %s; the wear trend starts again", self.joint, exc)
+        except (KeyError, TypeError, ValueError) as exc:
+            log.warning("joint %d: saved wear trend unusable (%s); it starts again", self.joint, exc)
 
     def _restore_feature(self, spec: FeatureSpec, state: dict[str, Any]) -> None:
         try:
