@@ -128,18 +128,44 @@ def wear_text(wear: dict[str, Any]) -> str:
     return f"{estimate:.1f} ± {fmt(std, '.1f')}"
 
 
+def prognosis_text(prognosis: dict[str, Any] | None) -> str:
+    """The prognosis in a table cell: "12 d (8–20)", "beyond 30 d", "no trend", "critical", "learning"."""
+    if not prognosis:
+        return "–"
+    state, days = prognosis.get("state"), prognosis.get("days")
+    if state == "critical":
+        return "critical"
+    if state == "learning":
+        return "learning"
+    if prognosis.get("beyond_horizon") or not days:
+        return "no trend" if state == "no_trend" else f"beyond {prognosis.get('horizon_days', 0):g} d"
+    return f"{_days(days.get('median'))} d ({_days(days.get('p10'))}–{_days(days.get('p90'))})"
+
+
+def _days(value: Any) -> str:
+    if value is None:
+        return "?"
+    return f"{value:.0f}" if value >= 10 else f"{value:.2g}"
+
+
+def prognosis_summary(last_symptoms: dict[int, dict]) -> dict[str, dict[str, Any]]:
+    """Each joint's last prognosis (the summaries' ``"prognosis"``, keyed by joint)."""
+    return {str(j): r["prognosis"] for j, r in sorted(last_symptoms.items()) if r.get("prognosis")}
+
+
 def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig) -> str:
     """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
     estimated lubricant temperature, the detectors' stage (warm-up or steady, docs/DETECTION.md), alarms
-    (quantity@cycle), the false-alarm setting and the smallest estimated miss probability over the
-    joint's detectors."""
+    (quantity@cycle), the false-alarm setting, the smallest estimated miss probability over the
+    joint's detectors, and the prognosis: days until the critical wear with the 10–90 % band."""
     held = decision.warm_up_hold
     warm_up = ("for drifts up to the allowance during the warm-up"
                + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
                   f"they learned at)" if held else ""))
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
                else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, {warm_up}")
-    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'alarms':<44} {'Pm':>7}"]
+    lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'alarms':<44} {'Pm':>7} "
+             f"{'critical in':<18}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
@@ -153,8 +179,9 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
                      f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms[:44]:<44} "
-                     f"{fmt(min(pm) if pm else None, '.2g'):>7}")
-    lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors")
+                     f"{fmt(min(pm) if pm else None, '.2g'):>7} {prognosis_text(rec.get('prognosis')):<18}")
+    lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors; "
+                 "critical in: days until the critical wear, median (10–90 %) at the measured cycle rate")
     return "\n".join(lines)
 
 

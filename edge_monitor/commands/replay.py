@@ -33,6 +33,7 @@ from edge_monitor.commands.common import (
     open_state_store,
     output_failures,
     print_json,
+    prognosis_summary,
     setup_failure,
     summary_table,
 )
@@ -163,7 +164,7 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
             result: MonitorResult) -> int:
     """The summary (table or ``--json``) and the exit code (1 when an output or the state failed)."""
     if args.json:
-        print_json(stats)
+        print_json({**stats, "prognosis": prognosis_summary(result.last)})
     elif verbosity(args) >= 0:              # -q: no summary
         print(summary_table(result.last, stats, cfg.decision))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "

@@ -30,12 +30,14 @@ from edge_monitor.commands.common import (
     open_mapped_source,
     open_state_store,
     output_failures,
+    prognosis_summary,
     setup_failure,
     zenoh_options,
 )
 from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
+from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from protocol.console import (
     EXIT_CODES_HELP,
@@ -152,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
         except (ValueError, JsonlOpenError) as exc:   # ZenohSetupError, RerunSetupError, a bad robot name,
             return setup_failure("run", exc)          # a JSONL file that cannot be opened
         agent = app.agent
+        last = LastSymptomSink()             # each joint's last prognosis, for the --json summary
+        agent.sinks.append(last)
         install_reopen_on_hangup(app)
         for joint in args.maintenance:
             try:
@@ -178,8 +182,8 @@ def run(args: argparse.Namespace) -> int:
             agent.finish(close_open_cycle=True)
             runner.report()
         if args.json:
-            print(to_json({**agent.run_statistics(), "stopped": stop_text(runner, args),
-                           "health": runner.health().to_dict()}), flush=True)
+            print(to_json({**agent.run_statistics(), "prognosis": prognosis_summary(last.last),
+                           "stopped": stop_text(runner, args), "health": runner.health().to_dict()}), flush=True)
         if runner.link_failure:
             print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
             return EXIT_FAILURE

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from edge_monitor.errors import require
-from edge_monitor.records import Advisory
+from edge_monitor.records import Advisory, is_finite_number
 from edge_monitor.stats.crossing_time import horizon_grid, probability_within, quantiles
 from edge_monitor.stats.wear_trend import TrendConfig, WearTrend, new_trend, trend_from_state
 
@@ -43,7 +43,7 @@ class PrognosisConfig:
     :class:`~edge_monitor.stats.wear_trend.TrendConfig`'s (same names). Horizons in days."""
 
     enabled: bool = True
-    model: str = "drifting_rate"
+    model: str = "multi_rate"
     rate_drift: float = 1e-5
     acceleration_drift: float = 1e-12
     level_diffusion: float = 1e-3
@@ -52,8 +52,8 @@ class PrognosisConfig:
     noise_scale: float = 1.3
     outlier_sigma: float = 3.0
     window: int = 100
-    rate_drifts: tuple[float, ...] = (1e-8, 1e-7, 1e-6, 1e-5, 1e-4)
-    forgetting: float = 0.99
+    rate_drifts: tuple[float, ...] = (1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
+    forgetting: float = 0.97
     horizons_days: tuple[float, ...] = (7.0, 30.0)
     learning_cycles: int = 30            # estimates the trend takes before it forecasts
     after_alarm: bool = True             # forecast only while a detector of the joint has an alarm latched
@@ -64,8 +64,8 @@ class PrognosisConfig:
     def __post_init__(self) -> None:
         self.trend                                       # validates the model's settings
         require(isinstance(self.horizons_days, tuple) and 1 <= len(self.horizons_days) <= 8
-                and all(isinstance(h, (int, float)) and not isinstance(h, bool) and math.isfinite(h) and 0 < h <= 3650
-                        for h in self.horizons_days) and len(set(self.horizons_days)) == len(self.horizons_days),
+                and all(is_finite_number(h) and 0 < h <= 3650 for h in self.horizons_days)
+                and len(set(self.horizons_days)) == len(self.horizons_days),
                 "prognosis.horizons_days", f"need 1 … 8 different horizons in (0, 3650] days, got {self.horizons_days!r}")
         require(isinstance(self.learning_cycles, int) and 3 <= self.learning_cycles <= 10_000,
                 "prognosis.learning_cycles", f"must be 3 … 10000 cycles, got {self.learning_cycles!r}")
@@ -104,7 +104,7 @@ class Forecast:
     level: float | None = None
     rate: float | None = None
     cycles: tuple[float | None, float | None, float | None] | None = None
-    p_within: tuple[tuple[float, float], ...] = ()
+    p_within: tuple[tuple[float, float | None], ...] = ()
     model: str = ""
 
     @property
@@ -126,7 +126,8 @@ class Forecast:
                 "days": None if band is None else {k: _round(None if v is None else v / self.cycles_per_day, 3)
                                                    for k, v in band.items()},
                 "beyond_horizon": self.beyond_horizon, "horizon_days": self.horizon_days,
-                "p_critical": {horizon_key(d): round(p, 4) for d, p in self.p_within}, "text": self.text()}
+                "cycles_per_day": round(self.cycles_per_day, 2),
+                "p_critical": {horizon_key(d): _round(p, 4) for d, p in self.p_within}, "text": self.text()}
 
     def text(self) -> str:
         """One line for a person: "critical wear 35 in about 12 days (8–20)"."""
@@ -139,7 +140,7 @@ class Forecast:
             why = "no wear trend" if self.state == "no_trend" else "wear growing slowly"
             return f"{c}: {why}, beyond the {self.horizon_days:g}-day horizon"
         lo, mid, hi = (None if v is None else v / self.cycles_per_day for v in self.cycles)
-        upper = "?" if hi is None else _days(hi)
+        upper = f"{GRID_REACH * self.horizon_days:.0f}+" if hi is None else _days(hi)   # past the grid
         return f"{c} in about {_days(mid)} days ({_days(lo)}–{upper}, 80 %)"
 
 
@@ -176,7 +177,7 @@ class JointPrognosis:
         base = {"critical_wear": self.critical_wear, "cycles_per_day": float(cycles_per_day),
                 "horizon_days": c.horizon_days, "model": c.model}
         if self.trend.updates < c.learning_cycles:
-            return Forecast("learning", **base)
+            return Forecast("learning", p_within=tuple((d, None) for d in c.horizons_days), **base)
         level, rate = self.trend.level, self.trend.rate
         grid = horizon_grid(GRID_REACH * c.horizon_days * cycles_per_day)
         trending = (not c.after_alarm or alarm) and rate > c.trend_sigma * self.trend.rate_std
@@ -218,7 +219,7 @@ class JointPrognosis:
         """P(critical within ``warning_horizon_days``) of ``forecast`` (from its horizons, or computed)."""
         for days, p in forecast.p_within:
             if days == self.config.warning_horizon_days:
-                return p
+                return 0.0 if p is None else p
         grid = horizon_grid(GRID_REACH * self.config.horizon_days * forecast.cycles_per_day)
         return probability_within(grid, self.trend.crossing_cdf(self.critical_wear, grid),
                                   self.config.warning_horizon_days * forecast.cycles_per_day) \

@@ -2,10 +2,13 @@
 deviation, they give the distribution of the cycles until the wear reaches a level (docs/ALGORITHMS.md §9,
 docs/PROGNOSIS.md, where the choice between them is measured).
 
-* ``drifting_rate`` (the agent's): a local linear trend whose rate itself drifts — a Kalman filter on
-  [level, rate] with the rate a random walk (``rate_drift`` q per cycle) and a small level diffusion
-  (``level_diffusion``); the level ahead is Gaussian, its variance growing as q·h³/3, which widens the
-  band for laws that accelerate.
+* ``drifting_rate``: a local linear trend whose rate itself drifts — a Kalman filter on [level, rate]
+  with the rate a random walk (``rate_drift`` q per cycle) and a small level diffusion
+  (``level_diffusion``); the forecast extrapolates the rate with its uncertainty now. Its memory,
+  ≈ (estimate variance / q)^¼ cycles, fixes the time scale of the wear it follows.
+* ``multi_rate`` (the agent's): drifting-rate filters at rate drifts over eight decades, weighted by
+  how well each predicted the recent estimates (:mod:`edge_monitor.stats.trend_mixture`): no time scale
+  assumed.
 * ``wiener``: a Wiener process with drift (the classic degradation model) — the same filter with a
   constant rate and the level diffusion σ² as the Wiener process's; its first passage is inverse
   Gaussian (:func:`~edge_monitor.stats.crossing_time.wiener_crossing_cdf`).
@@ -30,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.errors import check_learned_with, require
+from edge_monitor.records import is_finite_number
 from edge_monitor.stats.crossing_time import gaussian_crossing_cdf, wiener_crossing_cdf
 
 TREND_MODELS = ("drifting_rate", "multi_rate", "wiener", "accelerating", "line")
@@ -41,7 +45,7 @@ class TrendConfig:
     and cycles; ``rate_drift`` [(wear/cycle)²/cycle], ``acceleration_drift`` [(wear/cycle²)²/cycle],
     ``level_diffusion`` [wear²/cycle], ``initial_rate_std`` [wear/cycle], ``min_std`` [wear]."""
 
-    model: str = "drifting_rate"
+    model: str = "multi_rate"
     rate_drift: float = 1e-5
     acceleration_drift: float = 1e-12
     level_diffusion: float = 1e-3
@@ -50,8 +54,9 @@ class TrendConfig:
     noise_scale: float = 1.3             # the estimates scatter this many times their own std (measured)
     outlier_sigma: float = 3.0           # innovations winsorised at ± this many predicted std (0: off)
     window: int = 100                    # the line's estimates
-    rate_drifts: tuple[float, ...] = (1e-8, 1e-7, 1e-6, 1e-5, 1e-4)   # multi_rate: the filters' rate drifts
-    forgetting: float = 0.99             # multi_rate: weight of the past in the filters' likelihoods, per estimate
+    #: multi_rate: the filters' rate drifts, and the weight of the past in their likelihoods per estimate
+    rate_drifts: tuple[float, ...] = (1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
+    forgetting: float = 0.97
 
     def __post_init__(self) -> None:
         require(self.model in TREND_MODELS, "prognosis.model", f"must be one of {TREND_MODELS}, got {self.model!r}")
@@ -71,7 +76,7 @@ class TrendConfig:
         require(isinstance(self.window, int) and 3 <= self.window <= 100_000, "prognosis.window",
                 f"must be 3 … 100000 estimates, got {self.window!r}")
         require(isinstance(self.rate_drifts, tuple) and 1 <= len(self.rate_drifts) <= 12 and all(
-            isinstance(q, (int, float)) and math.isfinite(q) and 0 <= q <= 1e3 for q in self.rate_drifts),
+            is_finite_number(q) and 0 <= q <= 1e3 for q in self.rate_drifts),
             "prognosis.rate_drifts", f"need 1 … 12 rate drifts in [0, 1000], got {self.rate_drifts!r}")
         require(math.isfinite(self.forgetting) and 0.5 <= self.forgetting <= 1, "prognosis.forgetting",
                 f"must be 0.5 … 1, got {self.forgetting}")
@@ -179,11 +184,11 @@ class KalmanTrend:
         z, r = measured
         s = self.p[0, 0] + r
         innovation = z - self.x[0]
+        self.loglik = -0.5 * (math.log(2 * math.pi * s) + innovation * innovation / s)   # before winsorising
         limit = self.config.outlier_sigma * math.sqrt(s)
         if self.config.outlier_sigma > 0 and abs(innovation) > limit:
             innovation = math.copysign(limit, innovation)
             self.winsorised += 1
-        self.loglik = -0.5 * (math.log(2 * math.pi * s) + innovation * innovation / s)
         gain = self.p[:, 0] / s
         self.x = self.x + gain * innovation
         self.p = self.p - np.outer(gain, self.p[0, :])

@@ -102,7 +102,8 @@ def parse_set(items: list[str]) -> dict[str, dict[str, Any]]:
     for item in items:
         key, _, value = item.partition("=")
         model, _, name = key.partition(".")
-        out.setdefault(model, {})[name] = json.loads(value)
+        parsed = json.loads(value)
+        out.setdefault(model, {})[name] = tuple(parsed) if isinstance(parsed, list) else parsed
     return out
 
 
