@@ -153,11 +153,13 @@ def prognosis_summary(last_symptoms: dict[int, dict]) -> dict[str, dict[str, Any
     return {str(j): r["prognosis"] for j, r in sorted(last_symptoms.items()) if r.get("prognosis")}
 
 
-def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig) -> str:
+def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig,
+                  raised: dict[int, dict] | None = None) -> str:
     """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
     estimated lubricant temperature, the detectors' stage (warm-up or steady, docs/DETECTION.md), alarms
     (quantity@cycle), the false-alarm setting, the smallest estimated miss probability over the
-    joint's detectors, and the prognosis: days until the critical wear with the 10–90 % band."""
+    joint's detectors, and the prognosis: days until the critical wear with the 10–90 % band; below, for
+    each joint with a fault in ``raised`` (its last "raised" alarm record), the forecast the alarm carried."""
     held = decision.warm_up_hold
     warm_up = ("for drifts up to the allowance during the warm-up"
                + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
@@ -180,6 +182,9 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
                      f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms[:44]:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7} {prognosis_text(rec.get('prognosis')):<18}")
+    for joint, alarm in sorted((raised or {}).items()):
+        if (alarm.get("prognosis") or {}).get("text"):
+            lines.append(f"joint {joint}: fault raised at cycle {alarm['cycle']}: {alarm['prognosis']['text']}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors; "
                  "critical in: days until the critical wear, median (10–90 %) at the measured cycle rate")
     return "\n".join(lines)

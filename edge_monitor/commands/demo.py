@@ -185,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(to_json(summary, indent=2))
     elif verbosity(args) >= 0:              # -q: no summary
-        print(summary_table(last.last, frames, cfg.decision))
+        print(summary_table(last.last, frames, cfg.decision, last.raised))
         print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
               f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['demo']['wall_s']} s")
         if rrd:

@@ -7,8 +7,9 @@ probability of reaching it within each configured horizon. The ``prognosis`` sec
 
 * ``learning`` — the joint's friction model or the trend's first ``learning_cycles`` estimates;
 * ``no_trend`` — no growing wear found: the joint's detectors have no alarm latched (with
-  ``after_alarm``, the default: detection starts prognosis) or the rate is not ``trend_sigma`` standard
-  deviations above 0. The probabilities are then those of the current level alone (no growth);
+  ``after_alarm``, the default: detection starts prognosis) or the rate is not ``trend_sigma`` of its
+  standard deviations above 0 (for the multi-rate model: in its best-fitting filter). The probabilities
+  are then those of the current level alone (no growth);
 * ``forecast`` — a trend: the band, or ``beyond_horizon`` when its median lies past the longest horizon
   (no number is published then: a "35 years" from a rate near zero is noise, not a forecast);
 * ``critical`` — the filtered wear is at or above the critical level.
@@ -57,7 +58,7 @@ class PrognosisConfig:
     horizons_days: tuple[float, ...] = (7.0, 30.0)
     learning_cycles: int = 30            # estimates the trend takes before it forecasts
     after_alarm: bool = True             # forecast only while a detector of the joint has an alarm latched
-    trend_sigma: float = 0.0             # the rate must be this many of its std above 0 to be a trend
+    trend_sigma: float = 1.0             # the rate must be this many of its std above 0 to be a trend
     warning_probability: float = 0.0     # early warning when P(critical within warning_horizon_days) ≥ this (0: off)
     warning_horizon_days: float = 7.0
 
@@ -180,10 +181,11 @@ class JointPrognosis:
             return Forecast("learning", p_within=tuple((d, None) for d in c.horizons_days), **base)
         level, rate = self.trend.level, self.trend.rate
         grid = horizon_grid(GRID_REACH * c.horizon_days * cycles_per_day)
-        trending = (not c.after_alarm or alarm) and rate > c.trend_sigma * self.trend.rate_std
-        cdf = self.trend.crossing_cdf(self.critical_wear, grid)
-        if not trending:                       # the level alone: its own uncertainty, no growth
-            cdf = np.full_like(grid, cdf[0])
+        trending = (not c.after_alarm or alarm) and rate > 0 and self.trend.rate_z > c.trend_sigma
+        if trending:
+            cdf = self.trend.crossing_cdf(self.critical_wear, grid)
+        else:                                  # the level alone: its own uncertainty, no growth
+            cdf = np.full_like(grid, self.trend.crossing_cdf(self.critical_wear, grid[:1])[0])
         p_within = tuple((d, probability_within(grid, cdf, d * cycles_per_day)) for d in c.horizons_days)
         state = "critical" if level >= self.critical_wear else "forecast" if trending else "no_trend"
         band = quantiles(grid, cdf, BAND) if state == "forecast" else None

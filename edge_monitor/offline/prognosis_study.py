@@ -202,3 +202,26 @@ def _mean(values: Sequence[float | None]) -> float | None:
 def _median_of(values: Sequence[float | None]) -> float | None:
     kept = [v for v in values if v is not None and math.isfinite(v)]
     return float(np.median(kept)) if kept else None
+
+
+#: Laws whose last event is a straight line (what the oracle fit below assumes).
+STRAIGHT_LAWS = ("linear", "step_ramp", "rate_change")
+
+
+def oracle_line(law: str, last_start: int, rows: Sequence[CycleRow], critical: float = CRITICAL_WEAR
+                ) -> tuple[float, float, float] | None:
+    """The best a trend model of the right shape can do with these estimates: a straight line fitted by
+    least squares to the estimates from the start of the law's last (straight) event up to t_λ, the law
+    and its start known. Returns (true RUL, its median, relative error) at t_λ, or None (no alarm, not a
+    straight law)."""
+    end = next((r.cycle for r in rows if r.wear >= critical), None)
+    alarm = first_alarm(rows)
+    if law not in STRAIGHT_LAWS or end is None or alarm is None or alarm.cycle >= end:
+        return None
+    t_lambda = round(alarm.cycle + LAMBDA * (end - alarm.cycle))
+    points = np.array([(r.cycle, r.estimate) for r in rows if last_start <= r.cycle <= t_lambda
+                       and r.estimate is not None and not (r.learning or r.partial)], dtype=float)
+    slope, intercept = np.polyfit(points[:, 0], points[:, 1], 1)
+    rul = end - t_lambda
+    median = (critical - (intercept + slope * t_lambda)) / slope if slope > 0 else math.inf
+    return float(rul), float(median), abs(median - rul) / rul

@@ -45,6 +45,13 @@ class TrendMixture:
             if before > 0:          # the first estimate initialises every filter alike
                 self.log_weights = self.config.forgetting * self.log_weights + np.array([f.loglik for f in self.filters])
 
+    @property
+    def rate_z(self) -> float:
+        """The rate over its std in the filter that predicted the recent estimates best (the mixture's own
+        spread includes the fast filters' noise: no rate would ever stand out of it)."""
+        best = self.filters[int(np.argmax(self.log_weights))]
+        return best.rate_z
+
     def _mean(self, values: list[float]) -> float:
         return float(np.dot(self.weights, values))
 

@@ -105,6 +105,11 @@ class WearTrend(Protocol):
     @property
     def rate_std(self) -> float: ...
 
+    @property
+    def rate_z(self) -> float:
+        """How many of its own standard deviations the rate is above 0 (the trend test)."""
+        ...
+
     def crossing_cdf(self, level: float, h: NDArray[np.float64]) -> NDArray[np.float64]: ...
 
     def state_dict(self) -> dict[str, Any]: ...
@@ -116,6 +121,13 @@ def _measurement(estimate: float | None, std: float | None, floor: float, scale:
     if estimate is None or std is None or not (math.isfinite(estimate) and math.isfinite(std)) or std < 0:
         return None
     return float(estimate), (scale * max(float(std), floor)) ** 2
+
+
+def _z(rate: float, std: float) -> float:
+    """``rate / std``; ±inf for a rate known exactly, NaN without a rate."""
+    if not math.isfinite(rate):
+        return math.nan
+    return rate / std if std > 0 else math.copysign(math.inf, rate) if rate else 0.0
 
 
 class KalmanTrend:
@@ -211,6 +223,10 @@ class KalmanTrend:
     def rate_std(self) -> float:
         return math.sqrt(max(self.p[1, 1], 0.0)) if self.cycle is not None else math.nan
 
+    @property
+    def rate_z(self) -> float:
+        return _z(self.rate, self.rate_std)
+
     def crossing_cdf(self, level: float, h: NDArray[np.float64]) -> NDArray[np.float64]:
         """``P(the wear reaches level within h cycles)`` for each horizon of the increasing grid ``h``."""
         if self.cycle is None:
@@ -301,6 +317,10 @@ class LineTrend:
     def rate_std(self) -> float:
         fit = self._fit()
         return math.nan if fit is None else math.sqrt(fit[2] / fit[4])
+
+    @property
+    def rate_z(self) -> float:
+        return _z(self.rate, self.rate_std)
 
     def crossing_cdf(self, level: float, h: NDArray[np.float64]) -> NDArray[np.float64]:
         fit = self._fit()
