@@ -37,7 +37,7 @@ def feed(trend, values, start=0):
 
 
 def test_the_crossing_time_of_a_wiener_process_is_inverse_gaussian():
-    # known level and drift: P(T ≤ h) is the inverse-Gaussian CDF, mean d/μ, shape d²/σ² (ALGORITHMS §9)
+    # known level and drift: P(T ≤ h) is the inverse-Gaussian CDF, mean d/μ, shape d²/σ² (docs/PROGNOSIS.md)
     d, mu, sigma2 = 20.0, 0.05, 0.2
     h = horizon_grid(5000.0, 400)
     cdf = wiener_crossing_cdf(h, CRITICAL, CRITICAL - d, 0.0, mu, 0.0, sigma2)

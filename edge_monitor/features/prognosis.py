@@ -15,7 +15,8 @@ probability of reaching it within each configured horizon. The ``prognosis`` sec
 * ``critical`` — the filtered wear is at or above the critical level.
 
 An optional early warning (``warning_probability`` > 0) reports when P(critical within
-``warning_horizon_days``) first reaches that level and when it falls back below half of it.
+``warning_horizon_days``) first reaches that level and when it has stayed below half of it for
+:data:`WARNING_CLEAR_CYCLES` cycles.
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ STATES = ("learning", "no_trend", "forecast", "critical")
 BAND = (0.1, 0.5, 0.9)
 #: The horizon grid reaches this many times the longest horizon (in cycles) [-].
 GRID_REACH = 20.0
+#: The early warning is "left" once the probability has stayed below half its level this many cycles in a
+#: row (as an operating-range advisory: a forecast that comes and goes does not page every few cycles).
+WARNING_CLEAR_CYCLES = 20
 
 
 @dataclass(frozen=True)
@@ -163,10 +167,11 @@ class JointPrognosis:
         self.critical_wear = float(critical_wear)
         self.trend: WearTrend = new_trend(config.trend)
         self.warning = False              # the early warning is on
+        self.below = 0                    # cycles in a row the warning's probability was below half its level
 
     def reset(self) -> None:
         """Declared maintenance: the gearbox is new, its wear history gone."""
-        self.trend, self.warning = new_trend(self.config.trend), False
+        self.trend, self.warning, self.below = new_trend(self.config.trend), False, 0
 
     def update(self, cycle: int, estimate: float | None, std: float | None, *, use: bool, alarm: bool,
                cycles_per_day: float) -> Forecast:
@@ -204,15 +209,17 @@ class JointPrognosis:
 
     def warning_change(self, forecast: Forecast) -> str | None:
         """"entered" when P(critical within the warning horizon) first reaches ``warning_probability``,
-        "left" when it falls below half of it; None otherwise (and always with the warning off)."""
+        "left" when it has stayed below half of it :data:`WARNING_CLEAR_CYCLES` cycles in a row; None
+        otherwise (and always with the warning off)."""
         c = self.config
         if c.warning_probability <= 0 or forecast.state == "learning":
             return None
         p = self.warning_probability(forecast)
+        self.below = self.below + 1 if p < c.warning_probability / 2 else 0
         if not self.warning and p >= c.warning_probability:
             self.warning = True
             return "entered"
-        if self.warning and p < c.warning_probability / 2:
+        if self.warning and self.below >= WARNING_CLEAR_CYCLES:
             self.warning = False
             return "left"
         return None
@@ -228,7 +235,8 @@ class JointPrognosis:
             if forecast.state in ("forecast", "critical") else 0.0
 
     def state_dict(self) -> dict[str, Any]:
-        return {"trend": self.trend.state_dict(), "warning": self.warning, "critical_wear": self.critical_wear}
+        return {"trend": self.trend.state_dict(), "warning": self.warning, "below": self.below,
+                "critical_wear": self.critical_wear}
 
     @classmethod
     def from_state(cls, config: PrognosisConfig, critical_wear: float, state: dict[str, Any]) -> "JointPrognosis":
@@ -237,6 +245,8 @@ class JointPrognosis:
         out = cls(config, critical_wear)
         out.trend = trend_from_state(config.trend, state["trend"])
         out.warning = state.get("warning") is True
+        below = state.get("below", 0)
+        out.below = below if isinstance(below, int) and not isinstance(below, bool) and 0 <= below < 2 ** 31 else 0
         return out
 
 

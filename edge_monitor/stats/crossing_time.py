@@ -1,5 +1,5 @@
 """When a degrading level first reaches a critical value: the distribution of the crossing time T
-[cycles] from a trend model's state (docs/ALGORITHMS.md §9, docs/PROGNOSIS.md).
+[cycles] from a trend model's state (docs/PROGNOSIS.md).
 
 Two forms, both vectorised over horizons ``h`` [cycles from now] and both with the model's parameter
 uncertainty integrated out:

@@ -1,6 +1,6 @@
 """Recursive wear-trend models of one joint: fed each cycle by the wear estimate and its standard
-deviation, they give the distribution of the cycles until the wear reaches a level (docs/ALGORITHMS.md §9,
-docs/PROGNOSIS.md, where the choice between them is measured).
+deviation, they give the distribution of the cycles until the wear reaches a level (docs/PROGNOSIS.md,
+where the choice between them is measured).
 
 * ``drifting_rate``: a local linear trend whose rate itself drifts — a Kalman filter on [level, rate]
   with the rate a random walk (``rate_drift`` q per cycle) and a small level diffusion

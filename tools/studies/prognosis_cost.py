@@ -9,16 +9,20 @@ Usage: ``python tools/studies/prognosis_cost.py [--cycles 100,1000,10000,100000]
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
-import gc
-import json
-import sys
-import time
-import tracemalloc
-from pathlib import Path
+import os
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")     # CPU time of one thread: tiny matrices, no BLAS threads
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import gc  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
