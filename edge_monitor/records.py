@@ -189,10 +189,10 @@ class Advisory:
     def message(self) -> str:
         if self.kind == "prognosis":
             level, days = self.learned
-            said = (self.prognosis or {}).get("text", "")
+            said, within = (self.prognosis or {}).get("text", ""), f"P(critical wear within {days:g} days)"
             if self.state == "entered":
-                return f"P(critical wear within {days:g} days) {self.value:.2f} ≥ {level:.2g}: plan the service ({said})"
-            return f"P(critical wear within {days:g} days) {self.value:.2f}, below {level / 2:.2g} for a while ({said})"
+                return f"{within} {self.value:.2f} ≥ {level:.2g}: plan the service ({said})"
+            return f"{within} {self.value:.2f}, below {level / 2:.2g} for a while ({said})"
         where = "outside" if self.state == "entered" else "back inside"
         return (f"{self.covariate} {self.value:.3g} {where} the learned range "
                 f"{self.learned[0]:.3g} … {self.learned[1]:.3g}: operating condition, not wear")

@@ -6,8 +6,8 @@ gearbox replacement at cycle 800, then a new ramp). Event kinds:
 
 * ``ramp``        linear from ``start`` to ``end`` cycle, ``from_`` → ``to``
 * ``exponential`` accelerated-wear onset: ``from_ + (to − from_)·(e^{(c−start)/tau} − 1)/(e^{(end−start)/tau} − 1)``
-* ``power``       power law from ``start`` to ``end``: ``from_ + (to − from_)·x^exponent``, ``x = (c − start)/(end − start)``
-  (``exponent`` > 1 accelerates, < 1 decelerates)
+* ``power``       power law from ``start`` to ``end``: ``from_ + (to − from_)·x^exponent``,
+  ``x = (c − start)/(end − start)`` (``exponent`` > 1 accelerates, < 1 decelerates)
 * ``step``        abrupt change to ``to`` at cycle ``start``
 * ``replacement`` gearbox replaced before cycle ``start``: wear back to 0 (declared maintenance)
 """

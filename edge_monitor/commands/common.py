@@ -139,6 +139,9 @@ def prognosis_text(prognosis: dict[str, Any] | None) -> str:
         return "learning"
     if prognosis.get("beyond_horizon") or not days:
         return "no trend" if state == "no_trend" else f"beyond {prognosis.get('horizon_days', 0):g} d"
+    cycles = prognosis.get("cycles") or {}
+    if (days.get("median") or 0) < 1 and cycles:       # under a day: test cycles
+        return f"{_days(cycles.get('median'))} cyc ({_days(cycles.get('p10'))}–{_days(cycles.get('p90'))})"
     return f"{_days(days.get('median'))} d ({_days(days.get('p10'))}–{_days(days.get('p90'))})"
 
 

@@ -67,23 +67,29 @@ class PrognosisConfig:
     warning_horizon_days: float = 7.0
 
     def __post_init__(self) -> None:
-        self.trend                                       # validates the model's settings
+        TrendConfig(**self._trend_fields())              # validates the model's settings
         require(isinstance(self.horizons_days, tuple) and 1 <= len(self.horizons_days) <= 8
                 and all(is_finite_number(h) and 0 < h <= 3650 for h in self.horizons_days)
                 and len(set(self.horizons_days)) == len(self.horizons_days),
-                "prognosis.horizons_days", f"need 1 … 8 different horizons in (0, 3650] days, got {self.horizons_days!r}")
+                "prognosis.horizons_days",
+                f"need 1 … 8 different horizons in (0, 3650] days, got {self.horizons_days!r}")
         require(isinstance(self.learning_cycles, int) and 3 <= self.learning_cycles <= 10_000,
                 "prognosis.learning_cycles", f"must be 3 … 10000 cycles, got {self.learning_cycles!r}")
         require(math.isfinite(self.trend_sigma) and 0 <= self.trend_sigma <= 10, "prognosis.trend_sigma",
                 f"must be 0 … 10, got {self.trend_sigma}")
         require(math.isfinite(self.warning_probability) and 0 <= self.warning_probability < 1,
-                "prognosis.warning_probability", f"must be in [0, 1) (0: no early warning), got {self.warning_probability}")
+                "prognosis.warning_probability",
+                f"must be in [0, 1) (0: no early warning), got {self.warning_probability}")
         require(math.isfinite(self.warning_horizon_days) and 0 < self.warning_horizon_days <= 3650,
                 "prognosis.warning_horizon_days", f"must be in (0, 3650] days, got {self.warning_horizon_days}")
 
+    def _trend_fields(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(TrendConfig)}
+
     @property
     def trend(self) -> TrendConfig:
-        return TrendConfig(**{f.name: getattr(self, f.name) for f in fields(TrendConfig)})
+        """The trend model's settings."""
+        return TrendConfig(**self._trend_fields())
 
     @property
     def horizon_days(self) -> float:
@@ -145,6 +151,10 @@ class Forecast:
             why = "no wear trend" if self.state == "no_trend" else "wear growing slowly"
             return f"{c}: {why}, beyond the {self.horizon_days:g}-day horizon"
         lo, mid, hi = (None if v is None else v / self.cycles_per_day for v in self.cycles)
+        if mid is not None and mid < 1:                  # under a day: in test cycles, as the controller counts
+            cycles = ["?" if v is None else f"{v:.0f}" for v in self.cycles]
+            upper = f"{GRID_REACH * self.horizon_days * self.cycles_per_day:.0f}+" if hi is None else cycles[2]
+            return f"{c} in about {cycles[1]} test cycles ({cycles[0]}–{upper}, 80 %; {_days(mid)} days)"
         upper = f"{GRID_REACH * self.horizon_days:.0f}+" if hi is None else _days(hi)   # past the grid
         return f"{c} in about {_days(mid)} days ({_days(lo)}–{upper}, 80 %)"
 
@@ -180,10 +190,8 @@ class JointPrognosis:
         latched, and the test cycles a day [cycles/day] the days are counted at."""
         self.trend.update(cycle, estimate if use else None, std if use else None)
         c = self.config
-        base = {"critical_wear": self.critical_wear, "cycles_per_day": float(cycles_per_day),
-                "horizon_days": c.horizon_days, "model": c.model}
         if self.trend.updates < c.learning_cycles:
-            return Forecast("learning", p_within=tuple((d, None) for d in c.horizons_days), **base)
+            return self._forecast("learning", cycles_per_day, p_within=tuple((d, None) for d in c.horizons_days))
         level, rate = self.trend.level, self.trend.rate
         grid = horizon_grid(GRID_REACH * c.horizon_days * cycles_per_day)
         trending = (not c.after_alarm or alarm) and rate > 0 and self.trend.rate_z > c.trend_sigma
@@ -194,8 +202,12 @@ class JointPrognosis:
         p_within = tuple((d, probability_within(grid, cdf, d * cycles_per_day)) for d in c.horizons_days)
         state = "critical" if level >= self.critical_wear else "forecast" if trending else "no_trend"
         band = quantiles(grid, cdf, BAND) if state == "forecast" else None
-        return Forecast(state, level=level, rate=rate, cycles=None if band is None else (band[0], band[1], band[2]),
-                        p_within=p_within, **base)
+        return self._forecast(state, cycles_per_day, level=level, rate=rate, p_within=p_within,
+                              cycles=None if band is None else (band[0], band[1], band[2]))
+
+    def _forecast(self, state: str, cycles_per_day: float, **fields: Any) -> Forecast:
+        return Forecast(state, self.critical_wear, float(cycles_per_day), self.config.horizon_days,
+                        model=self.config.model, **fields)
 
     def warning_advisory(self, robot: str, joint: int, cycle: int, forecast: Forecast) -> Advisory | None:
         """The early warning's advisory record when it changes (:meth:`warning_change`), else None."""

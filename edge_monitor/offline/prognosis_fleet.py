@@ -79,6 +79,7 @@ def joint_law(law: str, onset: int, life: int, shape: float) -> JointLaw:
     """The events of ``law`` starting at ``onset`` that reach the critical wear ``life`` cycles later;
     ``shape`` in [0, 1) picks the law's free parameter within its range (module docstring)."""
     critical = CRITICAL_WEAR
+    events: tuple[WearEvent, ...]
     if law == "linear":
         events = (WearEvent("ramp", onset, onset + round(life * FINAL_WEAR / critical), 0.0, FINAL_WEAR),)
     elif law == "power":
@@ -96,7 +97,8 @@ def joint_law(law: str, onset: int, life: int, shape: float) -> JointLaw:
     elif law == "rate_change":
         change, level = onset + round(life * (0.4 + 0.2 * shape)), 6.0 + 6.0 * shape
         span = round((onset + life - change) * (FINAL_WEAR - level) / (critical - level))
-        events = (WearEvent("ramp", onset, change, 0.0, level), WearEvent("ramp", change, change + span, level, FINAL_WEAR))
+        events = (WearEvent("ramp", onset, change, 0.0, level),
+                  WearEvent("ramp", change, change + span, level, FINAL_WEAR))
     else:
         raise ValueError(f"law: unknown {law!r}; use one of {LAWS}")
     return JointLaw(law, onset, life, events)

@@ -204,7 +204,8 @@ class Drawer:
                   np.array([[CONE_WIDTH, 0.0], [CONE_WIDTH, critical]])]
         colors, labels = [[120, 60, 10], [220, 30, 30], [150, 150, 150]], ["trend", f"critical {critical:g}",
                                                                              f"horizon {horizon:g} d"]
-        days = last.get("days") if isinstance(last.get("days"), dict) else {}
+        days = last.get("days")
+        days = days if isinstance(days, dict) else {}
         for key, color in (("p10", [230, 140, 140]), ("median", [200, 40, 40]), ("p90", [230, 140, 140])):
             value = _number(days.get(key))
             if np.isfinite(value):

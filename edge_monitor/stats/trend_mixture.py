@@ -43,7 +43,8 @@ class TrendMixture:
         if self.filters[0].updates > before:
             self.updates = self.filters[0].updates
             if before > 0:          # the first estimate initialises every filter alike
-                self.log_weights = self.config.forgetting * self.log_weights + np.array([f.loglik for f in self.filters])
+                fits = np.array([f.loglik for f in self.filters])
+                self.log_weights = self.config.forgetting * self.log_weights + fits
 
     @property
     def rate_z(self) -> float:
@@ -92,6 +93,7 @@ class TrendMixture:
         filters, weights = state["filters"], np.asarray(state["log_weights"], dtype=float)
         if len(filters) != len(out.filters) or weights.shape != (len(out.filters),) or not np.all(np.isfinite(weights)):
             raise ValueError("saved wear trend: not a state the mixture could have saved")
-        out.filters = [KalmanTrend.from_state(config, s).with_rate_drift(q) for s, q in zip(filters, config.rate_drifts)]
+        out.filters = [KalmanTrend.from_state(config, s).with_rate_drift(q)
+                       for s, q in zip(filters, config.rate_drifts)]
         out.log_weights, out.updates = weights, out.filters[0].updates
         return out
