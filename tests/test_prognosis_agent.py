@@ -69,9 +69,13 @@ def test_the_wearing_joint_gets_a_forecast_with_its_alarm_and_the_healthy_one_no
     # run's detectors, learned from 3 values at Pf 1e-3, may well raise a false one: then it forecasts)
     quiet = [s.to_dict()["prognosis"] for s in symptoms if s.joint == 1 and not s.alarm]
     assert len(quiet) > 5 and {p["state"] for p in quiet[5:]} == {"no_trend"} and all(p["beyond_horizon"] for p in quiet)
-    raised = [a for s in symptoms for a in s.alarms if a.joint == 0 and a.state == "raised"]
-    assert raised and raised[0].prognosis is not None and raised[0].prognosis["state"] == "forecast"
-    first = raised[0].prognosis
+    records = [a for s in symptoms for a in s.alarms if a.joint == 0 and a.state in ("raised", "updated")]
+    assert records and all(a.prognosis is not None for a in records)
+    # the first alarm may come before the rate stands out (a "no growing wear found" forecast); a later
+    # record of the fault carries a band
+    forecasts = [a.prognosis for a in records if a.prognosis["state"] == "forecast"]
+    assert forecasts, [a.prognosis["text"] for a in records]
+    first = forecasts[0]
     band = first["cycles"]
     assert first["days"]["median"] > 0 and band["p10"] <= band["median"] <= (band["p90"] or float("inf"))
     assert "critical wear 35 in about" in first["text"]

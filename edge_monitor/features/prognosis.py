@@ -148,7 +148,7 @@ class Forecast:
         if self.state == "critical":
             return f"{c} reached (wear {self.level:.1f})"
         if self.beyond_horizon or self.cycles is None:
-            why = "no wear trend" if self.state == "no_trend" else "wear growing slowly"
+            why = "no growing wear found" if self.state == "no_trend" else "wear growing slowly"
             return f"{c}: {why}, beyond the {self.horizon_days:g}-day horizon"
         lo, mid, hi = (None if v is None else v / self.cycles_per_day for v in self.cycles)
         if mid is not None and mid < 1:                  # under a day: in test cycles, as the controller counts
