@@ -39,11 +39,11 @@ test-vcan: $(STAMP)
 # Soak with chaos (docs/RELIABILITY.md): simulator, agent, Zenoh router and subscriber as processes over
 # the pty link; agent kill -9, router and controller restarts, bus silence; every frame and cycle reconciled.
 soak: $(STAMP)
-	$(PY) tools/soak.py --duration 60 --json
+	$(PY) tools/soak/soak.py --duration 60 --json
 
 bench: $(STAMP)
 	$(PY) -m pip install --quiet -e '.[test,bench]'
-	$(PY) tools/bench_all.py
+	$(PY) tools/bench/bench_all.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

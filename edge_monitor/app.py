@@ -118,7 +118,7 @@ def build_app(config: AgentConfig, outputs: Outputs, stack: ExitStack, store: St
     :class:`~edge_monitor.sinks.rerun_view.RerunSetupError` (both ``ValueError``) with the fix, or
     :class:`~edge_monitor.sinks.jsonl.JsonlOpenError` (an ``OSError``: the JSONL file cannot be used).
     ``live``: detectors calibrate their thresholds in a worker process, so frames keep flowing
-    (replay calibrates inline: deterministic). ``source``: a foreign sample source (pipeline.sources);
+    (replay calibrates inline: deterministic). ``source``: a foreign sample source (sources.foreign_source.open_source);
     None: our frames."""
     calibrator = None
     if live and config.decision.enabled and config.decision.pf is None:

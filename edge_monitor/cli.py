@@ -34,7 +34,7 @@ SUBCOMMANDS: tuple[tuple[str, str], ...] = (
     ("commission", "commission"), ("fit-weights", "fit_weights"), ("glr", "glr"), ("view", "view"),
     ("evaluate", "evaluate"), ("check-mapping", "check_mapping"), ("export-trace", "export_trace"),
     ("acknowledge", "acknowledge"), ("listen", "listen"), ("schema", "schema"), ("router", "router"),
-    ("slcan-hub", "slcan_hub"),
+    ("slcan-hub", "slcan_hub"), ("historian", "historian"), ("history", "history"), ("deploy", "deploy"),
 )
 
 

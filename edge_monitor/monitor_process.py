@@ -3,7 +3,7 @@
 A replay spends about a quarter of its CPU reading the log and ingesting it (inflating the ``.blf``,
 decoding, E2E checks, cycle assembly) and the rest after ingest (the joints' monitors: segmentation,
 friction extraction, wear, KDE/KL, detectors; the outputs). With ``replay --jobs 2`` the parent does
-the first part and hands each :class:`~edge_monitor.pipeline.samples.IngestBlock` over a bounded queue
+the first part and hands each :class:`~edge_monitor.sources.samples.IngestBlock` over a bounded queue
 to a child (:class:`MonitorProcess`), which runs an :class:`~edge_monitor.pipeline.agent.Agent` on them
 with :meth:`~edge_monitor.pipeline.agent.Agent.update_ingested` and owns the outputs (JSONL, Rerun).
 The child sees the same blocks in the same order as a one-process replay, so it publishes the same
@@ -23,10 +23,10 @@ from types import SimpleNamespace
 from typing import Any
 
 from edge_monitor.app import build_app
-from edge_monitor.commands.common import output_failures, setup_failure
-from edge_monitor.pipeline.samples import IngestBlock
+from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
+from edge_monitor.sources.samples import IngestBlock
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,7 @@ class MonitorProcessError(RuntimeError):
 @dataclass
 class MonitorResult:
     """What the child returns at the end: the run statistics, the last symptom per joint (JSON form),
-    what it could not write (:func:`~edge_monitor.commands.common.output_failures`), or the exit code
+    what it could not write (:func:`~edge_monitor.run_failures.output_failures`), or the exit code
     and message of an output it could not open."""
 
     statistics: dict[str, Any] = field(default_factory=dict)

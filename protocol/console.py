@@ -33,6 +33,11 @@ EXIT_CODES_HELP = (
     "or the link failed); 2 usage error (bad arguments or values, invalid input or settings file, no CAN "
     "interface configured); 130 interrupted (Ctrl-C)")
 
+#: Said once under any help that cites docs/: a wheel installs none of them.
+DOCS_NOTE = ("docs/…: the project's documentation, in its source repository (a wheel installs none of it); "
+             "record schemas: edge-monitor schema KIND; service files and example mappings: edge-monitor deploy "
+             "--list")
+
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
@@ -91,6 +96,15 @@ def install_conventions(parser: argparse.ArgumentParser) -> None:
     for sub in subcommands(parser).values():
         add_verbosity_arguments(sub, after_command=True)
         sub.epilog = sub.epilog or EXIT_CODES_HELP
+    for p in (parser, *subcommands(parser).values()):
+        if _cites_docs(p):
+            p.epilog = f"{p.epilog}\n\n{DOCS_NOTE}"
+
+
+def _cites_docs(parser: argparse.ArgumentParser) -> bool:
+    texts = [parser.description or "", parser.epilog or ""]
+    texts += [a.help or "" for a in parser._actions] + [g.description or "" for g in parser._action_groups]
+    return any("docs/" in t for t in texts)
 
 
 def verbosity(args: argparse.Namespace) -> int:

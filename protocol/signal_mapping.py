@@ -16,6 +16,15 @@ from typing import Any, Mapping
 
 from protocol.catalogue import MAX_JOINTS
 from protocol.files import read_regular_or
+from protocol.mapping_limits import (
+    GEAR_RATIO,
+    MAX_LEVEL_SPEED,
+    SCALE,
+    TORQUE_NM,
+    VELOCITY_FACTOR,
+    duplicate_joint,
+    within,
+)
 from protocol.numbers import is_finite_number
 from protocol.units import UnitError, speed_factor, temperature_conversion, torque_factor
 
@@ -131,7 +140,9 @@ class SignalMapping:
         return f"mapping {self.path.name if self.path else '<text>'}: {key}"
 
 
-def load_mapping(path: str | Path) -> SignalMapping:
+def load_mapping(path: str | Path, commissioning: bool = False) -> SignalMapping:
+    """The mapping file at ``path``, validated (``commissioning``: ``[cycles] speeds`` may still be missing,
+    for check-mapping to find them)."""
     p = Path(path)
     raw = read_regular_or(p, MAX_MAPPING_BYTES, "mapping file", MappingError, UnreadableFile)
     try:
@@ -140,10 +151,10 @@ def load_mapping(path: str | Path) -> SignalMapping:
         raise MappingError(f"mapping file {p} is not UTF-8 text: {exc}") from None
     except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise MappingError(f"mapping file {p} is not valid TOML: {exc}") from None
-    return mapping_from_dict(data, p)
+    return mapping_from_dict(data, p, commissioning)
 
 
-def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> SignalMapping:
+def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None, commissioning: bool = False) -> SignalMapping:
     where = f"mapping {path.name if path else '<text>'}"
     base = path.parent if path is not None else Path(".")
     _only(data, {"kind", "dbc", "rate_hz", "listen_only", "read_mapping", "cycles", "joint", "e2e", "trace"}, where)
@@ -173,7 +184,10 @@ def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Sign
         if not (str(key).isdigit() and len(str(key)) <= 3 and int(key) <= MAX_JOINT) or not isinstance(table, dict):
             raise MappingError(f"{where}: joint.{str(key)[:24]}: tables are [joint.N] with N = 0 … {MAX_JOINT}")
         joints[int(key)] = _joint(int(key), table, kind, base, f"{where}: joint.{key}")
-    cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles")
+    duplicate = duplicate_joint(joints, kind, trace is not None and trace.layout == "long")
+    if duplicate:
+        raise MappingError(f"{where}: {duplicate}")
+    cycles = _cycles(data.get("cycles", {}), kind, joints, f"{where}: cycles", commissioning)
     e2e = tuple(_e2e(t, f"{where}: e2e[{i}]") for i, t in enumerate(_list(data.get("e2e", []), f"{where}: e2e")))
     rate = data.get("rate_hz")
     if rate is not None and not (is_finite_number(rate) and rate > 0):
@@ -190,12 +204,13 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
     if side not in ("motor", "joint"):
         raise MappingError(f"{where}: side: motor or joint (joint: speeds × gear_ratio, torques / gear_ratio)")
     ratio = t.get("gear_ratio", 1.0)
-    if not (is_finite_number(ratio) and ratio > 0):
-        raise MappingError(f"{where}: gear_ratio: must be > 0, got {ratio!r}")
+    if not (within(ratio, GEAR_RATIO) and ratio > 0):
+        raise MappingError(f"{where}: gear_ratio: must be > 0, {GEAR_RATIO[0]:g} … {GEAR_RATIO[1]:g}, got {ratio!r}")
     ref, rated = t.get("reference_torque_nm"), t.get("rated_torque_nm")
     for name, value in (("reference_torque_nm", ref), ("rated_torque_nm", rated)):
-        if value is not None and not (is_finite_number(value) and value > 0):
-            raise MappingError(f"{where}: {name}: must be > 0 N·m, got {value!r}")
+        if value is not None and not (within(value, TORQUE_NM) and value > 0):
+            raise MappingError(f"{where}: {name}: must be > 0 N·m, a robot motor's {TORQUE_NM[0]:g} … "
+                               f"{TORQUE_NM[1]:g} N·m, got {value!r}")
     jm = JointMapping(joint=joint, reference_torque_nm=None if ref is None else float(ref),
                       rated_torque_nm=None if rated is None else float(rated), gear_ratio=float(ratio), side=side,
                       key=None if t.get("key") is None else str(t["key"]))
@@ -213,8 +228,9 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
             raise MappingError(f"{where}: give eds = \"drive.eds\" or the TPDO mapping as "
                                "tpdo = [{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}]")
         vf = t.get("velocity_factor")
-        if vf is not None and not (is_finite_number(vf) and vf > 0):
-            raise MappingError(f"{where}: velocity_factor: rad/s per velocity unit, > 0, got {vf!r}")
+        if vf is not None and not (within(vf, VELOCITY_FACTOR) and vf > 0):
+            raise MappingError(f"{where}: velocity_factor: rad/s per velocity unit, > 0, {VELOCITY_FACTOR[0]:g} … "
+                               f"{VELOCITY_FACTOR[1]:g}, got {vf!r}")
         jm = JointMapping(**{**jm.__dict__, "node": node, "eds": eds, "tpdo": tpdo,
                              "velocity_factor": None if vf is None else float(vf)})
     elif "speed" not in refs or "torque" not in refs:
@@ -240,8 +256,9 @@ def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> S
     except UnitError as exc:
         raise MappingError(str(exc)) from None
     scale = t.get("scale", 1.0)
-    if not (is_finite_number(scale) and scale != 0):
-        raise MappingError(f"{where}: scale: a non-zero number applied before the unit, got {scale!r}")
+    if not within(scale, SCALE):
+        raise MappingError(f"{where}: scale: a non-zero number applied before the unit ({SCALE[0]:g} … "
+                           f"{SCALE[1]:g} in size), got {scale!r}")
     ref = SignalRef(message=t.get("message"), signal=t.get("signal"), column=t.get("column"),
                     index=None if t.get("index") is None else _int(t["index"], f"{where}.index"),
                     subindex=_int(t.get("subindex", 0), f"{where}.subindex"), unit=unit,
@@ -265,7 +282,7 @@ def _header_unit(column: Any) -> str | None:
 _DEFAULT_UNIT = {"speed": "rad/s", "torque": "fraction", "load": "fraction", "temperature": "degC"}
 
 
-def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> CycleMapping:
+def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str, commissioning: bool) -> CycleMapping:
     if not isinstance(t, dict):
         raise MappingError(f"{where}: must be a table [cycles]")
     _only(t, {"from", "speeds", "reference_joint", "cycle", "segment", "trigger", "value"}, where)
@@ -273,9 +290,10 @@ def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str) -> C
     if source not in CYCLE_SOURCES:
         raise MappingError(f"{where}: from: one of {list(CYCLE_SOURCES)}, got {source!r}")
     speeds = tuple(_list(t.get("speeds", []), f"{where}.speeds"))
-    if any(not (is_finite_number(v) and v > 0) for v in speeds):
-        raise MappingError(f"{where}: speeds: positive rad/s (motor side), the test cycle's levels in order")
-    if source in ("motion", "trigger") and not speeds:
+    if any(not (is_finite_number(v) and 0 < v <= MAX_LEVEL_SPEED) for v in speeds):
+        raise MappingError(f"{where}: speeds: positive rad/s up to {MAX_LEVEL_SPEED:g} (motor side), the test "
+                           "cycle's levels in order")
+    if source in ("motion", "trigger") and not speeds and not commissioning:
         raise MappingError(f"{where}: speeds: cycles found from the {source} need the designed speed levels "
                            "in order (rad/s, motor side); `edge-monitor check-mapping` lists the steady speeds "
                            "it finds")
@@ -333,10 +351,10 @@ def _trace(t: Any, where: str) -> TraceFormat:
         raise MappingError(f"{where}: time_unit: s or ms, got {fmt.time_unit!r}")
     if fmt.layout == "long" and not fmt.joint_column:
         raise MappingError(f"{where}: joint_column: a long table needs the column that names the joint")
-    if not (isinstance(fmt.separator, str) and len(fmt.separator) == 1 and fmt.separator not in "\r\n\"") \
-            or fmt.decimal not in (".", ",") or fmt.decimal == fmt.separator:
-        raise MappingError(f"{where}: separator: one character other than a quote or a line end; decimal: \".\" "
-                           "or \",\" (not the separator)")
+    if not (isinstance(fmt.separator, str) and len(fmt.separator) == 1 and fmt.separator not in "\r\n\"+-"
+            and not fmt.separator.isalnum()) or fmt.decimal not in (".", ",") or fmt.decimal == fmt.separator:
+        raise MappingError(f"{where}: separator: one character other than a quote, a line end, a letter, a digit or "
+                           "a sign (e.g. \";\", \",\" or a tab); decimal: \".\" or \",\" (not the separator)")
     if not isinstance(fmt.encoding, str) or fmt.encoding.lower().replace("_", "-") not in ENCODINGS:
         raise MappingError(f"{where}: encoding: one of {list(ENCODINGS)} (a trace tool on Windows often writes "
                            f"cp1252), got {fmt.encoding!r}")

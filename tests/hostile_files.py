@@ -149,12 +149,16 @@ class Run:
 
 
 def run_measured(args: list[str], *, timeout: float = 300.0, file_size_limit: int | None = None,
-                 cwd: str | Path | None = None, env: dict[str, str] | None = None) -> Run:
+                 cwd: str | Path | None = None, env: dict[str, str] | None = None,
+                 memory_limit: int | None = None) -> Run:
     """Run ``args`` to its end (its process group killed after ``timeout`` s); its peak resident set
     from ``wait4``. ``file_size_limit``: RLIMIT_FSIZE in bytes (a write past it fails with EFBIG, as on
-    a full disk; standard output and error are pipes, which it does not limit)."""
+    a full disk; standard output and error are pipes, which it does not limit). ``memory_limit``:
+    RLIMIT_AS in bytes (an allocation past it fails: MemoryError, std::bad_alloc)."""
 
     def limits() -> None:
+        if memory_limit is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (memory_limit, memory_limit))
         if file_size_limit is not None:
             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)         # EFBIG instead of a signal
             resource.setrlimit(resource.RLIMIT_FSIZE, (file_size_limit, file_size_limit))

@@ -293,7 +293,7 @@ def test_the_last_cycle_is_partial_when_the_stream_stops_inside_it(frames):
 def test_a_controller_restart_is_seen_by_its_tick_even_when_the_cycle_number_looks_like_progress():
     """Restart near the counter's wrap (64600 → 0 is 936 steps 'forward') or into the same cycle number:
     the controller tick going backward tells, once the next status frames continue the new tick."""
-    from edge_monitor.pipeline.cycle_numbering import CONFIRMATIONS, CycleNumbering
+    from edge_monitor.sources.cycle_numbering import CONFIRMATIONS, CycleNumbering
 
     for before, after in ((64_600, 0), (5, 5)):
         numbering = CycleNumbering()

@@ -1,4 +1,4 @@
-"""The shipped table's thresholds deliver their run length in an independent simulation (tools/arl_check.py:
+"""The shipped table's thresholds deliver their run length in an independent simulation (tools/studies/arl_check.py:
 another seed, every alarm acknowledged as the agent does), and a lower threshold does not."""
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from arl_check import delivered  # noqa: E402
 
-from edge_monitor.stats.threshold_table import _table, entry_correlation, entry_settings, lookup  # noqa: E402
+from edge_monitor.stats.threshold_table import entries_by_key, entry_correlation, entry_settings, lookup  # noqa: E402
 
 
 def _entry(at: str, dim: int, rho: float = 0.0, drifting: bool = True) -> dict:
-    for group in _table().values():
+    for group in entries_by_key().values():
         for e in group:
             corr = entry_correlation(e)
             if e["settings"]["at"] == at and len(corr) == dim and (dim == 1 or corr[1][2] == rho) \

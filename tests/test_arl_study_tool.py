@@ -1,4 +1,4 @@
-"""tools/arl_study.py's measurement of run lengths on real series (the renewal the agent study uses)."""
+"""tools/studies/arl_study.py's measurement of run lengths on real series (the renewal the agent study uses)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from arl_study import real_run_lengths  # noqa: E402
 

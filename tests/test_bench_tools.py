@@ -1,5 +1,5 @@
 """Correctness of the benchmark tools' own logic (no speed assertions): the River tuning bisection
-of tools/bench_detection.py, and how every tool writes its report."""
+of tools/bench/bench_detection.py, and how every tool writes its report."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+sys.path[:0] = [str(TOOLS / "bench"), str(TOOLS / "studies"), str(TOOLS / "soak")]
 
 import bench_detection as bd  # noqa: E402
 
@@ -50,7 +51,7 @@ def test_river_run_restarts_after_a_false_alarm_and_reports_the_first_alarm_afte
     assert n == 300 and false_alarms == 1 and hits and 200 <= hits[0] < 210
 
 
-# -- tools/bench_live.py (latency): link times, received symptoms, percentiles ----------------------------
+# -- tools/bench/bench_live.py (latency): link times, received symptoms, percentiles ----------------------------
 
 import bench_live  # noqa: E402
 

@@ -8,8 +8,8 @@ import can
 import numpy as np
 import pytest
 
-from edge_monitor.pipeline import log_source
-from edge_monitor.pipeline.log_source import LogReport, log_blocks_with_position
+from edge_monitor.sources import log_source
+from edge_monitor.sources.log_source import LogReport, log_blocks_with_position
 from sim_controller.config import SimConfig
 from sim_controller.output import record
 
@@ -106,7 +106,7 @@ def _concat(blocks: list) -> list[np.ndarray]:
 
 def test_object_timestamps_in_10_microsecond_ticks_or_nanoseconds_by_their_flag() -> None:
     """As python-can: object flag 1 counts 10 µs ticks, any other flag nanoseconds."""
-    from edge_monitor.pipeline.blf_blocks import CAN_OBJECT, TIME_TEN_MICS, objects_to_arrays
+    from edge_monitor.sources.blf_blocks import CAN_OBJECT, TIME_TEN_MICS, objects_to_arrays
 
     objects = np.zeros(2, dtype=CAN_OBJECT)
     objects["flags"] = [TIME_TEN_MICS, 2]

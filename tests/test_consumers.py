@@ -155,9 +155,11 @@ def test_listen_prints_json_lines_filtered_by_robot_joint_and_kind_also_kinds_ad
     assert {"kind": "advisory", "key": "edge/cell7/1/advisory", "robot": "cell7", "joint": 1,
             "text": "grease soon"} in lines
     assert all(r["kind"] != "health" for r in lines)
-    for r in lines:
+    for r in lines:             # a line as listen prints it, "kind" and "key" in front, is valid (issue 50)
         if r["kind"] == "symptom":
-            validate("symptom", {k: v for k, v in r.items() if k not in ("kind", "key")})
+            validate("symptom", r)
+    with pytest.raises(jsonschema.ValidationError):        # ... and stays no alarm
+        validate("symptom", {**lines[0], "kind": "alarm"})
     picked = [json.loads(x) for x in out1.splitlines()]
     assert [(r["kind"], r["joint"]) for r in picked] == [("symptom", 1), ("symptom", 1)]
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from edge_monitor.config import AgentConfig, DecisionConfig, KLConfig, ModelConfig, PlateauConfig
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.cycle_numbering import CONFIRMATIONS, MIN_CYCLE_S, CycleNumbering
+from edge_monitor.sources.cycle_numbering import CONFIRMATIONS, MIN_CYCLE_S, CycleNumbering
 
 from synthetic_frames import make_frames
 

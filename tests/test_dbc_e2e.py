@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from cantools.autosar.end_to_end import apply_profile2_crc, apply_profile5_crc
 
-from edge_monitor.pipeline.dbc_source import DbcDecoder
+from edge_monitor.sources.dbc_source import DbcDecoder
 from protocol.signal_mapping import MappingError, mapping_from_dict
 
 DBC = """VERSION ""

@@ -1,4 +1,4 @@
-"""tools/delivered_curve.py: a detector path replayed against many thresholds, alarms restarting it as
+"""studies.delivered (tools/studies/delivered_curve.py): a detector path replayed against many thresholds, alarms restarting it as
 an acknowledge does."""
 
 from __future__ import annotations
@@ -11,19 +11,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
-from delivered_curve import (  # noqa: E402
+from edge_monitor.config import config_from_mapping  # noqa: E402
+from studies.delivered import (  # noqa: E402
+    THRESHOLDS,
     Tally,
     check_variant,
-    poisson_interval,
     replay_joint,
     statistic_paths,
     summary,
     variant_job,
 )
-
-from edge_monitor.config import config_from_mapping  # noqa: E402
+from studies.statistics import poisson_interval  # noqa: E402
 
 
 @pytest.mark.parametrize("k,mean", [(0, 1.0), (3, 6.6), (40, 33.0)])
@@ -120,15 +120,13 @@ def test_the_command_refuses_a_bad_variant_with_a_message_before_replaying(capsy
 def test_a_scalar_gaussian_threshold_is_computed_once_per_setting_and_is_the_agents() -> None:
     """Thresholds of scalar Gaussian nominals depend on their number of values and the settings only, so
     the tool computes them once: the same as each job's own calibration, for two nominals of one length."""
-    import delivered_curve
-
     rows = _gaussian_rows(300, 5)
     jobs = [p.job for p in statistic_paths(rows, config_from_mapping({"decision": {"arl0_cycles": 1.0e7}}).decision)
             if p.quantity == "wear"]
     first = jobs[0]
     other = replace(first, nominal=tuple((v[0] * 2.0 + 1.0,) for v in first.nominal))
     targets = (100.0, 1000.0)
-    delivered_curve._STANDARD.clear()
-    got = [delivered_curve._thresholds(job, targets) for job in (first, other)]
-    assert len(delivered_curve._STANDARD) == 1 and got[0] == got[1]
+    THRESHOLDS.clear()
+    got = [THRESHOLDS.thresholds(job, targets) for job in (first, other)]
+    assert len(THRESHOLDS) == 1 and got[0] == got[1]
     assert got[1] == {t: replace(other, arl0=t).run().threshold for t in targets}

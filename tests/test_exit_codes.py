@@ -78,6 +78,7 @@ CASES = [
     ("edge", ["listen", "--kind", "health", "--count", "1", "--duration", "0.5", "--no-history"], 1),  # no agent
     ("edge", ["schema", "nosuchkind"], 2),
     ("edge", ["schema", "symptom", "-o", f"{MISSING}/symptom.json"], 1),
+    ("edge", ["deploy", "nosuchfile"], 2),
     # operator requests
     ("edge", ["acknowledge", "--robot", "r1"], 2),
     ("edge", ["acknowledge", "--robot", "r1", "--joint", "0", "--zenoh-mode", "client", "--zenoh-connect",
@@ -86,6 +87,16 @@ CASES = [
     ("edge", ["check-mapping", f"{MISSING}/c.log", "--mapping", f"{MISSING}/m.toml"], 2),
     ("edge", ["check-mapping", f"{MISSING}/c.log"], 1),
     ("edge", ["export-trace", f"{MISSING}/run.blf", "--out", f"{MISSING}/x.csv"], 1),
+    # the historian and its questions
+    ("edge", ["historian"], 2),                                              # no database named
+    ("edge", ["historian", "--db", "postgresql://u:secret@127.0.0.1/x"], 2),  # a password on the command line
+    ("edge", ["historian", "import", "--db", "{dir}/h.db"], 2),              # nothing to import
+    ("edge", ["historian", "import", f"{MISSING}/r1.jsonl", "--db", "{dir}/h.db"], 1),
+    ("edge", ["historian", "--db", "{dir}/h.db", "--zenoh-mode", "client", "--zenoh-connect",
+              "tcp/127.0.0.1:{closed}"], 1),
+    ("edge", ["history", "--db", "{dir}/h.db", "--since", "yesterday"], 2),
+    ("edge", ["history", "--db", f"{MISSING}/h.db"], 1),
+    ("edge", ["history", "--zenoh-mode", "client", "--zenoh-connect", "tcp/127.0.0.1:{closed}"], 1),
     # the infrastructure
     ("edge", ["router", "--tls-cert", "x.pem"], 2),
     ("edge", ["router", "--config", f"{MISSING}/router.json5"], 2),

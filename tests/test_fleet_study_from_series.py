@@ -1,17 +1,14 @@
-"""tools/healthy_fleet_study.py --from-series (only the detectors, over the per-cycle quantities
-tools/fleet_series.py keeps) finds what the whole agent on the fast path finds."""
+"""studies.robots.run_robot_series (``tools/studies/healthy_fleet_study.py --from-series``: only the detectors,
+over the per-cycle quantities studies.series keeps) finds what the whole agent on the fast path finds."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
-
-import fleet_series  # noqa: E402
-from healthy_fleet_study import RunSpec, run_robot, run_robot_series  # noqa: E402
+from studies import series
+from studies.robots import RunSpec, run_robot, run_robot_series
 
 SCENARIO = """
 [simulation]
@@ -31,7 +28,7 @@ def test_the_detectors_over_kept_series_alarm_as_the_agent_does(tmp_path: Path, 
     once and then read from the cache; except the wear score's warm-up, which the series start ≈ 10
     cycles later (a row is kept once the KL distances have values too), so the wear detector's first
     nominal is learned from later cycles."""
-    monkeypatch.setattr(fleet_series, "CACHE", tmp_path / "cache")
+    monkeypatch.setattr(series, "CACHE", tmp_path / "cache")
     scenario = tmp_path / "wear.toml"
     scenario.write_text(SCENARIO)
     spec = RunSpec(seed=3, cycles=None, joints=2, overrides=(("decision.arl0_cycles", 50),), progress=0,
@@ -63,5 +60,5 @@ def test_the_kept_series_key_reads_a_toml_by_its_settings_without_the_decision_t
     for name, text in {"base": base, **variants}.items():
         path = tmp_path / f"{name}.toml"
         path.write_text(text, encoding="utf-8")
-        key[name] = fleet_series._settings_bytes(path)
+        key[name] = series.settings_bytes(path)
     assert key["comment"] == key["decision"] == key["base"] != key["kl"]

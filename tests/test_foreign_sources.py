@@ -16,23 +16,19 @@ import pytest
 
 from edge_monitor.config import load_config
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.cia402_source import Cia402Decoder
-from edge_monitor.pipeline.log_source import log_blocks
-from edge_monitor.pipeline.sources import open_source
+from edge_monitor.sources.cia402_source import Cia402Decoder
+from edge_monitor.sources.foreign_source import open_source
+from edge_monitor.sources.log_source import log_blocks
 from protocol.signal_mapping import load_mapping
 
-from foreign_mappings import SPEEDS, mapping
+from foreign_mappings import SPEEDS, mapping, record
 
 pytestmark = pytest.mark.slow
 CYCLES = 4
 
 
 def _sim(tmp: Path, name: str, profile: str) -> Path:
-    out = tmp / f"{name}.blf"
-    subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(out), "--joints", "2",
-                    "--cycles", str(CYCLES), "--seed", "4", "--speeds", ",".join(map(str, SPEEDS)), "--profile",
-                    profile, "-q"], check=True)
-    return out
+    return record(tmp, name, profile, suffix=".blf", cycles=CYCLES)
 
 
 def _replay(log: Path, mapping_path: Path | None) -> tuple[dict, list[dict]]:

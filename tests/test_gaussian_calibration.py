@@ -14,16 +14,13 @@ from edge_monitor.stats.calibration import CalibrationBudget, calibrate
 from edge_monitor.stats.gaussian_calibration import (
     DRIFT_TILTS,
     H_STEP,
-    SEED,
-    WANDER_COEFFICIENT,
     GaussianBudget,
     GaussianSettings,
-    _Noise,
-    drift_draws,
     read_from_curve,
     threshold,
     thresholds,
 )
+from edge_monitor.stats.gaussian_fleet import SEED, WANDER_COEFFICIENT, StreamNoise, drift_draws
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 from edge_monitor.stats.learning_error import TILT_DIRECTION, TILTS, scalar_fits, vector_fits
 from edge_monitor.stats.threshold_table import lookup
@@ -293,7 +290,7 @@ def test_the_wander_has_the_stated_serial_structure_and_no_wander_draws_as_befor
     and 5 of them, which cover the small bias of removing each series mean); without
     wander the generator draws exactly what the iid calibration drew, so tabulated thresholds stand."""
     f, phi = 0.3, WANDER_COEFFICIENT
-    noise = _Noise(np.eye(1), (f,), np.random.default_rng(3))
+    noise = StreamNoise(np.eye(1), (f,), np.random.default_rng(3))
     x = noise.sequence(2000, 400)[:, :, 0]
     x = x - x.mean(axis=1, keepdims=True)
     lag1 = float(np.mean(x[:, 1:] * x[:, :-1]) / np.mean(x * x))
@@ -302,7 +299,7 @@ def test_the_wander_has_the_stated_serial_structure_and_no_wander_draws_as_befor
     ratio = k * x.reshape(2000, -1, k).mean(axis=2).var() / x.var()
     expected = (1 - f) + f * ((1 + phi) / (1 - phi) - 2 * phi * (1 - phi ** k) / (k * (1 - phi) ** 2))
     assert abs(ratio - expected) < 0.15
-    iid = _Noise(np.eye(2), (), np.random.default_rng(4)).sequence(3, 5)
+    iid = StreamNoise(np.eye(2), (), np.random.default_rng(4)).sequence(3, 5)
     assert np.array_equal(iid, np.random.default_rng(4).standard_normal((3, 5, 2)) @ np.eye(2).T)
     assert GaussianSettings(240, 100, 0.6, 1.0, "increase", 0.75, 3.0, "nominal", wander=(0.0,)).wander == ()
 

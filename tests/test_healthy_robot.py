@@ -12,29 +12,16 @@ deviations, which every quantity is designed to see (the alarm side).
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
+
+from studies.robots import RunSpec, run_robot
+from studies.tally import summarise
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 
-_TOOL = Path(__file__).resolve().parents[1] / "tools" / "healthy_fleet_study.py"
-
-
-def _study():
-    spec = importlib.util.spec_from_file_location("healthy_fleet_study", _TOOL)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module                    # dataclasses look their module up there
-    assert spec.loader is not None
-    spec.loader.exec_module(module)
-    return module
-
 
 def test_healthy_joint_stays_quiet_and_a_wearing_joint_alarms_under_default_drift() -> None:
-    study = _study()
-    run = study.run_robot(study.RunSpec(seed=3, cycles=200, joints=2, wear_ramps=("1:100:200:0:60",), progress=0))
+    run = run_robot(RunSpec(seed=3, cycles=200, joints=2, wear_ramps=("1:100:200:0:60",), progress=0))
     assert run["temperature"][1] - run["temperature"][0] > 5.0, "the lubricant must actually drift"
     healthy = [a for a in run["alarms"] if a["joint"] == 0]
     worn = [a for a in run["alarms"] if a["joint"] == 1]
@@ -47,7 +34,7 @@ def test_healthy_joint_stays_quiet_and_a_wearing_joint_alarms_under_default_drif
     assert healthy == [], healthy
     assert worn, "a 0 → 60 wear ramp went unnoticed"
     assert min(a["cycle"] for a in worn) > 100                     # nothing before the wear starts
-    summary = study.summarise([run])
+    summary = summarise([run])
     assert summary["false_alarms"] == 0
     assert summary["detections"][0]["first_alarm"]["joint"] == 1
 
@@ -59,8 +46,7 @@ def test_after_warm_up_the_steady_detectors_stay_quiet_and_still_find_wear() -> 
     ARL0 = 10⁴ cycles. The healthy joint is watched for ≈ 4 × 250 steady detector-cycles (expected
     false alarms ≈ 0.1) plus its warm-up; joint 1's wear ramps 0 → 60 from cycle 1 000, after its
     steady stage began, and must be found then, not before."""
-    study = _study()
-    run = study.run_robot(study.RunSpec(seed=3, cycles=1150, joints=2, wear_ramps=("1:1000:1150:0:60",),
+    run = run_robot(RunSpec(seed=3, cycles=1150, joints=2, wear_ramps=("1:1000:1150:0:60",),
                                         progress=0))
     for joint in ("0", "1"):
         steady = run["steady_from"][joint]

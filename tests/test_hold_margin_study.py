@@ -1,4 +1,4 @@
-"""tools/hold_margin_study.py: the drift of a joint's KL distance binned by how far its smoothed temperature
+"""tools/studies/hold_margin_study.py: the drift of a joint's KL distance binned by how far its smoothed temperature
 is above its learning span, and the raw hold it replaced, on hand-made series."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from hold_margin_study import ALLOWANCE, drift_table, joint_rows  # noqa: E402
 

@@ -17,9 +17,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.config import load_config
-from edge_monitor.pipeline.samples import DecodedSamples, JointColumns
-from edge_monitor.pipeline.sources import open_source
-from edge_monitor.pipeline.trace_source import TraceError, TraceUnreadable, decoded_batches
+from edge_monitor.sources.foreign_source import open_source
+from edge_monitor.sources.samples import DecodedSamples, JointColumns
+from edge_monitor.sources.trace_source import decoded_batches
+from edge_monitor.sources.trace_table import TraceError, TraceUnreadable
 from protocol.signal_mapping import load_mapping, mapping_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge_monitor.pipeline.ingest import Ingest
+from edge_monitor.sources.ingest import Ingest
 
 from synthetic_frames import make_frames
 

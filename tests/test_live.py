@@ -9,8 +9,8 @@ import can
 
 from edge_monitor.config import AgentConfig
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
+from edge_monitor.sources.frame_source import LiveSource
 from protocol import frames as fr
 
 

@@ -17,8 +17,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge_monitor.pipeline import blf_blocks
-from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
+from edge_monitor.sources import blf_blocks
+from edge_monitor.sources.log_source import LogReadError, LogReport, log_blocks_with_position
 from sim_controller.config import SimConfig
 from sim_controller.output import record
 

@@ -19,7 +19,7 @@ from edge_monitor.app import Outputs
 from edge_monitor.commands.replay import AUTO_SPLIT_BYTES, _jobs
 from edge_monitor.config import AgentConfig
 from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError
-from edge_monitor.pipeline.samples import IngestBlock
+from edge_monitor.sources.samples import IngestBlock
 from protocol.console import LOG_FORMAT
 
 

@@ -1,4 +1,4 @@
-"""tools/no_temperature_study.py: a robot without motor temperature, as the study runs it."""
+"""tools/studies/no_temperature_study.py: a robot without motor temperature, as the study runs it."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-TOOLS = Path(__file__).resolve().parent.parent / "tools"
+TOOLS = Path(__file__).resolve().parent.parent / "tools" / "studies"
 sys.path.insert(0, str(TOOLS))
 
 from no_temperature_study import without_temperature  # noqa: E402

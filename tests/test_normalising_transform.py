@@ -86,13 +86,13 @@ def _steady_detector(transform: str = "yeo-johnson", seed: int = 3) -> tuple[Seq
 
 def test_a_steady_detector_watches_transformed_values_and_reports_shifts_in_its_units() -> None:
     det, rng = _steady_detector()
-    assert det._transform is not None and det._transform.lambdas[0] > 1.0
+    assert det.transform is not None and det.transform.lambdas[0] > 1.0
     for i, v in enumerate(-rng.gamma(4.0, size=30) + 6.0):       # +6 units ≈ 3 σ: an alarm
         decision = det.update(v, 260 + i)
     assert decision.alarm and decision.delta is not None
     assert 3.0 < decision.delta[0] < 9.0                         # in the units fed, not transformed ones
     plain, _ = _steady_detector("none")
-    assert plain._transform is None
+    assert plain.transform is None
 
 
 def test_a_transformed_detector_continues_identically_after_a_restore_and_rejects_a_damaged_one() -> None:
@@ -159,7 +159,7 @@ def test_a_steady_detector_with_no_axis_selected_has_no_transform() -> None:
     det.begin_steady()
     for i, v in enumerate(-rng.gamma(4.0, size=40)):
         det.update(v, i)
-    assert det.stage == "steady" and det.threshold is not None and det._transform is None
+    assert det.stage == "steady" and det.threshold is not None and det.transform is None
     assert det.state_dict()["transform"] is None
 
 

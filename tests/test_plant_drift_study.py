@@ -1,4 +1,4 @@
-"""tools/plant_drift_study.py: the per-period drift of the steady detectors' inputs and the pooled drift the
+"""tools/studies/plant_drift_study.py: the per-period drift of the steady detectors' inputs and the pooled drift the
 steady calibration is given, on hand-made standard-unit values."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from plant_drift_study import STEADY_NOMINAL, input_summary, period_of  # noqa: E402
 

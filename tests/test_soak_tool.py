@@ -1,4 +1,4 @@
-"""tools/soak.py as a user runs it: simulator, agent, Zenoh router and subscriber as separate processes
+"""tools/soak/soak.py as a user runs it: simulator, agent, Zenoh router and subscriber as separate processes
 over the pty slcan link, with every kind of chaos; and its link ledger on synthetic frames."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 
 from synthetic_frames import make_frames
 
-TOOLS = Path(__file__).resolve().parent.parent / "tools"
+TOOLS = Path(__file__).resolve().parent.parent / "tools" / "soak"
 SOAK = TOOLS / "soak.py"
 sys.path.insert(0, str(TOOLS))
 

@@ -13,7 +13,7 @@ from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.stats.calibration import calibrate
 from edge_monitor.stats.gaussian_calibration import GaussianSettings
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
-from edge_monitor.stats.threshold_table import _table, entry_rho, key, lookup, tabulated_correlation
+from edge_monitor.stats.threshold_table import entries_by_key, entry_rho, key, lookup, tabulated_correlation
 
 JOINT = DecisionConfig().detector_config("joint")
 WARM_UP = GaussianSettings(JOINT.n_nominal, JOINT.window, JOINT.gamma0, JOINT.rho, JOINT.direction,
@@ -28,7 +28,7 @@ def _corr(rho: float, wear: tuple[float, float] = (0.0, 0.0)) -> tuple[tuple[flo
 
 
 def _entries(settings: GaussianSettings) -> list[dict]:
-    return _table()[key(settings, 3)]
+    return entries_by_key()[key(settings, 3)]
 
 
 @pytest.mark.parametrize("settings", [WARM_UP, STEADY], ids=["warm-up", "steady"])
@@ -120,7 +120,7 @@ def test_the_table_tool_can_recompute_one_quantitys_entry_alone() -> None:
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools" / "studies"))
     from threshold_table import wanted
 
     from edge_monitor.pipeline.detectors import DecisionConfig

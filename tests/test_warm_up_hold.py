@@ -170,30 +170,30 @@ def test_a_joint_without_motor_temperature_is_followed_by_its_lubricant_temperat
 
     learning = JointMonitor(0, config_from_mapping({}))
     assert not learning.model_ready
-    assert learning._joint_temperature(SimpleNamespace(motor_temperature=None), {"temperature": 41.5}) == \
+    assert learning.joint_temperature(SimpleNamespace(motor_temperature=None), {"temperature": 41.5}) == \
         (None, FRICTION_TEMPERATURE)
 
     config = config_from_mapping({"model": {"enabled": False}})
     monitor = JointMonitor(0, config)
     read = {"temperature": 41.5}
-    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (41.5, FRICTION_TEMPERATURE)
-    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), {}) == (None, FRICTION_TEMPERATURE)
+    assert monitor.joint_temperature(SimpleNamespace(motor_temperature=None), read) == (41.5, FRICTION_TEMPERATURE)
+    assert monitor.joint_temperature(SimpleNamespace(motor_temperature=None), {}) == (None, FRICTION_TEMPERATURE)
     for _ in range(300):               # the friction-read history: the settling window fills, a span is learned
         monitor.detectors.observe_temperature(41.5, FRICTION_TEMPERATURE)
     monitor.detectors.spans.learned["kl_raw"] = Span(40.0, 43.0)
     assert monitor.detectors.settling.rate is not None
-    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=50.0), read) == (50.0, MOTOR_TEMPERATURE)
+    assert monitor.joint_temperature(SimpleNamespace(motor_temperature=50.0), read) == (50.0, MOTOR_TEMPERATURE)
     assert monitor.detectors.settling.rate is None and not monitor.detectors.spans.learned
-    assert monitor._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
+    assert monitor.joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
     restored = JointMonitor.from_state(0, config, json.loads(json.dumps(monitor.state_dict())))
-    assert restored._joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
+    assert restored.joint_temperature(SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
     old = json.loads(json.dumps(monitor.state_dict()))          # saved before the sources were kept:
     del old["motor_temperature_seen"], old["friction_temperature_used"]
     old["detectors"][SETTLING_KEY]["count"] = 0                 # its settling never saw a motor temperature
-    assert JointMonitor.from_state(0, config, old)._joint_temperature(
+    assert JointMonitor.from_state(0, config, old).joint_temperature(
         SimpleNamespace(motor_temperature=None), read) == (41.5, FRICTION_TEMPERATURE)
     old["detectors"][SETTLING_KEY]["count"] = 12                # it did
-    assert JointMonitor.from_state(0, config, old)._joint_temperature(
+    assert JointMonitor.from_state(0, config, old).joint_temperature(
         SimpleNamespace(motor_temperature=None), read) == (None, MOTOR_TEMPERATURE)
 
     # The holds name what the temperature is.

@@ -1,4 +1,4 @@
-"""tools/warmup_drift_study.py: the drift measure, and the physics that sets kl.min_speed."""
+"""tools/studies/warmup_drift_study.py: the drift measure, and the physics that sets kl.min_speed."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
 
 from warmup_drift_study import drift_rows, residual  # noqa: E402
 

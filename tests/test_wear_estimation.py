@@ -3,7 +3,7 @@
 Monte Carlo data are made as sim_controller makes them (docs/WEAR_ESTIMATION.md §4): |τl| ~ U(0.3, 0.7),
 the controller's estimate μl = τl + N(0, 0.1²), a per-cycle, per-level model error N(0, σ²) with
 σ = 5.7e-3, and the extraction error N(0, 7e-5²) (passed as stderr); the lubricant temperature is
-fixed per test. The full study is tools/mc_wear_study.py; here fewer cycles, with tolerances derived
+fixed per test. The full study is tools/studies/mc_wear_study.py; here fewer cycles, with tolerances derived
 from the Monte Carlo standard errors of that count (0.1 % two-sided unless stated).
 """
 
@@ -354,7 +354,7 @@ RUNS = 100
 @pytest.mark.slow
 @pytest.mark.parametrize("wear", [20.0, 35.0])
 def test_joint_estimate_is_biased_low_at_the_design_speeds(estimator, marginal_estimator, designs, wear):
-    """Documents the finding of tools/mc_wear_study.py: at the design speeds (clustered where
+    """Documents the finding of tools/studies/mc_wear_study.py: at the design speeds (clustered where
     ∂τf/∂ξ ≈ 0 at 40 °C, a fold of τ0 in ξ) the joint ML of §3 is biased low, the marginal one
     less. Paired on the same cycles: the mean difference joint − marginal is negative beyond its own
     3.29 standard errors."""

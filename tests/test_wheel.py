@@ -1,7 +1,9 @@
 """The product as a user gets it: a wheel built from a clean clone (the committed files), installed in a
-fresh venv, used outside the checkout. It records a log, replays it to JSONL with UTC times and to a
-recording that `rerun rrd verify` accepts, starts a router and the agent against it, and `listen` prints
-the agent's symptoms; nothing it prints names a source-tree path, and Rerun's usage reporting is off."""
+fresh venv, used outside the checkout. Headless first (no extras: its size is measured, the viewer and
+the trace tables say which extra they need, the service files print), then with the viewer extra: it
+records a log, replays it to JSONL with UTC times and to a recording that `rerun rrd verify` accepts,
+starts a router and the agent against it, and `listen` prints the agent's symptoms; nothing it prints
+names a source-tree path, and Rerun's usage reporting is off."""
 
 from __future__ import annotations
 
@@ -28,6 +30,9 @@ REPO = Path(__file__).resolve().parents[1]
 START_TIME = 1_795_000_000        # 2026-11-18T09:46:40Z: the recorded frames carry wall-clock time
 SIM_FAST = ["--joints", "1", "--cycles", "3", "--speeds", "20", "--plateau-time", "0.3", "--seed", "5"]
 FORBIDDEN = ("tools/", ".venv/bin", "edge_monitor/defaults", str(REPO))   # source-tree paths
+#: The headless install's goal [MB]: the venv with the agent and its dependencies, without rerun-sdk (≈ 490 MB)
+#: and pyarrow (≈ 170 MB); measured 287 MB with Python 3.11 (docs/OPERATIONS.md, "Installing it").
+HEADLESS_MB = 300
 
 
 def _git_archive(dest: Path) -> None:
@@ -54,7 +59,7 @@ def installed(tmp_path_factory) -> dict:
     names = zipfile.ZipFile(wheel).namelist()
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     assert "edge_monitor/schemas/symptom.schema.json" in names and "protocol/dbc/robot_joints.dbc" in names
-    assert not any(n.startswith(("tests/", "tools/")) for n in names)
+    assert not any(n.startswith(("tests/", "tools/", "studies/")) for n in names)
     venv = root / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     done = subprocess.run([str(venv / "bin" / "pip"), "install", "-q", str(wheel)], capture_output=True, text=True,
@@ -66,7 +71,40 @@ def installed(tmp_path_factory) -> dict:
     env.update(PATH=f"{venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}", HOME=str(home))
     work = root / "outside"
     work.mkdir()
-    return {"bin": venv / "bin", "env": env, "work": work, "home": home, "printed": []}
+    return {"bin": venv / "bin", "env": env, "work": work, "home": home, "printed": [], "wheel": wheel, "venv": venv}
+
+
+def _with_viewer(installed: dict) -> None:
+    """Add the viewer extra to the venv (once): what a desk, not an edge box, installs."""
+    if not installed.get("viewer"):
+        done = subprocess.run([str(installed["bin"] / "pip"), "install", "-q", f"{installed['wheel']}[viewer]"],
+                              capture_output=True, text=True, timeout=1200)
+        assert done.returncode == 0, done.stderr[-3000:]
+        installed["viewer"] = True
+
+
+def _size_mb(path: Path) -> float:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file() and not p.is_symlink()) / 1e6
+
+
+def test_the_headless_wheel_is_small_and_says_which_extra_a_feature_needs(installed):
+    assert not installed.get("viewer"), "runs before the viewer extra is installed"
+    size = _size_mb(installed["venv"])
+    assert size <= HEADLESS_MB, f"the headless venv takes {size:.0f} MB"
+    for module in ("rerun", "pyarrow"):
+        probe = subprocess.run([str(installed["bin"] / "python"), "-c", f"import {module}"], capture_output=True,
+                               env=installed["env"], timeout=120)
+        assert probe.returncode != 0, f"{module} came with the headless install"
+    _run(installed, "sim-controller", "record", "-o", "headless.blf", *SIM_FAST, "-q")
+    replay = _run(installed, "edge-monitor", "replay", "headless.blf", "--json", "-q")
+    assert json.loads(replay.stdout)["symptoms"] == 3
+    for cmd, says in ((["replay", "headless.blf", "--rerun", "save:x.rrd"], "[viewer]"),
+                      (["export-trace", "headless.blf", "--out", "t.csv"], "[traces]")):
+        done = subprocess.run([str(installed["bin"] / "edge-monitor"), *cmd], cwd=installed["work"],
+                              env=installed["env"], capture_output=True, text=True, timeout=300)
+        assert done.returncode == 1 and says in done.stderr and "Traceback" not in done.stderr, done.stderr
+    unit = _run(installed, "edge-monitor", "deploy", "edge-monitor.service").stdout
+    assert "Type=notify" in unit and "ExecReload=" in unit
 
 
 def _run(installed: dict, *cmd: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
@@ -87,6 +125,7 @@ def _utc(text: str) -> float:
 
 
 def test_the_installed_wheel_records_and_replays_to_jsonl_with_utc_times_and_to_a_valid_recording(installed):
+    _with_viewer(installed)
     _run(installed, "sim-controller", "record", "-o", "run.blf", *SIM_FAST, "--start-time", str(START_TIME), "-q")
     replay = _run(installed, "edge-monitor", "replay", "run.blf", "--jsonl", "symptoms.jsonl", "--json",
                   "--rerun", "save:run.rrd")

@@ -17,14 +17,12 @@ import json
 import sys
 import threading
 import time
-from dataclasses import replace
 from typing import Any
 
-from edge_monitor.commands.common import add_zenoh_arguments, zenoh_options
+from edge_monitor.commands.common import add_tls_arguments, add_zenoh_arguments, zenoh_options_with_tls
 from edge_monitor.features.registry import QUANTITIES
 from edge_monitor.sinks.acknowledge import AcknowledgeRequest, parse_request
 from edge_monitor.sinks.keys import ACKNOWLEDGE, ALARM, STATE, check_robot_name, joint_key
-from edge_monitor.sinks.zenoh_security import TlsFiles
 from edge_monitor.sinks.zenoh_session import ZenohOptions, ZenohSetupError, open_session
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, EXIT_OK, UsageError
 from protocol.frames import MAX_JOINTS
@@ -49,10 +47,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=10.0, metavar="S",
                    help="wait at most S seconds for the agent (default 10)")
     add_zenoh_arguments(p)
-    tls = p.add_argument_group("TLS", "connect to the router over TLS (docs/SECURITY.md), as an operator")
-    tls.add_argument("--tls-ca", metavar="PEM", help="CA certificate the router's certificate is checked against")
-    tls.add_argument("--tls-cert", metavar="PEM", help="this operator's certificate (mTLS identity)")
-    tls.add_argument("--tls-key", metavar="PEM", help="its private key")
+    add_tls_arguments(p, "an operator")
     p.set_defaults(func=run)
 
 
@@ -84,10 +79,7 @@ def _arguments(args: argparse.Namespace) -> tuple[AcknowledgeRequest, ZenohOptio
     except ValueError as exc:
         raise UsageError(f"--by/--note: {exc}") from None
     try:
-        options = zenoh_options(args)
-        if args.tls_ca or args.tls_cert or args.tls_key:
-            options = replace(options, tls=TlsFiles.from_paths(args.tls_ca, args.tls_cert, args.tls_key))
-        options.to_config()                         # a bad config file or a plain endpoint with TLS
+        options = zenoh_options_with_tls(args)      # a bad config file or a plain endpoint with TLS
     except ZenohSetupError as exc:
         raise UsageError(str(exc)) from None
     return request, options

@@ -3,17 +3,21 @@
 Reads a capture (a python-can log, or a trace table for a ``trace`` mapping) or listens on a live bus
 (listen-only: nothing is sent) for ``--seconds``, decodes it as the agent would and prints per joint:
 the signals used, samples, rate, the range of speed [rad/s], torque [fraction of T_ref], load and motor
-temperature, what is missing (and what the agent falls back to), the steady speeds found (candidates for
-``[cycles] speeds``) and the cycles found. Without ``--mapping``: our own frames.
+temperature, what is missing (and what the agent falls back to), the steady speeds found, the test
+cycle's levels in its order without the production motion's speeds (what ``[cycles] speeds`` should say:
+a mapping may leave it out for this check) and the cycles found. Without ``--mapping``: our own frames.
 
 Exit codes: 0 the mapping decodes; 2 a mapping that does not load or names a missing message, signal or
-object, a unit that does not convert, a joint with no frames, or values beyond any robot's (a wrong
-unit, scale or reference torque); 1 the capture or link cannot be read.
+object, a unit that does not convert, a joint with no frames, values no robot has (beyond any robot's,
+or never above a moving one's: a wrong unit, scale or reference torque), no cycle found, cycle marks that
+are no counter, frames cut short or failing E2E, or ``[cycles] speeds`` missing; 1 the capture or link
+cannot be read.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from typing import Any, Iterator
@@ -21,12 +25,12 @@ from typing import Any, Iterator
 import numpy as np
 
 from edge_monitor.commands.common import load_agent_config, print_json
-from edge_monitor.pipeline.frame_source import FrameArrays
-from edge_monitor.pipeline.ingest import Ingest
-from edge_monitor.pipeline.log_source import LogReadError, log_blocks
-from edge_monitor.pipeline.samples import DecodedSamples, IngestBlock, JointColumns, StatusColumns
-from edge_monitor.pipeline.signal_check import SignalCheck
-from protocol.console import EXIT_FAILURE, EXIT_USAGE, add_can_arguments, can_options
+from edge_monitor.sources.frame_source import FrameArrays
+from edge_monitor.sources.ingest import Ingest
+from edge_monitor.sources.log_source import LogReadError, log_blocks
+from edge_monitor.sources.samples import DecodedSamples, IngestBlock, JointColumns, StatusColumns
+from edge_monitor.sources.signal_check import SignalCheck
+from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError, add_can_arguments, can_options
 
 FALLBACK = {"temperature": "site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
                            "lubricant temperature read from the friction for the detectors' stages and holds",
@@ -49,6 +53,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise UsageError(f"--seconds {args.seconds}: give how much to read, > 0 s (e.g. 120: a few test cycles)")
     cfg = load_agent_config(args)
     try:
         check, decode = _prepare(cfg, args.mapping)
@@ -76,25 +82,34 @@ def _prepare(cfg: Any, mapping_path: str | None) -> tuple[SignalCheck, Any]:
     """The check and a decoder ``(ids, data, dlc, ts) -> DecodedSamples`` (or the mapping, for tables)."""
     if mapping_path is None:
         ingest = Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
-        return SignalCheck([], cfg.rate_hz, None, cfg.segmentation), lambda *block: _native(ingest.update(*block),
-                                                                                          cfg.rate_hz)
-    from edge_monitor.pipeline.sources import config_for, decoder_for, open_source
+        native = SignalCheck([], cfg.rate_hz, None, cfg.segmentation, frames=ingest.c)
+        native.cycles_seen = set()
+        return native, lambda *block: _native(ingest.update(*block), cfg.rate_hz, native.cycles_seen)
+    from edge_monitor.pipeline.agent_config import config_for
+    from edge_monitor.sources.foreign_source import decoder_for, open_source
     from protocol.signal_mapping import load_mapping
-    mapping = load_mapping(mapping_path)
+    mapping = load_mapping(mapping_path, commissioning=True)
+    speeds_missing = mapping.cycles.source != "controller" and not mapping.cycles.speeds
     cfg = config_for(cfg, mapping)
     decoder = decoder_for(mapping)
-    stream = open_source(mapping, cfg).stream
+    stream = None if speeds_missing else open_source(mapping, cfg).stream
     check = SignalCheck(sorted(mapping.joints), cfg.rate_hz, stream, cfg.segmentation,
                         decoder.describe() if decoder is not None else
                         {j: {q: r.describe() for q in ("speed", "torque", "load", "temperature")
-                             if (r := getattr(jm, q)) is not None} for j, jm in mapping.joints.items()})
+                             if (r := getattr(jm, q)) is not None} for j, jm in mapping.joints.items()},
+                        frames=decoder.c if decoder is not None else None,
+                        reference_joint=mapping.cycles.reference_joint)
+    check.speeds_missing = speeds_missing
     return check, (decoder.decode if decoder is not None else mapping)
 
 
-def _native(block: IngestBlock, rate_hz: float) -> DecodedSamples:
-    """Our frames after ingest, as decoded columns (status entries spread over their run's time)."""
+def _native(block: IngestBlock, rate_hz: float, cycles: set[int] | None) -> DecodedSamples:
+    """Our frames after ingest, as decoded columns (status entries spread over their run's time); the
+    cycles of the runs go into ``cycles``."""
     out = DecodedSamples()
     for run in block.runs:
+        if cycles is not None and run.cycle is not None and len(cycles) < 100_000:
+            cycles.add(run.cycle)
         for j, s in run.samples.items():
             out.joints[j] = JointColumns(s.tick / rate_hz, s.speed, s.torque)
         for j, st in run.joint_status.items():
@@ -106,7 +121,7 @@ def _native(block: IngestBlock, rate_hz: float) -> DecodedSamples:
 
 def _decoded(args: argparse.Namespace, decode: Any, cfg: Any) -> Iterator[DecodedSamples]:
     if not callable(decode):                  # a trace mapping: read the table
-        from edge_monitor.pipeline.trace_source import decoded_batches
+        from edge_monitor.sources.trace_source import decoded_batches
         if not args.capture:
             raise ValueError("a trace mapping checks a table: give the CSV/Parquet file")
         for decoded in decoded_batches(args.capture, decode):
@@ -163,6 +178,10 @@ def _text(report: dict[str, Any]) -> str:
                 text += f" → the agent uses the {FALLBACK[q]}"
             lines.append(f"  {q:<12} {text}")
         lines.append(f"  steady speeds found [rad/s]: {jr['steady_speeds'] or 'none'}")
+    levels = report["test_cycle_levels"]
+    if levels["speeds"]:
+        lines.append(f"test cycle levels in its order [rad/s]: speeds = [{', '.join(map(str, levels['speeds']))}]"
+                     + (f" (production motion left out: {levels['production']})" if levels["production"] else ""))
     if "cycles" in report:
         c = report["cycles"]
         lines.append(f"cycles from the {c['method']}: {c['cycles_found']} found"

@@ -13,7 +13,6 @@ from protocol.console import EXIT_FAILURE, EXIT_USAGE
 
 if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
     from edge_monitor.config import AgentConfig
-    from edge_monitor.pipeline.agent import Agent
     from edge_monitor.pipeline.decision_config import DecisionConfig
     from edge_monitor.pipeline.state_store import StateStore
 
@@ -25,15 +24,15 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", help="robot name used in symptom records and Zenoh keys")
     parser.add_argument("--jsonl", metavar="PATH", help="append per-cycle symptom records to this JSON Lines file")
     parser.add_argument("--jsonl-max-bytes", type=int, metavar="N",
-                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes; "
-                             "0: never, the default)")
+                        help="rotate the JSONL file to PATH.1 before it passes N bytes (config jsonl_max_bytes, "
+                             "default 64 MiB; 0: never, e.g. with logrotate)")
     parser.add_argument("--jsonl-keep", type=int, metavar="K",
                         help="rotated JSONL files kept, PATH.1 … PATH.K (config jsonl_keep; default 5)")
     parser.add_argument("--state-dir", metavar="DIR", help="persist learned models and detector state here")
     parser.add_argument("--pf", type=float, help="false-alarm probability per test (overrides decision.pf)")
     parser.add_argument("--mapping", metavar="MAPPING.toml",
                         help="the controller is not ours: a mapping file for its DBC, CiA 402 drives or trace "
-                             "table (docs/CONNECTING.md; examples in protocol/mappings/)")
+                             "table (docs/CONNECTING.md; examples: edge-monitor deploy --list)")
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,6 +46,28 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f"peer or router to connect to, e.g. tcp/127.0.0.1:{DEFAULT_ROUTER_PORT} (repeatable)")
     group.add_argument("--zenoh-config", default=None, metavar="FILE.json5",
                        help="Zenoh JSON5 config file; the flags above override it")
+
+
+def add_tls_arguments(parser: argparse.ArgumentParser, who: str) -> None:
+    """``--tls-ca/--tls-cert/--tls-key``: connect to the router over TLS as ``who`` (docs/SECURITY.md)."""
+    tls = parser.add_argument_group("TLS", f"connect to the router over TLS (docs/SECURITY.md), as {who}")
+    tls.add_argument("--tls-ca", metavar="PEM", help="CA certificate the router's certificate is checked against")
+    tls.add_argument("--tls-cert", metavar="PEM", help=f"{who}'s certificate (mTLS identity)")
+    tls.add_argument("--tls-key", metavar="PEM", help="its private key")
+
+
+def zenoh_options_with_tls(args: argparse.Namespace) -> ZenohOptions:
+    """:func:`zenoh_options` plus the ``--tls-*`` files; ZenohSetupError for a bad config file or a plain
+    endpoint with TLS."""
+    from dataclasses import replace
+
+    from edge_monitor.sinks.zenoh_security import TlsFiles
+    options = zenoh_options(args)
+    files = [getattr(args, name, None) for name in ("tls_ca", "tls_cert", "tls_key")]
+    if any(files):
+        options = replace(options, tls=TlsFiles.from_paths(*files))
+    options.to_config()
+    return options
 
 
 def add_subscriber_arguments(parser: argparse.ArgumentParser, counted: str) -> None:
@@ -92,21 +113,12 @@ def open_state_store(cfg: AgentConfig) -> StateStore | None:
     if not cfg.state_dir:
         return None
     try:
-        return StateStore(cfg.state_dir)
+        store = StateStore(cfg.state_dir)
+        store.claim()           # one agent per state directory
+        return store
     except StateError as exc:
         print(f"edge-monitor: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_FAILURE) from None
-
-
-def output_failures(agent: Agent, store: StateStore | None) -> list[str]:
-    """What the agent could not write (each makes ``run``/``replay`` exit with code 1)."""
-    problems = []
-    if agent.sink_errors():
-        problems.append(f"{agent.sink_errors()} record(s) could not be written to an output (sink_errors; "
-                        "e.g. a full disk under the JSONL file)")
-    if store is not None and store.last_save_error:
-        problems.append(f"the last state save failed ({store.last_save_error}); the previous state file is kept")
-    return problems
 
 
 def print_json(obj: Any) -> None:
@@ -180,10 +192,11 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         pm = [d.get("miss_probability") for d in rec.get("decisions", {}).values()
               if d.get("miss_probability") is not None]
         alarms = ", ".join(alarms_by_joint.get(joint, [])) or "none"
+        alarms = alarms if len(alarms) <= 44 else alarms[:43] + "…"      # cut: said, not hidden
         stages = {(d.get("calibration") or {}).get("stage") for d in rec.get("decisions", {}).values()} - {None}
         stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
-                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms[:44]:<44} "
+                     f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {alarms:<44} "
                      f"{fmt(min(pm) if pm else None, '.2g'):>7} {prognosis_text(rec.get('prognosis')):<18}")
     for joint, alarm in sorted((raised or {}).items()):
         if (alarm.get("prognosis") or {}).get("text"):
@@ -193,15 +206,20 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
     return "\n".join(lines)
 
 
-def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig, Any]:
+def open_mapped_source(cfg: AgentConfig, path: str | None, table: bool = False) -> tuple[AgentConfig, Any]:
     """``(config, source)`` for ``--mapping`` (``(cfg, None)`` without one: our frames). A mapping that
-    does not load or does not match its DBC/EDS raises MappingError (a ValueError: exit code 2)."""
+    does not load or does not match its DBC/EDS, or a trace mapping where the input is frames (not a
+    ``table``), exits with code 2."""
     if not path:
         return cfg, None
-    from edge_monitor.pipeline.sources import config_for, open_source
-    from protocol.signal_mapping import load_mapping
+    from edge_monitor.pipeline.agent_config import config_for
+    from edge_monitor.sources.foreign_source import open_source
+    from protocol.signal_mapping import MappingError, load_mapping
     try:
         mapping = load_mapping(path)
+        if mapping.kind == "trace" and not table:
+            raise MappingError(f"{path} is a trace mapping: it reads a CSV/Parquet table (edge-monitor replay "
+                               "TABLE.csv --mapping …); CAN frames need a dbc or cia402 mapping")
         cfg = config_for(cfg, mapping)
         return cfg, open_source(mapping, cfg)
     except ValueError as exc:       # MappingError and what the DBC/EDS parsers raise
@@ -210,13 +228,3 @@ def open_mapped_source(cfg: AgentConfig, path: str | None) -> tuple[AgentConfig,
     except OSError as exc:          # a mapping, DBC or EDS file that cannot be read
         print(f"edge-monitor: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_FAILURE) from None
-
-
-def setup_failure(command: str, exc: Exception) -> int:
-    """Report an output that could not be opened; the exit code by the README's rule: 1 when valid
-    options met a runtime failure (unreachable router, occupied port, unwritable recording, a JSONL
-    file that cannot be opened: an ``OSError``), else 2."""
-    from edge_monitor.sinks.rerun_view import RerunUnavailable
-    from edge_monitor.sinks.zenoh_session import ZenohUnavailable
-    print(f"edge-monitor {command}: {exc}", file=sys.stderr)
-    return EXIT_FAILURE if isinstance(exc, (OSError, ZenohUnavailable, RerunUnavailable)) else EXIT_USAGE

@@ -22,20 +22,22 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import open_state_store, prognosis_summary, setup_failure, summary_table
+from edge_monitor.commands.common import open_state_store, prognosis_summary, summary_table
+from edge_monitor.commands.output_paths import check_parent
 from edge_monitor.errors import ConfigError
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.decision_config import DecisionConfig
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
+from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, verbosity
 
 log = logging.getLogger(__name__)
@@ -46,6 +48,8 @@ DEMO_SPEEDS = (31.6, 36.6, 41.6, 46.6)
 DEMO_JOINTS = 2
 DEMO_CYCLES = 160
 WORN_JOINT = 1
+#: Where the demo writes when not told (made with its parents; a folder given with --out must have its parent).
+DEFAULT_OUT = "out/demo"
 #: Cycles the worn joint's wear takes from 0 to 60 (critical: 35): a medium ramp, 0.5 per cycle.
 RAMP_CYCLES = 120
 
@@ -58,7 +62,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--speedup", type=float, default=8.0,
                    help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
     p.add_argument("--seed", type=int, default=7)
-    p.add_argument("-o", "--out", default="out/demo", help="directory for the recording, symptoms, truth and state")
+    p.add_argument("-o", "--out", default=DEFAULT_OUT, help="directory for the recording, symptoms, truth and state")
     p.add_argument("--rerun", default=None,
                    help="off | save:PATH | spawn (default: spawn with a display, else save:<out>/demo.rrd)")
     p.add_argument("--link", default="auto", help="auto | pty | vcan (auto: vcan0 if available, else pty)")
@@ -107,6 +111,11 @@ def choose_link(kind: str, stack: ExitStack) -> tuple[str, str, str]:
 def rerun_spec(requested: str | None, out: Path) -> str:
     if requested:
         return requested
+    import importlib.util
+    if importlib.util.find_spec("rerun") is None:     # a headless installation: the demo without its recording
+        log.warning("the Rerun viewer is not installed (pip install 'joint-wear-monitor[viewer]'): the demo runs "
+                    "without a recording")
+        return "off"
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return "spawn" if has_display else f"save:{out / 'demo.rrd'}"
 
@@ -118,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
     if verbosity(args) >= 0:        # the demo shows its status line unless -q
         logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
     out = Path(args.out)
+    if args.out != DEFAULT_OUT:             # a typo in --out must not make a directory tree
+        check_parent(out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("symptoms.jsonl", "truth.jsonl", "state/agent_state.json"):
         (out / stale).unlink(missing_ok=True)

@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     try:
         require_matplotlib()
-        args.out.mkdir(parents=True, exist_ok=True)        # before the simulation: fail early
+        args.out.mkdir(exist_ok=True)        # before the simulation: fail early; its parent must exist
     except ReportError as exc:
         print(f"edge-monitor evaluate: {exc}", file=sys.stderr)
         return EXIT_FAILURE

@@ -1,34 +1,73 @@
 """``edge-monitor export-trace LOG --out TRACE.csv``: a recording as a trace table, with the mapping that
 replays it (``edge-monitor replay TRACE.csv --mapping TRACE.toml``). Decoded as the agent decodes it:
-our frames, or another controller's with ``--mapping``. See docs/CONNECTING.md."""
+our frames, or another controller's with ``--mapping``. The table and its mapping are new files: an
+existing one (or the recording, or the mapping read) is never written over without ``--force``, and
+never the input. Exit codes: 2 a bad option or output path, 1 a recording that cannot be read or an
+output that cannot be written."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tomllib
 from pathlib import Path
 
 from edge_monitor.commands.common import load_agent_config, open_mapped_source
-from edge_monitor.pipeline.ingest import Ingest
-from edge_monitor.pipeline.log_source import LogReadError, log_blocks
-from edge_monitor.pipeline.samples import IngestBlock
-from edge_monitor.pipeline.trace_export import TraceWriter
-from protocol.console import EXIT_FAILURE
+from edge_monitor.commands.output_paths import check_output, same_file
+from edge_monitor.sources.ingest import Ingest
+from edge_monitor.sources.log_source import LogReadError, log_blocks
+from edge_monitor.sources.samples import IngestBlock
+from edge_monitor.sources.trace_export import TraceWriter
+from edge_monitor.sources.trace_table import TRACE_SUFFIXES
+from protocol.console import EXIT_FAILURE, UsageError
+from protocol.signal_mapping import MappingError, mapping_from_dict
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("export-trace", help="export a recording as a CSV/Parquet trace table",
                               description=__doc__)
     p.add_argument("file", help="python-can log file")
-    p.add_argument("--out", required=True, metavar="TRACE.csv", help="table to write (.csv or .parquet)")
+    p.add_argument("--out", required=True, metavar="TRACE.csv",
+                   help="table to write (.csv or .parquet); its mapping goes beside it as TRACE.toml")
     p.add_argument("--mapping", metavar="MAPPING.toml", help="the recording's controller is not ours")
     p.add_argument("--config", metavar="FILE", help="agent TOML config (rate_hz)")
-    p.add_argument("--separator", default=";", help="CSV separator (default ;)")
+    p.add_argument("--separator", default=";", help="CSV separator: one character such as ; , or a tab (default ;)")
     p.add_argument("--time-unit", choices=("s", "ms"), default="s")
+    p.add_argument("--force", action="store_true", help="replace an existing table and mapping")
     p.set_defaults(func=run)
 
 
+def check_outputs(args: argparse.Namespace) -> Path:
+    """The mapping's path beside ``--out``; UsageError for an output that would destroy an input, exists
+    (without ``--force``), lies in a missing folder, is no table, or a separator its own mapping refuses."""
+    out = Path(args.out)
+    if out.suffix.lower() not in TRACE_SUFFIXES:
+        raise UsageError(f"--out {out}: a trace table ends in {', '.join(TRACE_SUFFIXES)} (its mapping is written "
+                         f"beside it as {out.with_suffix('.toml').name})")
+    mapping = out.with_suffix(".toml")
+    for path, what in ((out, "table"), (mapping, "mapping")):
+        for given, name in ((args.file, "the recording"), (args.mapping, "--mapping"), (args.config, "--config")):
+            if given and same_file(path, Path(given)):
+                raise UsageError(f"--out {out}: its {what} {path} is {name}: choose another --out")
+        check_output(path, f"--out ({what})", overwrite=args.force)
+    try:
+        mapping_from_dict(tomllib.loads(TraceWriter(out, [0], 500.0, args.separator, args.time_unit).mapping_text()))
+    except (MappingError, tomllib.TOMLDecodeError) as exc:
+        raise UsageError(f"--separator {args.separator!r}: {str(exc).split(': ', 2)[-1]}") from None
+    return mapping
+
+
 def run(args: argparse.Namespace) -> int:
+    if not Path(args.file).is_file():         # a recording that is not there: a runtime failure, before the outputs
+        print(f"edge-monitor export-trace: {args.file}: no such file", file=sys.stderr)
+        return EXIT_FAILURE
+    mapping = check_outputs(args)
+    try:
+        import pyarrow  # noqa: F401 — the table writer
+    except ImportError:
+        print("edge-monitor export-trace: writing trace tables needs pyarrow: pip install "
+              "'joint-wear-monitor[traces]'", file=sys.stderr)
+        return EXIT_FAILURE
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     source = source or Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
     blocks: list[IngestBlock] = []         # held until the first samples tell which joints there are
@@ -50,11 +89,10 @@ def run(args: argparse.Namespace) -> int:
         for block in blocks:
             writer.write(block)
         writer.close()
+        mapping.write_text(writer.mapping_text(), encoding="utf-8")
     except (FileNotFoundError, LogReadError, OSError) as exc:
         print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
         return EXIT_FAILURE
-    mapping = Path(args.out).with_suffix(".toml")
-    mapping.write_text(writer.mapping_text(), encoding="utf-8")
     print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
           f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
     return 0

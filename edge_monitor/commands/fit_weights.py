@@ -220,8 +220,9 @@ def check_simulation(args: argparse.Namespace) -> None:
 
 def _write_csvs(folder: Path, healthy: NDArray[np.float64], faulty: NDArray[np.float64],
                 speed: NDArray[np.float64]) -> None:
-    """healthy.csv and faulty.csv in ``folder`` (made if missing); OSError if it cannot be written."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """healthy.csv and faulty.csv in ``folder`` (made if missing, in a folder that exists); OSError if it cannot
+    be written."""
+    folder.mkdir(exist_ok=True)
     write_cycles_csv(folder / "healthy.csv", healthy, speed)
     write_cycles_csv(folder / "faulty.csv", faulty, speed)
 

@@ -1,11 +1,14 @@
 """edge-monitor listen: print what agents publish on Zenoh as JSON lines, for jq and scripts.
 
 Subscribes to edge/<robot>/<joint>/<kind> and prints one JSON object per record on standard output:
-the record as published, with "kind" (the key's last segment: symptom, alarm, friction, health, or a
-kind added later) and "key" in front. It first recovers what the agents' publishers still cache (off
+the record as published, with "kind" (the key's last segment: symptom, alarm, advisory, friction,
+health, or a kind added later) and "key" in front; each line validates against `edge-monitor schema
+KIND`, which declares both. It first recovers what the agents' publishers still cache (off
 with --no-history), then follows live until Ctrl-C or SIGTERM, --duration or --count. With both
---count and --duration it exits 1 when fewer than --count records came within --duration (a health
-check: --kind health --count 1 --duration 30).
+--count and --duration it exits 1 when fewer than --count records came within --duration; with
+--require-data-flowing also when a health record says the agent has no data (data_flowing false: no
+decoded sample for data_timeout_s). The container's health check:
+--kind health --count 1 --duration 30 --require-data-flowing.
 
 Examples:
   edge-monitor listen --zenoh-mode client --zenoh-connect tcp/127.0.0.1:7447 --kind alarm
@@ -25,10 +28,10 @@ from typing import Any
 from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
-    setup_failure,
     zenoh_options,
 )
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import setup_failure
 from edge_monitor.sinks.keys import PREFIX, check_robot_name
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import open_session
@@ -53,6 +56,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="only records of this kind: symptom, alarm, friction, health, or any later kind "
                              "(repeatable; default: every kind)")
     add_subscriber_arguments(parser, "printed records")
+    parser.add_argument("--require-data-flowing", action="store_true",
+                        help="exit 1 if a health record printed says data_flowing false (a health check that fails "
+                             "on a dead bus, not only on a dead agent)")
     parser.set_defaults(func=run)
     return parser
 
@@ -116,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     if verbosity(args) > 0:
         print(f"edge-monitor listen: subscribed to {key} ({options.describe()})", file=sys.stderr)
     printed = 0
+    no_data: list[str] = []          # robots whose health record said data_flowing false
     deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
         while not stop.is_set() and (args.count is None or printed < args.count):
@@ -128,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
             sys.stdout.write(line_of(received) + "\n")
             sys.stdout.flush()
             printed += 1
+            if received.kind == "health" and received.record.get("data_flowing") is False:
+                no_data.append(str(received.record.get("robot")))
     except BrokenPipeError:          # the reader went away (e.g. `| head`): a normal end
         sys.stderr.close()
     finally:
@@ -140,5 +149,10 @@ def run(args: argparse.Namespace) -> int:
             and not sys.stderr.closed:
         print(f"edge-monitor listen: {printed} of --count {args.count} records within --duration "
               f"{args.duration:g} s", file=sys.stderr)
+        return EXIT_FAILURE
+    if args.require_data_flowing and no_data:
+        if not sys.stderr.closed:
+            print(f"edge-monitor listen: no data flowing at {', '.join(sorted(set(no_data)))} (health data_flowing "
+                  "false: no decoded sample for data_timeout_s)", file=sys.stderr)
         return EXIT_FAILURE
     return 0

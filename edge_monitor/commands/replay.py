@@ -31,20 +31,20 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
-    output_failures,
     print_json,
     prognosis_summary,
-    setup_failure,
     summary_table,
 )
 from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import FrameArrays
-from edge_monitor.pipeline.ingest import Ingest
-from edge_monitor.pipeline.log_source import LogReadError, LogReport, log_blocks_with_position
-from edge_monitor.pipeline.trace_source import TraceError, TraceUnreadable, is_trace_file, replay_trace
+from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
+from edge_monitor.sources.frame_source import FrameArrays
+from edge_monitor.sources.ingest import Ingest
+from edge_monitor.sources.log_source import LogReadError, LogReport, log_blocks_with_position
+from edge_monitor.sources.trace_source import replay_trace
+from edge_monitor.sources.trace_table import TraceError, TraceUnreadable, is_trace_file
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, LOG_FORMAT, progress_bar, verbosity
 
 log = logging.getLogger(__name__)
@@ -180,7 +180,7 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
+    cfg, source = open_mapped_source(load_agent_config(args), args.mapping, table=is_trace_file(args.file))
     last = LastSymptomSink()
     store = open_state_store(cfg)
     if _jobs(args, store) == 2:

@@ -29,16 +29,15 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
-    output_failures,
     prognosis_summary,
-    setup_failure,
     zenoh_options,
 )
-from edge_monitor.pipeline.frame_source import LiveSource
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
+from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
+from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,
@@ -171,7 +170,8 @@ def run(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
         stack.callback(bus.shutdown)
         runner = LiveRunner(agent, LiveSource(bus, maxsize=cfg.queue_size, block_size=cfg.block_size),
-                            status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters)
+                            status_interval_s=cfg.status_interval_s, extra_counters=app.extra_counters,
+                            data_timeout_s=cfg.data_timeout_s)
         install_signal_handlers(runner.stop_event)
         runner.run(duration_s=args.duration, max_cycles=args.max_cycles, idle_stop_s=args.idle_stop)
         if runner.stop_reason == "idle" and not args.no_close:

@@ -1,7 +1,9 @@
 """edge-monitor schema: print the JSON Schema of a published record or of the commands' summary.
 
-Kinds: symptom, alarm, friction, health (the Zenoh records and JSONL lines), state (the reply of the
-edge/<robot>/<joint>/state queryable), summary (run/replay/demo --json). A consumer in any language
+Kinds: symptom, alarm, advisory, friction, health (the Zenoh records and JSONL lines; the "kind" and
+"key" that edge-monitor listen adds in front are declared in them), state (the reply of the
+edge/<robot>/<joint>/state queryable), summary (run/replay/demo --json), history and fleet (the
+historian's answers on edge/history/**, edge-monitor history --format json). A consumer in any language
 validates against these (JSON Schema draft 2020-12) and needs nothing else of this package.
 """
 

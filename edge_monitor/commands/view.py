@@ -1,4 +1,5 @@
-"""``edge-monitor view``: subscribe to ``edge/**`` over Zenoh and draw every robot and joint in Rerun.
+"""``edge-monitor view``: subscribe to ``edge/**`` over Zenoh and draw every robot and joint in Rerun;
+with ``--history``, draw a robot's past from the historian instead (docs/HISTORIAN.md).
 
 The fleet view, for a workstation: recovers what the agents' publishers still cache, then follows
 live. Stops on SIGINT/SIGTERM, after ``--duration`` seconds or after ``--count`` symptom records.
@@ -15,9 +16,10 @@ import time
 from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
-    setup_failure,
     zenoh_options,
 )
+from edge_monitor.commands.history_view import add_history_view_arguments, draw_history
+from edge_monitor.run_failures import setup_failure
 from edge_monitor.sinks.keys import ALARM, HEALTH, SYMPTOM, check_robot_name
 from edge_monitor.sinks.rerun_view import LIVE_BATCHING, RerunSink
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
@@ -41,6 +43,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="save:PATH | spawn | connect[:URL] (default spawn; without a display: "
                              "save:edge-view.rrd)")
     add_subscriber_arguments(parser, "symptom records")
+    add_history_view_arguments(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -56,6 +59,8 @@ class _Counts:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.history:
+        return draw_history(args)
     try:
         if args.robot is not None:
             check_robot_name(args.robot)

@@ -76,7 +76,7 @@ _WEAR_STEP = 0.5
 #: Profile-likelihood threshold of the upper bound and of the identifiability test: χ²₁(0.95) = 1.96²
 #: (the upper end of the two-sided 95 % interval). Calibrated by Monte Carlo: the nominal one-sided
 #: 95 % threshold 1.645² covers only 0.93 at the design temperature, where the fold of τ0 in ξ
-#: biases the estimates low; 1.96² covers ≥ 0.95 at every design configuration (tools/mc_wear_study.py).
+#: biases the estimates low; 1.96² covers ≥ 0.95 at every design configuration (tools/studies/mc_wear_study.py).
 _PROFILE_THRESHOLD = 1.959963984540054 ** 2
 #: Local solver starts at most (local minima of the grid's wear profile), ``method="joint"``.
 _MAX_STARTS = 3

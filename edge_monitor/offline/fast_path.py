@@ -1,10 +1,9 @@
 """The agent on the simulator's cycle-level mode: every algorithm after ingest runs for real, without
 encoding, checking and decoding frames (studies of 10⁵ cycles; docs/DETECTION.md).
 
-:class:`CycleFeeder` labels each cycle's samples with the controller's cycle and segment exactly as
-:class:`~edge_monitor.pipeline.ingest.Ingest` labels frames — a joint sample belongs to the status
-frame sent before it, and the status frame of a tick follows that tick's joint samples — and hands
-them to :meth:`Agent.update_ingested`. With the same seed the per-cycle quantities equal those of
+:class:`CycleFeeder` hands each simulated cycle, labelled by the source
+:class:`~edge_monitor.sources.cycle_arrays.CycleArraySource` exactly as the ingest labels frames, to
+:meth:`Agent.update_ingested`. With the same seed the per-cycle quantities equal those of
 ``sim-controller record`` + ``edge-monitor replay`` (tests/test_fast_path.py).
 """
 
@@ -12,13 +11,10 @@ from __future__ import annotations
 
 from typing import Any, Iterable, Iterator, Mapping
 
-import numpy as np
-from numpy.typing import NDArray
-
 from edge_monitor.config import config_from_mapping
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.ingest import CycleRun, IngestBlock, JointSamples, JointStatusBlock
 from edge_monitor.records import Symptom
+from edge_monitor.sources.cycle_arrays import CycleArraySource
 from sim_controller.config import SimConfig
 from sim_controller.cycle_mode import CycleSignals, cycle_signals
 
@@ -31,33 +27,15 @@ class CycleFeeder:
 
     def __init__(self, agent: Agent) -> None:
         self.agent = agent
-        self._previous: tuple[int, int] | None = None     # (cycle, last segment) of the previous cycle
+        self.source = CycleArraySource()
 
     def update(self, cycle: CycleSignals) -> list[Symptom]:
         """One simulated cycle; returns the symptoms it completed (those of the previous cycle)."""
-        head = cycle.ticks <= cycle.status_ticks[0]        # before this cycle's first status frame
-        runs = []
-        if head.any():
-            previous, segment = self._previous if self._previous is not None else (None, -1)
-            runs.append(_run(cycle, head, previous, np.full(int(head.sum()), segment), {}))
-        body = ~head
-        governing = np.searchsorted(cycle.status_ticks, cycle.ticks[body], side="left") - 1
-        status = {j.joint: JointStatusBlock(j.load_estimate, j.load_std, j.motor_temperature) for j in cycle.joints}
-        runs.append(_run(cycle, body, cycle.cycle, cycle.status_segments[governing], status))
-        self._previous = (cycle.cycle, int(cycle.status_segments[-1]))
-        return self.agent.update_ingested(IngestBlock(runs))
+        return self.agent.update_ingested(self.source.update(cycle))
 
     def finish(self) -> list[Symptom]:
         """End of the run: close the last cycle."""
         return self.agent.finish(close_open_cycle=True)
-
-
-def _run(cycle: CycleSignals, rows: NDArray[np.bool_], label: int | None, segment: NDArray[np.int64],
-         status: dict[int, JointStatusBlock]) -> CycleRun:
-    samples = {j.joint: JointSamples(tick=cycle.ticks[rows], speed=j.speed[rows], torque=j.torque[rows],
-                                     segment=segment.astype(np.int64)) for j in cycle.joints}
-    return CycleRun(cycle=label, samples=samples, joint_status=status,
-                    starts_at_boundary=True if label == cycle.cycle else None)
 
 
 def run_cycles(agent: Agent, cycles: Iterable[CycleSignals]) -> Iterator[Symptom]:

@@ -22,12 +22,13 @@ from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.cycle_rate import BudgetRate
 from edge_monitor.pipeline.detectors import Acknowledgement
 from edge_monitor.pipeline.fault_grouping import new_crossings
-from edge_monitor.pipeline.ingest import Ingest, IngestBlock
 from edge_monitor.pipeline.joint_monitor import JointMonitor
 from edge_monitor.pipeline.state_store import StateSaveError, StateStore
 from edge_monitor.pipeline.state_validation import validate_state
 from edge_monitor.records import Alarm, Health, Symptom, utc_now, utc_text
 from edge_monitor.sinks.base import Sink
+from edge_monitor.sources.ingest import Ingest
+from edge_monitor.sources.samples import IngestBlock, SampleSource
 from edge_monitor.stats.sequential_detector import Calibrator
 
 log = logging.getLogger(__name__)
@@ -54,13 +55,13 @@ class Agent:
     """Holds one :class:`JointMonitor` per joint and routes ingested samples to them."""
 
     def __init__(self, config: AgentConfig, sinks: Iterable[Sink] = (), state_store: StateStore | None = None,
-                 calibrator: Calibrator | None = None, source: Any = None):
+                 calibrator: Calibrator | None = None, source: SampleSource | None = None):
         self.config = config
         self.calibrator = calibrator     # None: detectors calibrate inline (replay, studies)
         self.sinks = list(sinks)
         self.store = state_store
-        # the sample source (docs/ARCHITECTURE.md): our frames, or a mapping's (pipeline.sources)
-        self.ingest = source if source is not None else Ingest.for_config(config)
+        # the sample source (edge_monitor.sources): our frames, or a mapping's (foreign_source.open_source)
+        self.ingest: SampleSource = source if source is not None else Ingest.for_config(config)
         self.joints: dict[int, JointMonitor] = {}
         self.budget = BudgetRate(config.decision)       # the cycle rate the false-alarm budget is for
         self.stats = RunStats()

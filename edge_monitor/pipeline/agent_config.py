@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from edge_monitor.errors import require
 from edge_monitor.features.joint_model_learning import ModelConfig
@@ -31,6 +31,9 @@ from edge_monitor.sinks.jsonl import Rotation
 from edge_monitor.sinks.maintenance import MaintenanceConfig
 from joint_model import DEFAULT_PARAMS, FrictionParams
 from protocol.frames import MAX_JOINTS
+
+if TYPE_CHECKING:
+    from protocol.signal_mapping import SignalMapping
 
 #: Bounds of the sizes a config may ask for (memory and time stay bounded whatever the file says).
 MAX_QUEUE = 10_000_000          # frames
@@ -72,9 +75,10 @@ class AgentConfig:
     queue_size: int = 65536                    # bounded CAN receive queue [frames]
     block_size: int = 4096                     # frames per processing block
     status_interval_s: float = 10.0            # periodic status line / health publication [s]
+    data_timeout_s: float = 60.0               # no sample for this long: health data_flowing false (0: never)
     state_dir: str | None = None
     jsonl: str | None = None
-    jsonl_max_bytes: int = 0                   # rotate the JSONL file before it passes this size (0: never)
+    jsonl_max_bytes: int = 64 << 20            # rotate the JSONL file before it passes this size (0: never)
     jsonl_keep: int = 5                        # rotated JSONL files kept: PATH.1 … PATH.<keep>
     rerun: str = "off"
     zenoh: Mapping[str, Any] = field(default_factory=dict)
@@ -103,6 +107,8 @@ class AgentConfig:
                 f"must be 1 … {MAX_BLOCK} frames, got {self.block_size}")
         require(math.isfinite(self.status_interval_s) and 0.1 <= self.status_interval_s <= 86_400,
                 "status_interval_s", f"must be 0.1 … 86400 s, got {self.status_interval_s}")
+        require(math.isfinite(self.data_timeout_s) and (self.data_timeout_s == 0 or 1 <= self.data_timeout_s <= 86_400),
+                "data_timeout_s", f"must be 0 (never) or 1 … 86400 s, got {self.data_timeout_s}")
         self.jsonl_rotation()           # validates jsonl_max_bytes and jsonl_keep
 
     def jsonl_rotation(self) -> Rotation:
@@ -151,3 +157,15 @@ class AgentConfig:
                 pass
         kept = sorted("friction" if k == "joint_friction" else k for k in changes)
         return (replace(self, **changes) if changes else self), kept
+
+
+def config_for(config: AgentConfig, mapping: SignalMapping) -> AgentConfig:
+    """The agent config a mapping file needs: its rate (the tick rate the samples' times are converted
+    to; a mapping that states ``rate_hz`` overrides the config's), its joints, and (cycles from a trigger)
+    the designed speeds as the plateau levels (the trigger marks the cycle, not the levels)."""
+    out = config
+    if mapping.rate_hz is not None:
+        out = replace(out, rate_hz=mapping.rate_hz)
+    if mapping.cycles.source == "trigger" and not out.segmentation.speeds:
+        out = replace(out, segmentation=replace(out.segmentation, speeds=mapping.cycles.speeds))
+    return out

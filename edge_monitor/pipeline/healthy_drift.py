@@ -14,7 +14,7 @@ from edge_monitor.stats.calibration import MAX_DRIFT
 
 #: Healthy drift of each detector input after warm-up: (mean, sd) over joints of the shift from what
 #: its detector learned, in standard deviations of the learned values, in the units it watches
-#: (docs/DETECTION.md, ``tools/warmup_drift_study.py``; simulator defaults).
+#: (docs/DETECTION.md, ``tools/studies/warmup_drift_study.py``; simulator defaults).
 HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.41), "kl_raw": (0.30, 0.23),
                                                   "kl_weighted": (0.28, 0.17)}
 #: The same once warm, for the scalar detectors: (mean, sd) over joints and operating periods of how far each
@@ -22,7 +22,7 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.41), "kl
 #: beyond the learning error the calibration simulates itself). Measured on a plant's ordinary week (the
 #: plant-week scenario, seeds 401–407: shifts, stops, a product change, a hot day; per joint the means
 #: before the product change, over it, over the hot day and after, weighted by their cycles; docs/DETECTION.md,
-#: "The steady stage on a plant's week", ``tools/plant_drift_study.py``): kl_weighted follows the cycle's load
+#: "The steady stage on a plant's week", ``tools/studies/plant_drift_study.py``): kl_weighted follows the cycle's load
 #: after compensation (+1.0 … 1.3 σ per unit of load on the simulated fleets), so a product 0.2 load units
 #: heavier moves it ≈ +0.25 σ; the wear score does not move.
 #: (Healthy default robots at one load range alone: kl_raw and kl_weighted (0.04, 0.03).)
@@ -36,7 +36,7 @@ STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_r
 STEADY_DRIFT_JOINT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.11, 0.14),
                                                       "kl_weighted": (0.24, 0.21)}
 #: And how they wander once warm: the fraction of each input's variance in a slow AR(1) component
-#: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_calibration.WANDER_COEFFICIENT`), from the
+#: (coefficient 0.7, :data:`~edge_monitor.stats.gaussian_fleet.WANDER_COEFFICIENT`), from the
 #: variance ratios of k-cycle means of the same joints: the log KL distances 1.19, 1.32, 1.39 at k = 5,
 #: 10, 30 (iid: 1), the wear score ≤ 1 (docs/DETECTION.md, "The steady stage's healthy drift").
 STEADY_WANDER: dict[str, float] = {"wear_score": 0.0, "kl_raw": 0.09, "kl_weighted": 0.09}

@@ -211,7 +211,7 @@ class JointMonitor:
             values.update(out.values)
             if out.reason:
                 reasons[spec.name] = out.reason
-        self.detectors.observe_temperature(*self._joint_temperature(cycle, values))
+        self.detectors.observe_temperature(*self.joint_temperature(cycle, values))
         alarms: list[Alarm] = []
         advisories: list[Advisory] = []
         covariates = _covariates(cycle)
@@ -254,13 +254,14 @@ class JointMonitor:
         warning = self.prognosis.warning_advisory(self.config.robot, self.joint, cycle.cycle, forecast)
         return section, [replace(a, prognosis=section) for a in alarms], advisories + ([warning] if warning else [])
 
-    def _joint_temperature(self, cycle: CycleInput, values: dict[str, float]) -> tuple[float | None, str]:
+    def joint_temperature(self, cycle: CycleInput, values: dict[str, float]) -> tuple[float | None, str]:
         """The temperature [°C] the detectors' stages and holds follow, and what it is: the cycle's motor
         temperature; on a joint whose controller never sent one (a foreign DBC without it), the lubricant
         temperature the wear estimate reads from the friction curve with the joint's own model
         (docs/CONNECTING.md). The two differ by the joint's motor-to-lubricant offset, so they never mix:
         a joint that has sent a motor temperature has no temperature in a cycle without one, and the first
-        motor temperature after friction-read ones restarts the temperature history (settling, spans)."""
+        motor temperature after friction-read ones restarts the temperature history (settling, spans).
+        Called once per cycle, before the detectors' update."""
         motor = finite_or_none(cycle.motor_temperature)
         if motor is not None and not self.motor_temperature_seen:
             self.motor_temperature_seen = True

@@ -1,5 +1,7 @@
 """The live loop: a bus → bounded queue → agent blocks, with periodic health, status line and
-state saving, until stopped (signal, duration, cycle count or end of the peer's stream)."""
+state saving, until stopped (signal, duration, cycle count or end of the peer's stream). Whether data
+flows (:mod:`~edge_monitor.pipeline.data_flow`) goes into each health record and feeds the systemd
+watchdog (:mod:`~edge_monitor.pipeline.service_notify`)."""
 
 from __future__ import annotations
 
@@ -10,8 +12,10 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.pipeline.frame_source import LiveSource
+from edge_monitor.pipeline.data_flow import DataFlow
+from edge_monitor.pipeline.service_notify import ServiceNotifier
 from edge_monitor.records import Health
+from edge_monitor.sources.frame_source import LiveSource
 
 log = logging.getLogger(__name__)
 status_log = logging.getLogger("edge_monitor.status")
@@ -25,6 +29,8 @@ class LiveRunner:
     source: LiveSource
     status_interval_s: float = 10.0
     extra_counters: Callable[[], dict[str, Any]] | None = None     # e.g. the outputs' counters, for health
+    data_timeout_s: float = 60.0       # no sample for this long: data_flowing false, the watchdog starves
+    notifier: ServiceNotifier = field(default_factory=ServiceNotifier)
     stop_event: threading.Event = field(default_factory=threading.Event)
     processing_errors: int = 0
     discarded_at_stop: int = 0
@@ -32,13 +38,19 @@ class LiveRunner:
     #: Why :meth:`run` returned: "link_failure", "duration", "max_cycles", "idle", "stopped" (stop_event) or "end".
     stop_reason: str | None = None
 
-    def link_counters(self) -> dict[str, Any]:
-        """The live loop's own counters (receive queue, bus, processing), added to the agent's health."""
+    def __post_init__(self) -> None:
+        self.flow = DataFlow(self.data_timeout_s, time.monotonic())
+        self._was_flowing = True
+
+    def link_counters(self, new_interval: bool = False) -> dict[str, Any]:
+        """The live loop's own counters (receive queue, bus, processing, data flow), added to the agent's
+        health (``new_interval``: the data-flow counts start again after this record)."""
         listener = self.source.listener
         counters = {"time": time.time(), "queue_depth": self.source.queue_depth(),
                     "queue_dropped": listener.dropped, "bus_errors": listener.bus_errors,
                     "processing_errors": self.processing_errors, "malformed_lines": self.source.malformed_lines(),
                     "link_failure": self.link_failure, "discarded_at_stop": self.discarded_at_stop}
+        counters.update(self.flow.interval(time.monotonic(), reset=new_interval))
         if self.extra_counters is not None:
             counters.update(self.extra_counters())
         return counters
@@ -52,7 +64,15 @@ class LiveRunner:
 
     def _tick(self) -> None:
         self.agent.poll(time.time())        # counts NO_NEW_DATA per identifier in the E2E statistics
-        h = self.agent.publish_health(self.link_counters()).counters
+        h = self.agent.publish_health(self.link_counters(new_interval=True)).counters
+        if h["data_flowing"] != self._was_flowing:        # said once per change, not every status interval
+            self._was_flowing = h["data_flowing"]
+            if not h["data_flowing"]:
+                log.warning("no data: no sample for more than %g s (data_timeout_s); %d frames in the last %.0f s: "
+                            "is the controller on and the CAN link up?", self.data_timeout_s,
+                            h["data_flow"]["frames"], h["data_flow"]["interval_s"])
+            else:
+                log.warning("data flowing again")
         status_log.info("status: %d frames (%.0f/s), ok %d, crc %d, lost %d, queue %d (dropped %d), "
                         "cycles %d, symptoms %d, alarms %d", h["frames_total"], h["frames_per_second"],
                         h["frames_ok"], h["crc_errors"], h["counter_lost"], h["queue_depth"], h["queue_dropped"],
@@ -66,13 +86,15 @@ class LiveRunner:
         last_frame = start
         seen_any = False
         self.stop_reason = "end"
+        self.notifier.ready(f"monitoring, no frame yet (data_timeout_s {self.data_timeout_s:g})")
         try:
             for block in self.source.blocks():
                 now = time.monotonic()
                 if block is not None:
                     seen_any = True
                     last_frame = now
-                    self._process(block)
+                    self._process(block, now)
+                self._feed_watchdog(now)
                 if now >= next_status:
                     self._tick()
                     next_status = now + self.status_interval_s
@@ -95,6 +117,7 @@ class LiveRunner:
                     self.stop_reason = "stopped"
                     break
         finally:
+            self.notifier.stopping()
             self.source.stop()
             self.discarded_at_stop = self.source.queue_depth()
             if self.discarded_at_stop:
@@ -118,11 +141,21 @@ class LiveRunner:
             time.sleep(poll_s)
         return False
 
-    def _process(self, block) -> None:
-        """One block through the agent; an unexpected error is logged and counted, never fatal."""
+    def _feed_watchdog(self, now: float) -> None:
+        flowing = self.flow.flowing(now)
+        quiet = now - (self.flow.last_sample if self.flow.last_sample is not None else self.flow.started)
+        self.notifier.watchdog(now, flowing, "monitoring: data flowing" if flowing else
+                               f"NO DATA: no sample for {quiet:.0f} s")
+
+    def _process(self, block, now: float) -> None:
+        """One block through the agent (its frames and samples counted for the data flow); an unexpected
+        error is logged and counted, never fatal."""
         cycles_before = self.agent.stats.cycles
         try:
-            self.agent.update(*block)
+            with self.agent.lock:
+                ingested = self.agent.ingest.update(*block)
+                self.flow.add(now, len(block[0]), ingested)
+                self.agent.update_ingested(ingested)
         except Exception:
             self.processing_errors += 1
             if self.processing_errors in (1, 10, 100) or self.processing_errors % 1000 == 0:

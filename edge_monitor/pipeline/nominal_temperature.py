@@ -25,7 +25,7 @@ whose values went into its current nominal; both the spans and the holds read th
 over a few cycles (:mod:`~edge_monitor.pipeline.hold_temperature`: the per-cycle scatter would widen a
 span by its extremes and make a hold flicker). Unknown temperature, or no span: no hold. A joint whose
 controller sends no motor temperature is followed by the lubricant temperature its wear estimate reads from
-the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`),
+the friction curve instead (:meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor.joint_temperature`),
 for both holds and its settling. Its price: wear reads as a slightly warmer lubricant (the two are estimated
 together; +1.5 … 4 °C at wear 20 on a warm joint), so a worn joint's warm-up KL detectors hold a little
 sooner; without the hold such a joint's warm-up KL detectors false-alarm in storms (docs/DETECTION.md,

@@ -6,6 +6,7 @@ save that fails (a full disk: ENOSPC) removes its temporary file, keeps the prev
 is counted (``save_errors``) and raises :class:`StateSaveError`. NaN and infinities are stored as
 ``null`` (strict JSON).
 
+A command's agent claims the directory (:meth:`StateStore.claim`): one agent per state directory.
 Reading treats the file as hostile: only a regular file is read (a FIFO, a device or a symlink to
 one is moved aside unread), at most :data:`MAX_STATE_BYTES`, and integers of more than
 :data:`MAX_INT_DIGITS` digits are refused before Python converts them.
@@ -28,6 +29,7 @@ from protocol.files import read_regular
 log = logging.getLogger(__name__)
 
 STATE_FILE = "agent_state.json"
+LOCK_FILE = "agent_state.lock"
 STATE_VERSION = 1
 #: Largest state file read [bytes]. A 6-joint state is ≈ 0.1 MB; the largest the validation bounds
 #: allow (8 joints, 65 536-point KDE grids, 10 000-cycle GLR windows) is ≈ 40 MB.
@@ -52,7 +54,10 @@ class StateStore:
     def __init__(self, state_dir: str | os.PathLike) -> None:
         self.dir = Path(state_dir)
         try:
-            self.dir.mkdir(parents=True, exist_ok=True)
+            self.dir.mkdir(exist_ok=True)      # its parent must exist: a typo must not make a directory tree
+        except FileNotFoundError:
+            raise StateError(f"state directory {self.dir}: its folder {self.dir.parent} does not exist; create it "
+                             "or pass another --state-dir") from None
         except OSError as exc:
             raise StateError(f"state directory {self.dir}: cannot create it ({exc.strerror}); "
                              f"pass a writable --state-dir") from None
@@ -62,9 +67,36 @@ class StateStore:
         if self.path.exists() and not os.access(self.path, os.R_OK | os.W_OK):
             raise StateError(f"state file {self.path} is not readable and writable by this user; fix its "
                              f"permissions (the learned models in it are kept) or pass another --state-dir")
+        self._lock_fd: int | None = None
         self.rejected = 0         # state files moved aside as unusable
         self.save_errors = 0      # saves that failed (the previous state file was kept)
         self.last_save_error: str | None = None     # why the latest save failed; None once one succeeds
+
+    def claim(self) -> None:
+        """Hold the state directory for this process (an exclusive ``flock`` on ``agent_state.lock``, released
+        when the process ends, also by kill -9): a second agent on the same directory would overwrite the
+        first one's learned state, so it gets :class:`StateError` naming the holder instead."""
+        import fcntl
+        path = self.dir / LOCK_FILE
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            raise StateError(f"state directory {self.dir}: cannot open {LOCK_FILE} ({exc.strerror}); pass a "
+                             "writable --state-dir") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "unknown"
+            os.close(fd)
+            raise StateError(f"state directory {self.dir} is in use by another agent (pid {holder}): two agents "
+                             "on one --state-dir would overwrite each other's learned state; stop the other one or "
+                             "give each its own --state-dir") from None
+        try:                    # who holds it, for the message of the next one (a full disk: the lock still holds)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        except OSError:
+            pass
+        self._lock_fd = fd
 
     def load(self) -> dict[str, Any] | None:
         """The saved state, or None when there is none or it is unusable (then it is moved aside by

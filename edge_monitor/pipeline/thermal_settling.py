@@ -1,6 +1,6 @@
 """Whether a joint's temperature has settled, from the motor temperature of its JointStatus frames (on a
 joint whose controller sends none, the lubricant temperature read from the friction: ±1–3 °C per cycle,
-as noisy as the motor's; :meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor._joint_temperature`).
+as noisy as the motor's; :meth:`~edge_monitor.pipeline.joint_monitor.JointMonitor.joint_temperature`).
 
 A joint warms for hours after a cold start (the simulator's lubricant: 30 → ≈ 58 °C with a time
 constant of ≈ 200 cycles). The detectors' quantities move a little with the temperature, so a nominal

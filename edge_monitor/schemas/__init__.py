@@ -1,7 +1,8 @@
 """JSON Schemas (draft 2020-12) of every record the agent publishes and of the commands' summaries.
 
 One file per kind: ``symptom``, ``alarm``, ``advisory``, ``friction``, ``health``, ``state`` (the state queryable's
-reply) and ``summary`` (``run/replay/demo --json``). A consumer in any language needs only these
+reply), ``summary`` (``run/replay/demo --json``), and the historian's answers ``history`` and ``fleet``
+(``edge/history/**``, ``edge-monitor history``). A consumer in any language needs only these
 (``edge-monitor schema KIND`` prints one). Fields are only ever added within a schema version, so the
 schemas allow fields they do not name.
 """
@@ -13,7 +14,7 @@ from importlib import resources
 from typing import Any
 
 #: The kinds of record with a schema; the Zenoh key's last segment names the published ones.
-KINDS = ("symptom", "alarm", "advisory", "friction", "health", "state", "summary")
+KINDS = ("symptom", "alarm", "advisory", "friction", "health", "state", "summary", "history", "fleet")
 
 
 def schema_text(kind: str) -> str:

@@ -28,6 +28,7 @@ makes the sink close and reopen ``PATH`` before its next record.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -144,7 +145,10 @@ class JsonlSink:
     # ------------------------------------------------------------------ opening
     def _open(self, recover: bool) -> int:
         """Open (create) the file for appending; on the first opening repair a torn tail and read the tail."""
-        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        parent = Path(self.path).parent
+        if not parent.is_dir():         # a typo in the path must not make a directory tree
+            raise JsonlOpenError(f"its folder {parent} does not exist; create it (mkdir -p) or fix the path",
+                                 errno.ENOENT)
         try:
             fd = open_regular(self.path, _OPEN_FLAGS)
         except NotARegularFile as exc:

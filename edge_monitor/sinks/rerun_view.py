@@ -149,13 +149,18 @@ class RerunSink:
             sink.fallback_reason = reason
             return sink
         usage_reporting_off()      # before the SDK loads or a viewer starts (docs/SECURITY.md)
-        import rerun as rr  # lazy: the wheel is large and only needed when drawing
+        try:
+            import rerun as rr  # lazy: the wheel is large and only needed when drawing
+        except ImportError:
+            raise RerunUnavailable(f"--rerun {spec!r} needs the Rerun viewer, which this installation has not: "
+                                   "pip install 'joint-wear-monitor[viewer]', or --rerun off") from None
 
         rec = rr.RecordingStream(app_id, recording_id=recording_id)
         try:
             viewer = None
             if kind == "save":
-                Path(arg).parent.mkdir(parents=True, exist_ok=True)
+                if not Path(arg).parent.is_dir():    # a typo in the path must not make a directory tree
+                    raise OSError(f"its folder {Path(arg).parent} does not exist (create it, or fix the path)")
                 rec.save(arg)
             elif kind == "spawn":
                 viewer = _spawn_viewer(rec)

@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 _STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", ADVISORY: "advisories", FRICTION: "friction", HEALTH: "health"}
 
 DEFAULT_CACHE_SIZE = 256          # samples per advanced publisher (≈ 2 h of 30 s cycles)
-HEARTBEAT_S = 0.5                 # sample-miss heartbeat period, s
+HEARTBEAT_S = 0.5                 # sample-miss heartbeat period (sent only after new samples), s
 
 
 class SymptomPublisher:
@@ -94,7 +94,10 @@ class SymptomPublisher:
             self.session, key, encoding=zenoh.Encoding.APPLICATION_JSON,
             congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE,
             cache=zext.CacheConfig(max_samples=self.cache_size),
-            sample_miss_detection=zext.MissDetectionConfig(heartbeat=HEARTBEAT_S, sporadic_heartbeat=None),
+            # sporadic: the heartbeat goes out only when something was published since the last one. A
+            # periodic one costs 2 messages a second per key whatever the load: 36 per 6-joint robot, and a
+            # plant router saturated at a few hundred idle robots (docs/BENCHMARKS.md, "The historian")
+            sample_miss_detection=zext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
             publisher_detection=True)
 
     def _publishers_for(self, joint: int) -> dict[str, Any]:

@@ -27,7 +27,7 @@ def saved_transform(saved: Any, det: Any) -> YeoJohnson | None:
     selected = det.config.transform_axes or (True,) * det.dim
     fits = (det.config.steady_transform != "none" and transform.dim == det.dim == len(selected)
             and all(on or lam == 1.0 for on, lam in zip(selected, transform.lambdas)))
-    if det.stage != "steady" or det._glr is None or not fits:
+    if det.stage != "steady" or det.glr is None or not fits:
         raise ValueError("saved detector state: a transform that no detector could have learned")
     return transform
 
@@ -38,7 +38,7 @@ def saved_steady_values(saved: Any, det: Any) -> list[list[float]] | None:
     if saved is None:
         return None
     values = [list(map(float, v)) for v in saved]
-    ok = (det.stage == "warm-up" and det._glr is not None and len(values) < det.config.steady_nominal
+    ok = (det.stage == "warm-up" and det.glr is not None and len(values) < det.config.steady_nominal
           and all(len(v) == det.dim and all(map(math.isfinite, v)) for v in values))
     if not ok:
         raise ValueError("saved detector state: steady values that no detector could have collected")

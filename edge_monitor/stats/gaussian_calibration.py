@@ -21,12 +21,14 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
    point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
    ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
    stratified normal quantiles in a fixed random order — a fleet whose joints drift after learning; with
-   ``GaussianBudget.drift_tilts`` drawn from proposal N(t_k, 1), k = ⌊g/4⌋ mod K (:func:`drift_draws`), and
+   ``GaussianBudget.drift_tilts`` drawn from proposal N(t_k, 1), k = ⌊g/4⌋ mod K (``drift_draws``), and
    weighted by φ(z)/mean_k φ(z − t_k) (the balance heuristic): a deep-tail threshold is decided by the
    few joints that drift furthest, which plain draws hardly hold),
    ``steps`` cycles each; with ``wander`` (per axis, a fraction f of the variance), each value is
-   √(1 − f)·e + √f·a with a a unit AR(1) process of coefficient :data:`WANDER_COEFFICIENT` — the slow
-   wander of a warm joint's quantities, which makes consecutive values, learning sets included, dependent;
+   √(1 − f)·e + √f·a with a a unit AR(1) process of coefficient
+   :data:`~edge_monitor.stats.gaussian_fleet.WANDER_COEFFICIENT` — the slow wander of a warm joint's
+   quantities, which makes consecutive values, learning sets included, dependent (steps 1–2 run the fleet
+   of :mod:`edge_monitor.stats.gaussian_fleet`);
 3. per nominal g and candidate threshold h its false-alarm rate from its first passages (e/X, events
    over exposure; (e − 1)/X when no stream was censored), and the fleet's run length 1/mean_g(w_g·rate)
    with w_g the nominal's importance weight (1 where its learning set was drawn as it is);
@@ -48,10 +50,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import norm
 
-from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
-from edge_monitor.stats.learning_error import TILTS as FIT_TILTS
+from edge_monitor.stats.gaussian_fleet import (  # noqa: F401  (WANDER_COEFFICIENT: re-exported)
+    SEED,
+    WANDER_COEFFICIENT,
+    StreamNoise,
+    first_passages,
+    fit_nominals,
+    fleet_detectors,
+    pairing,
+    stream_shifts,
+)
 from edge_monitor.stats.learning_error import scalar_fits, vector_fits
 
 log = logging.getLogger(__name__)
@@ -59,8 +68,6 @@ log = logging.getLogger(__name__)
 #: A correlation matrix as nested tuples (hashable: simulations are cached per matrix).
 Correlation = tuple[tuple[float, ...], ...]
 
-#: Seed of every Gaussian calibration: the draws are the same for every detector and path.
-SEED = 20261126
 #: Threshold grid step [nats].
 H_STEP = 0.025
 #: Alarmed detectors a threshold needs to be read off directly (else extrapolated).
@@ -69,8 +76,6 @@ MIN_EVENTS_DIRECT = 30
 BOOTSTRAP = 200
 #: Detectors simulated at once (larger batches fall out of the CPU caches).
 CHUNK = 512
-#: Cycles simulated between first-passage updates.
-SEGMENT = 2000
 #: Top of the threshold grid [nats].
 H_MAX = 60.0
 #: Importance sampling of the healthy drift (``GaussianBudget.drift_tilts``; the table's wide-drift entries,
@@ -79,10 +84,6 @@ H_MAX = 60.0
 #: drifting z > 2 of the drift law's standard deviations up (64 % from z > 3, just past the allowance),
 #: ≈ 2 % of the plain draws (docs/DETECTION.md, "Deep-tail thresholds").
 DRIFT_TILTS = (0.0, 1.5, 3.0, 4.5)
-#: Lag-1 coefficient of the slow wander's AR(1) component (``GaussianSettings.wander``): fitted to the
-#: variance ratios k·var(k-cycle mean)/var = 1.19, 1.32, 1.39 at k = 5, 10, 30 of the log KL distances
-#: of 48 warm healthy joints (docs/DETECTION.md).
-WANDER_COEFFICIENT = 0.7
 
 
 @dataclass(frozen=True)
@@ -220,22 +221,22 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     rng = np.random.default_rng(SEED)
     grid = np.arange(H_STEP, H_MAX, H_STEP)
     per_chunk = max(1, CHUNK // budget.streams)
-    shifts, drift_weights = _shifts(settings, budget.nominals, r.shape[0], budget.drift_tilts)
+    shifts, drift_weights = stream_shifts(settings, budget.nominals, r.shape[0], budget.drift_tilts)
     events, exposure, weights = [], [], []
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
-        noise = _Noise(lower_chol, settings.wander, rng)
+        noise = StreamNoise(lower_chol, settings.wander, rng)
         if not settings.wander:             # independent learning values: the fit's exact law
             index = np.arange(first, first + g)
             means, covs, weight = scalar_fits(settings.n0, index, rng) if r.shape[0] == 1 else \
                 vector_fits(settings.n0, index, lower_chol, rng)
         else:
-            means, covs = _fit(noise.sequence(g, settings.n0))
+            means, covs = fit_nominals(noise.sequence(g, settings.n0))
             weight = np.ones(g)
-        glr = _detectors(settings, means, covs, budget.streams)
+        glr = fleet_detectors(settings, means, covs, budget.streams)
         weights.append(weight * drift_weights[first:first + g])
         shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
-        passage = _passages(glr, shift, noise, budget.steps, grid)
+        passage = first_passages(glr, shift, noise, budget.steps, grid)
         alarmed = passage < budget.steps
         shape = (g, budget.streams, grid.size)
         events.append(alarmed.reshape(shape).sum(axis=1))
@@ -246,124 +247,6 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     used = int(np.flatnonzero(ev.sum(axis=0) > 0)[-1]) + 2 if ev.any() else 1
     return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started,
                       np.concatenate(weights))
-
-
-def _fit(samples: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Means (G, d) and covariances (G, d, d; ddof = 1) of nominal sets ``samples`` (G, N0, d), as the
-    agent fits its own."""
-    means = samples.mean(axis=1)
-    dev = samples - means[:, None, :]
-    return means, np.einsum("gni,gnj->gij", dev, dev) / (samples.shape[1] - 1)
-
-
-def _detectors(settings: GaussianSettings, means: NDArray[np.float64], covs: NDArray[np.float64],
-               streams: int) -> GaussianBatchGLR:
-    """``streams`` detectors for each fitted nominal (means (G, d), covariances (G, d, d))."""
-    sd = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
-    upper = settings.allowance * sd
-    lower = np.full_like(upper, -np.inf) if settings.direction == "increase" else -upper
-    if settings.clip_sigma:
-        clip = (means - settings.clip_sigma * sd, means + settings.clip_sigma * sd)
-    else:
-        clip = (np.full_like(sd, -np.inf), np.full_like(sd, np.inf))
-    rep = functools.partial(np.repeat, repeats=streams, axis=0)
-    return GaussianBatchGLR(rep(means), rep(covs), settings.window, settings.gamma0, settings.rho,
-                            (rep(lower), rep(upper)), (rep(clip[0]), rep(clip[1])))
-
-
-def _shifts(settings: GaussianSettings, nominals: int, d: int, tilts: tuple[float, ...] = (0.0,)
-            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Where each nominal's streams sit (nominals × d), in standard units, and the importance weight of
-    that draw (nominals,) (step 2 of the module docstring)."""
-    ones = np.ones(nominals)
-    if settings.at == "boundary":
-        return np.full((nominals, d), settings.allowance), ones
-    if settings.at != "healthy_drift":
-        return np.zeros((nominals, d)), ones
-    z, weight = drift_draws(nominals, tilts)
-    mean = np.broadcast_to(np.asarray(settings.drift_mean or (0.0,), dtype=float), (d,))
-    sd = np.broadcast_to(np.asarray(settings.drift_sd or (0.0,), dtype=float), (d,))
-    return mean[None, :] + z[:, None] * sd[None, :], weight
-
-
-def pairing(tilts: tuple[float, ...]) -> int:
-    """The nominals over which every pair of the learning error's and the drift's proposals is drawn once."""
-    return len(FIT_TILTS) * len(tilts)
-
-
-def drift_draws(nominals: int, tilts: tuple[float, ...] = (0.0,)) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The drift draw z of each nominal and its importance weight: nominal g draws from proposal
-    N(t_k, 1), k = ⌊g / 4⌋ mod K, as the stratified quantiles of that proposal in a fixed random order;
-    weights φ(z)/mean_k φ(z − t_k), mean ≈ 1 (all 1 for the plain draws, ``tilts`` (0,)). The learning
-    error's proposal is g mod 4 (:data:`~edge_monitor.stats.learning_error.TILTS`), so every pair of
-    the two proposals is drawn equally often and the two weights multiply."""
-    rng = np.random.default_rng([SEED, 3])
-    t = np.asarray(tilts, dtype=float)
-    component = (np.arange(nominals) // len(FIT_TILTS)) % t.size
-    z = np.empty(nominals)
-    for k in range(t.size):
-        members = np.flatnonzero(component == k)
-        z[members] = t[k] + rng.permutation(norm.ppf((np.arange(members.size) + 0.5) / members.size))
-    if not np.any(t):
-        return z, np.ones(nominals)
-    log_mixture = np.logaddexp.reduce(norm.logpdf(z[:, None] - t[None, :]), axis=1) - math.log(t.size)
-    return z, np.exp(norm.logpdf(z) - log_mixture)
-
-
-class _Noise:
-    """Values in standard units with correlation R across axes: iid, or with a slow AR(1) wander
-    carrying ``wander`` of each axis's variance (step 2 of the module docstring)."""
-
-    def __init__(self, lower_chol: NDArray[np.float64], wander: tuple[float, ...], rng: np.random.Generator) -> None:
-        d = lower_chol.shape[0]
-        self.chol, self.rng = lower_chol, rng
-        f = np.broadcast_to(np.asarray(wander or (0.0,), dtype=float), (d,))
-        self.slow, self.fast = np.sqrt(f), np.sqrt(1.0 - f)
-        self.wanders = bool(np.any(f > 0))
-        self.phi = WANDER_COEFFICIENT
-        self.state: NDArray[np.float64] | None = None
-
-    def _draw(self, shape: tuple[int, ...]) -> NDArray[np.float64]:
-        return self.rng.standard_normal((*shape, self.chol.shape[0])) @ self.chol.T
-
-    def start(self, b: int) -> None:
-        """``b`` streams, their wander drawn from its stationary law."""
-        self.state = self._draw((b,)) if self.wanders else None
-
-    def step(self, b: int) -> NDArray[np.float64]:
-        """The next value of each of the ``b`` streams (b, d)."""
-        if self.state is None:
-            return self._draw((b,))
-        self.state = self.phi * self.state + math.sqrt(1.0 - self.phi ** 2) * self._draw((b,))
-        return self.fast * self._draw((b,)) + self.slow * self.state
-
-    def sequence(self, g: int, n: int) -> NDArray[np.float64]:
-        """``g`` sequences of ``n`` consecutive values (g, n, d): learning sets."""
-        if not self.wanders:
-            return self._draw((g, n))
-        self.start(g)
-        return np.stack([self.step(g) for _ in range(n)], axis=1)
-
-
-def _passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: _Noise, steps: int,
-              grid: NDArray[np.float64]) -> NDArray[np.int64]:
-    """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never;
-    detector b's stream moved by ``shift[b]`` (standard units)."""
-    b, d = glr.means.shape
-    noise.start(b)
-    first = np.full((b, grid.size), steps, dtype=np.int64)
-    running = np.zeros(b)
-    for start in range(0, steps, SEGMENT):
-        length = min(SEGMENT, steps - start)
-        stats = np.empty((b, length))
-        for t in range(length):
-            stats[:, t] = glr.update(noise.step(b) + shift)
-        stats[:, 0] = np.maximum(stats[:, 0], running)
-        np.maximum.accumulate(stats, axis=1, out=stats)
-        running = stats[:, -1]
-        reached = np.stack([np.searchsorted(row, grid, side="left") for row in stats])
-        first = np.where((first == steps) & (reached < length), start + reached, first)
-    return first
 
 
 def nominal_rates(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int) -> NDArray[np.float64]:

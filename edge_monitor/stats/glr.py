@@ -222,7 +222,15 @@ class WindowedGLR:
 
     @property
     def count(self) -> int:
+        """Observations taken since the start (or the last :meth:`restart`)."""
         return self._glr.count
+
+    @property
+    def latest(self) -> NDArray[np.float64] | None:
+        """The last observation taken (d,), winsorised as the recursion holds it (fed again to
+        :meth:`update_statistic` it gives the same statistic); None before the first."""
+        g = self._glr
+        return None if g.count == 0 else g.obs[0, (g.count - 1) % self.window].copy()
 
     def restart(self) -> None:
         """Forget every observation (the statistic starts from 0); density, threshold, null box and

@@ -84,27 +84,27 @@ class SequentialDetector:
 
     def _clear(self) -> None:
         self._nominal: list[list[float]] = []
-        self._glr: WindowedGLR | None = None
+        self.glr: WindowedGLR | None = None      # the GLR in use (None while learning)
         self._cycles: list[int | None] = [None] * self.window
         self._latched: dict[str, Any] | None = None
         self._learning_note = ""
         self.calibration: Calibration | None = None
         self._job: CalibrationJob | None = None
-        self._done: CalibrationJob | None = None      # the job of the threshold in use (for :meth:`retarget`)
+        self.calibrated_job: CalibrationJob | None = None      # the job of the threshold in use (for :meth:`retarget`)
         self._pending: Pending | None = None
         self._waiting_max = 0.0            # largest statistic while the calibration was under way
         self.stage = "warm-up"             # "warm-up" | "steady" (see the module docstring)
         self._steady_values: list[list[float]] | None = None    # the steady nominal being learned
-        self._transform: YeoJohnson | None = None    # applied to every value before the GLR (steady stage)
+        self.transform: YeoJohnson | None = None    # applied to every value before the GLR (steady stage)
 
     @property
     def state(self) -> str:
-        return "learning" if self._glr is None else "monitoring"
+        return "learning" if self.glr is None else "monitoring"
 
     @property
     def collecting(self) -> bool:
         """Whether the values fed now go into a nominal being learned (warm-up or steady)."""
-        return self._glr is None or (self._steady_values is not None and self._latched is None)
+        return self.glr is None or (self._steady_values is not None and self._latched is None)
 
     @property
     def collecting_steady(self) -> bool:
@@ -118,14 +118,14 @@ class SequentialDetector:
 
     @property
     def density(self) -> GaussianMixture | None:
-        return None if self._glr is None else self._glr.density
+        return None if self.glr is None else self.glr.density
 
     @property
     def threshold(self) -> float | None:
         """The alarm threshold [nats] once known (learned and calibrated)."""
-        if self._glr is None or not math.isfinite(self._glr.threshold):
+        if self.glr is None or not math.isfinite(self.glr.threshold):
             return None
-        return self._glr.threshold
+        return self.glr.threshold
 
     def calibration_record(self) -> dict[str, Any] | None:
         """How the threshold is set, for every decision: the ARL0 target and the method, or the Pf."""
@@ -136,7 +136,7 @@ class SequentialDetector:
             out.update(arl0=self.calibration.arl0, at=self.calibration.at, method=self.calibration.method)
             if self.calibration.h_se is not None:
                 out["h_se"] = self.calibration.h_se
-        elif self._glr is not None:
+        elif self.glr is not None:
             out["method"] = "pending"
         return out
 
@@ -160,7 +160,7 @@ class SequentialDetector:
         values and calibrate it at ``steady_at``. No-op once steady, while relearning, or with an alarm."""
         if self.stage == "steady" or self._steady_values is not None or self._latched is not None:
             return
-        if self._glr is None:                  # still learning: start over with settled values only
+        if self.glr is None:                  # still learning: start over with settled values only
             self._nominal.clear()
             self.stage, self._learning_note = "steady", ""
         else:
@@ -176,7 +176,7 @@ class SequentialDetector:
         vec, problem = self._as_vector(value)
         if vec is None:
             return replace(self._current(), reason=problem)
-        if self._glr is None:
+        if self.glr is None:
             return self._learn(vec, cycle)
         return self._monitor(vec, cycle)
 
@@ -184,7 +184,7 @@ class SequentialDetector:
         """A cycle on which the detector holds (does not decide, for ``reason``): its value still goes into
         the steady nominal being collected, if any, and completes it like :meth:`update`."""
         self._collect_calibration(cycle)
-        if self._glr is None or self._steady_values is None or self._latched is not None:
+        if self.glr is None or self._steady_values is None or self._latched is not None:
             return self.idle(reason)
         vec, problem = self._as_vector(value)
         if vec is None:
@@ -200,8 +200,8 @@ class SequentialDetector:
     def acknowledge(self) -> None:
         """The latched alarm was judged false: clear it and restart the statistic on the same nominal
         and threshold (no relearning, unlike :meth:`reset`)."""
-        if self._glr is not None:
-            self._glr.restart()
+        if self.glr is not None:
+            self.glr.restart()
         self._latched, self._steady_values = None, None
         self._cycles = [None] * self.window
 
@@ -213,8 +213,8 @@ class SequentialDetector:
         if self.config.pf is not None or arl0 == self.arl0:
             return False
         self.arl0 = arl0
-        job = self._job or self._done
-        if self._glr is None or job is None:
+        job = self._job or self.calibrated_job
+        if self.glr is None or job is None:
             return False
         self._job, self._waiting_max = replace(job, arl0=arl0), 0.0
         self._pending = self.calibrator.submit(self._job)
@@ -252,16 +252,16 @@ class SequentialDetector:
             nominal = np.asarray(self._nominal)
             if self.stage == "steady" and self.config.steady_transform == "yeo-johnson" and any(
                     self.config.transform_axes or (True,)):
-                self._transform = YeoJohnson.fit(nominal, self.config.transform_axes)
-                nominal = self._transform.apply(nominal)
+                self.transform = YeoJohnson.fit(nominal, self.config.transform_axes)
+                nominal = self.transform.apply(nominal)
             density = fit_density(nominal, self._density_kind)
             threshold = threshold_from_pf(self.config.pf, self.dim) if self.config.pf is not None else math.inf
-            self._glr = WindowedGLR(density, self.window, 0.5, self.gamma0, self.rho,
+            self.glr = WindowedGLR(density, self.window, 0.5, self.gamma0, self.rho,
                                     "exact" if self.mode == "exact" else "recursive", threshold=threshold,
                                     null_box=null_box(nominal, self.config.direction, self.config.allowance),
                                     clip=clip_range(nominal, self.config.clip_sigma))
         except (DensityError, GLRError, TransformError) as exc:
-            self._transform = None
+            self.transform = None
             self._learning_note = f"nominal data unusable, still learning: {exc}"
             log.info("detector stays in learning: %s", exc)
             return Decision("learning", reason=self._learning_note, calibration=self.calibration_record())
@@ -283,7 +283,7 @@ class SequentialDetector:
 
     def _collect_calibration(self, cycle: int) -> None:
         """Adopt a finished calibration; an alarm if the statistic already exceeded its threshold."""
-        if self._pending is None or self._glr is None:
+        if self._pending is None or self.glr is None:
             return
         try:
             calibration = self._pending.result()
@@ -293,8 +293,8 @@ class SequentialDetector:
                                       0, 0, 0, None, 0.0, self._calibration["at"])
         if calibration is None:
             return
-        self.calibration, self._pending, self._job, self._done = calibration, None, None, self._job
-        self._glr.threshold = calibration.threshold
+        self.calibration, self._pending, self._job, self.calibrated_job = calibration, None, None, self._job
+        self.glr.threshold = calibration.threshold
         log.info("threshold %.3f for ARL0 %.0f cycles (%s, %d × %d simulated cycles, %.1f s CPU)",
                  calibration.threshold, calibration.arl0, calibration.method, calibration.draws,
                  calibration.steps, calibration.cpu_s)
@@ -306,16 +306,16 @@ class SequentialDetector:
 
     # ------------------------------------------------------------------ monitoring
     def _monitor(self, vec: np.ndarray, cycle: int) -> Decision:
-        assert self._glr is not None
+        assert self.glr is not None
         fitted = self._add_steady_value(vec, cycle)
         if fitted is not None:
             return fitted
-        if self._transform is not None:
-            vec = self._transform.apply(vec)
+        if self.transform is not None:
+            vec = self.transform.apply(vec)
             if not np.all(np.isfinite(vec)):       # a finite value too large for the transform
                 self.skipped_nonfinite += 1
                 return replace(self._current(), reason="value skipped: too large to transform")
-        result = self._glr.update(vec)
+        result = self.glr.update(vec)
         self._cycles[result.index % self.window] = int(cycle)
         change_cycle = self._cycles[result.change_index % self.window]
         delta = self._shift_in_units(result.delta)
@@ -333,9 +333,9 @@ class SequentialDetector:
 
     def _shift_in_units(self, delta: Sequence[float]) -> tuple[float, ...]:
         """The GLR's shift estimate in the units the detector is fed (back through the transform)."""
-        if self._transform is None or self._glr is None:
+        if self.transform is None or self.glr is None:
             return tuple(float(v) for v in delta)
-        return self._transform.shift_in_units(self._glr.density.mean, delta)
+        return self.transform.shift_in_units(self.glr.density.mean, delta)
 
     def _add_steady_value(self, vec: np.ndarray, cycle: int) -> Decision | None:
         """Add ``vec`` to the steady nominal being collected (none while an alarm is latched); the fit's
@@ -354,7 +354,7 @@ class SequentialDetector:
 
     def _current(self) -> Decision:
         """The decision of a cycle whose value did not enter the detector (state unchanged)."""
-        if self._glr is None:
+        if self.glr is None:
             return Decision("learning", reason=self._learning_reason(), calibration=self.calibration_record())
         return Decision("monitoring", threshold=self.threshold, alarm=self.alarmed,
                         calibration=self.calibration_record())
@@ -368,15 +368,15 @@ class SequentialDetector:
     def state_dict(self) -> dict[str, Any]:
         return {"config": self.config.fingerprint(),
                 "nominal": [list(v) for v in self._nominal],
-                "glr": None if self._glr is None else self._glr.state_dict(),
+                "glr": None if self.glr is None else self.glr.state_dict(),
                 "calibration": None if self.calibration is None else self.calibration.to_dict(),
                 "calibration_job": None if self._job is None else self._job.to_dict(), "arl0": self.arl0,
-                "calibrated_job": None if self._done is None else self._done.to_dict(),
+                "calibrated_job": None if self.calibrated_job is None else self.calibrated_job.to_dict(),
                 "waiting_max": self._waiting_max,
                 "cycles": list(self._cycles), "latched": None if self._latched is None else dict(self._latched),
                 "learning_note": self._learning_note, "counters": self.counters(), "stage": self.stage,
                 "steady_values": None if self._steady_values is None else [list(v) for v in self._steady_values],
-                "transform": None if self._transform is None else self._transform.state_dict()}
+                "transform": None if self.transform is None else self.transform.state_dict()}
 
     @classmethod
     def from_state(cls, config: DetectorConfig, state: dict[str, Any],
@@ -390,26 +390,26 @@ class SequentialDetector:
         det = cls(config, calibrator)
         det.arl0 = saved_target(state.get("arl0", config.arl0))
         det._nominal = [list(map(float, v)) for v in state["nominal"]]
-        det._glr = None if state["glr"] is None else WindowedGLR.from_state(state["glr"])
+        det.glr = None if state["glr"] is None else WindowedGLR.from_state(state["glr"])
         if state.get("calibration") is not None:
             det.calibration = Calibration.from_dict(state["calibration"])
-        if state.get("calibrated_job") is not None and det._glr is not None:
-            det._done = CalibrationJob.from_dict(state["calibrated_job"])
-        if state.get("calibration_job") is not None and det._glr is not None:
+        if state.get("calibrated_job") is not None and det.glr is not None:
+            det.calibrated_job = CalibrationJob.from_dict(state["calibrated_job"])
+        if state.get("calibration_job") is not None and det.glr is not None:
             det._job = CalibrationJob.from_dict(state["calibration_job"])
         det._waiting_max = float(state.get("waiting_max", 0.0))
         det._cycles = [None if c is None else int(c) for c in state["cycles"]]
         det._latched = None if state["latched"] is None else dict(state["latched"])
         det._learning_note = state.get("learning_note", "")
         det.stage = "steady" if state.get("stage") == "steady" else "warm-up"
-        job = det._job or det._done
+        job = det._job or det.calibrated_job
         if config.pf is None and job is not None and recalibrated(job, det._calibration):   # calibrated elsewhere
             det._job = replace(job, **det._calibration)      # than the config says: re-derived; a threshold in
             det._waiting_max = det._waiting_max if det.calibration is None else 0.0   # use decides meanwhile
         if det._job is not None:                    # (the saved threshold decides until then)
             det._pending = det.calibrator.submit(det._job)
         det._steady_values = saved_steady_values(state.get("steady_values"), det)
-        det._transform = saved_transform(state.get("transform"), det)
+        det.transform = saved_transform(state.get("transform"), det)
         counters = state.get("counters", {})
         det.skipped_nonfinite = int(counters.get("skipped_nonfinite", 0))
         det.skipped_bad_shape = int(counters.get("skipped_bad_shape", 0))

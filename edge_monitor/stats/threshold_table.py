@@ -13,7 +13,7 @@ the correlation matrix R of its learned values (:mod:`edge_monitor.stats.gaussia
   The wear score's correlations with the KL axes (−0.4 … +0.3 on healthy joints) move the threshold
   far less than its standard error (docs/DETECTION.md, "Thresholds").
 
-``tools/threshold_table.py`` computes the entries over ARL0 = 10^1.5 … 10^7 with their bootstrap
+``tools/studies/threshold_table.py`` computes the entries over ARL0 = 10^1.5 … 10^7 with their bootstrap
 standard errors; :func:`lookup` interpolates in log ARL0 (a detector with other settings, or a target
 outside the table, is simulated at run time).
 """
@@ -77,8 +77,9 @@ def entry_rho(entry: dict[str, Any]) -> float:
 
 
 @functools.lru_cache(maxsize=1)
-def _table() -> dict[str, list[dict[str, Any]]]:
-    """Key → the entries of that key, sorted by ρ."""
+def entries_by_key() -> dict[str, list[dict[str, Any]]]:
+    """The shipped table: key (:func:`key`) → the entries of that key, sorted by ρ. Read once per process
+    (``entries_by_key.cache_clear()`` reads it again)."""
     try:
         text = resources.files("edge_monitor.stats").joinpath("data", RESOURCE).read_text(encoding="utf-8")
     except (FileNotFoundError, OSError):
@@ -104,7 +105,7 @@ def lookup(settings: GaussianSettings, arl0: float, corr: Correlation = ((1.0,),
     """The tabulated threshold for ``arl0`` (interpolated in log ARL0 and, for a vector, in ρ of
     :data:`VECTOR_AXES`), or None if not tabulated."""
     dim = len(corr)
-    entries = _table().get(key(settings, dim))
+    entries = entries_by_key().get(key(settings, dim))
     if not entries:
         return None
     target = math.log(float(arl0))

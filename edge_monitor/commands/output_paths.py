@@ -1,0 +1,36 @@
+"""Checks of the files and folders a command is told to write: a typo never makes a directory tree, an
+existing file is replaced only where the command says so, an input is never an output."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from protocol.console import UsageError
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file (the same inode, or the same resolved path if one is missing)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def check_parent(path: str | Path, option: str) -> None:
+    """UsageError (exit code 2) unless the folder ``path`` goes into exists."""
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise UsageError(f"{option} {path}: its folder {parent} does not exist: create it (mkdir -p {parent}) or "
+                         "fix the path")
+
+
+def check_output(path: str | Path, option: str, *, overwrite: bool) -> None:
+    """UsageError unless ``path`` can be a new output: its folder exists, and it is not there yet (or
+    ``overwrite``; never a directory)."""
+    p = Path(path)
+    check_parent(p, option)
+    if p.is_dir():
+        raise UsageError(f"{option} {p}: is a directory; give a file name")
+    if os.path.lexists(p) and not overwrite:
+        raise UsageError(f"{option} {p}: exists; pass --force to replace it, or choose another name")

@@ -1,0 +1,204 @@
+"""Connections to the historian's database, the same interface on SQLite and PostgreSQL.
+
+:func:`connect` opens one :class:`Connection` (each thread of the historian has its own) and brings the
+schema to the latest version (:mod:`edge_monitor.historian.migrations`). SQL is written once with ``?``
+placeholders; a PostgreSQL connection turns them into psycopg's ``%s``. Errors are sorted into two
+kinds the writer acts on: :class:`DatabaseUnavailable` (the server went away, the disk is full, the
+file is locked: keep the records, try again later) and :class:`RecordRefused` (this data cannot be
+stored: count it, go on). SQLite runs in WAL mode with ``synchronous=FULL``: a committed batch survives
+a kill -9 of the historian and a power cut.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+from edge_monitor.historian.db_url import POSTGRESQL, SQLITE, DbTarget
+from edge_monitor.historian.migrations import pending, version_table
+from edge_monitor.records import utc_now
+
+log = logging.getLogger(__name__)
+
+BUSY_TIMEOUT_MS = 10_000              # how long SQLite waits for another writer (a second historian)
+CONNECT_TIMEOUT_S = 5                 # PostgreSQL connection timeout
+_MIGRATION_LOCK = 0x6A776D48          # PostgreSQL advisory lock id of the migrations ("jwmH")
+
+
+class DatabaseError(RuntimeError):
+    """A database problem, said in one line with what to do."""
+
+
+class DatabaseUnavailable(DatabaseError):
+    """The database cannot take writes now (server down, disk full, locked): retry later, keep the data."""
+
+
+class RecordRefused(DatabaseError):
+    """The database refuses this data (a value it cannot hold): count it and go on."""
+
+
+class DriverMissing(DatabaseError):
+    """PostgreSQL was asked for but psycopg is not installed."""
+
+
+def _psycopg() -> Any:
+    try:
+        import psycopg
+    except ImportError:
+        raise DriverMissing("PostgreSQL needs psycopg 3: pip install 'joint-wear-monitor[historian-pg]' "
+                            "(or psycopg[binary])") from None
+    return psycopg
+
+
+class Connection:
+    """One database connection: ``rows``/``run`` with ``?`` placeholders, ``transaction()`` around writes."""
+
+    def __init__(self, raw: Any, target: DbTarget) -> None:
+        self.raw = raw
+        self.target = target
+        self.dialect = target.dialect
+
+    def sql(self, text: str) -> str:
+        return text if self.dialect == SQLITE else text.replace("%", "%%").replace("?", "%s")
+
+    def run(self, text: str, params: Sequence[Any] = ()) -> int:
+        """Execute one statement; the number of rows it changed."""
+        with self._errors():
+            cursor = self.raw.execute(self.sql(text), tuple(params))
+            return int(cursor.rowcount)
+
+    def rows(self, text: str, params: Sequence[Any] = ()) -> list[tuple]:
+        with self._errors():
+            return list(self.raw.execute(self.sql(text), tuple(params)).fetchall())
+
+    @contextmanager
+    def transaction(self, write: bool = True) -> Iterator["Connection"]:
+        """One transaction; SQLite takes the write lock at its start (``BEGIN IMMEDIATE``) when ``write``."""
+        with self._errors():
+            if self.dialect == SQLITE:
+                self.raw.execute("BEGIN IMMEDIATE" if write else "BEGIN")
+        try:
+            yield self
+        except BaseException:
+            self._rollback()
+            raise
+        with self._errors():
+            self.raw.commit() if self.dialect == POSTGRESQL else self.raw.execute("COMMIT")
+
+    def _rollback(self) -> None:
+        try:
+            if self.dialect == POSTGRESQL:
+                self.raw.rollback()
+            elif self.raw.in_transaction:
+                self.raw.execute("ROLLBACK")
+        except Exception as exc:   # the connection may be gone: nothing to roll back
+            log.debug("rollback failed: %s", exc)
+
+    @contextmanager
+    def _errors(self) -> Iterator[None]:
+        """Database errors as :class:`DatabaseUnavailable` / :class:`RecordRefused`, in one line."""
+        try:
+            yield
+        except sqlite3.IntegrityError as exc:
+            raise RecordRefused(f"SQLite refused a value: {exc}") from exc
+        except sqlite3.OperationalError as exc:
+            text = str(exc)
+            hint = ("; free space on the disk (records wait in memory)" if "full" in text
+                    else "; another program holds the file" if "locked" in text else "")
+            raise DatabaseUnavailable(f"SQLite {self.target.path}: {text}{hint}") from exc
+        except sqlite3.DatabaseError as exc:
+            raise DatabaseUnavailable(f"SQLite {self.target.path}: {exc}") from exc
+        except Exception as exc:
+            if self.dialect != POSTGRESQL:
+                raise
+            errors = _psycopg()
+            if isinstance(exc, (errors.errors.DataError, errors.errors.IntegrityError)):
+                raise RecordRefused(f"PostgreSQL refused a value: {_one_line(exc)}") from exc
+            if isinstance(exc, (errors.OperationalError, errors.InterfaceError)):
+                raise DatabaseUnavailable(f"{self.target.describe()}: {_one_line(exc)}") from exc
+            raise
+
+    def close(self) -> None:
+        try:
+            self.raw.close()
+        except Exception as exc:
+            log.debug("closing the database connection: %s", exc)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:300]
+
+
+def connect(target: DbTarget, migrate: bool = True, create: bool = True) -> Connection:
+    """A new connection to ``target`` with its schema at the latest version (``migrate``); ``create``: a
+    SQLite file that does not exist is made (else: DatabaseUnavailable, for commands that only read)."""
+    if target.dialect == SQLITE and not create and not Path(str(target.path)).is_file():
+        raise DatabaseUnavailable(f"no history database at {target.path}: fix --db, or start `edge-monitor historian "
+                                  f"--db {target.path}` first")
+    conn = Connection(_open_sqlite(target) if target.dialect == SQLITE else _open_postgres(target), target)
+    if migrate:
+        try:
+            migrate_schema(conn)
+        except BaseException:
+            conn.close()
+            raise
+    return conn
+
+
+def _open_sqlite(target: DbTarget) -> sqlite3.Connection:
+    path = Path(str(target.path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        raw = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False,
+                              timeout=BUSY_TIMEOUT_MS / 1000)
+        raw.execute("PRAGMA journal_mode=WAL")
+        raw.execute("PRAGMA synchronous=FULL")
+        raw.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
+        if target.max_page_count:
+            raw.execute(f"PRAGMA max_page_count={int(target.max_page_count)}")
+    except (OSError, sqlite3.Error) as exc:
+        raise DatabaseUnavailable(f"cannot open SQLite {path}: {exc}; check the path and its permissions") from exc
+    return raw
+
+
+def _open_postgres(target: DbTarget) -> Any:
+    psycopg = _psycopg()
+    try:
+        return psycopg.connect(str(target.url), autocommit=False, connect_timeout=CONNECT_TIMEOUT_S,
+                               application_name="edge-monitor historian")
+    except psycopg.Error as exc:
+        text = _one_line(exc)
+        hint = ("; give the password through PGPASSWORD, PGPASSFILE (~/.pgpass) or --db-url-file"
+                if "password" in text else "; is the server running, and the URL right?")
+        raise DatabaseUnavailable(f"cannot connect to {target.describe()}: {text}{hint}") from exc
+
+
+def schema_version(conn: Connection) -> int:
+    """The latest migration applied (0: a new database)."""
+    with conn.transaction(write=False):
+        conn.run(version_table(conn.dialect))
+        found = conn.rows("SELECT MAX(version) FROM schema_version")
+    return int(found[0][0] or 0)
+
+
+def migrate_schema(conn: Connection) -> list[int]:
+    """Apply the pending migrations under the migration lock; the versions applied (logged)."""
+    with conn.transaction():
+        if conn.dialect == POSTGRESQL:
+            conn.rows("SELECT pg_advisory_xact_lock(?)", (_MIGRATION_LOCK,))
+        conn.run(version_table(conn.dialect))
+        current = int(conn.rows("SELECT MAX(version) FROM schema_version")[0][0] or 0)
+        applied = []
+        for migration in pending(current):
+            for statement in migration.sql(conn.dialect):
+                conn.run(statement)
+            conn.run("INSERT INTO schema_version (version, description, applied_utc) VALUES (?, ?, ?)",
+                     (migration.version, migration.description, utc_now()))
+            applied.append(migration.version)
+    if applied:
+        log.info("%s: schema migrated to version %d (applied %s)", conn.target.describe(), applied[-1],
+                 ", ".join(map(str, applied)))
+    return applied

@@ -1,0 +1,186 @@
+"""Any DBC: a controller's frames decoded with cantools' signal definitions through a mapping file.
+
+Each mapped quantity is resolved once against the DBC (message, signal, multiplexer) and decoded
+vectorised with :class:`~protocol.bitfields.BitField` (the same values as ``Message.decode``,
+tests/test_bitfields.py). Speed and torque of a joint must come in one message: each such frame is one
+sample. A frame shorter than a mapped signal in it needs is dropped and counted (``malformed``); a
+message with an extended (29-bit) identifier matches extended frames only. Load estimate, motor
+temperature and cycle marks may come in any message, at any rate.
+E2E (optional, per message): AUTOSAR profile 2 or 5, the CRC checked with ``cantools.autosar.end_to_end``
+and the counter (profile 2: low nibble of byte 1; profile 5: byte 2) checked for gaps and repeats;
+a frame with a wrong CRC or a repeated counter is dropped and counted.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, short_frames, status_columns, take
+from edge_monitor.sources.samples import DecodedSamples, JointColumns
+from protocol.bitfields import BitFieldError, resolve
+from protocol.files import NotARegularFile, read_regular
+from protocol.frame_blocks import CAN_EFF_FLAG
+from protocol.signal_mapping import E2EMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
+
+log = logging.getLogger(__name__)
+
+#: The largest database read (see :func:`load_dbc`); a robot controller's DBC is a few kB.
+MAX_DBC_BYTES = 2 << 20
+_FORMATS = {".dbc": "dbc", ".arxml": "arxml", ".kcd": "kcd", ".sym": "sym"}
+
+
+def load_dbc(mapping: SignalMapping) -> Any:
+    """The mapping's database, read whole (a regular file of at most :data:`MAX_DBC_BYTES`: cantools
+    needs ≈ 200 bytes of memory per byte of text) and parsed by cantools; MappingError otherwise."""
+    import cantools
+    path = mapping.dbc
+    where = mapping.where("dbc")
+    try:
+        raw = read_regular(path or Path(), MAX_DBC_BYTES)
+    except FileNotFoundError:
+        raise MappingError(f"{where}: file {path} not found") from None
+    except NotARegularFile as exc:
+        raise MappingError(f"{where}: {path}: {exc.reason} (a DBC of a robot controller is a few kB; keep the "
+                           "messages the mapping names)") from None
+    except OSError as exc:
+        raise UnreadableFile(f"{where}: cannot read {path}: {exc.strerror or exc}") from None
+    suffix = (path or Path()).suffix.lower()
+    text = raw.decode("cp1252" if suffix == ".dbc" else "utf-8", errors="replace")   # cantools' own default
+    try:
+        return cantools.database.load_string(text, database_format=_FORMATS.get(suffix), strict=False)
+    except Exception as exc:  # noqa: BLE001 — cantools raises its own ParseError, UnsupportedDatabaseFormatError …
+        first = (str(exc).strip().splitlines() or [""])[0][:300]
+        raise MappingError(f"{where}: cannot load {path}: {type(exc).__name__}: {first}") from None
+
+
+def bind(db: Any, ref: SignalRef, where: str) -> BoundSignal:
+    """``ref`` resolved against the DBC ``db``; a missing message or signal names the nearest ones."""
+    try:
+        found = resolve(db, ref.message, ref.signal)
+    except BitFieldError as exc:
+        raise MappingError(f"{where}: {exc}") from None
+    return BoundSignal(f"{found.message}.{found.bits.name}", frame_key(db.get_message_by_name(found.message)),
+                       found.bits, ref.factor, ref.offset, found.mux, found.mux_value)
+
+
+def frame_key(message: Any) -> int:
+    """A DBC message's identifier as frame blocks carry it: an extended (29-bit) one with ``CAN_EFF_FLAG``,
+    so it never matches a standard frame of the same number."""
+    return int(message.frame_id) | (CAN_EFF_FLAG if message.is_extended_frame else 0)
+
+
+@dataclass
+class _Protection:
+    """E2E of one message: its cantools message and the mapping's profile, and the last counter seen."""
+
+    message: Any
+    spec: E2EMapping
+    last_counter: int | None = None
+
+
+class DbcDecoder:
+    """Frame blocks → :class:`DecodedSamples` (see the module docstring)."""
+
+    def __init__(self, mapping: SignalMapping) -> None:
+        db = load_dbc(mapping)
+        self.mapping = mapping
+        self.c = ForeignCounters()
+        self.joints: dict[int, tuple[BoundSignal, BoundSignal]] = {}
+        self.status: dict[int, dict[str, BoundSignal]] = {}
+        for j, jm in mapping.joints.items():
+            where = mapping.where(f"joint.{j}")
+            assert jm.speed is not None and jm.torque is not None
+            speed, torque = bind(db, jm.speed, f"{where}.speed"), bind(db, jm.torque, f"{where}.torque")
+            if (speed.frame_id, speed.mux_value) != (torque.frame_id, torque.mux_value):
+                raise MappingError(f"{where}: speed ({speed.name}) and torque ({torque.name}) must come in one "
+                                   "message: each frame is one sample")
+            self.joints[j] = (speed, torque)
+            self.status[j] = {q: bind(db, ref, f"{where}.{q}") for q in ("load", "temperature")
+                              if (ref := getattr(jm, q)) is not None}
+        c = mapping.cycles
+        self.marks = {name: bind(db, ref, mapping.where(f"cycles.{name}")) for name in ("cycle", "segment", "trigger")
+                      if (ref := getattr(c, name)) is not None}
+        self.known = np.array(sorted({frame_key(m) for m in db.messages}), dtype=np.int64)
+        self.bounds = [b for j, (s, t) in self.joints.items() for b in (s, t, *self.status[j].values())]
+        self.bounds += list(self.marks.values())
+        self.protected: dict[int, _Protection] = {}
+        for spec in mapping.e2e:
+            try:
+                message = db.get_message_by_name(spec.message)
+            except KeyError:
+                raise MappingError(f"{mapping.where('e2e')}: message {spec.message!r} is not in the DBC") from None
+            names = [s.name for s in message.signals]
+            if spec.counter_signal is not None and spec.counter_signal not in names:
+                raise MappingError(f"{mapping.where('e2e')}: counter_signal {spec.counter_signal!r} is not a signal "
+                                   f"of {spec.message} (it has {names})")
+            self.protected[frame_key(message)] = _Protection(message, spec)
+
+    def describe(self) -> dict[int, dict[str, str]]:
+        return {j: {"speed": s.name, "torque": t.name, **{q: b.name for q, b in self.status[j].items()}}
+                for j, (s, t) in self.joints.items()}
+
+    def decode(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> DecodedSamples:
+        ids = np.asarray(ids, dtype=np.int64)
+        data = np.asarray(data, dtype=np.uint8).reshape(-1, 8)
+        times = np.asarray(timestamps, dtype=np.float64)
+        dlc = np.asarray(dlc, dtype=np.int64)
+        self.c.frames_total += int(ids.size)
+        known = np.isin(ids, self.known)
+        self.c.unknown_id += int((~known).sum())
+        short = known & short_frames(self.bounds, ids, dlc)       # cut before a mapped signal: counted, dropped
+        self.c.malformed += int(short.sum())
+        usable = known & ~short
+        usable &= self._e2e(ids, data, usable)
+        out = DecodedSamples()
+        used = np.zeros(ids.size, dtype=bool)
+        for j, (speed, torque) in self.joints.items():
+            rows = speed.rows(ids, data, usable)
+            used[rows] = True
+            out.joints[j] = JointColumns(times[rows], speed.values(data[rows]), torque.values(data[rows]))
+        for j, bounds in self.status.items():
+            out.status[j] = status_columns(bounds, ids, data, times, usable, used)
+        for name, bound in self.marks.items():
+            rows, t, values = take(bound, ids, data, times, usable)
+            used[rows] = True
+            out.marks[name] = (t, values)
+        self.c.frames_ok += int(used.sum())
+        return out
+
+    def _e2e(self, ids: NDArray[np.int64], data: NDArray[np.uint8], checked: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Rows that pass their message's E2E check (all rows of unprotected messages; only ``checked`` rows
+        are checked and counted)."""
+        ok = np.ones(ids.size, dtype=bool)
+        if not self.protected:
+            return ok
+        from cantools.autosar.end_to_end import check_profile2_crc, check_profile5_crc
+        for frame_id, prot in self.protected.items():
+            spec = prot.spec
+            for r in np.flatnonzero((ids == frame_id) & checked).tolist():      # per frame: cantools' own check
+                payload = bytes(data[r])
+                if spec.profile == 2:
+                    counter = payload[1] & 0x0F
+                    good = check_profile2_crc(payload, spec.data_ids[counter])
+                    modulus = 16
+                else:
+                    counter = payload[2]
+                    good = check_profile5_crc(payload, int(spec.data_id or 0))
+                    modulus = 256
+                if not good:
+                    self.c.crc_errors += 1
+                    ok[r] = False
+                    continue
+                if prot.last_counter is not None:
+                    step = (counter - prot.last_counter) % modulus
+                    if step == 0:
+                        self.c.repeated += 1
+                        ok[r] = False
+                        continue
+                    self.c.counter_lost += step - 1
+                prot.last_counter = counter
+        return ok

@@ -1,0 +1,100 @@
+"""A recording as a wide trace table (CSV or Parquet) and the ``trace`` mapping that reads it back.
+
+What a robot vendor's trace tool would export, made from what the agent takes in: per controller tick
+one row, ``time [s|ms]``, then per joint ``J<j> speed [rad/s]``, ``J<j> torque [fraction]`` and, where
+the source has them, ``J<j> load [fraction]`` and ``J<j> temperature [degC]`` (in the rows of the status
+frames, empty elsewhere), and the ``cycle`` and ``segment`` labels in force. Replayed with the written
+mapping (cycles from those columns) it gives the symptoms of the recording (tests/test_trace_source.py).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge_monitor.sources.samples import IngestBlock
+
+
+class TraceWriter:
+    """Writes the runs of :class:`IngestBlock` s as rows (see the module docstring)."""
+
+    def __init__(self, path: str | Path, joints: list[int], rate_hz: float, separator: str = ";",
+                 time_unit: str = "s", status: bool = True) -> None:
+        self.path, self.joints, self.rate_hz = Path(path), joints, rate_hz
+        self.separator, self.time_unit, self.status = separator, time_unit, status
+        self.parquet = self.path.suffix.lower() in (".parquet", ".pq")
+        self._writer: Any = None
+        self.rows = 0
+
+    def columns(self) -> list[str]:
+        names = [f"time [{self.time_unit}]"]
+        for j in self.joints:
+            names += [f"J{j} speed [rad/s]", f"J{j} torque [fraction]"]
+            if self.status:
+                names += [f"J{j} load [fraction]", f"J{j} temperature [degC]"]
+        return names + ["cycle", "segment"]
+
+    def write(self, block: IngestBlock) -> None:
+        for run in block.runs:
+            if run.cycle is None or not run.samples:
+                continue
+            ticks = np.unique(np.concatenate([s.tick for s in run.samples.values()]))
+            cols: dict[str, NDArray[np.float64]] = {}
+            segment = np.full(ticks.size, -1.0)
+            for j in self.joints:
+                speed, torque = np.full(ticks.size, np.nan), np.full(ticks.size, np.nan)
+                s = run.samples.get(j)
+                if s is not None:
+                    at = np.searchsorted(ticks, s.tick)
+                    speed[at], torque[at] = s.speed, s.torque
+                    segment[at] = np.maximum(segment[at], s.segment)
+                cols[f"J{j} speed [rad/s]"], cols[f"J{j} torque [fraction]"] = speed, torque
+                if self.status:
+                    load, temperature = np.full(ticks.size, np.nan), np.full(ticks.size, np.nan)
+                    st = run.joint_status.get(j)
+                    if st is not None and st.load_estimate.size:
+                        at = np.rint(np.linspace(0, ticks.size - 1, st.load_estimate.size)).astype(np.int64)
+                        load[at], temperature[at] = st.load_estimate, st.motor_temperature
+                    cols[f"J{j} load [fraction]"], cols[f"J{j} temperature [degC]"] = load, temperature
+            scale = 1e3 if self.time_unit == "ms" else 1.0
+            cols[f"time [{self.time_unit}]"] = ticks / self.rate_hz * scale
+            cols["cycle"], cols["segment"] = np.full(ticks.size, float(run.cycle)), segment
+            self._append(cols)
+
+    def _append(self, cols: dict[str, NDArray[np.float64]]) -> None:
+        import pyarrow as pa
+        table = pa.table({name: pa.array(cols[name], from_pandas=True) for name in self.columns()})
+        if self._writer is None:
+            if self.parquet:
+                import pyarrow.parquet as pq
+                self._writer = pq.ParquetWriter(str(self.path), table.schema)
+            else:
+                import pyarrow.csv as pcsv
+                self._writer = pcsv.CSVWriter(str(self.path), table.schema,
+                                              write_options=pcsv.WriteOptions(delimiter=self.separator))
+        self._writer.write_table(table)
+        self.rows += table.num_rows
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+
+    def mapping_text(self) -> str:
+        """The ``trace`` mapping of this table (cycles from its cycle/segment columns)."""
+        lines = [f"# trace mapping of {self.path.name} (edge-monitor export-trace)", 'kind = "trace"', "",
+                 "[trace]", 'layout = "wide"', f"separator = {json.dumps(self.separator)}",
+                 f'time_column = "time [{self.time_unit}]"', f'time_unit = "{self.time_unit}"', "",
+                 "[cycles]", 'from = "controller"', 'cycle = { column = "cycle" }', 'segment = { column = "segment" }',
+                 ""]
+        for j in self.joints:
+            lines += [f"[joint.{j}]", f'speed = {{ column = "J{j} speed [rad/s]" }}',
+                      f'torque = {{ column = "J{j} torque [fraction]" }}']
+            if self.status:
+                lines += [f'load = {{ column = "J{j} load [fraction]" }}',
+                          f'temperature = {{ column = "J{j} temperature [degC]" }}']
+            lines.append("")
+        return "\n".join(lines)

@@ -1,0 +1,203 @@
+"""Trace tables (CSV or Parquet) as a source: what robot vendors' trace tools export (docs/CONNECTING.md).
+
+A ``kind = "trace"`` mapping names the columns. Wide tables have one row per time and one column per
+joint and quantity (``[joint.N] speed = { column = "A1 speed [rpm]" }``; a unit in brackets in the
+header is used when the mapping states none); long tables have one row per joint and time, a joint column
+(``[trace] joint_column``) whose value is each joint's ``key``, and one column per quantity. Time in s or
+ms (``[trace] time_unit``), any one-character separator (``;`` is common), ``,`` as decimal mark if
+stated. Empty cells are missing values: a row without speed or torque is no sample; load and temperature
+may be sparse. Cycle marks come from mapped ``cycle``/``segment`` or ``trigger`` columns, or from the
+motion. Read in batches of the mapped columns only, in bounded memory, by :mod:`trace_table` (pyarrow:
+``pip install 'joint-wear-monitor[traces]'``).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge_monitor.sources.log_source import LogReport
+from edge_monitor.sources.samples import DecodedSamples, JointColumns, StatusColumns
+from edge_monitor.sources.trace_table import SkippedRows, TraceError, table_batches
+from protocol.signal_mapping import SignalMapping, SignalRef, TraceFormat, load_mapping
+
+log = logging.getLogger(__name__)
+
+#: Median time steps [s] no trace of a robot joint has: slower than 10 Hz, faster than 100 kHz (the
+#: agent needs >= 100 Hz); a table outside states its time in the other unit (ms read as s or back).
+SLOWEST_STEP_S, FASTEST_STEP_S = 0.1, 1e-5
+
+
+def _column(batch: Any, name: str, where: str, decimal: str = ".") -> NDArray[np.float64]:
+    """Column ``name`` as floats; empty cells NaN. pyarrow reads a column as text when one cell of the
+    batch is no number: those cells become NaN (the sample stream counts them as dropped) unless half or
+    more of the cells are text, which is a column that is not numeric (TraceError). A dictionary column
+    (Parquet text) is converted once per distinct value."""
+    names = batch.schema.names
+    if name not in names:
+        raise TraceError(f"{where}: column {name!r} is not in the table; its columns are {names[:20]}")
+    array = batch.column(names.index(name))
+    if hasattr(array, "dictionary"):
+        values = _floats(array.dictionary, name, where, decimal, array.indices.null_count)
+        index = array.indices.to_numpy(zero_copy_only=False)
+        return np.where(np.isfinite(index), values[np.nan_to_num(index).astype(np.int64)], np.nan) \
+            if values.size else np.full(len(array), np.nan)
+    return _floats(array, name, where, decimal)
+
+
+def _floats(array: Any, name: str, where: str, decimal: str, empty: int = 0) -> NDArray[np.float64]:
+    cells = array.to_numpy(zero_copy_only=False)
+    if cells.dtype != object:
+        try:
+            return np.asarray(cells, dtype=np.float64)
+        except (TypeError, ValueError):                # dates, times, durations: no number of ours
+            raise TraceError(f"{where}: column {name!r} is not numeric (it holds {array.type})") from None
+    values, text = _numbers_of_text(cells, decimal)
+    if text and text.count >= int(np.isfinite(values).sum()) + empty:
+        raise TraceError(f"{where}: column {name!r} is not numeric ({text.example!r} in {text.count} of "
+                         f"{values.size} rows; decimal mark? [trace] decimal = \",\")")
+    if text:
+        log.warning("%s: %d cells of column %r are not numbers (e.g. %r): read as missing values",
+                    where, text.count, name, text.example)
+    return values
+
+
+class _TextCells:
+    """The cells of a column that are text, not numbers: how many and the first."""
+
+    def __init__(self) -> None:
+        self.count, self.example = 0, ""
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def add(self, cell: str) -> None:
+        if not self.count:
+            self.example = cell[:40]
+        self.count += 1
+
+
+def _numbers_of_text(cells: NDArray[Any], decimal: str) -> tuple[NDArray[np.float64], _TextCells]:
+    """Floats of a column pyarrow left as text (None and blank cells NaN), and the cells that are text."""
+    values = np.full(cells.size, np.nan)
+    text = _TextCells()
+    for i, cell in enumerate(cells):
+        if cell is None or not (cell := str(cell).strip().strip('"').strip()):   # a quoted number: its number
+            continue
+        try:
+            values[i] = float(cell.replace(decimal, ".") if decimal != "." else cell)
+        except ValueError:
+            text.add(cell)
+    return values, text
+
+
+def _values(batch: Any, ref: SignalRef, where: str, decimal: str = ".") -> NDArray[np.float64]:
+    return _column(batch, str(ref.column), where, decimal) * ref.factor + ref.offset
+
+
+def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str) -> None:
+    """TraceError if the median step of the first batch's times is no robot trace's (a unit off by 1000),
+    or if its times do not advance at all (every row at one time)."""
+    finite = time[np.isfinite(time)]
+    ticks = np.unique(finite)
+    if finite.size >= 10 and ticks.size < 2:
+        raise TraceError(f"{where}: the time column does not advance (all of the first {finite.size} rows at "
+                         f"{finite[0]:.6g}): a trace needs the time of each sample")
+    if ticks.size < 10:
+        return
+    step = float(np.median(np.diff(ticks)))
+    if step > SLOWEST_STEP_S:
+        hint = ' (in ms? [trace] time_unit = "ms")' if fmt.time_unit != "ms" else ""
+        raise TraceError(f"{where}: the time column steps by {step:.4g} s ({1 / step:.3g} Hz) in the median; "
+                         f"the agent needs samples at >= 100 Hz{hint}")
+    if step < FASTEST_STEP_S:
+        hint = ' (in s? [trace] time_unit = "s")' if fmt.time_unit == "ms" else ""
+        raise TraceError(f"{where}: the time column steps by {step:.4g} s ({1 / step:.3g} Hz) in the median: "
+                         f"no robot trace is that fast{hint}")
+
+
+def mapped_columns(mapping: SignalMapping) -> list[str]:
+    """The columns a trace mapping reads (time, joint column, every mapped quantity and mark), in order."""
+    fmt = mapping.trace or TraceFormat()
+    refs = [getattr(jm, q) for jm in mapping.joints.values() for q in ("speed", "torque", "load", "temperature")]
+    refs += [getattr(mapping.cycles, name) for name in ("cycle", "segment", "trigger")]
+    names = [fmt.time_column] + ([fmt.joint_column] if fmt.layout == "long" and fmt.joint_column else [])
+    return list(dict.fromkeys(names + [str(r.column) for r in refs if r is not None]))
+
+
+def _joint_rows(batch: Any, fmt: TraceFormat, mapping: SignalMapping) -> dict[int, NDArray[np.bool_]]:
+    """Rows of each joint of a long table: its joint column equals the joint's key (compared as text without
+    quotes, a dictionary column once per distinct value)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    column = batch.column(batch.schema.names.index(fmt.joint_column))
+    dictionary = hasattr(column, "dictionary")
+    values = pc.utf8_trim(pc.cast(column.dictionary if dictionary else column, pa.string()), '" ')   # "A1": A1
+    out = {}
+    for j, jm in mapping.joints.items():
+        match = pc.fill_null(pc.equal(values, jm.key if jm.key is not None else str(j)), False)
+        if dictionary:
+            match = pc.fill_null(pc.take(match, column.indices), False)
+        out[j] = np.asarray(match.to_numpy(zero_copy_only=False), dtype=bool)
+    return out
+
+
+def decoded_batches(path: str | Path, mapping: SignalMapping,
+                    report: LogReport | None = None) -> Iterator[DecodedSamples]:
+    """The table as :class:`DecodedSamples`, one per batch of rows (rows with the wrong number of cells
+    are skipped and counted in ``report``; empty and non-finite cells are left as NaN: the sample stream
+    counts what it drops)."""
+    fmt = mapping.trace or TraceFormat()
+    scale = 1e-3 if fmt.time_unit == "ms" else 1.0
+    skipped = SkippedRows()
+    first = True
+    for batch in table_batches(Path(path), fmt, mapped_columns(mapping), skipped):
+        skipped.report_to(report)
+        time = _column(batch, fmt.time_column, mapping.where("trace.time_column"), fmt.decimal) * scale
+        if first:
+            _check_time_step(time, fmt, mapping.where("trace.time_column"))
+            first = False
+        rows_of = _joint_rows(batch, fmt, mapping) if fmt.layout == "long" else {}
+        out = DecodedSamples()
+        for j, jm in mapping.joints.items():
+            where = mapping.where(f"joint.{j}")
+            rows = rows_of.get(j, np.ones(time.size, dtype=bool))
+            assert jm.speed is not None and jm.torque is not None
+            speed = _values(batch, jm.speed, f"{where}.speed", fmt.decimal)
+            torque = _values(batch, jm.torque, f"{where}.torque", fmt.decimal)
+            ok = rows & (np.isfinite(speed) | np.isfinite(torque))        # a row with neither: no sample
+            out.joints[j] = JointColumns(time[ok], speed[ok], torque[ok])
+            status = {q: _values(batch, ref, f"{where}.{q}", fmt.decimal) for q in ("load", "temperature")
+                      if (ref := getattr(jm, q)) is not None}
+            if status:
+                has = rows & np.isfinite(time) & np.any([np.isfinite(v) for v in status.values()], axis=0)
+                nan = np.full(int(has.sum()), np.nan)
+                out.status[j] = StatusColumns(time[has], status["load"][has] if "load" in status else nan,
+                                              status["temperature"][has] if "temperature" in status else nan)
+        for name in ("cycle", "segment", "trigger"):
+            ref = getattr(mapping.cycles, name)
+            if ref is not None:
+                values = _values(batch, ref, mapping.where(f"cycles.{name}"), fmt.decimal)
+                ok = np.isfinite(values) & np.isfinite(time)
+                out.marks[name] = (time[ok], values[ok])
+        yield out
+    skipped.report_to(report)
+
+
+def replay_trace(agent: Any, path: str, mapping_path: str | None) -> LogReport:
+    """Feed a trace table to ``agent`` (whose source was opened from the same mapping)."""
+    if not mapping_path:
+        raise TraceError(f"{path}: a trace table needs --mapping (a kind = \"trace\" mapping naming its columns)")
+    mapping = load_mapping(mapping_path)
+    if mapping.kind != "trace":
+        raise TraceError(f"{path}: --mapping {mapping_path} is a {mapping.kind} mapping; "
+                         "a table needs kind = \"trace\"")
+    report = LogReport()
+    for decoded in decoded_batches(path, mapping, report):
+        report.frames += sum(int(c.time.size) for c in decoded.joints.values())
+        agent.update_ingested(agent.ingest.update_samples(decoded))
+    return report

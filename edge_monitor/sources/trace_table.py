@@ -1,0 +1,219 @@
+"""A trace file (CSV or Parquet) read as pyarrow record batches of the columns a mapping names, in bounded
+memory (docs/CONNECTING.md).
+
+CSV: the header is read here (Python's ``csv``, so quoted names work) and checked before pyarrow sees the
+file: at most :data:`MAX_COLUMNS` columns, a header line of at most :data:`BLOCK_BYTES`. pyarrow then reads
+the rows without quoting (a stray ``"`` damages its one cell, not the rest of the file) and converts only
+the mapped columns. Parquet: only the mapped columns are read, text columns as dictionaries (a column of
+one long string repeated a million times stays one string), and a row group whose mapped columns would
+unpack to more than :data:`MAX_ROW_GROUP_BYTES` is refused. A table that does not fit raises
+:class:`TraceError` (exit code 2), one that cannot be read :class:`TraceUnreadable` (exit code 1).
+"""
+
+from __future__ import annotations
+
+import codecs
+import csv
+import os
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+from edge_monitor.sources.log_source import LogReport
+from protocol.files import NotARegularFile, open_regular
+from protocol.signal_mapping import TraceFormat
+
+TRACE_SUFFIXES = (".csv", ".parquet", ".pq")
+#: pyarrow reads a CSV in blocks of this size; a longer line is an error (no trace table has one).
+BLOCK_BYTES = 4 << 20
+#: Most columns a trace table may have (a vendor's trace of 8 axes × 100 signals has 800).
+MAX_COLUMNS = 10_000
+#: Largest unpacked size of the mapped columns of one Parquet row group [bytes].
+MAX_ROW_GROUP_BYTES = 1 << 30
+#: Rows per batch (≈ 0.5 MB per numeric column).
+BATCH_ROWS = 1 << 16
+
+
+class TraceError(ValueError):
+    """A trace table that does not fit its mapping (the message names the column and the fix)."""
+
+
+class TraceUnreadable(OSError):
+    """A trace file that cannot be read: not a regular file (a FIFO, a device, a directory) or an I/O error."""
+
+
+def is_trace_file(path: str) -> bool:
+    return Path(path).suffix.lower() in TRACE_SUFFIXES
+
+
+def _head(path: Path) -> bytes:
+    """The first :data:`BLOCK_BYTES` of ``path`` if it names a regular file (checked without blocking on a
+    FIFO or reading a device); pyarrow then opens it natively (its read-ahead threads never wait for Python)."""
+    try:
+        fd = open_regular(path)
+        try:
+            return os.read(fd, BLOCK_BYTES) if path.suffix.lower() == ".csv" else b""
+        finally:
+            os.close(fd)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"trace file {path} not found") from None
+    except NotARegularFile as exc:
+        raise TraceUnreadable(f"{path}: {exc.reason}") from None
+    except IsADirectoryError:
+        raise TraceUnreadable(f"{path}: it is a directory, not a regular file") from None
+    except OSError as exc:
+        raise TraceUnreadable(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def _codec(encoding: str) -> str:
+    """pyarrow's name of ``encoding``: UTF-8 is read natively (a byte that is not UTF-8 is a conversion
+    error), the others are transcoded."""
+    return "utf8" if encoding.lower().replace("_", "-") == "utf-8" else encoding
+
+
+def csv_header(path: Path, head: bytes, fmt: TraceFormat) -> list[str]:
+    """The column names of the CSV whose first bytes are ``head`` (TraceError: no header line within
+    :data:`BLOCK_BYTES`, more than :data:`MAX_COLUMNS` columns, not ``fmt.encoding`` text, or empty)."""
+    if not head:
+        raise TraceError(f"{path}: Empty CSV file: not a trace table")
+    try:
+        text = codecs.getincrementaldecoder(fmt.encoding)().decode(head)
+    except UnicodeError as exc:
+        raise _not_text(path, fmt, exc) from None
+    end = text.find("\n")
+    if end < 0 and len(head) == BLOCK_BYTES:
+        raise TraceError(f"{path}: its first line (the header) is longer than {BLOCK_BYTES >> 20} MiB: "
+                         "not a trace table")
+    line = (text if end < 0 else text[:end]).lstrip("\ufeff").rstrip("\r")
+    if line.count(fmt.separator) >= MAX_COLUMNS:
+        raise TraceError(f"{path}: its header has more than {MAX_COLUMNS} columns "
+                         f"({line.count(fmt.separator) + 1} {fmt.separator!r}-separated): not a trace table; "
+                         "export the signals the mapping names")
+    names = next(csv.reader([line], delimiter=fmt.separator, quotechar='"'), [])
+    if not names or names == [""]:
+        raise TraceError(f"{path}: its first line is empty: a trace table starts with a header row")
+    return [n.strip() for n in names]
+
+
+def _not_text(path: Path, fmt: TraceFormat, exc: UnicodeError) -> TraceError:
+    reason = exc.reason if isinstance(exc, UnicodeDecodeError) else str(exc)
+    return TraceError(f"{path}: not {fmt.encoding} text ({reason}); a table from a Windows tool: "
+                      "[trace] encoding = \"cp1252\" (or \"utf-16\")")
+
+
+def _missing(path: Path, names: list[str], wanted: list[str]) -> None:
+    """TraceError naming the first mapped column that is not in the table (and some that are)."""
+    for name in wanted:
+        if name not in names:
+            shown = names[:20] + (["…"] if len(names) > 20 else [])
+            raise TraceError(f"{path}: column {name!r} is not in the table; its columns are {shown}")
+
+
+@contextmanager
+def _quiet_undecodable_rows() -> Iterator[None]:
+    """pyarrow decodes a malformed row's text for the row handler and reports a row that is not text
+    as "Exception ignored" (with a traceback) before failing the table; the failure says it already."""
+    previous = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        if not isinstance(unraisable.exc_value, UnicodeDecodeError):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
+
+
+class SkippedRows:
+    """pyarrow's ``invalid_row_handler``: a row with too few or too many cells is skipped and counted."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.examples: list[str] = []
+
+    def __call__(self, row: Any) -> str:
+        self.count += 1
+        if len(self.examples) < 5:
+            text = (row.text or "")[:80]
+            self.examples.append(f"a row with {row.actual_columns} cells, {row.expected_columns} expected: "
+                                 f"{text!r}")
+        return "skip"
+
+    def report_to(self, report: LogReport | None) -> None:
+        if report is not None and self.count:
+            report.skipped += self.count
+            report.frames_skipped += self.count
+            report.examples[:] = (report.examples + self.examples)[:5]
+        self.count, self.examples = 0, []
+
+
+def _decode_through(file: str, encoding: str) -> None:
+    """Decode the whole file in blocks (UnicodeError where it is not ``encoding`` text) before pyarrow
+    transcodes it: a decode error inside pyarrow's transcoder leaves one of its threads running, and the
+    process may then abort at exit ("terminate called without an active exception")."""
+    decoder = codecs.getincrementaldecoder(encoding)()
+    with open(file, "rb") as f:
+        while block := f.read(BLOCK_BYTES):
+            decoder.decode(block)
+    decoder.decode(b"", final=True)
+
+
+def _csv_batches(path: Path, head: bytes, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
+    import pyarrow.csv as pcsv
+    names = csv_header(path, head, fmt)
+    _missing(path, names, columns)
+    if _codec(fmt.encoding) != "utf8":
+        _decode_through(str(path), fmt.encoding)
+    with _quiet_undecodable_rows():
+        reader = pcsv.open_csv(
+            str(path), parse_options=pcsv.ParseOptions(delimiter=fmt.separator, quote_char=False,
+                                                       invalid_row_handler=skipped),
+            convert_options=pcsv.ConvertOptions(decimal_point=fmt.decimal, include_columns=columns),
+            read_options=pcsv.ReadOptions(block_size=BLOCK_BYTES, encoding=_codec(fmt.encoding), use_threads=False,
+                                          column_names=names, skip_rows=1))
+        yield from reader
+
+
+def _parquet_batches(path: Path, columns: list[str]) -> Iterator[Any]:
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise TraceError("reading Parquet needs pyarrow: pip install 'joint-wear-monitor[traces]'") from None
+    names = pq.ParquetFile(str(path)).schema_arrow.names
+    _missing(path, names, columns)
+    table = pq.ParquetFile(str(path), read_dictionary=columns)     # text columns stay dictionaries
+    meta = table.metadata
+    wanted = [names.index(c) for c in columns]
+    for g in range(meta.num_row_groups):
+        group = meta.row_group(g)
+        size = sum(group.column(i).total_uncompressed_size for i in wanted if i < group.num_columns)
+        if size > MAX_ROW_GROUP_BYTES:
+            raise TraceError(f"{path}: row group {g} holds {size / 2**20:.0f} MiB of the mapped columns, more than "
+                             f"{MAX_ROW_GROUP_BYTES >> 20} MiB: write the table with smaller row groups")
+    yield from table.iter_batches(batch_size=BATCH_ROWS, columns=columns)
+
+
+def table_batches(path: Path, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
+    """pyarrow record batches of ``columns`` of the table (see the module docstring)."""
+    try:
+        import pyarrow as pa
+    except ImportError:
+        raise TraceError("reading trace tables needs pyarrow: pip install 'joint-wear-monitor[traces]'") from None
+    head = _head(path)
+    columns = list(dict.fromkeys(columns))
+    try:
+        if path.suffix.lower() == ".csv":
+            yield from _csv_batches(path, head, fmt, columns, skipped)
+        else:
+            yield from _parquet_batches(path, columns)
+    except OSError as exc:                   # pyarrow's I/O errors are OSErrors
+        raise TraceUnreadable(f"cannot read {path}: {exc}") from None
+    except UnicodeError as exc:              # a decode error, or UTF-16 without its byte-order mark
+        raise _not_text(path, fmt, exc) from None
+    except pa.ArrowException as exc:
+        first = (str(exc).strip().splitlines() or [""])[0][:300]
+        hint = (f" (a line longer than {BLOCK_BYTES >> 20} MiB)" if "straddl" in first else "")
+        raise TraceError(f"{path}: not a {path.suffix.lower()[1:]} table its mapping can read: {first}{hint}") from None

@@ -1,0 +1,150 @@
+"""The simulated fleet of a Gaussian calibration (steps 1–2 of :mod:`edge_monitor.stats.gaussian_calibration`):
+learning sets fitted as the agent fits its own, ``streams`` detectors per fitted nominal, where each
+nominal's streams sit (the calibration point; drift draws and their importance weights), the streams'
+values in standard units (iid, or with a slow AR(1) wander), and the first cycle each detector's statistic
+reaches each threshold of a grid. Public, so that an independent check of the calibration
+(tools/studies/arl_check.py) runs the very same fleet with its own seed.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import norm
+
+from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
+from edge_monitor.stats.learning_error import TILTS as FIT_TILTS
+
+if TYPE_CHECKING:
+    from edge_monitor.stats.gaussian_calibration import GaussianSettings
+
+#: Seed of every Gaussian calibration: the draws are the same for every detector and path.
+SEED = 20261126
+#: Cycles simulated between first-passage updates.
+SEGMENT = 2000
+#: Lag-1 coefficient of the slow wander's AR(1) component (``GaussianSettings.wander``): fitted to the
+#: variance ratios k·var(k-cycle mean)/var = 1.19, 1.32, 1.39 at k = 5, 10, 30 of the log KL distances
+#: of 48 warm healthy joints (docs/DETECTION.md).
+WANDER_COEFFICIENT = 0.7
+
+
+def fit_nominals(samples: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Means (G, d) and covariances (G, d, d; ddof = 1) of nominal sets ``samples`` (G, N0, d), as the
+    agent fits its own."""
+    means = samples.mean(axis=1)
+    dev = samples - means[:, None, :]
+    return means, np.einsum("gni,gnj->gij", dev, dev) / (samples.shape[1] - 1)
+
+
+def fleet_detectors(settings: GaussianSettings, means: NDArray[np.float64], covs: NDArray[np.float64],
+                    streams: int) -> GaussianBatchGLR:
+    """``streams`` detectors for each fitted nominal (means (G, d), covariances (G, d, d))."""
+    sd = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    upper = settings.allowance * sd
+    lower = np.full_like(upper, -np.inf) if settings.direction == "increase" else -upper
+    if settings.clip_sigma:
+        clip = (means - settings.clip_sigma * sd, means + settings.clip_sigma * sd)
+    else:
+        clip = (np.full_like(sd, -np.inf), np.full_like(sd, np.inf))
+    rep = functools.partial(np.repeat, repeats=streams, axis=0)
+    return GaussianBatchGLR(rep(means), rep(covs), settings.window, settings.gamma0, settings.rho,
+                            (rep(lower), rep(upper)), (rep(clip[0]), rep(clip[1])))
+
+
+def stream_shifts(settings: GaussianSettings, nominals: int, d: int, tilts: tuple[float, ...] = (0.0,)
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where each nominal's streams sit (nominals × d), in standard units, and the importance weight of
+    that draw (nominals,) (step 2 of the gaussian_calibration module docstring)."""
+    ones = np.ones(nominals)
+    if settings.at == "boundary":
+        return np.full((nominals, d), settings.allowance), ones
+    if settings.at != "healthy_drift":
+        return np.zeros((nominals, d)), ones
+    z, weight = drift_draws(nominals, tilts)
+    mean = np.broadcast_to(np.asarray(settings.drift_mean or (0.0,), dtype=float), (d,))
+    sd = np.broadcast_to(np.asarray(settings.drift_sd or (0.0,), dtype=float), (d,))
+    return mean[None, :] + z[:, None] * sd[None, :], weight
+
+
+def pairing(tilts: tuple[float, ...]) -> int:
+    """The nominals over which every pair of the learning error's and the drift's proposals is drawn once."""
+    return len(FIT_TILTS) * len(tilts)
+
+
+def drift_draws(nominals: int, tilts: tuple[float, ...] = (0.0,)) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The drift draw z of each nominal and its importance weight: nominal g draws from proposal
+    N(t_k, 1), k = ⌊g / 4⌋ mod K, as the stratified quantiles of that proposal in a fixed random order;
+    weights φ(z)/mean_k φ(z − t_k), mean ≈ 1 (all 1 for the plain draws, ``tilts`` (0,)). The learning
+    error's proposal is g mod 4 (:data:`~edge_monitor.stats.learning_error.TILTS`), so every pair of
+    the two proposals is drawn equally often and the two weights multiply."""
+    rng = np.random.default_rng([SEED, 3])
+    t = np.asarray(tilts, dtype=float)
+    component = (np.arange(nominals) // len(FIT_TILTS)) % t.size
+    z = np.empty(nominals)
+    for k in range(t.size):
+        members = np.flatnonzero(component == k)
+        z[members] = t[k] + rng.permutation(norm.ppf((np.arange(members.size) + 0.5) / members.size))
+    if not np.any(t):
+        return z, np.ones(nominals)
+    log_mixture = np.logaddexp.reduce(norm.logpdf(z[:, None] - t[None, :]), axis=1) - math.log(t.size)
+    return z, np.exp(norm.logpdf(z) - log_mixture)
+
+
+class StreamNoise:
+    """Values in standard units with correlation R across axes: iid, or with a slow AR(1) wander
+    carrying ``wander`` of each axis's variance (step 2 of the gaussian_calibration module docstring)."""
+
+    def __init__(self, lower_chol: NDArray[np.float64], wander: tuple[float, ...], rng: np.random.Generator) -> None:
+        d = lower_chol.shape[0]
+        self.chol, self.rng = lower_chol, rng
+        f = np.broadcast_to(np.asarray(wander or (0.0,), dtype=float), (d,))
+        self.slow, self.fast = np.sqrt(f), np.sqrt(1.0 - f)
+        self.wanders = bool(np.any(f > 0))
+        self.phi = WANDER_COEFFICIENT
+        self.state: NDArray[np.float64] | None = None
+
+    def _draw(self, shape: tuple[int, ...]) -> NDArray[np.float64]:
+        return self.rng.standard_normal((*shape, self.chol.shape[0])) @ self.chol.T
+
+    def start(self, b: int) -> None:
+        """``b`` streams, their wander drawn from its stationary law."""
+        self.state = self._draw((b,)) if self.wanders else None
+
+    def step(self, b: int) -> NDArray[np.float64]:
+        """The next value of each of the ``b`` streams (b, d)."""
+        if self.state is None:
+            return self._draw((b,))
+        self.state = self.phi * self.state + math.sqrt(1.0 - self.phi ** 2) * self._draw((b,))
+        return self.fast * self._draw((b,)) + self.slow * self.state
+
+    def sequence(self, g: int, n: int) -> NDArray[np.float64]:
+        """``g`` sequences of ``n`` consecutive values (g, n, d): learning sets."""
+        if not self.wanders:
+            return self._draw((g, n))
+        self.start(g)
+        return np.stack([self.step(g) for _ in range(n)], axis=1)
+
+
+def first_passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: StreamNoise, steps: int,
+                   grid: NDArray[np.float64]) -> NDArray[np.int64]:
+    """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never;
+    detector b's stream moved by ``shift[b]`` (standard units)."""
+    b, d = glr.means.shape
+    noise.start(b)
+    first = np.full((b, grid.size), steps, dtype=np.int64)
+    running = np.zeros(b)
+    for start in range(0, steps, SEGMENT):
+        length = min(SEGMENT, steps - start)
+        stats = np.empty((b, length))
+        for t in range(length):
+            stats[:, t] = glr.update(noise.step(b) + shift)
+        stats[:, 0] = np.maximum(stats[:, 0], running)
+        np.maximum.accumulate(stats, axis=1, out=stats)
+        running = stats[:, -1]
+        reached = np.stack([np.searchsorted(row, grid, side="left") for row in stats])
+        first = np.where((first == steps) & (reached < length), start + reached, first)
+    return first
