@@ -28,12 +28,9 @@ from typing import Any  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from prognosis_series import fleet, parse_seeds, rows  # noqa: E402
 
 from edge_monitor.features.prognosis import PrognosisConfig  # noqa: E402
-from edge_monitor.offline.prognosis_study import (  # noqa: E402
+from studies.prognosis_metrics import (  # noqa: E402
     ALPHA,
     first_alarm,
     law_table,
@@ -42,6 +39,8 @@ from edge_monitor.offline.prognosis_study import (  # noqa: E402
     score_healthy,
     score_wearing,
 )
+from studies.prognosis_series import fleet, rows  # noqa: E402
+from studies.settings import parse_seeds  # noqa: E402
 
 #: Each model at the settings the study compares (the shipped model at the agent's defaults).
 MODELS = ("drifting_rate", "multi_rate", "wiener", "accelerating", "line")
@@ -136,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(message)s")
     logging.getLogger("edge_monitor").setLevel(logging.ERROR)
     started = time.monotonic()
-    wearing = fleet("wear", parse_seeds(args.wear), args.jobs, args.keep_series)
-    healthy = fleet("healthy", parse_seeds(args.healthy), args.jobs, args.keep_series)
+    wearing = fleet("wear", parse_seeds(args.wear) if args.wear.strip() else [], args.jobs, args.keep_series)
+    healthy = fleet("healthy", parse_seeds(args.healthy) if args.healthy.strip() else [], args.jobs, args.keep_series)
     overrides = parse_set(args.set)
     models = [m for m in args.models.split(",") if m]
     configs = [model_config(m, overrides) for m in models]

@@ -1,6 +1,6 @@
 """Validating the prognosis like a prognostics result (Saxena et al., "Metrics for evaluating performance
 of prognostic techniques", PHM 2008; docs/PROGNOSIS.md): the agent's :class:`JointPrognosis` replayed
-on the recorded inputs of simulated joints (:mod:`edge_monitor.offline.prognosis_fleet`), against the
+on the recorded inputs of simulated joints (:mod:`studies.prognosis_fleet`), against the
 true end of life.
 
 Per wearing joint, from its first alarm t_P (detection starts prognosis) to its end of life EoL (the
@@ -27,10 +27,10 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from edge_monitor.features.prognosis import Forecast, JointPrognosis, PrognosisConfig
-from edge_monitor.offline.prognosis_fleet import CycleRow
 from edge_monitor.pipeline.cycle_rate import BudgetRate
 from edge_monitor.pipeline.decision_config import DecisionConfig
 from joint_model import CRITICAL_WEAR
+from studies.prognosis_fleet import CycleRow
 
 ALPHA = 0.2
 LAMBDA = 0.5
