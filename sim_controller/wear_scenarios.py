@@ -128,22 +128,26 @@ class WearProfile:
         return {"initial": self.initial, "events": [e.to_dict() for e in self.events]}
 
 
+def _joint(text: str, option: str) -> int | Literal["all"]:
+    """The JOINT part of a command-line wear option: a joint index ≥ 0 or ``all``."""
+    if text.strip().lower() == "all":
+        return "all"
+    try:
+        joint = int(text)
+    except ValueError:
+        raise WearScenarioError(f"{option}: JOINT must be an integer or 'all', got {text!r}") from None
+    if joint < 0:
+        raise WearScenarioError(f"{option}: unknown joint {joint}")
+    return joint
+
+
 def parse_wear_ramp(text: str) -> tuple[int | Literal["all"], WearEvent]:
     """``JOINT:START_CYCLE:END_CYCLE:FROM:TO`` (JOINT 0-based or ``all``) → (joint, ramp event)."""
     parts = text.split(":")
     if len(parts) != 5:
         raise WearScenarioError(f"wear_ramp: expected JOINT:START_CYCLE:END_CYCLE:FROM:TO, got {text!r}")
     joint_text, start, end, wfrom, wto = parts
-    joint: int | Literal["all"]
-    if joint_text.strip().lower() == "all":
-        joint = "all"
-    else:
-        try:
-            joint = int(joint_text)
-        except ValueError:
-            raise WearScenarioError(f"wear_ramp: JOINT must be an integer or 'all', got {joint_text!r}") from None
-        if joint < 0:
-            raise WearScenarioError(f"wear_ramp: unknown joint {joint}")
+    joint = _joint(joint_text, "wear_ramp")
     try:
         start_i, end_i = int(start), int(end)
         from_f, to_f = float(wfrom), float(wto)
@@ -193,14 +197,7 @@ def parse_wear_law(text: str) -> tuple[int | Literal["all"], WearEvent]:
     kind, sep2, pairs = rest.partition(":")
     if not sep or not sep2 or not kind.strip():
         raise WearScenarioError(f"wear_law: expected JOINT:KIND:KEY=VALUE[,KEY=VALUE...], got {text!r}")
-    joint: int | Literal["all"] = "all" if joint_text.strip().lower() == "all" else -1
-    if joint != "all":
-        try:
-            joint = int(joint_text)
-        except ValueError:
-            raise WearScenarioError(f"wear_law: JOINT must be an integer or 'all', got {joint_text!r}") from None
-        if joint < 0:
-            raise WearScenarioError(f"wear_law: unknown joint {joint}")
+    joint = _joint(joint_text, "wear_law")
     doc: dict[str, Any] = {"kind": kind.strip()}
     for pair in filter(None, (p.strip() for p in pairs.split(","))):
         key, eq, value = (part.strip() for part in pair.partition("="))

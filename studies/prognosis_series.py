@@ -12,6 +12,7 @@ accepts the kept inputs (the trend is the last step of a joint's cycle and feeds
 
 from __future__ import annotations
 
+import argparse
 import gzip
 import hashlib
 import json
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from studies.prognosis_fleet import CycleRow, robot_config, robot_laws, robot_series
+from studies.settings import parse_seeds
 
 log = logging.getLogger(__name__)
 
@@ -93,3 +95,19 @@ def fleet(kind: str, seeds: list[int], jobs: int = 1, keep: bool = False) -> lis
         return [robot(kind, s, keep) for s in seeds]
     with ProcessPoolExecutor(min(jobs, len(seeds))) as pool:
         return list(pool.map(robot, [kind] * len(seeds), seeds, [keep] * len(seeds)))
+
+
+def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
+    """The drivers' robots: ``--wear``, ``--healthy`` (seeds, ``''`` for none), ``--jobs``, ``--keep-series``."""
+    parser.add_argument("--wear", default="4801-4806", help="seeds of wearing robots (default 4801-4806; '' none)")
+    parser.add_argument("--healthy", default="4901", help="seeds of healthy robots (default 4901; '' none)")
+    parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    parser.add_argument("--keep-series", action="store_true", help="use inputs kept by other code")
+
+
+def fleets(args: argparse.Namespace) -> tuple[list[Robot], list[Robot]]:
+    """(wearing, healthy) robots of :func:`add_fleet_arguments`'s arguments."""
+    def seeds(text: str) -> list[int]:
+        return parse_seeds(text) if text.strip() else []
+    return (fleet("wear", seeds(args.wear), args.jobs, args.keep_series),
+            fleet("healthy", seeds(args.healthy), args.jobs, args.keep_series))

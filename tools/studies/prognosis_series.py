@@ -20,28 +20,19 @@ from pathlib import Path  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from studies.prognosis_series import fleet  # noqa: E402
-from studies.settings import parse_seeds  # noqa: E402
-
-
-def seeds(text: str) -> list[int]:
-    """``"4801-4806"``, ``"1,2,5"`` or ``""`` (none)."""
-    return parse_seeds(text) if text.strip() else []
+from studies.prognosis_series import add_fleet_arguments, fleets  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--wear", default="4801-4806", help="seeds of wearing robots (default 4801-4806; '' none)")
-    parser.add_argument("--healthy", default="4901", help="seeds of healthy robots (default 4901; '' none)")
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--keep-series", action="store_true", help="use kept inputs of other code")
+    add_fleet_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     logging.getLogger("edge_monitor").setLevel(logging.ERROR)
     started = time.monotonic()
-    for kind, text in (("wear", args.wear), ("healthy", args.healthy)):
-        for r in fleet(kind, seeds(text), args.jobs, args.keep_series):
-            print(f"{kind} seed {r['seed']}: {sum(len(v) for v in r['joints'].values())} joint-cycles")
+    for robots in fleets(args):
+        for r in robots:
+            print(f"{r['kind']} seed {r['seed']}: {sum(len(v) for v in r['joints'].values())} joint-cycles")
     print(f"done in {time.monotonic() - started:.0f} s")
     return 0
 

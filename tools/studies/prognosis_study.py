@@ -39,8 +39,7 @@ from studies.prognosis_metrics import (  # noqa: E402
     score_healthy,
     score_wearing,
 )
-from studies.prognosis_series import fleet, rows  # noqa: E402
-from studies.settings import parse_seeds  # noqa: E402
+from studies.prognosis_series import add_fleet_arguments, fleets, rows  # noqa: E402
 
 #: Each model at the settings the study compares (the shipped model at the agent's defaults).
 MODELS = ("drifting_rate", "multi_rate", "wiener", "accelerating", "line")
@@ -124,19 +123,15 @@ def parse_set(items: list[str]) -> dict[str, dict[str, Any]]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--wear", default="4801-4806", help="seeds of wearing robots (default 4801-4806)")
-    parser.add_argument("--healthy", default="4901", help="seeds of healthy robots (default 4901)")
+    add_fleet_arguments(parser)
     parser.add_argument("--models", default=",".join(MODELS))
     parser.add_argument("--set", action="append", default=[], metavar="MODEL.KEY=VALUE")
     parser.add_argument("--json", type=Path, help="write every number here")
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--keep-series", action="store_true", help="use kept inputs of other code")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(message)s")
     logging.getLogger("edge_monitor").setLevel(logging.ERROR)
     started = time.monotonic()
-    wearing = fleet("wear", parse_seeds(args.wear) if args.wear.strip() else [], args.jobs, args.keep_series)
-    healthy = fleet("healthy", parse_seeds(args.healthy) if args.healthy.strip() else [], args.jobs, args.keep_series)
+    wearing, healthy = fleets(args)
     overrides = parse_set(args.set)
     models = [m for m in args.models.split(",") if m]
     configs = [model_config(m, overrides) for m in models]
