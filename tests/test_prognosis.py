@@ -100,7 +100,11 @@ def _trend_share(model: str, slope: float, seed: int, runs: int = 60, cycles: in
     return found / total
 
 
-@pytest.mark.parametrize("model", ["drifting_rate", "multi_rate"])
+#: The agent's model runs nine filters: its statistical checks take 8–25 s each here (marked slow).
+BOTH = ["drifting_rate", pytest.param("multi_rate", marks=pytest.mark.slow)]
+
+
+@pytest.mark.parametrize("model", BOTH)
 def test_no_trend_is_reported_where_there_is_none(model):
     # a constant wear under the assumed noise: the rate over its std is ≈ N(0, 1) each cycle (for the
     # mixture too: a mixture of calibrated predictions is calibrated), above 3 with P = 0.00135; the
@@ -110,7 +114,8 @@ def test_no_trend_is_reported_where_there_is_none(model):
     assert _trend_share(model, 0.0, seed=12) < 0.01
 
 
-@pytest.mark.parametrize("model, slope, after", [("drifting_rate", 0.2, 150), ("multi_rate", 0.5, 300)])
+@pytest.mark.parametrize("model, slope, after", [("drifting_rate", 0.2, 150),
+                                                  pytest.param("multi_rate", 0.5, 300, marks=pytest.mark.slow)])
 def test_a_trend_is_reported_where_there_is_one(model, slope, after):
     # a wear growing by `slope` per cycle: once the model has settled (from cycle `after` on: the filter's
     # rate std has shrunk from its prior to the steady one; the mixture's weights have left the fast
@@ -124,7 +129,7 @@ def test_a_trend_is_reported_where_there_is_one(model, slope, after):
     assert _trend_share(model, slope, seed=13, cycles=after + 150, after=after) > 0.999
 
 
-@pytest.mark.parametrize("model", ["drifting_rate", "multi_rate"])
+@pytest.mark.parametrize("model", BOTH)
 def test_the_band_holds_the_remaining_life_as_often_as_it_says_on_a_linear_wear(model):
     # 200 joints on the model's own ground (a constant rate drawn per joint, the assumed noise), one forecast
     # each after 250 cycles: the true remaining life lies in the 10–90 % band in a Binomial(200, p) share;

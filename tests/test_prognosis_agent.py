@@ -25,6 +25,7 @@ from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_publisher import SymptomPublisher
 from edge_monitor.sinks.zenoh_session import ZenohOptions, open_session
 
+from recordings import rows_by_entity
 from synthetic_frames import make_frames
 
 EDGE = str(Path(sys.executable).parent / "edge-monitor")
@@ -179,3 +180,25 @@ def test_listen_prints_forecasts_that_validate_against_the_schemas(run):
     assert {r["prognosis"]["state"] for r in lines if r["kind"] == "symptom"} >= {"learning", "forecast", "critical"}
     for r in lines:
         validate(r["kind"], {k: v for k, v in r.items() if k not in ("kind", "key")})
+
+
+def test_rerun_draws_the_trend_the_days_and_the_forecast_cone(run, tmp_path):
+    from rerun.chunk import RrdReader
+
+    from edge_monitor.sinks.rerun_view import RerunSink
+
+    _, symptoms = run
+    path = tmp_path / "prognosis.rrd"
+    sink = RerunSink.open(f"save:{path}", recording_id="prognosis")
+    for s in symptoms:
+        sink.log_symptom(s.to_dict())
+    sink.close()
+    assert sink.errors == 0
+    counts = rows_by_entity(path)
+    base = "/robot/robot1/joint/0"
+    assert counts[f"{base}/wear/trend"] > 20 and counts[f"{base}/prognosis/days/median"] >= 1
+    assert counts[f"{base}/prognosis/cone"] >= 1
+    strips = [row for chunk in RrdReader(str(path)).stream() if chunk.entity_path == f"{base}/prognosis/cone"
+              and not chunk.is_static for row in chunk.to_record_batch().column("LineStrips2D:strips").to_pylist()]
+    # each cone holds the trend behind "now", the critical level (y = 35) and the horizon line
+    assert strips and all(any(all(point[1] == 35.0 for point in strip) for strip in cone) for cone in strips)
