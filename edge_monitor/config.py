@@ -17,6 +17,7 @@ from typing import Any, Mapping
 from edge_monitor.errors import ConfigError, key_name, shown
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
+from edge_monitor.features.prognosis import PrognosisConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.agent_config import AgentConfig
@@ -89,7 +90,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
     data = dict(data)
     kwargs: dict[str, Any] = {}
     sections = {"segmentation": PlateauConfig, "model": ModelConfig, "wear": WearConfig, "kl": KLConfig,
-                "decision": DecisionConfig, "alarms": AlarmConfig,
+                "decision": DecisionConfig, "prognosis": PrognosisConfig, "alarms": AlarmConfig,
                 "maintenance": MaintenanceConfig, "acknowledge": AcknowledgeConfig}
     decision = dict(data.get("decision", {})) if isinstance(data.get("decision", {}), Mapping) else {}
     if isinstance(data.get("joints"), list) and data["joints"] and "joints_per_robot" not in decision:
@@ -103,21 +104,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
     if "joint" in data:
-        joint_friction = {}
-        tables = data.pop("joint")
-        if not isinstance(tables, Mapping):
-            raise ConfigError("joint: expected tables [joint.N.friction]")
-        for key, table in tables.items():
-            if not re.fullmatch(r"[0-9]{1,3}", str(key)) or not 0 <= int(key) < MAX_JOINTS:
-                raise ConfigError(f"joint.{key_name(key)}: joint index must be 0 … {MAX_JOINTS - 1}")
-            if not isinstance(table, Mapping) or set(table) - {"friction"}:
-                raise ConfigError(f"joint.{key}: expected only a [joint.{key}.friction] table")
-            try:
-                joint_friction[int(key)] = FrictionParams.from_mapping(table.get("friction", {}),
-                                                                       f"joint.{key}.friction")
-            except ValueError as exc:
-                raise ConfigError(str(exc)) from None
-        kwargs["joint_friction"] = joint_friction
+        kwargs["joint_friction"], kwargs["joint_critical_wear"] = _joint_tables(data.pop("joint"))
     if "zenoh" in data:
         if not isinstance(data["zenoh"], Mapping):
             raise ConfigError("zenoh: expected a table")
@@ -129,10 +116,30 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
         raise ConfigError(str(exc)) from None
 
 
+def _joint_tables(tables: Any) -> tuple[dict[int, FrictionParams], dict[int, float]]:
+    """``[joint.N.friction]`` tables and ``[joint.N] critical_wear`` values by joint."""
+    joint_friction, critical = {}, {}
+    if not isinstance(tables, Mapping):
+        raise ConfigError("joint: expected tables [joint.N] (critical_wear) and [joint.N.friction]")
+    for key, table in tables.items():
+        if not re.fullmatch(r"[0-9]{1,3}", str(key)) or not 0 <= int(key) < MAX_JOINTS:
+            raise ConfigError(f"joint.{key_name(key)}: joint index must be 0 … {MAX_JOINTS - 1}")
+        if not isinstance(table, Mapping) or set(table) - {"friction", "critical_wear"}:
+            raise ConfigError(f"joint.{key}: expected only critical_wear and a [joint.{key}.friction] table")
+        if "friction" in table:
+            try:
+                joint_friction[int(key)] = FrictionParams.from_mapping(table["friction"], f"joint.{key}.friction")
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+        if "critical_wear" in table:
+            critical[int(key)] = _coerce(f"joint.{key}.critical_wear", table["critical_wear"], 0.0)
+    return joint_friction, critical
+
+
 #: Plain keys at the top of the TOML file (the structured fields have tables of their own).
 _TOP_LEVEL_KEYS = frozenset(f.name for f in dataclasses.fields(AgentConfig)) - {
-    "friction", "joint_friction", "segmentation", "model", "wear", "kl", "decision", "alarms", "maintenance",
-    "acknowledge", "zenoh"}
+    "friction", "joint_friction", "joint_critical_wear", "segmentation", "model", "wear", "kl", "decision", "prognosis",
+    "alarms", "maintenance", "acknowledge", "zenoh"}
 
 
 #: The shipped example config, where this installation has it (every key with its default and meaning).

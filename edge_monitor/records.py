@@ -134,6 +134,7 @@ class Alarm:
     fault: str | None = None                  # "<robot>/<joint>/<cycle it was raised>"
     detectors: tuple[dict[str, Any], ...] | None = None
     open: bool | None = None
+    prognosis: dict[str, Any] | None = None   # the joint's prognosis at this cycle (the symptom's section)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -143,7 +144,8 @@ class Alarm:
             "threshold": finite_or_none(self.threshold),
             "miss_probability": finite_or_none(self.miss_probability), "change_cycle": self.change_cycle}
         out.update({k: v for k, v in (("by", self.by), ("note", self.note), ("cause", self.cause),
-                                      ("fault", self.fault), ("open", self.open)) if v is not None})
+                                      ("fault", self.fault), ("open", self.open), ("prognosis", self.prognosis))
+                    if v is not None})
         if self.detectors is not None:
             out["detectors"] = to_strict(list(self.detectors))
         return out
@@ -157,26 +159,43 @@ class Alarm:
 
 @dataclass(frozen=True)
 class Advisory:
-    """Something a person should know that is not a fault: here an operating condition that left the
-    range the joint's detectors learned in (``state`` "entered" the outside) or came back ("left")."""
+    """Something a person should know that is not a fault: an operating condition that left the range the
+    joint's detectors learned in (kind "operating_range", ``state`` "entered" the outside) or came back
+    ("left"); or the prognosis's early warning (kind "prognosis": ``covariate`` names the probability of
+    critical wear within the warning horizon, ``value`` is it, ``learned`` holds (warning level, horizon
+    in days); "entered" when it reached the level, "left" when it fell below half of it; ``prognosis``
+    the forecast then)."""
 
     robot: str
     joint: int
     cycle: int
-    kind: str                                 # "operating_range"
+    kind: str                                 # "operating_range" | "prognosis"
     state: str                                # "entered" | "left"
     covariate: str
     value: float
     learned: tuple[float, float]
     utc: str | None = None                    # wall time of the cycle's end, ISO 8601
+    prognosis: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        out = {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
+               "utc": self.utc, "advisory": self.kind, "state": self.state, "covariate": self.covariate,
+               "value": finite_or_none(self.value), "learned": [finite_or_none(v) for v in self.learned],
+               "message": self.message()}
+        if self.prognosis is not None:
+            out["prognosis"] = self.prognosis
+        return out
+
+    def message(self) -> str:
+        if self.kind == "prognosis":
+            level, days = self.learned
+            said, within = (self.prognosis or {}).get("text", ""), f"P(critical wear within {days:g} days)"
+            if self.state == "entered":
+                return f"{within} {self.value:.2f} ≥ {level:.2g}: plan the service ({said})"
+            return f"{within} {self.value:.2f}, below {level / 2:.2g} for a while ({said})"
         where = "outside" if self.state == "entered" else "back inside"
-        return {"schema": SCHEMA_VERSION, "robot": self.robot, "joint": self.joint, "cycle": self.cycle,
-                "utc": self.utc, "advisory": self.kind, "state": self.state, "covariate": self.covariate,
-                "value": finite_or_none(self.value), "learned": [finite_or_none(v) for v in self.learned],
-                "message": f"{self.covariate} {self.value:.3g} {where} the learned range "
-                           f"{self.learned[0]:.3g} … {self.learned[1]:.3g}: operating condition, not wear"}
+        return (f"{self.covariate} {self.value:.3g} {where} the learned range "
+                f"{self.learned[0]:.3g} … {self.learned[1]:.3g}: operating condition, not wear")
 
 
 @dataclass

@@ -45,6 +45,7 @@ from sim_controller.config import (
     parse_float,
     parse_range,
     parse_speeds,
+    wear_profiles_from_laws,
     wear_profiles_from_ramps,
 )
 from sim_controller.faults import FaultSpec
@@ -99,6 +100,10 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                    help="constant-speed time per direction in s (default 1.1)")
     g.add_argument("--wear-ramp", action="append", default=[], metavar="JOINT:START:END:FROM:TO",
                    help="linear wear ramp (repeatable; JOINT 0-based or 'all'; wear 0 … 100)")
+    g.add_argument("--wear-law", action="append", default=[], metavar="JOINT:KIND:KEY=VALUE,...",
+                   help="wear event of any kind (repeatable, applied in order after the ramps; KIND ramp, "
+                        "exponential, power, step or replacement; keys start, end, from, to, tau, exponent), "
+                        "e.g. 2:power:start=100,end=900,from=0,to=60,exponent=2")
     g.add_argument("--temperature-range", type=_typed(lambda t: parse_range(t, "temperature_range"),
                    "temperature_range"),
                    metavar="LOW:HIGH", help="per-cycle uniform lubricant temperature in °C (default: thermal model)")
@@ -165,6 +170,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
         wear = wear[:joints]
     if args.wear_ramp:
         wear = merge_wear(wear, wear_profiles_from_ramps(args.wear_ramp, joints), joints)
+    if args.wear_law:
+        wear = merge_wear(wear, wear_profiles_from_laws(args.wear_law, joints), joints)
     kwargs["wear"] = tuple(wear)
     overrides = kwargs.get("joint_overrides", ())
     kwargs["joint_overrides"] = tuple(overrides[:joints])

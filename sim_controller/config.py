@@ -11,7 +11,7 @@ import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from joint_model import DEFAULT_SPEED_LEVELS, FRICTION_NOISE_STD, FrictionParams
 from protocol.frames import MAX_JOINTS
@@ -26,7 +26,7 @@ from sim_controller.timeline import (
     conditions_at,
     stop_before,
 )
-from sim_controller.wear_scenarios import WearEvent, WearProfile, parse_wear_ramp
+from sim_controller.wear_scenarios import WearEvent, WearProfile, parse_wear_law, parse_wear_ramp
 
 #: Default friction speed levels [rad/s] (defined once, in joint_model).
 DEFAULT_SPEEDS = DEFAULT_SPEED_LEVELS
@@ -243,17 +243,27 @@ def load_speeds_file(path: str | Path) -> tuple[float, ...]:
 
 def wear_profiles_from_ramps(specs: Sequence[str], joints: int) -> tuple[WearProfile, ...]:
     """Apply ``--wear-ramp JOINT:START:END:FROM:TO`` flags (JOINT 0-based or ``all``)."""
+    return _wear_profiles(specs, joints, parse_wear_ramp, "wear_ramp")
+
+
+def wear_profiles_from_laws(specs: Sequence[str], joints: int) -> tuple[WearProfile, ...]:
+    """Apply ``--wear-law JOINT:KIND:KEY=VALUE,...`` flags (JOINT 0-based or ``all``), in order."""
+    return _wear_profiles(specs, joints, parse_wear_law, "wear_law")
+
+
+def _wear_profiles(specs: Sequence[str], joints: int, parse: Callable[[str], tuple[int | str, WearEvent]],
+                   option: str) -> tuple[WearProfile, ...]:
     events: list[list[WearEvent]] = [[] for _ in range(joints)]
     for spec in specs:
-        target, event = parse_wear_ramp(spec)
+        target, event = parse(spec)
         if target == "all":
             for lst in events:
                 lst.append(event)
         else:
-            if not 0 <= target < joints:
-                raise SimConfigError(f"wear_ramp: unknown joint {target} in {spec!r}; "
+            if not 0 <= int(target) < joints:
+                raise SimConfigError(f"{option}: unknown joint {target} in {spec!r}; "
                                      f"joints are 0 … {joints - 1} or 'all'")
-            events[target].append(event)
+            events[int(target)].append(event)
     return tuple(WearProfile(events=tuple(e)) for e in events)
 
 
@@ -269,5 +279,6 @@ def merge_wear(base: Sequence[WearProfile], extra: Sequence[WearProfile], joints
 
 __all__ = [
     "DEFAULT_SPEEDS", "JointOverride", "SimConfig", "SimConfigError",
-    "load_speeds_file", "merge_wear", "parse_float", "parse_range", "parse_speeds", "wear_profiles_from_ramps",
+    "load_speeds_file", "merge_wear", "parse_float", "parse_range", "parse_speeds", "wear_profiles_from_laws",
+    "wear_profiles_from_ramps",
 ]

@@ -6,10 +6,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim_controller.config import SimConfig, SimConfigError, parse_range, parse_speeds, wear_profiles_from_ramps
+from sim_controller.config import (
+    SimConfig,
+    SimConfigError,
+    parse_range,
+    parse_speeds,
+    wear_profiles_from_laws,
+    wear_profiles_from_ramps,
+)
 from sim_controller.faults import RATE_KEYS, FaultSpec
 from sim_controller.test_cycle import SEGMENT_PRODUCTION, build_cycle
-from sim_controller.wear_scenarios import WearEvent, WearProfile, WearScenarioError, parse_wear_ramp
+from sim_controller.wear_scenarios import WearEvent, WearProfile, WearScenarioError, parse_wear_law, parse_wear_ramp
 
 wear_level = st.floats(0.0, 100.0)
 cycle = st.integers(0, 500)
@@ -17,11 +24,11 @@ cycle = st.integers(0, 500)
 
 @st.composite
 def wear_events(draw):
-    kind = draw(st.sampled_from(["ramp", "exponential", "step", "replacement"]))
+    kind = draw(st.sampled_from(["ramp", "exponential", "power", "step", "replacement"]))
     start = draw(cycle)
     end = start + draw(st.integers(0, 300))
-    return WearEvent(kind, start, end if kind in ("ramp", "exponential") else None, draw(wear_level), draw(wear_level),
-                     tau=draw(st.floats(0.5, 200.0)))
+    return WearEvent(kind, start, end if kind in ("ramp", "exponential", "power") else None, draw(wear_level),
+                     draw(wear_level), tau=draw(st.floats(0.5, 200.0)), exponent=draw(st.floats(0.05, 20.0)))
 
 
 @settings(max_examples=100, deadline=None)
@@ -33,8 +40,8 @@ def test_wear_stays_within_0_and_100(initial, events, at):
 @settings(max_examples=100, deadline=None)
 @given(start=cycle, length=st.integers(1, 300), lo=wear_level, hi=wear_level, tau=st.floats(0.5, 200.0))
 def test_ramp_and_exponential_go_monotonically_from_start_to_end(start, length, lo, hi, tau):
-    for kind in ("ramp", "exponential"):
-        profile = WearProfile(events=(WearEvent(kind, start, start + length, lo, hi, tau=tau),))
+    for kind in ("ramp", "exponential", "power"):
+        profile = WearProfile(events=(WearEvent(kind, start, start + length, lo, hi, tau=tau, exponent=tau / 10),))
         values = [profile.wear(c) for c in range(start, start + length + 1)]
         assert values[0] == pytest.approx(lo) and values[-1] == pytest.approx(hi)
         step = [b - a for a, b in zip(values, values[1:])]
@@ -59,6 +66,24 @@ def test_value_parsers():
         parse_range("nan:3", "temperature_range")
     with pytest.raises(WearScenarioError, match=r"wear_ramp: expected JOINT:START_CYCLE:END_CYCLE:FROM:TO"):
         parse_wear_ramp("0:1:2")
+
+
+def test_wear_laws_from_the_command_line_take_every_kind_of_event_in_order():
+    assert parse_wear_law("2:power:start=100,end=300,from=0,to=60,exponent=2") == (
+        2, WearEvent("power", 100, 300, 0.0, 60.0, exponent=2.0))
+    # a step at 50 followed by a slow ramp from there: the kinds compose as in a scenario file
+    profile = wear_profiles_from_laws(["all:step:start=50,to=12", "1:ramp:start=50,end=150,from=12,to=32"], 2)
+    assert profile[0].wear(49) == 0.0 and profile[0].wear(200) == 12.0
+    assert profile[1].wear(100) == pytest.approx(22.0) and profile[1].wear(150) == 32.0
+    assert WearProfile(events=(WearEvent("power", 0, 100, 0.0, 60.0, exponent=2.0),)).wear(50) == pytest.approx(15.0)
+    for text, message in (("0:power", "expected JOINT:KIND:KEY=VALUE"), ("x:ramp:start=1,end=2", "JOINT must be"),
+                          ("0:melt:start=1", "wear_law.kind"), ("0:ramp:start=1,to", "expected KEY=VALUE"),
+                          ("0:ramp:start=1,end=x", "end needs a number"), ("0:ramp:start=5,end=1,to=3", "must be ≥ start"),
+                          ("0:power:start=1,end=9,to=3,exponent=0", "exponent: must be 0.05 … 20")):
+        with pytest.raises(WearScenarioError, match=message):
+            parse_wear_law(text)
+    with pytest.raises(SimConfigError, match="wear_law: unknown joint 3"):
+        wear_profiles_from_laws(["3:step:start=1,to=5"], 2)
 
 
 @pytest.mark.parametrize("kwargs, message", [

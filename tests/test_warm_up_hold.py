@@ -242,7 +242,7 @@ def test_a_robot_without_motor_temperature_runs_end_to_end_on_its_friction_tempe
     feeder.finish()
     assert len(seen) >= 2 * 20                     # every cycle after the model (20 cycles of 60)
     assert all(abs(read - true) < 7.5 for read, true in seen), max(abs(r - t) for r, t in seen)
-    assert all(not m.motor_temperature_seen and m.friction_temperature_used for m in agent.joints.values())
+    assert all(not m.temperature_source.motor_seen and m.temperature_source.friction_used for m in agent.joints.values())
 
 
 def test_a_warm_up_detector_holds_while_the_joint_is_cold_again_after_a_stop() -> None:

@@ -149,12 +149,43 @@ def coverage_text(record: dict[str, Any]) -> str:
     return f"{low}" if low == high else f"{low}–{high}"
 
 
-def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig) -> str:
+def prognosis_text(prognosis: dict[str, Any] | None) -> str:
+    """The prognosis in a table cell: "12 d (8–20)", "beyond 30 d", "no trend", "critical", "learning"."""
+    if not prognosis:
+        return "–"
+    state, days = prognosis.get("state"), prognosis.get("days")
+    if state == "critical":
+        return "critical"
+    if state == "learning":
+        return "learning"
+    if prognosis.get("beyond_horizon") or not days:
+        return "no trend" if state == "no_trend" else f"beyond {prognosis.get('horizon_days', 0):g} d"
+    cycles = prognosis.get("cycles") or {}
+    if (days.get("median") or 0) < 1 and cycles:       # under a day: test cycles
+        return f"{_days(cycles.get('median'))} cyc ({_days(cycles.get('p10'))}–{_days(cycles.get('p90'))})"
+    return f"{_days(days.get('median'))} d ({_days(days.get('p10'))}–{_days(days.get('p90'))})"
+
+
+def _days(value: Any) -> str:
+    if value is None:
+        return "?"
+    return f"{value:.0f}" if value >= 10 else f"{value:.2g}"
+
+
+def prognosis_summary(last_symptoms: dict[int, dict]) -> dict[str, dict[str, Any]]:
+    """Each joint's last prognosis (the summaries' ``"prognosis"``, keyed by joint)."""
+    return {str(j): r["prognosis"] for j, r in sorted(last_symptoms.items()) if r.get("prognosis")}
+
+
+def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decision: DecisionConfig,
+                  raised: dict[int, dict] | None = None) -> str:
     """Per joint: cycles, wear (estimate ± std, or its 95 % upper bound where not identifiable), the
     estimated lubricant temperature, the detectors' stage (warm-up or steady, docs/DETECTION.md), alarms
-    (quantity@cycle), the false-alarm setting and the smallest estimated miss probability over the
-    joint's detectors, and the share of the cycles they tested since they first learned (coverage, lowest –
-    highest over the joint's detectors, docs/DETECTION.md)."""
+    (quantity@cycle), the false-alarm setting, the smallest estimated miss probability over the
+    joint's detectors, and the prognosis: days until the critical wear with the 10–90 % band; below, for
+    each joint with a fault in ``raised`` (its last "raised" alarm record), the forecast the alarm carried; and
+    the share of the cycles the joint's detectors tested since they first learned (coverage, lowest – highest
+    over its detectors, docs/DETECTION.md)."""
     held = decision.warm_up_hold
     warm_up = ("for drifts up to the allowance during the warm-up"
                + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
@@ -162,7 +193,7 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
                else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, {warm_up}")
     lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'tested %':>8} "
-             f"{'alarms':<44} {'Pm':>7}"]
+             f"{'alarms':<44} {'Pm':>7} {'critical in':<18}"]
     alarms_by_joint: dict[int, list[str]] = {}
     for a in stats.get("alarms", []):
         alarms_by_joint.setdefault(a["joint"], []).append(f"{a['quantity']}@{a['cycle']}")
@@ -177,9 +208,13 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
         stage = stages.pop() if len(stages) == 1 else ("mixed" if stages else "-")
         lines.append(f"{joint:>5} {rec.get('cycle', 0) + 1:>6} {wear_text(wear):>16} "
                      f"{fmt(wear.get('temperature'), '.1f'):>8} {stage:>8} {coverage_text(rec):>8} {alarms:<44} "
-                     f"{fmt(min(pm) if pm else None, '.2g'):>7}")
+                     f"{fmt(min(pm) if pm else None, '.2g'):>7} {prognosis_text(rec.get('prognosis')):<18}")
+    for joint, alarm in sorted((raised or {}).items()):
+        if (alarm.get("prognosis") or {}).get("text"):
+            lines.append(f"joint {joint}: fault raised at cycle {alarm['cycle']}: {alarm['prognosis']['text']}")
     lines.append(f"false alarms: {setting}; Pm: smallest estimated miss probability over the joint's detectors; "
-                 f"tested %: share of the cycles the joint's detectors tested since they first learned")
+                 "critical in: days until the critical wear, median (10–90 %) at the measured cycle rate; "
+                 "tested %: share of the cycles the joint's detectors tested since they first learned")
     return "\n".join(lines)
 
 

@@ -22,7 +22,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from edge_monitor.app import Outputs, build_app
-from edge_monitor.commands.common import open_state_store, summary_table
+from edge_monitor.commands.common import open_state_store, prognosis_summary, summary_table
 from edge_monitor.commands.output_paths import check_parent
 from edge_monitor.errors import ConfigError
 from edge_monitor.features.joint_model_learning import ModelConfig
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         subscriber.wait_for(published, timeout=10.0)
         received = subscriber.count()
     rrd = spec.partition(":")[2] if spec.startswith("save:") else None
-    summary = {**frames, "demo": {
+    summary = {**frames, "prognosis": prognosis_summary(last.last), "demo": {
         "symptoms_published": published, "symptoms_received": received, "rrd": rrd, "rerun": spec,
         "frames_sent": _frames_sent(truth), "simulator_exit_code": sim_rc,
         "wall_s": round(time.monotonic() - started, 1), "arl0_cycles": cfg.decision.arl0, "link": link_desc,
@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(to_json(summary, indent=2))
     elif verbosity(args) >= 0:              # -q: no summary
-        print(summary_table(last.last, frames, cfg.decision))
+        print(summary_table(last.last, frames, cfg.decision, last.raised))
         print(f"symptoms published {published}, received by an independent Zenoh subscriber {received}; "
               f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['demo']['wall_s']} s")
         if rrd:

@@ -32,6 +32,7 @@ from edge_monitor.commands.common import (
     open_mapped_source,
     open_state_store,
     print_json,
+    prognosis_summary,
     summary_table,
 )
 from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
@@ -160,12 +161,12 @@ def _run_split(args: argparse.Namespace, cfg: Any, source: Any) -> int:
 
 
 def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: LogReport,
-            result: MonitorResult) -> int:
+            result: MonitorResult, raised: dict[int, dict] | None = None) -> int:
     """The summary (table or ``--json``) and the exit code (1 when an output or the state failed)."""
     if args.json:
-        print_json(stats)
+        print_json({**stats, "prognosis": prognosis_summary(result.last)})
     elif verbosity(args) >= 0:              # -q: no summary
-        print(summary_table(result.last, stats, cfg.decision))
+        print(summary_table(result.last, stats, cfg.decision, raised))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
               f"{stats['frames_per_second']:.0f} frames/s")
@@ -214,4 +215,5 @@ def run(args: argparse.Namespace) -> int:
         agent.finish(close_open_cycle=not args.no_close and report.truncated is None)
         stats = {**agent.run_statistics(), "log": report.to_dict()}
     # output failures after the exit stack: the final state save included
-    return _report(args, cfg, stats, report, MonitorResult(stats, last.last, output_failures(agent, store)))
+    return _report(args, cfg, stats, report, MonitorResult(stats, last.last, output_failures(agent, store)),
+                   last.raised)

@@ -29,11 +29,13 @@ from edge_monitor.commands.common import (
     load_agent_config,
     open_mapped_source,
     open_state_store,
+    prognosis_summary,
     zenoh_options,
 )
 from edge_monitor.pipeline.live import LiveRunner
 from edge_monitor.records import to_json
 from edge_monitor.run_failures import output_failures, setup_failure
+from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import (
@@ -151,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
         except (ValueError, JsonlOpenError) as exc:   # ZenohSetupError, RerunSetupError, a bad robot name,
             return setup_failure("run", exc)          # a JSONL file that cannot be opened
         agent = app.agent
+        last = LastSymptomSink()             # each joint's last prognosis, for the --json summary
+        agent.sinks.append(last)
         install_reopen_on_hangup(app)
         for joint in args.maintenance:
             try:
@@ -178,8 +182,8 @@ def run(args: argparse.Namespace) -> int:
             agent.finish(close_open_cycle=True)
             runner.report()
         if args.json:
-            print(to_json({**agent.run_statistics(), "stopped": stop_text(runner, args),
-                           "health": runner.health().to_dict()}), flush=True)
+            print(to_json({**agent.run_statistics(), "prognosis": prognosis_summary(last.last),
+                           "stopped": stop_text(runner, args), "health": runner.health().to_dict()}), flush=True)
         if runner.link_failure:
             print(f"edge-monitor run: stopped because the CAN link failed: {runner.link_failure}", file=sys.stderr)
             return EXIT_FAILURE

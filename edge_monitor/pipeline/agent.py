@@ -155,6 +155,7 @@ class Agent:
         if monitor is None:
             monitor = self._restored_monitor(joint) or JointMonitor(joint, self.config, self.calibrator)
             monitor.retarget(self.budget.arl0)          # no-op unless the measured rate moved the target
+            monitor.rate = self.budget                  # the prognosis counts days at the measured rate
             self.joints[joint] = monitor
             log.info("joint %d: monitoring started", joint)
         return monitor

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from edge_monitor.errors import require
 from edge_monitor.features.joint_model_learning import ModelConfig
 from edge_monitor.features.kl_monitor import KLConfig
+from edge_monitor.features.prognosis import PrognosisConfig
 from edge_monitor.features.segmentation import PlateauConfig
 from edge_monitor.features.wear import WearConfig
 from edge_monitor.pipeline.decision_config import (
@@ -60,11 +61,13 @@ class AgentConfig:
     joints: tuple[int, ...] | None = None      # None: every joint seen on the bus
     friction: FrictionParams = DEFAULT_PARAMS
     joint_friction: Mapping[int, FrictionParams] = field(default_factory=dict)
+    joint_critical_wear: Mapping[int, float] = field(default_factory=dict)    # [joint.N] critical_wear
     segmentation: PlateauConfig = field(default_factory=PlateauConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     wear: WearConfig = field(default_factory=WearConfig)
     kl: KLConfig = field(default_factory=KLConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
+    prognosis: PrognosisConfig = field(default_factory=PrognosisConfig)
     alarms: AlarmConfig = field(default_factory=AlarmConfig)
     maintenance: MaintenanceConfig = field(default_factory=MaintenanceConfig)
     acknowledge: AcknowledgeConfig = field(default_factory=AcknowledgeConfig)
@@ -92,8 +95,10 @@ class AgentConfig:
                     "an empty list monitors nothing; omit the key to monitor every joint")
             require(all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < MAX_JOINTS for j in self.joints),
                     "joints", f"joint indices must be integers 0 … {MAX_JOINTS - 1}, got {list(self.joints)}")
-        require(all(0 <= j < MAX_JOINTS for j in self.joint_friction), "joint",
+        require(all(0 <= j < MAX_JOINTS for j in (*self.joint_friction, *self.joint_critical_wear)), "joint",
                 f"joint indices must be 0 … {MAX_JOINTS - 1}")
+        require(all(math.isfinite(w) and 0 < w <= 100 for w in self.joint_critical_wear.values()),
+                "joint.N.critical_wear", f"must be in (0, 100], got {dict(self.joint_critical_wear)}")
         require(self.on_config_change in ON_CONFIG_CHANGE, "on_config_change",
                 f"must be one of {ON_CONFIG_CHANGE}, got {self.on_config_change!r}")
         require(1 <= self.queue_size <= MAX_QUEUE, "queue_size",
@@ -113,6 +118,10 @@ class AgentConfig:
     def friction_for(self, joint: int) -> FrictionParams:
         """The friction parameters of ``joint``: its own table if configured, else the common one."""
         return self.joint_friction.get(joint, self.friction)
+
+    def critical_wear_for(self, joint: int) -> float:
+        """The critical wear of ``joint``: its ``[joint.N] critical_wear`` if configured, else ``[wear] critical``."""
+        return float(self.joint_critical_wear.get(joint, self.wear.critical))
 
     def fingerprint(self, joint: int | None = None) -> dict[str, Any]:
         """The settings learned state depends on, by section (compared when a state is restored)."""

@@ -101,11 +101,18 @@ class BudgetRate:
     def fixed(self) -> bool:
         return self.decision.arl0_cycles is not None or self.decision.pf is not None
 
+    @property
+    def cycles_per_day(self) -> float:
+        """Test cycles a day as measured over the last 24 complete hours; while none is measured, or none
+        ran in them (a weekend), :attr:`basis` (the configured rate, or the last one measured outside its
+        tolerance). The prognosis counts days at it."""
+        return self.counter.rate or self.basis
+
     def update(self, t: float | None) -> float | None:
-        if t is None or self.fixed:
+        if t is None:
             return None
         rate = self.counter.update(t)
-        if rate is None or rate <= 0 or abs(rate / self.basis - 1.0) <= RATE_TOLERANCE:
+        if self.fixed or rate is None or rate <= 0 or abs(rate / self.basis - 1.0) <= RATE_TOLERANCE:
             return None
         old_basis, old = self.basis, self.arl0
         self.basis, self.measured = rate, True

@@ -28,15 +28,16 @@ from numpy.typing import NDArray
 from edge_monitor.errors import StateMismatch
 from edge_monitor.features.base import CycleInput, Feature
 from edge_monitor.features.joint_model_learning import JointModelLearner
+from edge_monitor.features.prognosis import JointPrognosis
 from edge_monitor.features.registry import FEATURES, FeatureSpec
 from edge_monitor.pipeline.agent_config import AgentConfig
 from edge_monitor.pipeline.coverage import Coverage
 from edge_monitor.pipeline.cycle_assembly import CycleAssembler
-from edge_monitor.pipeline.detectors import SETTLING_KEY, Acknowledgement, DetectorBank
+from edge_monitor.pipeline.detectors import Acknowledgement, DetectorBank
 from edge_monitor.pipeline.fault_grouping import FaultTracker
-from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
-from edge_monitor.pipeline.operating_range import OperatingRange
+from edge_monitor.pipeline.operating_range import OperatingRange, cycle_covariates
 from edge_monitor.pipeline.pauses import PauseFinder
+from edge_monitor.pipeline.temperature_source import TemperatureSource
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Advisory, Alarm, Decision, Symptom, finite_or_none
 from edge_monitor.stats.sequential_detector import Calibrator
@@ -82,12 +83,13 @@ class JointMonitor:
         self.operating = OperatingRange()
         self.coverage = Coverage(self.detectors_watched)   # how much of the time each detector tests
         self.faults = FaultTracker(config.alarms, config.robot, joint)   # one alarm record per fault
+        self.prognosis = self._new_prognosis()
+        self.rate: Any = None           # the agent's cycle rate (``cycles_per_day``); None: the configured one
         self._build()
         self.maintenances = 0
         self.acknowledgements = 0          # alarms acknowledged (judged false) since the joint was first learned
         self.pauses = PauseFinder(config.rate_hz)   # where the joint stood still (the features are told)
-        self.motor_temperature_seen = False    # whether the controller ever sent this joint's motor temperature
-        self.friction_temperature_used = False  # whether the detectors followed the friction's temperature
+        self.temperature_source = TemperatureSource()   # the motor's, or the friction's lubricant temperature
 
     def _build(self) -> None:
         """Features with the joint's current model, and fresh detectors (which keep the temperature
@@ -104,6 +106,10 @@ class JointMonitor:
     def detectors_watched(self) -> list[str]:
         """The quantities this joint's detectors watch (none with the decision layer off)."""
         return list(self.config.decision.quantities) if self.config.decision.enabled else []
+
+    def _new_prognosis(self) -> JointPrognosis | None:
+        c = self.config
+        return JointPrognosis(c.prognosis, c.critical_wear_for(self.joint)) if c.prognosis.enabled else None
 
     def retarget(self, arl0: float) -> int:
         """Every detector's threshold re-derived for ``arl0`` [cycles] (:meth:`DetectorBank.retarget`)."""
@@ -228,7 +234,7 @@ class JointMonitor:
         self.detectors.observe_temperature(*self.joint_temperature(cycle, values))
         alarms: list[Alarm] = []
         advisories: list[Advisory] = []
-        covariates = _covariates(cycle)
+        covariates = cycle_covariates(cycle)
         if learning_model and self.model is not None:
             decisions = self.detectors.idle(self.model.progress, coverage="model")
             if self.model.update(cycle):                    # this cycle completed the model: rebuild
@@ -248,33 +254,39 @@ class JointMonitor:
         sections["operating"] = self.operating.section(covariates)
         self.coverage.update(self.detectors.reasons)
         sections["coverage"] = self.coverage.section(self.detectors.reasons)
+        if self.prognosis is not None:
+            sections["prognosis"], alarms, advisories = self._prognosis(cycle, sections.get("wear") or {}, decisions,
+                                                                        alarms, advisories, learning_model)
         return Symptom(robot=robot, joint=self.joint, cycle=cycle.cycle, t=cycle.t,
                        friction=cycle.friction.to_record(), sections=sections, decisions=decisions,
                        load={"mean": finite_or_none(cycle.load_mean), "std": finite_or_none(cycle.load_std),
                              "measured": finite_or_none(cycle.friction.load_torque)},
-                       skipped=cycle.friction.skipped, critical_wear=self.config.wear.critical,
+                       skipped=cycle.friction.skipped, critical_wear=self.config.critical_wear_for(self.joint),
                        reasons=reasons, partial=cycle.partial, alarms=alarms, advisories=advisories, extras=extras)
 
+    def _prognosis(self, cycle: CycleInput, wear: dict[str, Any], decisions: dict[str, Decision], alarms: list[Alarm],
+                   advisories: list[Advisory], learning: bool) -> tuple[dict[str, Any], list[Alarm], list[Advisory]]:
+        """This cycle's prognosis section (:mod:`edge_monitor.features.prognosis`), the alarm records carrying it,
+        and the advisories with its early warning, if any."""
+        assert self.prognosis is not None
+        rate = self.config.decision.cycles_per_day if self.rate is None else self.rate.cycles_per_day
+        forecast = self.prognosis.update(cycle.cycle, wear.get("estimate"), wear.get("std"),
+                                         use=not (learning or cycle.partial),
+                                         alarm=any(d.alarm for d in decisions.values()), cycles_per_day=rate)
+        section = forecast.section()
+        warning = self.prognosis.warning_advisory(self.config.robot, self.joint, cycle.cycle, forecast)
+        return section, [replace(a, prognosis=section) for a in alarms], advisories + ([warning] if warning else [])
+
     def joint_temperature(self, cycle: CycleInput, values: dict[str, float]) -> tuple[float | None, str]:
-        """The temperature [°C] the detectors' stages and holds follow, and what it is: the cycle's motor
-        temperature; on a joint whose controller never sent one (a foreign DBC without it), the lubricant
-        temperature the wear estimate reads from the friction curve with the joint's own model
-        (docs/CONNECTING.md). The two differ by the joint's motor-to-lubricant offset, so they never mix:
-        a joint that has sent a motor temperature has no temperature in a cycle without one, and the first
-        motor temperature after friction-read ones restarts the temperature history (settling, spans).
-        Called once per cycle, before the detectors' update."""
-        motor = finite_or_none(cycle.motor_temperature)
-        if motor is not None and not self.motor_temperature_seen:
-            self.motor_temperature_seen = True
-            if self.friction_temperature_used:
-                log.info("joint %d: the controller now sends a motor temperature; the detectors' temperature "
-                         "history read from the friction is restarted on it", self.joint)
-                self.detectors.restart_temperature_history()
-        if self.motor_temperature_seen:
-            return motor, MOTOR_TEMPERATURE
+        """The temperature [°C] the detectors' stages, spans and slack follow, and what it is
+        (:mod:`~edge_monitor.pipeline.temperature_source`). Called once per cycle, before the detectors' update."""
         lubricant = finite_or_none(values.get("temperature", math.nan)) if self.model_ready else None
-        self.friction_temperature_used |= lubricant is not None
-        return lubricant, FRICTION_TEMPERATURE
+        temperature, source, restart = self.temperature_source.pick(finite_or_none(cycle.motor_temperature), lubricant)
+        if restart:
+            log.info("joint %d: the controller now sends a motor temperature; the detectors' temperature "
+                     "history read from the friction is restarted on it", self.joint)
+            self.detectors.restart_temperature_history()
+        return temperature, source
 
     def _cause(self, decision: Decision, covariates: dict[str, float | None]) -> dict[str, Any]:
         """An alarm's cause as far as the agent can tell: the shift in the quantity's units and the
@@ -298,6 +310,7 @@ class JointMonitor:
                                        self.config.wear.default_load_mean) if self.config.model.enabled else None
         self._build()
         self.operating.reset()
+        self.prognosis = self._new_prognosis()        # a new gearbox: its wear history starts again
         self.detectors.settling = ThermalSettling(self.config.decision.settling)   # it may have cooled meanwhile
         self.maintenances += 1
         return cleared
@@ -329,14 +342,14 @@ class JointMonitor:
         snapshot are not; a cycle resumed from a saved state is published partial anyway."""
         return {"joint": self.joint, "config": self.config.fingerprint(self.joint),
                 "maintenances": self.maintenances, "acknowledgements": self.acknowledgements,
-                "motor_temperature_seen": self.motor_temperature_seen,
-                "friction_temperature_used": self.friction_temperature_used, "assembly": self.assembler.state_dict(),
+                **self.temperature_source.state_dict(), "assembly": self.assembler.state_dict(),
                 "pauses": self.pauses.state_dict(),
                 "model": None if self.model is None else self.model.state_dict(),
                 "features": {name: f.state_dict() for name, f in self.features.items()},
                 "detectors": self.detectors.state_dict(), "operating": self.operating.state_dict(),
                 "coverage": self.coverage.state_dict(),
-                "faults": self.faults.state_dict()}
+                "faults": self.faults.state_dict(),
+                "prognosis": None if self.prognosis is None else self.prognosis.state_dict()}
 
     @classmethod
     def from_state(cls, joint: int, config: AgentConfig, state: dict[str, Any],
@@ -354,7 +367,7 @@ class JointMonitor:
         monitor = cls(joint, config, calibrator)
         monitor.maintenances = int(state.get("maintenances", 0))
         monitor.acknowledgements = int(state.get("acknowledgements", 0))
-        monitor.motor_temperature_seen, monitor.friction_temperature_used = _temperature_sources(state)
+        monitor.temperature_source = TemperatureSource.from_joint_state(state)
         monitor.pauses = PauseFinder.from_state(config.rate_hz, state.get("pauses"))
         assembly = state.get("assembly")
         if isinstance(assembly, dict):
@@ -373,6 +386,7 @@ class JointMonitor:
         monitor.coverage = Coverage.from_state(monitor.detectors_watched, state.get("coverage"))
         monitor.faults = FaultTracker.from_state(config.alarms, config.robot, joint, state.get("faults"))
         monitor.faults.reconcile([q for q, d in monitor.detectors.detectors.items() if d.alarmed])
+        monitor._restore_prognosis(state.get("prognosis"))
         monitor._report_model(" (learned before the restart)")
         return monitor
 
@@ -382,6 +396,16 @@ class JointMonitor:
         if warning:
             log.warning("%s joint %d: joint model%s: %s", self.config.robot, self.joint, when, warning)
 
+    def _restore_prognosis(self, state: Any) -> None:
+        if self.prognosis is None or not isinstance(state, dict):
+            return
+        try:
+            self.prognosis = JointPrognosis.from_state(self.config.prognosis, self.prognosis.critical_wear, state)
+        except StateMismatch as exc:
+            log.warning("joint %d: %s; the wear trend starts again", self.joint, exc)
+        except (KeyError, TypeError, ValueError) as exc:
+            log.warning("joint %d: saved wear trend unusable (%s); it starts again", self.joint, exc)
+
     def _restore_feature(self, spec: FeatureSpec, state: dict[str, Any]) -> None:
         try:
             self.features[spec.name] = spec.restore(self.joint, _JointSettings(self.config, self.model), state)
@@ -389,21 +413,3 @@ class JointMonitor:
             log.warning("joint %d: %s; relearning it", self.joint, exc)
         except (KeyError, TypeError, ValueError) as exc:
             log.warning("joint %d: saved %s state unusable (%s); relearning it", self.joint, spec.name, exc)
-
-
-def _temperature_sources(state: dict[str, Any]) -> tuple[bool, bool]:
-    """(motor temperature seen, friction's temperature used) from a saved joint state; a state saved before
-    they were kept had its detectors follow the motor temperature alone: seen if its settling has values."""
-    if "motor_temperature_seen" in state:
-        return state.get("motor_temperature_seen") is True, state.get("friction_temperature_used") is True
-    detectors = state.get("detectors")
-    settling = detectors.get(SETTLING_KEY) if isinstance(detectors, dict) else None
-    count = settling.get("count") if isinstance(settling, dict) else None
-    return isinstance(count, int) and not isinstance(count, bool) and count > 0, False
-
-
-def _covariates(cycle: CycleInput) -> dict[str, float | None]:
-    """The cycle's operating conditions: |load torque| (measured at the plateaus, else the controller's
-    estimate) and the mean motor temperature [°C]."""
-    load = cycle.friction.load_torque if cycle.friction.load_torque is not None else cycle.load_mean
-    return {"load": None if load is None else abs(load), "motor_temperature": cycle.motor_temperature}

@@ -28,6 +28,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Collection
 
+from edge_monitor.features.base import CycleInput
+
 #: Covariates tracked, and the smallest margin around a learned range that still counts as inside:
 #: a load 0.02 (≈ the scatter of the plateau measurement and the wire resolution many times over),
 #: a motor temperature 2 °C (its per-cycle scatter is ≈ 3 °C in the simulator).
@@ -172,6 +174,13 @@ class OperatingRange:
                            for name in outside if name in out.learned}
         out.was_collecting = state.get("was_collecting") is True
         return out
+
+
+def cycle_covariates(cycle: CycleInput) -> dict[str, float | None]:
+    """A cycle's operating conditions: |load torque| (measured at the plateaus, else the controller's estimate)
+    and the mean motor temperature [°C]."""
+    load = cycle.friction.load_torque if cycle.friction.load_torque is not None else cycle.load_mean
+    return {"load": None if load is None else abs(load), "motor_temperature": cycle.motor_temperature}
 
 
 def is_span(value: Any) -> bool:

@@ -22,16 +22,20 @@ class Sink(Protocol):
 
 
 class LastSymptomSink:
-    """Keeps the last symptom record (JSON form) per joint, e.g. for a summary table."""
+    """Keeps the last symptom record (JSON form) per joint, and the last "raised" alarm record per joint
+    (with the prognosis then), e.g. for a summary table."""
 
     def __init__(self) -> None:
         self.last: dict[int, dict] = {}
+        self.raised: dict[int, dict] = {}
 
     def on_symptom(self, symptom: Symptom) -> None:
         self.last[symptom.joint] = symptom.to_dict()
 
     def on_alarm(self, alarm: Alarm) -> None:
-        """Alarms are read from the run statistics."""
+        """The crossings are read from the run statistics; a raised fault is kept for its prognosis."""
+        if alarm.state == "raised":
+            self.raised[alarm.joint] = alarm.to_dict()
 
     def on_health(self, health: Health) -> None:
         """Not needed for a summary."""

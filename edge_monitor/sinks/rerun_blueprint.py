@@ -26,7 +26,10 @@ def fleet_blueprint(layout: Mapping[str, set[int]], health_robots: set[str]) -> 
             base = joint_path(robot, joint)
             overview.append(rrb.TimeSeriesView(origin=f"{base}/wear", name=f"{robot} · joint {joint} wear"))
             tabs.append(rrb.Grid(
-                rrb.TimeSeriesView(origin=f"{base}/wear", name="wear: estimate, bounds, critical level"),
+                rrb.TimeSeriesView(origin=f"{base}/wear", name="wear: estimate, bounds, trend, critical level"),
+                rrb.Spatial2DView(origin=f"{base}/prognosis/cone",
+                                  name="forecast cone: wear vs days from now (critical level, horizon)"),
+                rrb.TimeSeriesView(origin=f"{base}/prognosis/days", name="days to critical wear: median, 10–90 %"),
                 rrb.TimeSeriesView(origin=f"{base}/kl", name="KL distance"),
                 rrb.TimeSeriesView(origin=f"{base}/glr", name="GLR statistic vs threshold"),
                 rrb.TimeSeriesView(origin=f"{base}/miss", name="miss probability",

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -17,6 +18,10 @@ DENSITY_HEIGHT = 100.0             # nominal density peak drawn at this height
 #: values keep their sign (y = +torque ‰, +density) and up on screen is more.
 Y_UP = (1.0, -1.0, 1.0)
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
+#: The forecast cone's x axis: the prognosis horizon is drawn this wide (wear units on the y axis).
+CONE_WIDTH = 60.0
+#: Trend levels per joint the cone view draws behind "now" (the sink's only per-joint history).
+CONE_HISTORY = 600
 _QUANTITY_COLORS = {"wear": [230, 120, 30], "kl_raw": [90, 90, 220], "kl_weighted": [40, 170, 90],
                     "joint": [200, 40, 160]}
 
@@ -90,6 +95,7 @@ class Drawer:
         self.cycle_span = cycle_span        # cycles over which friction colours run through viridis
         self._static: set[str] = set()      # entities whose static data is logged
         self._nominal: dict[str, np.ndarray] = {}   # joint path -> nominal density last drawn
+        self._levels: dict[str, deque[tuple[int, float]]] = {}   # joint path -> recent (cycle, trend level)
 
     @staticmethod
     def _indexes(cycles: np.ndarray, times: np.ndarray) -> list[Any]:
@@ -139,6 +145,11 @@ class Drawer:
             "wear/estimate": (column("wear", "estimate"), "wear estimate", [230, 120, 30], 2.5),
             "wear/upper": (upper, "upper bound (+2σ, or 95 % one-sided)", [240, 180, 120], 1.0),
             "wear/lower": (lower, "lower bound (−2σ, or 0)", [240, 180, 120], 1.0),
+            "wear/trend": (column("prognosis", "level"), "wear trend (prognosis)", [120, 60, 10], 2.0),
+            "prognosis/days/median": (column("prognosis", "days", "median"), "days to critical: median",
+                                      [200, 40, 40], 2.5),
+            "prognosis/days/p10": (column("prognosis", "days", "p10"), "10 %", [230, 140, 140], 1.0),
+            "prognosis/days/p90": (column("prognosis", "days", "p90"), "90 %", [230, 140, 140], 1.0),
             "temperature": (column("wear", "temperature"), "lubricant temperature °C", [200, 80, 60], 1.5),
             "kl/raw": (column("kl", "raw"), "KL raw", [90, 90, 220], 2.0),
             "kl/weighted": (column("kl", "weighted"), "KL weighted", [40, 170, 90], 2.0),
@@ -156,6 +167,7 @@ class Drawer:
                 self._style(f"{base}/{sub}", name, color, width)
                 self._scalars(f"{base}/{sub}", cycles, times, values)
         self._draw_critical(base, block, cycles, times)
+        self._draw_cone(base, block, cycles, times)
         self._draw_friction(base, block, cycles, times)
         self._draw_density(base, block, cycles, times)
 
@@ -169,6 +181,44 @@ class Drawer:
         self._style(f"{base}/wear/critical", f"critical level {level:g}", [220, 30, 30], 1.5)
         ends = np.unique([0, len(block) - 1])
         self._scalars(f"{base}/wear/critical", cycles[ends], times[ends], np.full(len(ends), level))
+
+    def _draw_cone(self, base: str, block: list[dict], cycles: np.ndarray, times: np.ndarray) -> None:
+        """The forecast cone as of the block's last cycle, in a 2D view: x = days from now (the prognosis
+        horizon drawn :data:`CONE_WIDTH` wide), y = wear; the trend behind (its last :data:`CONE_HISTORY`
+        levels), lines from the level now to the critical level at the 10 %, median and 90 % days, the
+        critical level and the horizon."""
+        import rerun as rr
+
+        history = self._levels.setdefault(base, deque(maxlen=CONE_HISTORY))
+        history.extend((int(r["cycle"]), _number((r.get("prognosis") or {}).get("level"))) for r in block)
+        last = block[-1].get("prognosis")
+        if not isinstance(last, dict) or not np.isfinite(_number(last.get("level"))):
+            return
+        rate, horizon = _number(last.get("cycles_per_day")), _number(last.get("horizon_days"))
+        critical, level = _number(last.get("critical_wear")), _number(last.get("level"))
+        if not (rate > 0 and horizon > 0 and np.isfinite(critical)):
+            return
+        scale = CONE_WIDTH / horizon                                    # x units per day
+        past = np.array([((c - int(cycles[-1])) / rate * scale, w) for c, w in history if np.isfinite(w)])
+        left = min(float(past[:, 0].min()) if past.size else 0.0, -CONE_WIDTH / 4)
+        strips = [past, np.array([[left, critical], [CONE_WIDTH * 1.2, critical]]),
+                  np.array([[CONE_WIDTH, 0.0], [CONE_WIDTH, critical]])]
+        colors, labels = [[120, 60, 10], [220, 30, 30], [150, 150, 150]], ["trend", f"critical {critical:g}",
+                                                                             f"horizon {horizon:g} d"]
+        days = last.get("days")
+        days = days if isinstance(days, dict) else {}
+        for key, color in (("p10", [230, 140, 140]), ("median", [200, 40, 40]), ("p90", [230, 140, 140])):
+            value = _number(days.get(key))
+            if np.isfinite(value):
+                strips.append(np.array([[0.0, level], [value * scale, critical]]))
+                colors.append(color)
+                labels.append(f"{key} {value:.3g} d")
+        path = f"{base}/prognosis/cone"
+        self._log_static_once(path, rr.Transform3D(scale=Y_UP))
+        self.rec.send_columns(path, indexes=self._indexes(cycles[-1:], times[-1:]),
+                              columns=rr.LineStrips2D.columns(strips=strips, colors=colors, labels=labels,
+                                                              radii=np.full(len(strips), 0.4, np.float32)
+                                                              ).partition([len(strips)]))
 
     def _draw_friction(self, base: str, block: list[dict], cycles: np.ndarray, times: np.ndarray) -> None:
         import rerun as rr

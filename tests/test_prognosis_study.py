@@ -1,0 +1,64 @@
+"""The prognosis study's own parts (docs/PROGNOSIS.md): the wear laws reach the critical wear when they say,
+and Saxena et al.'s metrics score a perfect forecast as perfect and a wrong one as wrong."""
+
+from __future__ import annotations
+
+import pytest
+
+from joint_model import CRITICAL_WEAR
+from sim_controller.wear_scenarios import WearProfile
+from studies.prognosis_fleet import LAWS, CycleRow, joint_law, robot_laws
+from studies.prognosis_metrics import ForecastRow, covers, law_table, score_healthy, score_wearing
+
+
+@pytest.mark.parametrize("law", LAWS)
+@pytest.mark.parametrize("shape", [0.0, 0.5, 0.99])
+def test_every_law_reaches_the_critical_wear_after_its_life(law, shape):
+    joint = joint_law(law, onset=200, life=1000, shape=shape)
+    profile = WearProfile(events=joint.events)
+    assert profile.wear(199) == 0.0 and profile.wear(200) <= 14.0 + 1e-9       # a step goes to at most 14
+    # the spans are rounded to whole cycles: the crossing lands within a few cycles of onset + life
+    assert abs(joint.end_of_life - 1200) <= 3
+    assert profile.wear(joint.end_of_life) >= CRITICAL_WEAR > profile.wear(joint.end_of_life - 1)
+    values = [profile.wear(c) for c in range(200, joint.end_of_life + 1)]
+    assert all(b >= a for a, b in zip(values, values[1:]))                      # wear never falls
+
+
+def test_a_robot_takes_the_laws_in_turn_from_its_seed():
+    assert [j.law for j in robot_laws(4801)] == [LAWS[(4801 + i) % 5] for i in range(6)]
+    assert robot_laws(4801) == robot_laws(4801) and robot_laws(4801) != robot_laws(4802)
+
+
+def _rows(end: int, alarm_at: int) -> list[CycleRow]:
+    return [CycleRow(c, 34.0 * c, 35.0 * c / end, 0.0, 1.0, c >= alarm_at, False, False) for c in range(end + 10)]
+
+
+def test_a_perfect_forecast_scores_perfectly_and_a_late_one_does_not():
+    end, alarm = 500, 200
+    rows = _rows(end, alarm)
+    perfect = [ForecastRow(c, "forecast", (0.9 * (end - c), float(end - c), 1.1 * (end - c)), False, False)
+               for c in range(alarm, end)]
+    score = score_wearing("linear", rows, perfect)
+    assert (score.first_alarm, score.end_of_life, score.forecasts) == (alarm, end, end - alarm)
+    assert score.coverage == 1.0 and score.alpha_lambda is True and score.relative_accuracy == 1.0
+    assert score.horizon_share == 1.0
+    late = [ForecastRow(c, "forecast", (1.5 * (end - c), 2.0 * (end - c), 3.0 * (end - c)), False, False)
+            for c in range(alarm, end)]
+    score = score_wearing("linear", rows, late)
+    assert score.coverage == 0.0 and score.alpha_lambda is False and score.relative_accuracy == 0.0
+    table = law_table([score])
+    assert table["linear"]["coverage"] == table["all"]["coverage"] == 0.0
+
+
+def test_a_band_without_its_upper_end_holds_every_longer_life_and_no_trend_holds_none():
+    assert covers(ForecastRow(0, "forecast", (10.0, 50.0, None), False, False), 1e6)
+    assert not covers(ForecastRow(0, "forecast", (10.0, 50.0, None), False, False), 5.0)
+    assert not covers(ForecastRow(0, "no_trend", None, True, False), 50.0)
+
+
+def test_a_healthy_joint_counts_its_cycles_beyond_the_horizon_and_its_warnings():
+    rows = [ForecastRow(0, "learning", None, True, False)] + \
+           [ForecastRow(c, "no_trend", None, True, False) for c in range(1, 97)] + \
+           [ForecastRow(c, "forecast", (1.0, 2.0, 3.0), False, c < 99) for c in range(97, 101)]
+    score = score_healthy(rows)
+    assert (score.cycles, score.beyond, score.warnings) == (100, 96, 1) and score.beyond_share == 0.96
