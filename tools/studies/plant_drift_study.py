@@ -5,7 +5,8 @@
 For every joint of the kept fast-path series of a scenario (studies.series; default the plant
 week, seeds 401–407, 4 400 cycles), the agent's own :class:`DetectorBank` (shipped defaults) is replayed;
 each cycle a scalar detector tests in its steady stage is read in that detector's standard units (the
-learned Yeo–Johnson transform, then the learned mean and standard deviation). Per operating period
+learned Yeo–Johnson transform, then the learned mean and standard deviation), less the temperature slack it is
+tested with (edge_monitor/pipeline/temperature_slack.py; the week's stops are pauses, as the agent sees them). Per operating period
 (``--periods``: the cycles where the week changes, by default the product change at 2 000 and the hot
 day 2 600–3 200) it prints, over joints, the mean ± sd of each joint's period mean, and the variance
 ratios k·var(k-cycle mean)/var of the values within a period (each period's mean removed). Last, per
@@ -36,7 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
+from sim_controller.scenario import scenario_config  # noqa: E402
 from studies.bank_replay import new_bank, replay_bank, standard_units  # noqa: E402
+from studies.robots import pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
 from studies.statistics import variance_ratio  # noqa: E402
@@ -52,12 +55,23 @@ Rows = list[tuple[str, tuple[int, int], int, float]]   # (detector, (seed, joint
 
 
 def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
-    """Every tested steady value of one robot, in its detector's standard units."""
+    """Every tested steady value of one robot, less its temperature slack, in its detector's standard units
+    (the robot's stops are pauses, as the agent sees them)."""
     decision = config_from_mapping({}).decision
+    sim = scenario_config(scenario, {"seed": seed, "joints": 6, "cycles": cycles})
     out: Rows = []
     for joint, rows in robot_series(seed, cycles, 6, scenario).items():
         bank = new_bank(decision)
-        for step in replay_bank(bank, rows, joint):
+        slack: dict[str, float] = {}
+
+        def before(row: dict[str, Any]) -> dict[str, Any]:
+            for name in INPUTS:                # the slack this cycle's value is tested with (before the update)
+                detector = bank.detectors[name]
+                given = bank.spans.slack(name, QUANTITIES[name].inputs, detector, bank.smoothed)
+                slack[name] = given[0] if given else 0.0
+            return row
+
+        for step in replay_bank(bank, rows, joint, values=before, pauses=pauses(sim)):
             watched = bank.watched(step.row)
             for name in INPUTS:
                 det = bank.detectors[name]
@@ -65,7 +79,7 @@ def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
                 if det.stage != "steady" or det.density is None or step.decisions[name].statistic is None \
                         or not np.isfinite(value):
                     continue
-                out.append((name, (seed, joint), step.cycle, standard_units(det, value)))
+                out.append((name, (seed, joint), step.cycle, standard_units(det, value) - slack[name]))
     return out
 
 
