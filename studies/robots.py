@@ -89,7 +89,8 @@ def run_robot(spec: RunSpec) -> dict[str, Any]:
             "wear_truth": {str(j): [wear_truth[(j, c)] for c in range(sim.cycles) if (j, c) in wear_truth]
                            for j in worn},
             "temperature": [min(temperatures), max(temperatures)], "seconds": time.monotonic() - started,
-            "coverage": {str(j): m.coverage_summary() for j, m in agent.joints.items()}}
+            "coverage": {str(j): m.coverage_summary() for j, m in agent.joints.items()},
+            "advisories": agent.stats.advisories}
 
 
 def pauses(sim: SimConfig) -> dict[int, float]:

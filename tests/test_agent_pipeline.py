@@ -182,9 +182,9 @@ def test_new_calibration_settings_after_a_restart_rederive_the_thresholds_withou
                                                                                              on_change):
     """Where the calibration simulates (the allowance boundary, a measured drift) is not learned either: an
     upgrade that changes it keeps every nominal and re-derives the thresholds, under "keep" too."""
-    before, after = _restarted_with(tmp_path, caplog, on_change, calibrate_at="healthy_drift")
-    assert before.calibration.at == "boundary"
-    assert after.calibration is not None and after.calibration.at == "healthy_drift"
+    before, after = _restarted_with(tmp_path, caplog, on_change, calibrate_at="boundary")
+    assert before.calibration.at == "healthy_drift"
+    assert after.calibration is not None and after.calibration.at == "boundary"
     assert after.threshold is not None and after.threshold != before.threshold
 
 

@@ -315,11 +315,18 @@ def test_keep_finds_nothing_to_keep_in_an_older_versions_fingerprint_of_the_same
 
 
 # ------------------------------------------------ a restart after a stop: colder than the steady nominal
-def _steady_bank(seed: int) -> tuple[DetectorBank, np.random.Generator, int]:
+#: The hold option (``decision.warm_up_hold`` names the quantities that hold outside their temperature span
+#: instead of testing with the temperature slack, tests/test_temperature_slack.py): all four, no slack.
+HOLD = {"warm_up_hold": ("wear", "kl_raw", "kl_weighted", "joint"),
+        "temperature_slack": {"wear_score": (0.0, 0.0), "kl_raw": (0.0, 0.0), "kl_weighted": (0.0, 0.0)}}
+
+
+def _steady_bank(seed: int, **settings) -> tuple[DetectorBank, np.random.Generator, int]:
     """A bank whose detectors are all steady, learned at 50 ± 3 °C (the wear score N(0, 1), the logs of
     the KL distances N(−3, 0.3) and N(−4, 0.3)); returns it, its generator and the next cycle."""
     config = DecisionConfig(n_nominal=20, steady_nominal=30, density="gauss", density_joint="gauss",
-                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000)
+                            calibration_draws=16, calibration_steps=400, settling_window=40, arl0_cycles=1000,
+                            **settings)
     bank = DetectorBank(config, {})
     rng = np.random.default_rng(seed)
     cycle = 0
@@ -345,8 +352,9 @@ def test_a_steady_detector_holds_while_the_joint_is_colder_than_it_learned_and_r
     and its KL distances sit 6 σ up (what a cold joint's do): the steady detectors hold — no statistic,
     no alarm, the reason says why — while the joint is colder than those spans. Other side: the same 6 σ
     once the joint is back at 50 °C raises the KL alarms within a few cycles (the hold masks nothing
-    in range); a joint colder by less than the margin (2 °C) is watched; without a temperature no hold."""
-    bank, rng, cycle = _steady_bank(10)
+    in range); a joint colder by less than the margin (2 °C) is watched; without a temperature no hold. (The
+    hold option, ``decision.warm_up_hold``.)"""
+    bank, rng, cycle = _steady_bank(10, **HOLD)
     spans = dict(bank.spans.learned)
     assert set(spans) == set(bank.detectors) and all(38.0 < span.lo <= span.hi < 62.0 for span in spans.values())
     for k in range(40):

@@ -17,7 +17,12 @@ from edge_monitor.stats.threshold_table import entries_by_key, entry_rho, key, l
 
 JOINT = DecisionConfig().detector_config("joint")
 WARM_UP = GaussianSettings(JOINT.n_nominal, JOINT.window, JOINT.gamma0, JOINT.rho, JOINT.direction,
-                           float(JOINT.allowance), float(JOINT.clip_sigma), JOINT.calibrate_at)
+                           float(JOINT.allowance), float(JOINT.clip_sigma), JOINT.calibrate_at,
+                           tuple(JOINT.drift_mean), tuple(JOINT.drift_sd))
+#: The warm-up calibrated at the allowance boundary (the option ``calibrate_at = "boundary"``): one setting for
+#: the scalars and the joint vector.
+BOUNDARY = GaussianSettings(JOINT.n_nominal, JOINT.window, JOINT.gamma0, JOINT.rho, JOINT.direction,
+                            float(JOINT.allowance), float(JOINT.clip_sigma), "boundary")
 STEADY = GaussianSettings(JOINT.steady_nominal, JOINT.window, JOINT.gamma0, JOINT.rho, JOINT.direction,
                           float(JOINT.allowance), float(JOINT.clip_sigma), JOINT.steady_at,
                           tuple(JOINT.steady_drift_mean), tuple(JOINT.steady_drift_sd), tuple(JOINT.steady_wander))
@@ -63,9 +68,9 @@ def test_the_threshold_falls_with_the_kl_correlation_so_the_lowest_is_cautious()
 
 
 def test_the_scalar_and_the_vector_entries_of_the_same_settings_are_apart() -> None:
-    """The warm-up settings are the same for the scalars and the joint vector; the dimension keeps them
-    apart."""
-    scalar, vector = lookup(WARM_UP, 10_000.0), lookup(WARM_UP, 10_000.0, _corr(0.0))
+    """The boundary option's settings are the same for the scalars and the joint vector; the dimension keeps
+    them apart."""
+    scalar, vector = lookup(BOUNDARY, 10_000.0), lookup(BOUNDARY, 10_000.0, _corr(0.0))
     assert scalar is not None and vector is not None and vector.threshold > scalar.threshold + 1.0
 
 
@@ -75,7 +80,8 @@ def test_the_agents_joint_vector_reads_the_table_in_no_time() -> None:
     values = rng.multivariate_normal([1.0, -4.0, -3.5], [[0.3, 0.0, 0.0], [0.0, 0.2, 0.12], [0.0, 0.12, 0.25]],
                                      size=JOINT.n_nominal)
     found = calibrate(values, "gauss", JOINT.window, 10_000.0, JOINT.gamma0, JOINT.rho, direction=JOINT.direction,
-                      allowance=JOINT.allowance, clip_sigma=JOINT.clip_sigma, at=JOINT.calibrate_at)
+                      allowance=JOINT.allowance, clip_sigma=JOINT.clip_sigma, at=JOINT.calibrate_at,
+                      drift_mean=JOINT.drift_mean, drift_sd=JOINT.drift_sd)
     assert found.cpu_s == 0.0 and found.h_se is not None
     rho = float(np.corrcoef(values, rowvar=False)[1, 2])
     expected = lookup(WARM_UP, 10_000.0, _corr(rho))

@@ -341,8 +341,7 @@ class Agent:
                 "sink_errors": self.sink_errors(),
                 "state_save_errors": 0 if self.store is None else self.store.save_errors,
                 "duplicate_cycles_skipped": self.stats.duplicate_cycles_skipped,
-                "partial_cycles": self.stats.partial_cycles,
-                "states_rejected": self.stats.states_rejected,
+                "partial_cycles": self.stats.partial_cycles, "states_rejected": self.stats.states_rejected,
                 "joint_states_rejected": self.stats.joint_states_rejected,
                 "alarms_acknowledged": self.stats.acknowledged, "alarms_chattering": self.stats.chattering,
                 "wall_s": wall, "frames_per_second": h["frames_total"] / wall if wall > 0 else 0.0,
@@ -350,8 +349,7 @@ class Agent:
                 "skipped": {str(j): m.counters()["skipped"] for j, m in self.joints.items()},
                 "detector_cycles_held": {str(j): m.counters()["held"] for j, m in self.joints.items()},
                 "coverage": {str(j): m.coverage_summary() for j, m in self.joints.items()},
-                "e2e": dict(self.ingest.e2e.stats),
-                "no_new_data": self.ingest.e2e.stats["no_new_data"],
+                "e2e": dict(self.ingest.e2e.stats), "no_new_data": self.ingest.e2e.stats["no_new_data"],
                 **self.budget.counters(),
             })
             h.update(extra or {})

@@ -32,6 +32,8 @@ REASONS = ("tested", "learning", "model", "calibrating", "held_warm", "held_cold
 TESTED = "tested"
 #: Reasons of the cycles before a detector's first monitoring cycle (not counted).
 FIRST_LEARNING = ("learning", "model")
+#: How a saved ring writes each cycle's reason (index into :data:`REASONS`; the last: not yet filled, −1).
+RING_CODES = "tlmcwkhnp."
 #: Cycles of the recent window (about one day at 300 test cycles a day).
 DEFAULT_WINDOW = 300
 #: Longest window a saved state may claim (bounds the memory a damaged state file can ask for).
@@ -99,8 +101,9 @@ class DetectorCoverage:
         return {"share": self.share, "recent": self.recent, "cycles": self.cycles, "not_tested": self.not_tested()}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"counts": dict(self.counts), "ring": self.ring.tolist(), "position": self.position,
-                "started": self.started}
+        """Counts, and the ring as one character per cycle (:data:`RING_CODES`: a few hundred bytes of JSON)."""
+        return {"counts": dict(self.counts), "ring": "".join(RING_CODES[c] for c in self.ring.tolist()),
+                "position": self.position, "started": self.started}
 
     @classmethod
     def from_state(cls, state: Any, window: int = DEFAULT_WINDOW) -> "DetectorCoverage":
@@ -108,12 +111,12 @@ class DetectorCoverage:
         out = cls(window)
         saved = state if isinstance(state, dict) else {}
         counts, ring, position = saved.get("counts"), saved.get("ring"), saved.get("position")
-        if not (isinstance(counts, dict) and isinstance(ring, list) and len(ring) == window
+        if not (isinstance(counts, dict) and isinstance(ring, str) and len(ring) == window
                 and _count(position) and all(_count(counts.get(r, 0)) for r in REASONS)
-                and all(isinstance(c, int) and -1 <= c < len(REASONS) for c in ring)):
+                and all(c in RING_CODES for c in ring)):
             return out
         out.counts = {r: int(counts.get(r, 0)) for r in REASONS}
-        out.ring = np.asarray(ring, dtype=np.int8)
+        out.ring = np.asarray([RING_CODES.index(c) if c != "." else -1 for c in ring], dtype=np.int8)
         out.position = position
         out.started = saved.get("started") is True
         return out

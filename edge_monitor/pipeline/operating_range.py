@@ -96,9 +96,10 @@ class OperatingRange:
         one after the other (their inputs start at different cycles), so a learning period — the
         cycles while any detector collects — is one range, and every fit in it makes that range, as
         collected so far, the learned one; a new period (after a pause) starts a new range. ``usual``:
-        covariates whose value this cycle is on the joint's usual path (the motor temperature while the joint
-        warms up after commissioning or a maintenance: the detectors' temperature slack covers it), so it
-        widens their learned range instead of making an advisory; a later nominal keeps what was so widened."""
+        covariates whose value this cycle may be on the joint's usual path (the motor temperature while the joint
+        warms up after commissioning or a maintenance: the detectors' temperature slack covers it): a value
+        within twice the margin of the learned range widens it instead of making an advisory (a jump further is
+        still news); a later nominal keeps what was so widened."""
         known = {k: float(v) for k, v in values.items() if v is not None and math.isfinite(v) and k in MARGINS}
         if collecting and not self.was_collecting:
             self.collecting = {}
@@ -109,9 +110,11 @@ class OperatingRange:
         refit = fitted and bool(self.collecting)
         if refit:
             self.learned = {name: self._widened(name, span) for name, span in self.collecting.items()}
-        for name in usual:
-            if name in known and name in self.learned:
-                self.learned[name].add(known[name])
+        for name in usual:                   # a continuous path: within twice the margin of where it has been
+            span = self.learned.get(name)
+            if name in known and span is not None and not span.empty and \
+                    span.lo - 2 * span.margin(name) <= known[name] <= span.hi + 2 * span.margin(name):
+                span.add(known[name])
                 self.usual.setdefault(name, Span()).add(known[name])
         self.now_outside = {name for name, value in known.items() if self._beyond(name, value)}
         return [event for name, value in known.items() if (event := self._advise(name, value, refit)) is not None]

@@ -90,6 +90,9 @@ def report(runs: list[dict[str, Any]], arl0: float) -> str:
             text = "none" if first is None else (f"cycle {first['cycle']}, {first['quantity']} ({first['stage']}), "
                                                  f"true wear {first['wear']:.1f}")
             lines.append(f"seed {run['seed']} joint {joint} (worn): first alarm {text}")
+    advised = [run["advisories"] for run in runs if "advisories" in run]
+    if advised:
+        lines.append(f"operating-range advisories per robot: {', '.join(map(str, advised))}")
     for stage, t in false_alarms(runs, arl0).items():
         low, high = poisson_interval(int(t["alarms"]), t["due"]) if t["due"] > 0 else (0.0, 0.0)
         ratio = t["alarms"] / t["due"] if t["due"] > 0 else float("nan")
