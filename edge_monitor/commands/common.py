@@ -187,7 +187,10 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
     the share of the cycles the joint's detectors tested since they first learned (coverage, lowest – highest
     over its detectors, docs/DETECTION.md)."""
     held = decision.warm_up_hold
-    warm_up = ("for drifts up to the allowance during the warm-up"
+    warm_up = ({"boundary": "for drifts up to the allowance during the warm-up",
+                "nominal": "at the learned nominal during the warm-up"}.get(
+                   decision.calibrate_at, "during the warm-up for the drift healthy joints show beyond their "
+                                          "temperature slack")
                + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
                   f"they learned at)" if held else ""))
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None

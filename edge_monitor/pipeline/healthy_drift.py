@@ -35,8 +35,8 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.31), "kl_
 STEADY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.05, 0.11),
                                                 "kl_weighted": (0.18, 0.195)}
 #: The drift the joint vector's steady calibration assumes of its inputs: larger than its inputs show
-#: alone, because the three are not jointly Gaussian in their tails (docs/DETECTION.md, "Delivered against
-#: stated, target by target": with the inputs' own default-robot drift it ran ≈ 1.5×): the plant week's
+#: alone, because the three are not jointly Gaussian in their tails (the delivered curve of
+#: docs/studies/2026-11-27-delivered-curve.md: with the inputs' own default-robot drift it ran ≈ 1.5×): the plant week's
 #: drift of each KL input plus the margin that made the vector deliver on default robots (mean + 0.06 σ,
 #: sd combined with 0.085 σ).
 STEADY_DRIFT_JOINT: dict[str, tuple[float, float]] = {"wear_score": (0.0, 0.08), "kl_raw": (0.11, 0.14),
