@@ -33,7 +33,7 @@ from edge_monitor.sources.signal_check import SignalCheck
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError, add_can_arguments, can_options
 
 FALLBACK = {"temperature": "site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
-                           "lubricant temperature read from the friction for the detectors' stages and holds",
+                           "lubricant temperature read from the friction for the detectors' stages, spans and slack",
             "load": "configured load prior ([wear] default_load_mean ± default_load_std)"}
 
 
