@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from edge_monitor.features.temperature_compensation import TemperatureCompensation
+from edge_monitor.features.temperature_compensation import LOOSE_SMOOTHING, TemperatureCompensation
 from edge_monitor.pipeline.pauses import PAUSE_S, PauseFinder
 from joint_model import FrictionParams
 
@@ -61,3 +61,41 @@ def test_a_pause_cools_the_compensation_towards_the_idle_temperature():
     again = TemperatureCompensation(FrictionParams())
     again.load_state(state)
     assert again.coldest == comp.coldest and again.current == comp.current
+
+
+def test_a_loose_temperature_estimate_is_smoothed_harder():
+    """Without a motor temperature the cycle's ξ̂ scatters ±3–6 °C and runs off for a dozen cycles: the
+    compensation follows it with weight LOOSE_SMOOTHING (0.1) instead of 0.2. A 6 °C excursion of 12 cycles
+    moves the estimate 6·(1 − 0.9¹²) = 4.3 °C (loose) against 6·(1 − 0.8¹²) = 5.6 °C; a steady warming is
+    still followed."""
+    tight, loose = TemperatureCompensation(FrictionParams()), TemperatureCompensation(FrictionParams())
+    for comp, flag in ((tight, False), (loose, True)):
+        for _ in range(5):
+            comp.observe(56.0, loose=flag)
+        for _ in range(12):
+            comp.observe(50.0, loose=flag)
+    assert 56.0 - tight.current == pytest.approx(6.0 * (1 - 0.8 ** 12))
+    assert 56.0 - loose.current == pytest.approx(6.0 * (1 - (1 - LOOSE_SMOOTHING) ** 12))
+    for _ in range(200):
+        loose.observe(60.0, loose=True)
+    assert loose.current == pytest.approx(60.0, abs=0.01)
+
+
+def test_the_kl_feature_smooths_loosely_only_without_a_motor_temperature():
+    """The KL feature passes ``loose`` exactly when the cycle carries no motor temperature (a controller that
+    sends none): the same ξ̂ sequence moves its compensation by weight 0.2 with a motor temperature,
+    LOOSE_SMOOTHING without."""
+    from edge_monitor.features.base import CycleInput
+    from edge_monitor.features.friction_extraction import FrictionCurve
+    from edge_monitor.features.kl_monitor import KLMonitor
+
+    moved = {}
+    for motor in (45.0, None):
+        kl = KLMonitor(params=FrictionParams())
+        for k, xi in enumerate((50.0, 40.0)):
+            cycle = CycleInput(joint=0, cycle=k, t=float(k), friction=FrictionCurve(speeds=[], torque=[], stderr=[]),
+                               load_mean=None, load_std=None, motor_temperature=motor, partial=True)
+            kl.update(cycle, {"temperature": xi})
+        assert kl.compensation is not None
+        moved[motor] = 50.0 - kl.compensation.current
+    assert moved[45.0] == pytest.approx(0.2 * 10.0) and moved[None] == pytest.approx(LOOSE_SMOOTHING * 10.0)

@@ -241,7 +241,9 @@ class KLMonitor:
         partial cycle is discarded (its window lacks the cycle's start). The ``temperature`` of the
         context (the wear feature's ξ̂) updates the temperature compensation of the next cycles."""
         if self.compensation is not None:
-            self.compensation.observe((context or {}).get("temperature"))
+            motor = cycle.motor_temperature
+            self.compensation.observe((context or {}).get("temperature"),
+                                      loose=motor is None or not math.isfinite(motor))
         if cycle.partial:
             self.discard_cycle()
             return FeatureOutput(section=dict(EMPTY_SECTION), values={q: math.nan for q in self.quantities})

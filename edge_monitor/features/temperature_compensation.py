@@ -9,7 +9,8 @@ reference temperature ξref (the joint's temperature when its nominal density wa
     τ ← τ − sign(v)·[τ0(|v|, ξc) − τ0(|v|, ξref)]
 
 with ξc the joint's current lubricant temperature, estimated from the friction data of the previous
-cycles (the wear feature's ξ̂, smoothed exponentially: the lubricant moves ≲ 0.1 °C per cycle). The
+cycles (the wear feature's ξ̂, smoothed exponentially: the lubricant moves ≲ 0.1 °C per cycle; harder where
+the controller sends no motor temperature and ξ̂ is looser, :data:`LOOSE_SMOOTHING`). The
 load terms of τ0 do not depend on ξ and cancel; wear is not touched.
 
 While the joint stands (a pause in its samples, :meth:`TemperatureCompensation.cool`) the lubricant cools
@@ -30,13 +31,24 @@ from numpy.typing import NDArray
 
 from joint_model import FrictionParams, nominal_friction
 
+#: The weight of a cycle's ξ̂ estimated without a motor temperature (a controller that sends none): with a flat
+#: prior over the site range it scatters ±3–6 °C and runs 5–7 °C off for a dozen cycles at a time, and the KL
+#: distances follow the over-correction (docs/DETECTION.md, "A robot without motor temperature"). On 20 such robots
+#: at one false alarm per robot-week the warm-up stage delivered 3.1× its rate with 0.2, 0.99× with 0.1 and 0.85×
+#: with 0.05; a medium wear ramp was found 3–17 cycles after the same robot with a motor temperature with 0.1,
+#: 2–12 with 0.2, 3–22 with 0.05.
+LOOSE_SMOOTHING = 0.1
+
 
 class TemperatureCompensation:
-    """See the module docstring. ``smoothing``: weight of the newest cycle's ξ̂ in the running estimate."""
+    """See the module docstring. ``smoothing``: weight of the newest cycle's ξ̂ in the running estimate
+    (``loose_smoothing`` for a ξ̂ estimated without a motor temperature)."""
 
-    def __init__(self, params: FrictionParams, smoothing: float = 0.2) -> None:
+    def __init__(self, params: FrictionParams, smoothing: float = 0.2,
+                 loose_smoothing: float = LOOSE_SMOOTHING) -> None:
         self.params = params
         self.smoothing = float(smoothing)
+        self.loose_smoothing = float(loose_smoothing)
         self.reference: float | None = None
         self.current: float | None = None
         self.coldest: float | None = None          # lowest smoothed ξ so far: the idle temperature a pause cools to
@@ -48,14 +60,16 @@ class TemperatureCompensation:
             return
         self.current = self.coldest + (self.current - self.coldest) * math.exp(-seconds / time_constant_s)
 
-    def observe(self, temperature: float | None) -> None:
-        """The lubricant temperature estimated from a closed cycle [°C]; the first one is the reference."""
+    def observe(self, temperature: float | None, loose: bool = False) -> None:
+        """The lubricant temperature estimated from a closed cycle [°C] (``loose``: without a motor temperature);
+        the first one is the reference."""
         if temperature is None or not math.isfinite(temperature):
             return
         if self.current is None:
             self.current = float(temperature)
         else:
-            self.current += self.smoothing * (float(temperature) - self.current)
+            weight = self.loose_smoothing if loose else self.smoothing
+            self.current += weight * (float(temperature) - self.current)
         if self.reference is None:
             self.reference = self.current
         self.coldest = self.current if self.coldest is None else min(self.coldest, self.current)
