@@ -43,7 +43,9 @@ def test_the_detectors_over_kept_series_alarm_as_the_agent_does(tmp_path: Path, 
                       if a["quantity"] != "wear")
 
     assert alarms(agent) and alarms(agent) == alarms(detectors) == alarms(again)
-    assert {a[0] for a in alarms(agent)} == {1} and agent["worn"] == detectors["worn"] == [1]
+    # the worn joint alarms; the healthy one may too: at a target of 50 cycles its ≈ 40 tested warm-up cycles
+    # per detector expect ≈ 0.8 false alarms each (what matters here is that both paths raise the same ones)
+    assert 1 in {a[0] for a in alarms(agent)} and agent["worn"] == detectors["worn"] == [1]
     for joint, counts in agent["monitored"].items():
         assert {q: n for q, n in counts.items() if q != "wear"} == \
             {q: n for q, n in detectors["monitored"][joint].items() if q != "wear"}
