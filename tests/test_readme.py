@@ -10,6 +10,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -52,18 +53,21 @@ def test_the_readme_commands_run_as_written(tmp_path):
 
 
 def _run_block(script: str, cwd: Path) -> tuple[int, str]:
-    """Run one block with bash in a process group of its own; whatever it left running is ended after it
-    (a background job of a failed block would otherwise hold the output pipes open)."""
-    proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, stdin=subprocess.DEVNULL, start_new_session=True)
-    try:
-        output, _ = proc.communicate(timeout=1500)
-    finally:
+    """Run one block with bash in a process group of its own; whatever it left running is ended after it.
+    The output goes to a file, not a pipe: a background job a failed block left behind would otherwise hold
+    the pipe open and the test would wait for it until its timeout instead of reporting the failure."""
+    with tempfile.TemporaryFile(mode="w+", encoding="utf-8", errors="replace") as out:
+        proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=cwd, stdout=out, stderr=subprocess.STDOUT,
+                                text=True, stdin=subprocess.DEVNULL, start_new_session=True)
         try:
-            os.killpg(proc.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-        if proc.poll() is None:
-            proc.kill()
-            output, _ = proc.communicate()
-    return proc.returncode, output
+            proc.wait(timeout=1500)
+        finally:
+            try:
+                os.killpg(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        out.seek(0)
+        return proc.returncode, out.read()
