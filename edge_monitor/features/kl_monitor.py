@@ -17,7 +17,8 @@ docs/KL_DETECTOR.md ("How it works") derives each step; in short:
   interpolation), ``weighted`` bins ``w(v)·(τ_t − m_t)`` with the causal running mean ``m_t`` (exact
   centring before weighting would need the joint histogram of (w, w·τ)).
 * **Compensation**: temperature (:mod:`~edge_monitor.features.temperature_compensation`, per sample
-  with the previous cycles' ξ̂) and load (:mod:`~edge_monitor.features.load_compensation`, at the
+  with the previous cycles' ξ̂, or without a motor temperature the joint's thermal model driven by the
+  cycles' power ⟨τ·v⟩, :class:`~edge_monitor.features.lubricant_thermal_filter.CycleHeat`) and load (:mod:`~edge_monitor.features.load_compensation`, at the
   cycle's end with its measured load torque, through a :class:`~edge_monitor.stats.sliced_kde.SlicedKDE`
   capture), both with the joint's own friction model, so the densities are those of the reference
   temperature and load.
@@ -46,6 +47,7 @@ from edge_monitor.features.disturbance_weights import WeightFunction
 from edge_monitor.features.kl_channel import KLChannel
 from edge_monitor.features.kl_config import LOAD_COMPENSATION, WINDOWS, KLConfig, Window  # noqa: F401 (re-exported)
 from edge_monitor.features.load_compensation import LoadCompensation
+from edge_monitor.features.lubricant_thermal_filter import CycleHeat
 from edge_monitor.features.temperature_compensation import TemperatureCompensation
 from edge_monitor.records import finite_or_none
 from edge_monitor.stats.kde_stream import symmetric_kl
@@ -115,8 +117,9 @@ class KLMonitor:
     def __init__(self, config: KLConfig | None = None, params: FrictionParams | None = None) -> None:
         self.config = config = config or KLConfig()
         self.params = params
-        self.compensation = TemperatureCompensation(params) \
+        self.compensation = TemperatureCompensation(params, time_constant_s=3600.0 * config.cooling_time_constant_h) \
             if config.temperature_compensation and params is not None else None
+        self.heat = CycleHeat()
         self.n_nominal_cycles = config.n_nominal_cycles
         self.n_grid = config.n_grid
         self.weights: WeightFunction | None = config.weights
@@ -209,6 +212,7 @@ class KLMonitor:
         v = np.asarray(speed, dtype=float).reshape(-1)
         if v.shape != tau.shape:
             raise ValueError(f"KLMonitor.update_samples: speed has {v.size} samples, torque {tau.size}")
+        self.heat.add(tau, v)
         if self.window != "cycle":
             if segment is None and self.window == "production":
                 return                       # no segment information: nothing is production
@@ -240,10 +244,11 @@ class KLMonitor:
         ``"kl"`` section, the quantities ``kl_raw``/``kl_weighted`` and the raw density for viewers. A
         partial cycle is discarded (its window lacks the cycle's start). The ``temperature`` of the
         context (the wear feature's ξ̂) updates the temperature compensation of the next cycles."""
+        heating = self.heat.close(cycle.t)
         if self.compensation is not None:
             motor = cycle.motor_temperature
             self.compensation.observe((context or {}).get("temperature"),
-                                      loose=motor is None or not math.isfinite(motor))
+                                      loose=motor is None or not math.isfinite(motor), heating=heating)
         if cycle.partial:
             self.discard_cycle()
             return FeatureOutput(section=dict(EMPTY_SECTION), values={q: math.nan for q in self.quantities})
@@ -254,6 +259,7 @@ class KLMonitor:
 
     def pause(self, seconds: float) -> None:
         """The joint stood still for ``seconds`` before its next samples: its lubricant cooled meanwhile."""
+        self.heat.pause(seconds)
         if self.compensation is not None:
             self.compensation.cool(seconds, 3600.0 * self.config.cooling_time_constant_h)
 
@@ -352,6 +358,7 @@ class KLMonitor:
         return {
             "config": self.fingerprint(),
             "compensation": None if self.compensation is None else self.compensation.state_dict(),
+            "heat": self.heat.state_dict(),
             "n_learned": self.n_learned, "n_window": self.n_window, "n_standstill": self.n_standstill,
             "torque_sum": self.torque_sum, "torque_count": self.torque_count,
             "coefficient_sum": self.coefficient_sum,
@@ -375,6 +382,7 @@ class KLMonitor:
         check_learned_with("kl", state, mon.fingerprint())
         if mon.compensation is not None and isinstance(state.get("compensation"), dict):
             mon.compensation.load_state(state["compensation"])
+        mon.heat = CycleHeat.from_state(state.get("heat"))
         mon.n_learned = int(state["n_learned"])
         mon.n_window = int(state["n_window"])
         mon.n_standstill = int(state.get("n_standstill", 0))

@@ -9,9 +9,11 @@ reference temperature ξref (the joint's temperature when its nominal density wa
     τ ← τ − sign(v)·[τ0(|v|, ξc) − τ0(|v|, ξref)]
 
 with ξc the joint's current lubricant temperature, estimated from the friction data of the previous
-cycles (the wear feature's ξ̂, smoothed exponentially: the lubricant moves ≲ 0.1 °C per cycle; harder where
-the controller sends no motor temperature and ξ̂ is looser, :data:`LOOSE_SMOOTHING`). The
-load terms of τ0 do not depend on ξ and cancel; wear is not touched.
+cycles (the wear feature's ξ̂, smoothed exponentially: the lubricant moves ≲ 0.1 °C per cycle). Where the
+controller sends no motor temperature, ξ̂ is looser and wear moves it; there ξc is the joint's thermal model
+driven by its dissipated power, corrected by ξ̂ (:mod:`edge_monitor.features.lubricant_thermal_filter`), when the
+cycle's power is known, else ξ̂ smoothed with :data:`LOOSE_SMOOTHING`. The load terms of τ0 do not depend on ξ
+and cancel; wear is not touched.
 
 While the joint stands (a pause in its samples, :meth:`TemperatureCompensation.cool`) the lubricant cools
 towards the coldest temperature the joint has shown (its idle temperature, ≈ ambient) with the thermal
@@ -29,9 +31,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from edge_monitor.features.lubricant_thermal_filter import (LubricantThermalFilter, ThermalFilterConfig,
+                                                            ThermalObservation)
 from joint_model import FrictionParams, nominal_friction
 
-#: The weight of a cycle's ξ̂ estimated without a motor temperature (a controller that sends none): with a flat
+#: The weight of a cycle's ξ̂ estimated without a motor temperature, where the cycle's power is unknown: with a flat
 #: prior over the site range it scatters ±3–6 °C and runs 5–7 °C off for a dozen cycles at a time, and the KL
 #: distances follow the over-correction (docs/DETECTION.md, "A robot without motor temperature"). On the 20 such
 #: robots it was chosen on, at one false alarm per robot-week, the warm-up stage delivered 3.1× its rate with 0.2,
@@ -45,10 +49,12 @@ class TemperatureCompensation:
     (``loose_smoothing`` for a ξ̂ estimated without a motor temperature)."""
 
     def __init__(self, params: FrictionParams, smoothing: float = 0.2,
-                 loose_smoothing: float = LOOSE_SMOOTHING) -> None:
+                 loose_smoothing: float = LOOSE_SMOOTHING, time_constant_s: float = 3.04 * 3600.0) -> None:
         self.params = params
         self.smoothing = float(smoothing)
         self.loose_smoothing = float(loose_smoothing)
+        self.thermal = LubricantThermalFilter(ThermalFilterConfig(time_constant_s=float(time_constant_s)))
+        self.follows_thermal = False               # whether ξc is the thermal model's (the last cycle's was)
         self.reference: float | None = None
         self.current: float | None = None
         self.coldest: float | None = None          # lowest smoothed ξ so far: the idle temperature a pause cools to
@@ -58,11 +64,26 @@ class TemperatureCompensation:
         constant ``time_constant_s`` [s] (first-order thermal model)."""
         if self.current is None or self.coldest is None or not (math.isfinite(seconds) and seconds > 0):
             return
+        if self.follows_thermal:
+            self.current = self.thermal.cool(seconds)
+            return
         self.current = self.coldest + (self.current - self.coldest) * math.exp(-seconds / time_constant_s)
 
-    def observe(self, temperature: float | None, loose: bool = False) -> None:
-        """The lubricant temperature estimated from a closed cycle [°C] (``loose``: without a motor temperature);
+    def observe(self, temperature: float | None, loose: bool = False,
+                heating: tuple[float, float] | None = None) -> None:
+        """The lubricant temperature estimated from a closed cycle [°C] (``loose``: without a motor temperature;
+        ``heating``: the seconds since the previous cycle and the mean power over them, for the thermal model);
         the first one is the reference."""
+        self.follows_thermal = loose and heating is not None
+        if self.follows_thermal:
+            estimate = self.thermal.update(ThermalObservation(heating[0], heating[1], temperature))
+            if estimate is None:
+                return
+            self.current = estimate
+            if self.reference is None:
+                self.reference = self.current
+            self.coldest = self.current if self.coldest is None else min(self.coldest, self.current)
+            return
         if temperature is None or not math.isfinite(temperature):
             return
         if self.current is None:
@@ -91,13 +112,18 @@ class TemperatureCompensation:
         return torque - np.sign(speed) * change
 
     def reset(self) -> None:
-        """Relearn the reference (declared maintenance: the nominal density is relearned too)."""
+        """Relearn the reference (declared maintenance: the nominal density is relearned too, and the new
+        lubricant's thermal model)."""
         self.reference = None
+        self.thermal.reset()
 
     def state_dict(self) -> dict[str, Any]:
-        return {"reference": self.reference, "current": self.current, "coldest": self.coldest}
+        return {"reference": self.reference, "current": self.current, "coldest": self.coldest,
+                "thermal": self.thermal.state_dict(), "follows_thermal": self.follows_thermal}
 
     def load_state(self, state: dict[str, Any]) -> None:
         for key in ("reference", "current", "coldest"):
             value = state.get(key)
             setattr(self, key, float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None)
+        self.thermal = LubricantThermalFilter.from_state(state.get("thermal"), self.thermal.config)
+        self.follows_thermal = state.get("follows_thermal") is True and self.thermal.temperature is not None
