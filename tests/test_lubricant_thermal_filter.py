@@ -11,8 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge_monitor.features.lubricant_thermal_filter import (CLIP, CycleHeat, LubricantThermalFilter,
-                                                            ThermalFilterConfig, ThermalObservation)
+from edge_monitor.features.lubricant_thermal_filter import (
+    CLIP,
+    CycleHeat,
+    LubricantThermalFilter,
+    ThermalFilterConfig,
+    ThermalObservation,
+)
 from edge_monitor.features.temperature_compensation import TemperatureCompensation
 from joint_model import FrictionParams
 from sim_controller.thermal import ThermalModel
@@ -175,3 +180,49 @@ def test_any_input_keeps_a_finite_positive_definite_state(steps):
     if f.mean is not None:
         assert np.all(np.isfinite(f.mean)) and np.all(np.isfinite(f.cov))
         assert np.all(np.linalg.eigvalsh(f.cov) > -1e-9)
+
+
+def test_the_kl_feature_feeds_the_thermal_model_its_cycles_power_and_survives_a_restart_mid_cycle():
+    """Without a motor temperature and with samples, the KL feature's compensation follows the thermal model,
+    fed the cycle's ⟨τ·v⟩ and the controller time between cycle ends less the stops; a monitor restored from
+    its state in the middle of a cycle continues exactly as the one that ran on."""
+    import json
+
+    from edge_monitor.features.base import CycleInput
+    from edge_monitor.features.friction_extraction import FrictionCurve
+    from edge_monitor.features.kl_monitor import KLMonitor
+
+    rng = np.random.default_rng(21)
+    speed = np.tile(np.r_[np.full(200, 20.0), np.full(200, -20.0)], 3)
+
+    def block(n: int) -> tuple[np.ndarray, np.ndarray]:
+        v = speed[:n]
+        return 0.05 * np.sign(v) + 0.002 * rng.standard_normal(n), v
+
+    def cycle(k: int, t: float) -> CycleInput:
+        return CycleInput(joint=0, cycle=k, t=t, friction=FrictionCurve(speeds=[], torque=[], stderr=[]),
+                          load_mean=0.5, load_std=0.05, motor_temperature=None)
+
+    kl = KLMonitor(params=FrictionParams())
+    expected_power = []
+    for k in range(14):
+        tau, v = block(speed.size)
+        expected_power.append(float(np.mean(tau * v)))
+        kl.update_samples(tau, v)
+        if k == 8:
+            kl.pause(3600.0)
+        kl.update(cycle(k, 110.0 * k + (3600.0 if k >= 8 else 0.0)), {"temperature": 40.0 + 0.1 * k})
+    comp = kl.compensation
+    assert comp is not None and comp.follows_thermal and comp.current == pytest.approx(comp.thermal.temperature)
+    assert kl.heat.last_power == pytest.approx(expected_power[-1])
+    # Restart in the middle of a cycle: half its samples before, half after.
+    tau, v = block(speed.size)
+    kl.update_samples(tau[:600], v[:600])
+    again = KLMonitor.from_state(kl.config, json.loads(json.dumps(kl.state_dict())), FrictionParams())
+    for mon in (kl, again):
+        mon.update_samples(tau[600:], v[600:])
+    a = kl.update(cycle(14, 110.0 * 14 + 3600.0), {"temperature": 41.5})
+    b = again.update(cycle(14, 110.0 * 14 + 3600.0), {"temperature": 41.5})
+    assert all(math.isfinite(x) for x in a.values.values()), (a.reason, a.values)
+    assert a.values == b.values
+    assert again.compensation.current == kl.compensation.current

@@ -18,7 +18,8 @@ docs/KL_DETECTOR.md ("How it works") derives each step; in short:
   centring before weighting would need the joint histogram of (w, w·τ)).
 * **Compensation**: temperature (:mod:`~edge_monitor.features.temperature_compensation`, per sample
   with the previous cycles' ξ̂, or without a motor temperature the joint's thermal model driven by the
-  cycles' power ⟨τ·v⟩, :class:`~edge_monitor.features.lubricant_thermal_filter.CycleHeat`) and load (:mod:`~edge_monitor.features.load_compensation`, at the
+  cycles' power ⟨τ·v⟩, :class:`~edge_monitor.features.lubricant_thermal_filter.CycleHeat`) and load
+  (:mod:`~edge_monitor.features.load_compensation`, at the
   cycle's end with its measured load torque, through a :class:`~edge_monitor.stats.sliced_kde.SlicedKDE`
   capture), both with the joint's own friction model, so the densities are those of the reference
   temperature and load.

@@ -31,8 +31,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.features.lubricant_thermal_filter import (LubricantThermalFilter, ThermalFilterConfig,
-                                                            ThermalObservation)
+from edge_monitor.features.lubricant_thermal_filter import (
+    LubricantThermalFilter,
+    ThermalFilterConfig,
+    ThermalObservation,
+)
 from joint_model import FrictionParams, nominal_friction
 
 #: The weight of a cycle's ξ̂ estimated without a motor temperature, where the cycle's power is unknown: with a flat
@@ -75,7 +78,7 @@ class TemperatureCompensation:
         ``heating``: the seconds since the previous cycle and the mean power over them, for the thermal model);
         the first one is the reference."""
         self.follows_thermal = loose and heating is not None
-        if self.follows_thermal:
+        if loose and heating is not None:
             estimate = self.thermal.update(ThermalObservation(heating[0], heating[1], temperature))
             if estimate is None:
                 return
