@@ -52,6 +52,13 @@ def test_the_report_counts_coverage_alarms_and_false_alarms():
     counts = watching_study.false_alarms([run], 1000.0)
     assert counts["warm-up"] == {"alarms": 1, "cycles": 1155, "due": pytest.approx(1.155)}
     assert counts["steady"] == {"alarms": 0, "cycles": 600, "due": pytest.approx(0.6)}
+    # An alarm whose decision states no stage (the joint vector's) belongs to its detector's stage then.
+    run["steady_from"] = {"0": {"joint": 600}}
+    run["alarms"] += [{"joint": 0, "cycle": 650, "quantity": "joint", "stage": None, "wear": 0.0},
+                      {"joint": 0, "cycle": 590, "quantity": "joint", "stage": None, "wear": 0.0},
+                      {"joint": 0, "cycle": 800, "quantity": "kl_weighted", "stage": None, "wear": 0.0}]
+    counts = watching_study.false_alarms([run], 1000.0)
+    assert counts["steady"]["alarms"] == 1 and counts["warm-up"]["alarms"] == 3
 
 
 def test_thermal_filter_study_scores_the_filter_against_the_truth():

@@ -11,8 +11,9 @@ replaced (weight 0.1, cooled through each stop towards the coldest value it had 
 worst, with the joint's mean offset over those cycles removed (the friction model's temperature scale is the
 joint's own).
 
-Usage: ``python tools/studies/thermal_filter_study.py --seeds 7001-7002 [--cycles 1000] [--json OUT]``
-(≈ 100 s per robot).
+Usage: ``python tools/studies/thermal_filter_study.py --seeds 7001-7002 [--cycles 1000] [--scenario plant_week]
+[--set ambient_drift=2] [--rows ROWS.json] [--json OUT]`` (≈ 100 s per 1 000 cycles of a robot; ``--rows`` keeps
+them, so other filter settings replay in seconds).
 """
 
 from __future__ import annotations
@@ -30,7 +31,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
-from edge_monitor.features.lubricant_thermal_filter import LubricantThermalFilter, ThermalObservation  # noqa: E402
+from edge_monitor.features.lubricant_thermal_filter import (  # noqa: E402
+    LubricantThermalFilter,
+    ThermalFilterConfig,
+    ThermalObservation,
+)
 from edge_monitor.offline.fast_path import CycleFeeder  # noqa: E402
 from edge_monitor.pipeline.agent import Agent  # noqa: E402
 from edge_monitor.pipeline.pauses import PAUSE_S  # noqa: E402
@@ -43,9 +48,13 @@ log = logging.getLogger("thermal_filter_study")
 SMOOTHING = 0.1
 
 
-def robot_rows(seed: int, cycles: int) -> dict[int, list[dict[str, float]]]:
+def robot_rows(seed: int, cycles: int | None, scenario: str | None = None) -> dict[int, list[dict[str, float]]]:
     """Per joint, per cycle with a friction reading: ξ̂, power, controller times and the true temperature."""
-    config = scenario_config(None, {"seed": seed, "joints": 6, "cycles": cycles})
+    overrides: dict[str, Any] = {"seed": seed, "joints": 6}
+    if cycles is not None:
+        overrides["cycles"] = cycles
+    config = scenario_config(scenario, overrides)
+    cycles = config.cycles
     agent = Agent(config_from_mapping({"decision": {"enabled": False}}))
     feeder = CycleFeeder(agent)
     pending: dict[tuple[int, int], dict[str, float]] = {}
@@ -70,9 +79,9 @@ def robot_rows(seed: int, cycles: int) -> dict[int, list[dict[str, float]]]:
     return rows
 
 
-def replay(rows: list[dict[str, float]]) -> dict[str, np.ndarray]:
+def replay(rows: list[dict[str, float]], config: ThermalFilterConfig | None = None) -> dict[str, np.ndarray]:
     """The filter's and the smoothing's temperature after each row."""
-    f = LubricantThermalFilter()
+    f = LubricantThermalFilter(config)
     smoothed, coldest, out_f, out_s = None, math.inf, [], []
     for k, row in enumerate(rows):
         gap = row["t_start"] - rows[k - 1]["t_end"] if k else 0.0
@@ -89,10 +98,11 @@ def replay(rows: list[dict[str, float]]) -> dict[str, np.ndarray]:
             "reading": np.asarray([r["reading"] for r in rows])}
 
 
-def errors(rows: list[dict[str, float]], skip: int) -> dict[str, dict[str, float]]:
+def errors(rows: list[dict[str, float]], skip: int, config: ThermalFilterConfig | None = None
+           ) -> dict[str, dict[str, float]]:
     truth = np.asarray([r["truth"] for r in rows])
     out = {}
-    for name, est in replay(rows).items():
+    for name, est in replay(rows, config).items():
         err = (est - truth)[skip:]
         err = err - np.mean(err)
         out[name] = {"rms": float(np.sqrt(np.mean(err ** 2))), "worst": float(np.max(np.abs(err)))}
@@ -102,18 +112,29 @@ def errors(rows: list[dict[str, float]], skip: int) -> dict[str, dict[str, float
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", default="7001-7002")
-    p.add_argument("--cycles", type=int, default=1000)
+    p.add_argument("--cycles", type=int, help="cycles per robot (default: 1000, or the scenario's)")
+    p.add_argument("--scenario", help="simulator scenario: a TOML file or a packaged name (e.g. plant_week)")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a filter setting (ThermalFilterConfig), e.g. ambient_drift=2")
+    p.add_argument("--rows", type=Path, help="keep the robots' rows here, and read them from here when present")
     p.add_argument("--skip", type=int, default=80, help="cycles left out at the start (the filter learning)")
     p.add_argument("--json", type=Path)
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     logging.getLogger("edge_monitor").setLevel(logging.WARNING)
+    config = ThermalFilterConfig(**{k: float(v) for k, v in (item.split("=", 1) for item in a.set)})
+    cycles = a.cycles if a.cycles is not None or a.scenario else 1000
+    kept = json.loads(a.rows.read_text()) if a.rows and a.rows.exists() else {}
     result: list[dict[str, Any]] = []
     for seed in parse_seeds(a.seeds):
-        for joint, rows in sorted(robot_rows(seed, a.cycles).items()):
+        if str(seed) not in kept:
+            kept[str(seed)] = {str(j): r for j, r in robot_rows(seed, cycles, a.scenario).items()}
+            if a.rows:
+                a.rows.write_text(json.dumps(kept))
+        for joint, rows in sorted((int(j), r) for j, r in kept[str(seed)].items()):
             if len(rows) <= a.skip:
                 continue
-            e = errors(rows, a.skip)
+            e = errors(rows, a.skip, config)
             result.append({"seed": seed, "joint": joint, **e})
             print(f"{seed} j{joint}: rms / worst [°C]  reading {e['reading']['rms']:.2f} / {e['reading']['worst']:.1f}"
                   f"   smoothing {e['smoothing']['rms']:.2f} / {e['smoothing']['worst']:.1f}"

@@ -53,6 +53,15 @@ def coverage_rows(run: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
+def alarm_stage(run: dict[str, Any], alarm: dict[str, Any]) -> str:
+    """The stage an alarm was raised in: the one its decision states, else (a decision without calibration, e.g.
+    the joint vector's) the joint's: steady from the cycle its detector's steady stage began."""
+    if alarm.get("stage") in ("warm-up", "steady"):
+        return str(alarm["stage"])
+    start = (run.get("steady_from") or {}).get(str(alarm["joint"]), {}).get(alarm["quantity"])
+    return "steady" if isinstance(start, int) and alarm["cycle"] >= start else "warm-up"
+
+
 def false_alarms(runs: list[dict[str, Any]], arl0: float) -> dict[str, dict[str, float]]:
     """Per stage: false alarms of unworn joints, their tested detector-cycles, and those due at ``arl0``."""
     out: dict[str, dict[str, float]] = {stage: {"alarms": 0, "cycles": 0} for stage in ("warm-up", "steady")}
@@ -66,7 +75,7 @@ def false_alarms(runs: list[dict[str, Any]], arl0: float) -> dict[str, dict[str,
             out["warm-up"]["cycles"] += sum(counts.values()) - steady
         for alarm in run["alarms"]:
             if alarm["joint"] not in worn:
-                out["steady" if alarm.get("stage") == "steady" else "warm-up"]["alarms"] += 1
+                out[alarm_stage(run, alarm)]["alarms"] += 1
     for tally in out.values():
         tally["due"] = tally["cycles"] / arl0
     return out
