@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from protocol.numbers import finite_or_none, is_finite_number  # noqa: F401 (part of this module's interface)
+from protocol.numbers import finite_or_none, is_count, is_finite_number  # noqa: F401 (part of this module's interface)
 
 #: Version of every published record (symptom, alarm, friction, health): the "schema" field. Fields are
 #: only ever added within a version (``utc`` was), so a reader of version 1 ignores what it does not know.

@@ -20,3 +20,8 @@ def finite_or_none(value: Any) -> float | None:
 def is_finite_number(value: Any) -> TypeGuard[float]:
     """Whether ``value`` is an int or float (not a bool, not a string) with a finite float value."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and finite_or_none(value) is not None
+
+
+def is_count(value: Any) -> TypeGuard[int]:
+    """Whether ``value`` is an int (not a bool) ≥ 0: a count read back from a saved state."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0

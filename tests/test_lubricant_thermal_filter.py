@@ -125,6 +125,9 @@ def test_state_round_trip_and_garbage():
     for junk in (None, {}, {"mean": [1, 2]}, {"mean": [1, 2, 3], "cov": "x"},
                  {"mean": [1, 2, float("nan")], "cov": np.eye(3).tolist()}):
         assert LubricantThermalFilter.from_state(junk).temperature is None
+    hostile = {**a.state_dict(), "n_readings": "x", "n_clipped": True}        # counts that are not counts
+    restored = LubricantThermalFilter.from_state(hostile)
+    assert restored.temperature == a.temperature and restored.n_readings == restored.n_clipped == 0
     a.reset()
     assert a.temperature is None and a.n_readings == 0
 

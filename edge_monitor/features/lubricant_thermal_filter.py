@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from edge_monitor.records import is_count, is_finite_number
+
 #: Innovations are clipped at this many predicted standard deviations (Huber-style robust Kalman update).
 CLIP = 2.5
 
@@ -104,10 +106,10 @@ class CycleHeat:
         if isinstance(state, dict):
             for key in ("power_sum", "last_power", "last_t", "paused"):
                 value = state.get(key)
-                if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+                if is_finite_number(value):
                     setattr(out, key, float(value))
             count = state.get("count")
-            out.count = count if isinstance(count, int) and not isinstance(count, bool) and count >= 0 else 0
+            out.count = count if is_count(count) else 0
         return out
 
 
@@ -198,6 +200,7 @@ class LubricantThermalFilter:
             return out
         if mean.shape == (3,) and cov.shape == (3, 3) and np.all(np.isfinite(mean)) and np.all(np.isfinite(cov)):
             out.mean, out.cov = mean, cov
-            out.n_readings = int(state.get("n_readings", 0) or 0)
-            out.n_clipped = int(state.get("n_clipped", 0) or 0)
+            readings, clipped = state.get("n_readings"), state.get("n_clipped")
+            out.n_readings = readings if is_count(readings) else 0
+            out.n_clipped = clipped if is_count(clipped) else 0
         return out

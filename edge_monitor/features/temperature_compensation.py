@@ -83,13 +83,9 @@ class TemperatureCompensation:
             if estimate is None:
                 return
             self.current = estimate
-            if self.reference is None:
-                self.reference = self.current
-            self.coldest = self.current if self.coldest is None else min(self.coldest, self.current)
+        elif temperature is None or not math.isfinite(temperature):
             return
-        if temperature is None or not math.isfinite(temperature):
-            return
-        if self.current is None:
+        elif self.current is None:
             self.current = float(temperature)
         else:
             weight = self.loose_smoothing if loose else self.smoothing

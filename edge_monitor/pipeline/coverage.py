@@ -21,11 +21,11 @@ tested cycles overall (``share``) and over the window (``recent``) go into every
 
 from __future__ import annotations
 
-from typing import Any, Iterable, TypeGuard
+from typing import Any, Iterable
 
 import numpy as np
 
-from edge_monitor.records import Decision
+from edge_monitor.records import Decision, is_count
 
 #: Why a cycle was or was not tested; the index is the code kept in the ring.
 REASONS = ("tested", "learning", "model", "calibrating", "held_warm", "held_cold", "held", "no_value", "partial")
@@ -112,7 +112,7 @@ class DetectorCoverage:
         saved = state if isinstance(state, dict) else {}
         counts, ring, position = saved.get("counts"), saved.get("ring"), saved.get("position")
         if not (isinstance(counts, dict) and isinstance(ring, str) and len(ring) == window
-                and _count(position) and all(_count(counts.get(r, 0)) for r in REASONS)
+                and is_count(position) and all(is_count(counts.get(r, 0)) for r in REASONS)
                 and all(c in RING_CODES for c in ring)):
             return out
         out.counts = {r: int(counts.get(r, 0)) for r in REASONS}
@@ -153,12 +153,9 @@ class Coverage:
     def from_state(cls, quantities: Iterable[str], state: Any) -> "Coverage":
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
         given = saved.get("window")
-        window = given if _count(given) and 1 <= given <= MAX_WINDOW else DEFAULT_WINDOW
+        window = given if is_count(given) and 1 <= given <= MAX_WINDOW else DEFAULT_WINDOW
         out = cls(quantities, window)
         detectors: dict[str, Any] = saved["detectors"] if isinstance(saved.get("detectors"), dict) else {}
         out.detectors = {q: DetectorCoverage.from_state(detectors.get(q), window) for q in out.detectors}
         return out
 
-
-def _count(x: Any) -> TypeGuard[int]:
-    return isinstance(x, int) and not isinstance(x, bool) and x >= 0

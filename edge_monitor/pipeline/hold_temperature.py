@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from typing import Any, TypeGuard
 
-from edge_monitor.records import is_finite_number
+from edge_monitor.records import is_count, is_finite_number
 
 #: Smallest jump [°C] that restarts the smoothing: the floor of the holds' margin (a steadier sensor than
 #: the simulator's would otherwise restart at every fraction of a degree).
@@ -114,12 +114,12 @@ class HoldTemperature:
         out = cls(smoothing, jump_sigmas)
         saved: dict[str, Any] = state if isinstance(state, dict) else {}
         level, variance, readings = saved.get("level"), saved.get("variance"), saved.get("readings")
-        if _plausible(level) and is_finite_number(variance) and 0 <= variance <= MAX_VARIANCE and _count(readings):
+        if _plausible(level) and is_finite_number(variance) and 0 <= variance <= MAX_VARIANCE and is_count(readings):
             out.level, out.variance, out.readings = float(level), float(variance), readings
             pending = saved.get("pending")
             out.pending = float(pending) if _plausible(pending) else None
-            out.jumps = saved["jumps"] if _count(saved.get("jumps")) else 0
-            out.stops = saved["stops"] if _count(saved.get("stops")) else 0
+            out.jumps = saved["jumps"] if is_count(saved.get("jumps")) else 0
+            out.stops = saved["stops"] if is_count(saved.get("stops")) else 0
         return out
 
     @classmethod
@@ -131,10 +131,6 @@ class HoldTemperature:
             out.update(t)
         out.jumps = out.stops = 0
         return out
-
-
-def _count(x: Any) -> TypeGuard[int]:
-    return isinstance(x, int) and not isinstance(x, bool) and x >= 0
 
 
 def _plausible(x: Any) -> TypeGuard[float]:
