@@ -5,6 +5,7 @@ cannot drag it, a real ambient change still moves it, and its state survives a r
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -161,7 +162,7 @@ def test_compensation_follows_the_thermal_model_without_motor_temperature():
     assert not comp.follows_thermal and comp.current == 40.0
     comp.observe(40.0, loose=True, heating=(CYCLE_S, 7.5))
     assert comp.follows_thermal and comp.current == pytest.approx(comp.thermal.temperature)
-    comp.cool(12 * 3600.0, 3.04 * 3600.0)
+    comp.cool(12 * 3600.0)
     assert comp.current == pytest.approx(comp.thermal.temperature)
     again = TemperatureCompensation(FrictionParams())
     again.load_state(comp.state_dict())
@@ -214,10 +215,13 @@ def test_the_kl_feature_feeds_the_thermal_model_its_cycles_power_and_survives_a_
         kl.update_samples(tau, v)
         if k == 8:
             kl.pause(3600.0)
-        kl.update(cycle(k, 110.0 * k + (3600.0 if k >= 8 else 0.0)), {"temperature": 40.0 + 0.1 * k})
+        out = kl.update(cycle(k, 110.0 * k + (3600.0 if k >= 8 else 0.0)), {"temperature": 40.0 + 0.1 * k})
     comp = kl.compensation
     assert comp is not None and comp.follows_thermal and comp.current == pytest.approx(comp.thermal.temperature)
     assert kl.heat.last_power == pytest.approx(expected_power[-1])
+    # What the record shows: the thermal model's temperature, the compensation's reference.
+    assert out.section["temperature"] == {"value": comp.current, "reference": comp.reference,
+                                          "source": "thermal_model"}
     # Restart in the middle of a cycle: half its samples before, half after.
     tau, v = block(speed.size)
     kl.update_samples(tau[:600], v[:600])
@@ -229,3 +233,8 @@ def test_the_kl_feature_feeds_the_thermal_model_its_cycles_power_and_survives_a_
     assert all(math.isfinite(x) for x in a.values.values()), (a.reason, a.values)
     assert a.values == b.values
     assert again.compensation.current == kl.compensation.current
+    # With a motor temperature the compensation smooths the wear estimate's ξ̂.
+    kl.update_samples(*block(speed.size))
+    motor = kl.update(replace(cycle(15, 110.0 * 15 + 3600.0), motor_temperature=50.0), {"temperature": 41.5})
+    assert motor.section["temperature"]["source"] == "smoothed"
+    assert motor.section["temperature"]["value"] == pytest.approx(kl.compensation.current)

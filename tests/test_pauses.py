@@ -51,11 +51,11 @@ def test_a_pause_cools_the_compensation_towards_the_idle_temperature():
         comp.observe(t)
     warm = comp.current
     assert comp.coldest == pytest.approx(30.0) and warm > 55.0
-    comp.cool(0.5 * 3600, 3.04 * 3600)
+    comp.cool(0.5 * 3600)
     assert comp.current == pytest.approx(30.0 + (warm - 30.0) * math.exp(-0.5 / 3.04))
-    comp.cool(16 * 3600, 3.04 * 3600)
+    comp.cool(16 * 3600)
     assert comp.current == pytest.approx(30.0, abs=0.2)
-    comp.cool(float("nan"), 3.04 * 3600)                     # nothing known: nothing changes
+    comp.cool(float("nan"))                     # nothing known: nothing changes
     assert comp.current == pytest.approx(30.0, abs=0.2)
     state = json.loads(json.dumps(comp.state_dict()))
     again = TemperatureCompensation(FrictionParams())

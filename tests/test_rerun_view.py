@@ -46,7 +46,9 @@ def symptom(robot: str, joint: int, cycle: int, levels: int = 4) -> dict:
             "friction": {"speeds": speeds.tolist(), "torque": (0.03 + 1e-4 * speeds + 1e-5 * cycle).tolist(),
                          "stderr": [1e-3] * levels},
             "wear": {"estimate": 0.5 * cycle, "std": 2.0, "temperature": 40.0 + cycle % 5},
-            "kl": {"raw": 0.01 * cycle, "weighted": None if cycle % 2 else 0.02 * cycle},
+            "kl": {"raw": 0.01 * cycle, "weighted": None if cycle % 2 else 0.02 * cycle,
+                   **({"temperature": {"value": 38.0 + 0.1 * cycle, "reference": 38.0, "source": "thermal_model"}}
+                      if monitoring else {})},
             "decisions": {q: {"state": "monitoring" if monitoring else "learning",
                               "statistic": float(cycle) if monitoring else None,
                               "threshold": 11.3 if monitoring else None, "alarm": monitoring and cycle > 11,
@@ -74,6 +76,8 @@ def expected_rows(records: list[dict], blocks: int = 1) -> Counter:
             expected[f"{base}/{sub}"] += 1
         if r["kl"]["weighted"] is not None:
             expected[f"{base}/kl/weighted"] += 1
+        if "temperature" in r["kl"]:
+            expected[f"{base}/temperature/compensation"] += 1
         for q, d in r["decisions"].items():
             if d["statistic"] is not None:
                 expected[f"{base}/glr/{q}/statistic"] += 1

@@ -256,13 +256,16 @@ class KLMonitor:
         result = self.end_cycle(cycle.cycle, None if self.load is None else self.load.cycle_load(cycle))
         values = {"kl_raw": _nan_if_none(result.raw), "kl_weighted": _nan_if_none(result.weighted)}
         extras = {"density": result.density} if result.density is not None else {}
-        return FeatureOutput(section=result.to_section(), values=values, reason=result.reason, extras=extras)
+        section = result.to_section()
+        if self.compensation is not None and self.compensation.current is not None:
+            section["temperature"] = self.compensation.section()
+        return FeatureOutput(section=section, values=values, reason=result.reason, extras=extras)
 
     def pause(self, seconds: float) -> None:
         """The joint stood still for ``seconds`` before its next samples: its lubricant cooled meanwhile."""
         self.heat.pause(seconds)
         if self.compensation is not None:
-            self.compensation.cool(seconds, 3600.0 * self.config.cooling_time_constant_h)
+            self.compensation.cool(seconds)
 
     def discard_cycle(self) -> None:
         """Drop the open window without evaluating or learning (partial or duplicate cycles)."""

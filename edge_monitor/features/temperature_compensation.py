@@ -40,8 +40,8 @@ from joint_model import FrictionParams, nominal_friction
 
 #: The weight of a cycle's ξ̂ estimated without a motor temperature, where the cycle's power is unknown: with a flat
 #: prior over the site range it scatters ±3–6 °C and runs 5–7 °C off for a dozen cycles at a time, and the KL
-#: distances follow the over-correction (docs/DETECTION.md, "A robot without motor temperature"). On the 20 such
-#: robots it was chosen on, at one false alarm per robot-week, the warm-up stage delivered 3.1× its rate with 0.2,
+#: distances follow the over-correction (docs/WITHOUT_MOTOR_TEMPERATURE.md). On the 20 such robots it was
+#: chosen on, at one false alarm per robot-week, the warm-up stage delivered 3.1× its rate with 0.2,
 #: 0.99× with 0.1 and 0.85× with 0.05 (on 20 held-out robots 2.1× with 0.1); a medium wear ramp was found 3–17
 #: cycles after the same robot with a motor temperature with 0.1, 2–12 with 0.2, 3–22 with 0.05.
 LOOSE_SMOOTHING = 0.1
@@ -54,6 +54,7 @@ class TemperatureCompensation:
     def __init__(self, params: FrictionParams, smoothing: float = 0.2,
                  loose_smoothing: float = LOOSE_SMOOTHING, time_constant_s: float = 3.04 * 3600.0) -> None:
         self.params = params
+        self.time_constant_s = float(time_constant_s)
         self.smoothing = float(smoothing)
         self.loose_smoothing = float(loose_smoothing)
         self.thermal = LubricantThermalFilter(ThermalFilterConfig(time_constant_s=float(time_constant_s)))
@@ -62,15 +63,15 @@ class TemperatureCompensation:
         self.current: float | None = None
         self.coldest: float | None = None          # lowest smoothed ξ so far: the idle temperature a pause cools to
 
-    def cool(self, seconds: float, time_constant_s: float) -> None:
-        """The joint stood still for ``seconds``: its lubricant cooled towards :attr:`coldest` with the time
-        constant ``time_constant_s`` [s] (first-order thermal model)."""
+    def cool(self, seconds: float) -> None:
+        """The joint stood still for ``seconds``: its lubricant cooled (the thermal model's own cooling where ξc
+        follows it, else towards :attr:`coldest` with the time constant :attr:`time_constant_s` [s])."""
         if self.current is None or self.coldest is None or not (math.isfinite(seconds) and seconds > 0):
             return
         if self.follows_thermal:
             self.current = self.thermal.cool(seconds)
             return
-        self.current = self.coldest + (self.current - self.coldest) * math.exp(-seconds / time_constant_s)
+        self.current = self.coldest + (self.current - self.coldest) * math.exp(-seconds / self.time_constant_s)
 
     def observe(self, temperature: float | None, loose: bool = False,
                 heating: tuple[float, float] | None = None) -> None:
@@ -93,6 +94,11 @@ class TemperatureCompensation:
         if self.reference is None:
             self.reference = self.current
         self.coldest = self.current if self.coldest is None else min(self.coldest, self.current)
+
+    def section(self) -> dict[str, Any]:
+        """For the symptom's ``kl.temperature``: ξc and ξref [°C], and what ξc follows."""
+        return {"value": self.current, "reference": self.reference,
+                "source": "thermal_model" if self.follows_thermal else "smoothed"}
 
     @property
     def shift(self) -> float:

@@ -151,6 +151,8 @@ class Drawer:
             "prognosis/days/p10": (column("prognosis", "days", "p10"), "10 %", [230, 140, 140], 1.0),
             "prognosis/days/p90": (column("prognosis", "days", "p90"), "90 %", [230, 140, 140], 1.0),
             "temperature": (column("wear", "temperature"), "lubricant temperature °C", [200, 80, 60], 1.5),
+            "temperature/compensation": (column("kl", "temperature", "value"), "KL compensation's temperature °C",
+                                         [120, 30, 20], 2.5),
             "kl/raw": (column("kl", "raw"), "KL raw", [90, 90, 220], 2.0),
             "kl/weighted": (column("kl", "weighted"), "KL weighted", [40, 170, 90], 2.0),
         }

@@ -5,6 +5,7 @@ only when the sink is not ``off``, so the agent runs without it. Entity paths (s
 
     /robot/<r>/joint/<j>/wear/{estimate,upper,lower,critical}    wear ϖ̂, its bounds, critical level
     /robot/<r>/joint/<j>/temperature                              estimated lubricant temperature, °C
+    /robot/<r>/joint/<j>/temperature/compensation                 the KL compensation's temperature, °C
     /robot/<r>/joint/<j>/kl/{raw,weighted}                        symmetric KL distance to nominal
     /robot/<r>/joint/<j>/glr/<quantity>/{statistic,threshold}     GLR decision statistic vs threshold
     /robot/<r>/joint/<j>/miss/<quantity>                          estimated miss probability
