@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""A healthy robot whose controller sends no motor temperature (docs/DETECTION.md, "A robot without motor
-temperature"): detector-cycles monitored per stage, threshold crossings and held detector-cycles.
+"""A healthy robot whose controller sends no motor temperature (docs/WITHOUT_MOTOR_TEMPERATURE.md):
+detector-cycles monitored per stage, threshold crossings and held detector-cycles.
 
 Each seed is the simulator's default 6-joint robot on the cycle-level fast path, with every motor
 temperature of its status frames removed (``--with-temperature`` keeps them: the same robot through our

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How well the lubricant thermal filter tracks a joint whose controller sends no motor temperature
-(docs/DETECTION.md, "A robot without motor temperature").
+(docs/WITHOUT_MOTOR_TEMPERATURE.md).
 
 Runs simulated default robots (6 joints, individual variation, the thermal model, the load spread) through the
 agent's features with every motor temperature removed and its detectors off. Per joint and cycle it keeps the
