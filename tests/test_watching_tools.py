@@ -85,3 +85,8 @@ def test_thermal_filter_study_scores_the_filter_against_the_truth():
     assert e["filter"]["rms"] < e["smoothing"]["rms"] and e["filter"]["rms"] < e["reading"]["rms"] / 2
     exact = [{**r, "reading": r["truth"] + 4.0} for r in rows]
     assert thermal_filter_study.errors(exact, skip=80)["reading"]["rms"] < 1e-9
+    # The reading's scale: 1 for an offset alone (noise or not), 0.85 for a reading compressed by 15 %.
+    assert thermal_filter_study.errors(exact, skip=80)["reading"]["scale"] == pytest.approx(1.0)
+    assert abs(e["reading"]["scale"] - 1.0) < 0.1          # 7 se: 2 °C noise, truth sd 6.5 °C, 520 rows: se 0.014
+    compressed = [{**r, "reading": 40.0 + 0.85 * (r["truth"] - 40.0)} for r in rows]
+    assert thermal_filter_study.errors(compressed, skip=80)["reading"]["scale"] == pytest.approx(0.85)

@@ -9,10 +9,12 @@ the simulator's true lubricant temperature. Then it replays, per joint, the ship
 :class:`~edge_monitor.features.lubricant_thermal_filter.LubricantThermalFilter` and the exponential smoothing it
 replaced (weight 0.1, cooled through each stop towards the coldest value it had shown). It prints each one's error against the truth after the first ``--skip`` cycles: rms and
 worst, with the joint's mean offset over those cycles removed (the friction model's temperature scale is the
-joint's own).
+joint's own), and the reading's scale: the slope of ξ̂ against the true temperature [°C per °C] (1: none compressed).
+``--variation`` sets the simulator's individual variation (0: identical joints), ``--base-model`` keeps the agent on
+the base friction table (no per-joint model learning: on identical joints the exact model).
 
 Usage: ``python tools/studies/thermal_filter_study.py --seeds 7001-7002 [--cycles 1000] [--scenario plant_week]
-[--set ambient_drift=2] [--rows ROWS.json] [--json OUT]`` (≈ 100 s per 1 000 cycles of a robot; ``--rows`` keeps
+[--set ambient_drift=2] [--variation 0] [--base-model] [--rows ROWS.json] [--json OUT]`` (≈ 100 s per 1 000 cycles of a robot; ``--rows`` keeps
 them, so other filter settings replay in seconds).
 """
 
@@ -48,14 +50,17 @@ log = logging.getLogger("thermal_filter_study")
 SMOOTHING = 0.1
 
 
-def robot_rows(seed: int, cycles: int | None, scenario: str | None = None) -> dict[int, list[dict[str, float]]]:
+def robot_rows(seed: int, cycles: int | None, scenario: str | None = None, variation: float | None = None,
+               base_model: bool = False) -> dict[int, list[dict[str, float]]]:
     """Per joint, per cycle with a friction reading: ξ̂, power, controller times and the true temperature."""
     overrides: dict[str, Any] = {"seed": seed, "joints": 6}
     if cycles is not None:
         overrides["cycles"] = cycles
+    if variation is not None:
+        overrides["variation"] = variation
     config = scenario_config(scenario, overrides)
     cycles = config.cycles
-    agent = Agent(config_from_mapping({"decision": {"enabled": False}}))
+    agent = Agent(config_from_mapping({"decision": {"enabled": False}, "model": {"enabled": not base_model}}))
     feeder = CycleFeeder(agent)
     pending: dict[tuple[int, int], dict[str, float]] = {}
     rows: dict[int, list[dict[str, float]]] = {}
@@ -106,6 +111,8 @@ def errors(rows: list[dict[str, float]], skip: int, config: ThermalFilterConfig 
         err = (est - truth)[skip:]
         err = err - np.mean(err)
         out[name] = {"rms": float(np.sqrt(np.mean(err ** 2))), "worst": float(np.max(np.abs(err)))}
+    slope = np.polyfit(truth[skip:], np.asarray([r["reading"] for r in rows])[skip:], 1)[0]
+    out["reading"]["scale"] = float(slope)
     return out
 
 
@@ -116,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenario", help="simulator scenario: a TOML file or a packaged name (e.g. plant_week)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="a filter setting (ThermalFilterConfig), e.g. ambient_drift=2")
+    p.add_argument("--variation", type=float, help="the simulator's individual variation (default: its own)")
+    p.add_argument("--base-model", action="store_true", help="the agent on the base friction table (no model learning)")
     p.add_argument("--rows", type=Path, help="keep the robots' rows here, and read them from here when present")
     p.add_argument("--skip", type=int, default=80, help="cycles left out at the start (the filter learning)")
     p.add_argument("--json", type=Path)
@@ -126,24 +135,29 @@ def main(argv: list[str] | None = None) -> int:
     cycles = a.cycles if a.cycles is not None or a.scenario else 1000
     kept = json.loads(a.rows.read_text()) if a.rows and a.rows.exists() else {}
     result: list[dict[str, Any]] = []
+    variant = ("" if a.variation is None else f":variation={a.variation:g}") + (":base" if a.base_model else "")
     for seed in parse_seeds(a.seeds):
-        if str(seed) not in kept:
-            kept[str(seed)] = {str(j): r for j, r in robot_rows(seed, cycles, a.scenario).items()}
+        key = f"{seed}{variant}"
+        if key not in kept:
+            kept[key] = {str(j): r for j, r in robot_rows(seed, cycles, a.scenario, a.variation, a.base_model).items()}
             if a.rows:
                 a.rows.write_text(json.dumps(kept))
-        for joint, rows in sorted((int(j), r) for j, r in kept[str(seed)].items()):
+        for joint, rows in sorted((int(j), r) for j, r in kept[key].items()):
             if len(rows) <= a.skip:
                 continue
             e = errors(rows, a.skip, config)
             result.append({"seed": seed, "joint": joint, **e})
             print(f"{seed} j{joint}: rms / worst [°C]  reading {e['reading']['rms']:.2f} / {e['reading']['worst']:.1f}"
                   f"   smoothing {e['smoothing']['rms']:.2f} / {e['smoothing']['worst']:.1f}"
-                  f"   filter {e['filter']['rms']:.2f} / {e['filter']['worst']:.1f}", flush=True)
+                  f"   filter {e['filter']['rms']:.2f} / {e['filter']['worst']:.1f}"
+                  f"   reading scale {e['reading']['scale']:.3f}", flush=True)
     for name in ("reading", "smoothing", "filter"):
         rms = [r[name]["rms"] for r in result]
         worst = [r[name]["worst"] for r in result]
         print(f"{name:9s}: rms {min(rms):.2f}–{max(rms):.2f} °C, worst {min(worst):.1f}–{max(worst):.1f} °C "
               f"over {len(result)} joints")
+    scales = [r["reading"]["scale"] for r in result]
+    print(f"reading scale: {min(scales):.3f}–{max(scales):.3f} °C per °C")
     if a.json:
         a.json.write_text(json.dumps(result, indent=1))
     return 0
