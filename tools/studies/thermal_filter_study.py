@@ -11,10 +11,11 @@ replaced (weight 0.1, cooled through each stop towards the coldest value it had 
 worst, with the joint's mean offset over those cycles removed (the friction model's temperature scale is the
 joint's own), and the reading's scale: the slope of ξ̂ against the true temperature [°C per °C] (1: none compressed).
 ``--variation`` sets the simulator's individual variation (0: identical joints), ``--base-model`` keeps the agent on
-the base friction table (no per-joint model learning: on identical joints the exact model).
+the base friction table (no per-joint model learning: on identical joints the exact model), ``--wear`` wears every
+joint to that level from the start.
 
 Usage: ``python tools/studies/thermal_filter_study.py --seeds 7001-7002 [--cycles 1000] [--scenario plant_week]
-[--set ambient_drift=2] [--variation 0] [--base-model] [--rows ROWS.json] [--json OUT]`` (≈ 100 s per 1 000 cycles of a robot; ``--rows`` keeps
+[--set ambient_drift=2] [--variation 0] [--base-model] [--wear 20] [--rows ROWS.json] [--json OUT]`` (≈ 100 s per 1 000 cycles of a robot; ``--rows`` keeps
 them, so other filter settings replay in seconds).
 """
 
@@ -51,14 +52,15 @@ SMOOTHING = 0.1
 
 
 def robot_rows(seed: int, cycles: int | None, scenario: str | None = None, variation: float | None = None,
-               base_model: bool = False) -> dict[int, list[dict[str, float]]]:
+               base_model: bool = False, wear: float = 0.0) -> dict[int, list[dict[str, float]]]:
     """Per joint, per cycle with a friction reading: ξ̂, power, controller times and the true temperature."""
     overrides: dict[str, Any] = {"seed": seed, "joints": 6}
     if cycles is not None:
         overrides["cycles"] = cycles
     if variation is not None:
         overrides["variation"] = variation
-    config = scenario_config(scenario, overrides)
+    worn = tuple(f"{joint}:0:1:{wear:g}:{wear:g}" for joint in range(6)) if wear else ()
+    config = scenario_config(scenario, overrides, wear_ramps=worn)
     cycles = config.cycles
     agent = Agent(config_from_mapping({"decision": {"enabled": False}, "model": {"enabled": not base_model}}))
     feeder = CycleFeeder(agent)
@@ -125,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="a filter setting (ThermalFilterConfig), e.g. ambient_drift=2")
     p.add_argument("--variation", type=float, help="the simulator's individual variation (default: its own)")
     p.add_argument("--base-model", action="store_true", help="the agent on the base friction table (no model learning)")
+    p.add_argument("--wear", type=float, default=0.0, help="every joint worn to this level from the start")
     p.add_argument("--rows", type=Path, help="keep the robots' rows here, and read them from here when present")
     p.add_argument("--skip", type=int, default=80, help="cycles left out at the start (the filter learning)")
     p.add_argument("--json", type=Path)
@@ -135,11 +138,13 @@ def main(argv: list[str] | None = None) -> int:
     cycles = a.cycles if a.cycles is not None or a.scenario else 1000
     kept = json.loads(a.rows.read_text()) if a.rows and a.rows.exists() else {}
     result: list[dict[str, Any]] = []
-    variant = ("" if a.variation is None else f":variation={a.variation:g}") + (":base" if a.base_model else "")
+    variant = ("" if a.variation is None else f":variation={a.variation:g}") + (":base" if a.base_model else "") \
+        + (f":wear={a.wear:g}" if a.wear else "")
     for seed in parse_seeds(a.seeds):
         key = f"{seed}{variant}"
         if key not in kept:
-            kept[key] = {str(j): r for j, r in robot_rows(seed, cycles, a.scenario, a.variation, a.base_model).items()}
+            rows_by_joint = robot_rows(seed, cycles, a.scenario, a.variation, a.base_model, a.wear)
+            kept[key] = {str(j): r for j, r in rows_by_joint.items()}
             if a.rows:
                 a.rows.write_text(json.dumps(kept))
         for joint, rows in sorted((int(j), r) for j, r in kept[key].items()):
