@@ -20,14 +20,13 @@ import argparse
 import os
 import platform
 import sys
-import time
-from typing import Callable
 
 # BLAS threads spin on an oversubscribed host and slow scipy's direct sums (and np.dot) by 100×;
 # single-threaded BLAS keeps the comparison about the algorithms. Must be set before numpy loads.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from benchmark_report import best_time  # noqa: E402
 from scipy.stats import gaussian_kde  # noqa: E402
 
 from edge_monitor.stats.kde_stream import StreamingKDE, choose_grid, symmetric_kl  # noqa: E402
@@ -40,15 +39,6 @@ def cycle_samples(n: int, rng: np.random.Generator) -> np.ndarray:
     """Torque-like window: 24 plateau levels (12 speeds × 2 directions) plus noise."""
     levels = 0.3 + np.array([1.0, -1.0])[:, None] * np.linspace(0.08, 0.14, 12)[None, :]
     return rng.choice(levels.ravel(), n) + rng.normal(0, 6e-3, n)
-
-
-def best_time(fn: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def monitor_rows(rng: np.random.Generator) -> list[str]:

@@ -15,12 +15,11 @@ from __future__ import annotations
 import os
 import platform
 import sys
-import time
-from typing import Callable
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from benchmark_report import best_time  # noqa: E402
 
 from edge_monitor.features.base import CycleInput  # noqa: E402
 from edge_monitor.features.friction_extraction import FrictionCurve  # noqa: E402
@@ -29,15 +28,6 @@ from edge_monitor.features.lubricant_thermal_filter import CycleHeat, LubricantT
 from joint_model import FrictionParams  # noqa: E402
 
 BLOCKS = 10
-
-
-def best_time(fn: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def kl_cycle_time(n: int, motor: float | None, rng: np.random.Generator) -> float:
