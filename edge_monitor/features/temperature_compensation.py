@@ -54,7 +54,6 @@ class TemperatureCompensation:
     def __init__(self, params: FrictionParams, smoothing: float = 0.2,
                  loose_smoothing: float = LOOSE_SMOOTHING, time_constant_s: float = 3.04 * 3600.0) -> None:
         self.params = params
-        self.time_constant_s = float(time_constant_s)
         self.smoothing = float(smoothing)
         self.loose_smoothing = float(loose_smoothing)
         self.thermal = LubricantThermalFilter(ThermalFilterConfig(time_constant_s=float(time_constant_s)))
@@ -65,13 +64,14 @@ class TemperatureCompensation:
 
     def cool(self, seconds: float) -> None:
         """The joint stood still for ``seconds``: its lubricant cooled (the thermal model's own cooling where ξc
-        follows it, else towards :attr:`coldest` with the time constant :attr:`time_constant_s` [s])."""
+        follows it, else towards :attr:`coldest` with the thermal model's time constant)."""
         if self.current is None or self.coldest is None or not (math.isfinite(seconds) and seconds > 0):
             return
         if self.follows_thermal:
             self.current = self.thermal.cool(seconds)
             return
-        self.current = self.coldest + (self.current - self.coldest) * math.exp(-seconds / self.time_constant_s)
+        decay = math.exp(-seconds / self.thermal.config.time_constant_s)
+        self.current = self.coldest + (self.current - self.coldest) * decay
 
     def observe(self, temperature: float | None, loose: bool = False,
                 heating: tuple[float, float] | None = None) -> None:
