@@ -109,12 +109,12 @@ def errors(rows: list[dict[str, float]], skip: int, config: ThermalFilterConfig 
            ) -> dict[str, dict[str, float]]:
     truth = np.asarray([r["truth"] for r in rows])
     out = {}
-    for name, est in replay(rows, config).items():
+    estimates = replay(rows, config)
+    for name, est in estimates.items():
         err = (est - truth)[skip:]
         err = err - np.mean(err)
         out[name] = {"rms": float(np.sqrt(np.mean(err ** 2))), "worst": float(np.max(np.abs(err)))}
-    slope = np.polyfit(truth[skip:], np.asarray([r["reading"] for r in rows])[skip:], 1)[0]
-    out["reading"]["scale"] = float(slope)
+    out["reading"]["scale"] = float(np.polyfit(truth[skip:], estimates["reading"][skip:], 1)[0])
     return out
 
 
