@@ -34,6 +34,7 @@ from edge_monitor.pipeline.agent import Agent
 from edge_monitor.records import Symptom
 from joint_model import CRITICAL_WEAR
 from sim_controller.config import SimConfig
+from sim_controller.controller import Controller
 from sim_controller.cycle_mode import cycle_signals
 from sim_controller.scenario import scenario_config
 from sim_controller.wear_scenarios import WearEvent, WearProfile
@@ -125,6 +126,15 @@ def robot_config(seed: int, laws: list[JointLaw] | None, cycles: int | None = No
     elif cycles is not None:
         fields["cycles"] = cycles
     return scenario_config(SCENARIO, fields)
+
+
+def known_model_settings(config: SimConfig) -> dict[str, Any]:
+    """Agent settings that give every joint its true friction model (the simulator's individually varied
+    parameters, wear coefficients included) instead of the one it would learn: the estimator's error
+    without any model error, for the prognosis's error budget."""
+    joints = Controller(config).joints
+    return {"model": {"enabled": False},
+            "joint": {str(s.joint): {"friction": s.friction.to_dict()} for s in joints}}
 
 
 @dataclass(frozen=True)

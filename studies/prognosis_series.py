@@ -22,7 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from studies.prognosis_fleet import CycleRow, robot_config, robot_laws, robot_series
+from studies.prognosis_fleet import CycleRow, known_model_settings, robot_config, robot_laws, robot_series
 from studies.settings import parse_seeds
 
 log = logging.getLogger(__name__)
@@ -35,7 +35,8 @@ SOURCES = ("joint_model", "sim_controller", "protocol/frames.py", "edge_monitor/
            "edge_monitor/defaults/agent.toml", "edge_monitor/offline/fast_path.py", "studies/prognosis_fleet.py")
 #: The prognosis's own modules: the inputs do not depend on them.
 SKIPPED = ("wear_trend", "trend_mixture", "crossing_time", "prognosis")
-KINDS = ("wear", "healthy")
+#: "known_model": the wearing robots again, every joint given its true friction model (the error budget).
+KINDS = ("wear", "healthy", "known_model")
 
 Robot = dict[str, Any]      # {"kind", "seed", "code", "laws": [...] | None, "joints": {joint: [row lists]}}
 
@@ -54,11 +55,12 @@ def code_hash() -> str:
 
 
 def compute(kind: str, seed: int) -> Robot:
-    """One robot's inputs (``kind`` "wear" or "healthy"), through the whole agent on the fast path."""
+    """One robot's inputs (``kind`` one of :data:`KINDS`), through the whole agent on the fast path."""
     if kind not in KINDS:
         raise ValueError(f"kind: {kind!r}; use one of {KINDS}")
-    laws = robot_laws(seed) if kind == "wear" else None
-    series = robot_series(robot_config(seed, laws))
+    laws = None if kind == "healthy" else robot_laws(seed)
+    config = robot_config(seed, laws)
+    series = robot_series(config, known_model_settings(config) if kind == "known_model" else None)
     joints = {str(j): [r.to_list() for r in rows] for j, rows in series.items()}
     return {"kind": kind, "seed": seed, "code": code_hash(),
             "laws": None if laws is None else [law.to_dict() for law in laws], "joints": joints}

@@ -62,3 +62,37 @@ def test_a_healthy_joint_counts_its_cycles_beyond_the_horizon_and_its_warnings()
            [ForecastRow(c, "forecast", (1.0, 2.0, 3.0), False, c < 99) for c in range(97, 101)]
     score = score_healthy(rows)
     assert (score.cycles, score.beyond, score.warnings) == (100, 96, 1) and score.beyond_share == 0.96
+
+
+def test_the_nominal_wear_coefficients_read_a_joint_with_its_own_as_the_truth_and_a_stronger_one_high():
+    import dataclasses
+
+    from joint_model.friction import DEFAULT_PARAMS
+    from studies.prognosis_error_budget import nominal_equivalent
+
+    grid, same = nominal_equivalent(DEFAULT_PARAMS)
+    # the bounded search stops within 1e-4 of the optimum: a reading of the nominal joint is the truth
+    assert same == pytest.approx(grid, abs=1e-3)
+    stronger = dataclasses.replace(DEFAULT_PARAMS, fsw=DEFAULT_PARAMS.fsw * 1.08, fvw=DEFAULT_PARAMS.fvw * 1.08)
+    grid, reads = nominal_equivalent(stronger)
+    at = [float(reads[grid == w][0]) for w in (10.0, 20.0, 35.0)]
+    # 8 % stronger wear friction reads higher, by at most the 8 % (the wear's Stribeck speed grows with it too)
+    assert all(w < r <= 1.08 * w + 1e-3 for w, r in zip((10.0, 20.0, 35.0), at))
+
+
+def test_synthetic_estimates_follow_the_reading_keep_the_gaps_and_the_bias_is_read_in_its_band():
+    import numpy as np
+
+    from studies.prognosis_error_budget import bias_in_band, synthetic_rows
+
+    rows = [CycleRow(k, 60.0 * k, float(k), 0.0 if k % 5 else None, 0.0, False, k < 2, False) for k in range(40)]
+    reading = (np.array([0.0, 100.0]), np.array([0.0, 110.0]))        # reads 10 % high
+    out = synthetic_rows(rows, reading, np.random.default_rng(1))
+    assert [r.estimate is None for r in out] == [r.estimate is None for r in rows]
+    assert all(o.estimate == pytest.approx(1.1 * o.wear) for o in out if o.estimate is not None)
+    truth = synthetic_rows(rows, None, np.random.default_rng(1))
+    assert bias_in_band(truth) == pytest.approx(0.0)
+    # mean of 0.1·w over the estimated cycles with w in 10 … 30
+    kept = [k for k in range(10, 31) if k % 5]
+    assert bias_in_band(out) == pytest.approx(0.1 * sum(kept) / len(kept))
+    assert bias_in_band(out, (50.0, 60.0)) is None

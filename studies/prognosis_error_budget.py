@@ -1,0 +1,79 @@
+"""Where the prognosis's error comes from (docs/PROGNOSIS.md, "Where it fails"): the agent's trend model
+replayed on the same wearing joints with four inputs, from the agent's to an ideal one, scored with the
+metrics of :mod:`studies.prognosis_metrics`:
+
+* ``agent``              the agent's wear estimates (its learned friction model, nominal wear coefficients);
+* ``known_model``        the estimates of the same agent given each joint's true friction model (the
+                         simulator's individually varied parameters, wear coefficients included; kept by
+                         :mod:`studies.prognosis_series` as kind ``known_model``, with its own alarms);
+* ``wear_coefficients``  the true wear as an unbiased estimator with the *nominal* wear coefficients reads
+                         it (:func:`nominal_equivalent`), plus Gaussian noise of the agent's stated std:
+                         what the ±8 % individual variation of the wear coefficients alone costs;
+* ``truth``              the true wear plus that noise: the trend model's own error.
+
+The two synthetic inputs keep the agent's alarms, stds and skipped cycles, so they differ from ``agent``
+only in the estimates' bias (and their scatter, which is the stated std instead of the measured 1.1–1.4×).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from joint_model import FrictionParams
+from joint_model.friction import DEFAULT_PARAMS, wear_friction
+from sim_controller.config import DEFAULT_SPEEDS
+from studies.prognosis_fleet import CycleRow
+
+VARIANTS = ("agent", "known_model", "wear_coefficients", "truth")
+#: True wear grid [wear units] on which the nominal equivalent is computed (interpolated between).
+_WEAR_GRID = np.arange(0.0, 80.0001, 0.5)
+#: Band of true wear in which the estimates' bias is reported (where α–λ is judged).
+BIAS_BAND = (10.0, 30.0)
+
+
+def nominal_equivalent(joint: FrictionParams, nominal: FrictionParams = DEFAULT_PARAMS,
+                       speeds: Sequence[float] = DEFAULT_SPEEDS) -> tuple[np.ndarray, np.ndarray]:
+    """(true wear grid, the wear whose friction under the ``nominal`` wear coefficients best matches the
+    joint's wear friction at the test cycle's ``speeds``, equal weights): what an unbiased estimator that
+    knows everything but the joint's own wear coefficients reads."""
+    v = np.abs(np.asarray(speeds, dtype=float))
+    out = np.empty_like(_WEAR_GRID)
+    for i, w in enumerate(_WEAR_GRID):
+        target = wear_friction(v, w, joint)
+        fit = minimize_scalar(lambda x: float(np.sum((wear_friction(v, x, nominal) - target) ** 2)),
+                              bounds=(0.0, 2.0 * _WEAR_GRID[-1]), method="bounded", options={"xatol": 1e-4})
+        out[i] = float(fit.x) if w > 0 else 0.0
+    return _WEAR_GRID.copy(), out
+
+
+def synthetic_rows(rows: Sequence[CycleRow], reading: np.ndarray | None, rng: np.random.Generator) -> list[CycleRow]:
+    """``rows`` with each estimate replaced by the true wear read through ``reading`` ((grid, values); None:
+    the truth) plus N(0, std²) noise, std the row's own; rows without an estimate keep none."""
+    out = []
+    for r in rows:
+        if r.estimate is None or r.std is None or not math.isfinite(r.wear):
+            out.append(r)
+            continue
+        level = r.wear if reading is None else float(np.interp(r.wear, reading[0], reading[1]))
+        out.append(dataclasses.replace(r, estimate=max(0.0, level + float(r.std) * float(rng.standard_normal()))))
+    return out
+
+
+def bias_in_band(rows: Sequence[CycleRow], band: tuple[float, float] = BIAS_BAND) -> float | None:
+    """Mean of estimate − true wear over the complete, learned cycles whose true wear lies in ``band``."""
+    errors = [r.estimate - r.wear for r in rows if r.estimate is not None and not (r.learning or r.partial)
+              and band[0] <= r.wear <= band[1]]
+    return float(np.mean(errors)) if errors else None
+
+
+def joint_summary(law: str, joint: int, seed: int, scores: dict[str, Any], biases: dict[str, float | None],
+                  reading_at_critical: float) -> dict[str, Any]:
+    """One joint's line of the per-joint table (α–λ pass per variant, bias per real input)."""
+    return {"seed": seed, "joint": joint, "law": law,
+            "alpha_lambda": {k: s.alpha_lambda for k, s in scores.items()},
+            "bias": biases, "nominal_reading_at_critical": reading_at_critical}
