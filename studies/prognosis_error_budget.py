@@ -45,7 +45,7 @@ def nominal_equivalent(joint: FrictionParams, nominal: FrictionParams = DEFAULT_
     out = np.empty_like(_WEAR_GRID)
     for i, w in enumerate(_WEAR_GRID):
         target = wear_friction(v, w, joint)
-        fit = minimize_scalar(lambda x: float(np.sum((wear_friction(v, x, nominal) - target) ** 2)),
+        fit = minimize_scalar(lambda x, t=target: float(np.sum((wear_friction(v, x, nominal) - t) ** 2)),
                               bounds=(0.0, 2.0 * _WEAR_GRID[-1]), method="bounded", options={"xatol": 1e-4})
         out[i] = float(fit.x) if w > 0 else 0.0
     return _WEAR_GRID.copy(), out
