@@ -3,6 +3,8 @@ replayed on the same wearing joints with four inputs, from the agent's to an ide
 metrics of :mod:`studies.prognosis_metrics`:
 
 * ``agent``              the agent's wear estimates (its learned friction model, nominal wear coefficients);
+* ``posterior_mean``     the agent's posterior means of the wear instead of its estimates (the modes), with
+                         the same std (the posterior's, which is taken about the mean);
 * ``known_model``        the estimates of the same agent given each joint's true friction model (the
                          simulator's individually varied parameters, wear coefficients included; kept by
                          :mod:`studies.prognosis_series` as kind ``known_model``, with its own alarms);
@@ -29,9 +31,11 @@ from joint_model.friction import DEFAULT_PARAMS, wear_friction
 from sim_controller.config import DEFAULT_SPEEDS
 from studies.prognosis_fleet import CycleRow
 
-VARIANTS = ("agent", "known_model", "wear_coefficients", "truth")
+VARIANTS = ("agent", "posterior_mean", "known_model", "wear_coefficients", "truth")
 #: True wear grid [wear units] on which the nominal equivalent is computed (interpolated between).
 _WEAR_GRID = np.arange(0.0, 80.0001, 0.5)
+#: The laws a local linear trend covers (its rate constant between changes): α–λ is judged on these.
+STRAIGHT_LAWS = ("linear", "step_ramp", "rate_change")
 #: Band of true wear in which the estimates' bias is reported (where α–λ is judged).
 BIAS_BAND = (10.0, 30.0)
 
@@ -64,6 +68,11 @@ def synthetic_rows(rows: Sequence[CycleRow], reading: np.ndarray | None, rng: np
     return out
 
 
+def posterior_mean_rows(rows: Sequence[CycleRow]) -> list[CycleRow]:
+    """``rows`` with each estimate replaced by the row's posterior mean (rows without one keep none)."""
+    return [dataclasses.replace(r, estimate=r.posterior_mean if r.estimate is not None else None) for r in rows]
+
+
 def bias_in_band(rows: Sequence[CycleRow], band: tuple[float, float] = BIAS_BAND) -> float | None:
     """Mean of estimate − true wear over the complete, learned cycles whose true wear lies in ``band``."""
     errors = [r.estimate - r.wear for r in rows if r.estimate is not None and not (r.learning or r.partial)
@@ -71,9 +80,10 @@ def bias_in_band(rows: Sequence[CycleRow], band: tuple[float, float] = BIAS_BAND
     return float(np.mean(errors)) if errors else None
 
 
-def joint_summary(law: str, joint: int, seed: int, scores: dict[str, Any], biases: dict[str, float | None],
+def joint_summary(law: str, joint: int, seed: int, scores: dict[str, list[Any]], biases: dict[str, float | None],
                   reading_at_critical: float) -> dict[str, Any]:
-    """One joint's line of the per-joint table (α–λ pass per variant, bias per real input)."""
+    """One joint's line of the per-joint table (per input, the share of its noise draws whose median at λ
+    is within ±α; the bias per real input)."""
     return {"seed": seed, "joint": joint, "law": law,
-            "alpha_lambda": {k: s.alpha_lambda for k, s in scores.items()},
+            "alpha_lambda": {k: float(np.mean([bool(s.alpha_lambda) for s in v])) for k, v in scores.items()},
             "bias": biases, "nominal_reading_at_critical": reading_at_critical}

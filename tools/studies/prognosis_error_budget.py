@@ -3,8 +3,8 @@
 agent's estimates, the estimates with each joint's true friction model, the true wear read through the
 nominal wear coefficients, and the true wear itself (:mod:`studies.prognosis_error_budget`).
 
-Usage: ``python tools/studies/prognosis_error_budget.py --wear 4801-4806 [--jobs 2] [--keep-series]
-[--json PATH]``. The first run computes the ``known_model`` inputs (≈ 3 min per robot alone) next to the
+Usage: ``python tools/studies/prognosis_error_budget.py --wear 4801-4806 [--repeats 5] [--set forgetting=0.99]
+[--jobs 2] [--keep-series] [--json PATH]``. The first run computes the ``known_model`` inputs (≈ 3 min per robot alone) next to the
 ``wear`` ones that ``tools/studies/prognosis_series.py`` keeps.
 """
 
@@ -15,6 +15,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
@@ -30,41 +31,66 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from edge_monitor.features.prognosis import PrognosisConfig  # noqa: E402
 from joint_model import CRITICAL_WEAR, FrictionParams  # noqa: E402
 from studies.prognosis_error_budget import (  # noqa: E402
+    STRAIGHT_LAWS,
     VARIANTS,
     bias_in_band,
     joint_summary,
     nominal_equivalent,
+    posterior_mean_rows,
     synthetic_rows,
 )
 from studies.prognosis_fleet import known_model_settings, robot_config, robot_laws  # noqa: E402
-from studies.prognosis_metrics import first_alarm, law_table, replay, score_wearing  # noqa: E402
+from studies.prognosis_metrics import WearScore, first_alarm, law_table, replay, score_wearing  # noqa: E402
 from studies.prognosis_series import fleet, rows  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
 
 
-def score_robot(wear_robot: dict[str, Any], known_robot: dict[str, Any]) -> list[tuple[str, dict, dict]]:
-    """Per joint of one robot: (law, {variant: WearScore}, per-joint summary)."""
-    seed, config = wear_robot["seed"], PrognosisConfig()
+def score_robot(wear_robot: dict[str, Any], known_robot: dict[str, Any], config: PrognosisConfig,
+                repeats: int) -> list[tuple[str, dict[str, list[WearScore]], dict[str, Any]]]:
+    """Per joint of one robot: (law, {variant: its WearScores — one per noise draw for the synthetic
+    inputs, one otherwise}, per-joint summary)."""
+    seed = wear_robot["seed"]
     settings = known_model_settings(robot_config(seed, robot_laws(seed)))
     agent_rows, known_rows = rows(wear_robot), rows(known_robot)
     out = []
     for joint, joint_rows in agent_rows.items():
         law = wear_robot["laws"][joint]["law"]
-        true_params = FrictionParams.from_mapping(settings["joint"][str(joint)]["friction"])
-        reading = nominal_equivalent(true_params)
-        rng = np.random.default_rng([seed, joint, 48])
-        inputs = {"agent": joint_rows, "known_model": known_rows[joint],
-                  "wear_coefficients": synthetic_rows(joint_rows, reading, rng),
-                  "truth": synthetic_rows(joint_rows, None, rng)}
-        scores = {}
-        for variant in VARIANTS:
-            alarm = first_alarm(inputs[variant])
-            forecasts = replay(inputs[variant], config,
-                               forecast_from=alarm.cycle if alarm else len(inputs[variant]))
-            scores[variant] = score_wearing(law, inputs[variant], forecasts)
-        biases = {"agent": bias_in_band(joint_rows), "known_model": bias_in_band(known_rows[joint])}
+        reading = nominal_equivalent(FrictionParams.from_mapping(settings["joint"][str(joint)]["friction"]))
+        draws = [np.random.default_rng([seed, joint, 48, k]) for k in range(repeats)]
+        inputs = {"agent": [joint_rows], "posterior_mean": [posterior_mean_rows(joint_rows)],
+                  "known_model": [known_rows[joint]],
+                  "wear_coefficients": [synthetic_rows(joint_rows, reading, rng) for rng in draws],
+                  "truth": [synthetic_rows(joint_rows, None, rng) for rng in draws]}
+        scores = {variant: [_score(law, r, config) for r in inputs[variant]] for variant in VARIANTS}
+        biases = {"agent": bias_in_band(joint_rows), "posterior_mean": bias_in_band(inputs["posterior_mean"][0]),
+                  "known_model": bias_in_band(known_rows[joint])}
         at_critical = float(np.interp(CRITICAL_WEAR, *reading))
         out.append((law, scores, joint_summary(law, joint, seed, scores, biases, at_critical)))
+    return out
+
+
+def _score(law: str, joint_rows: list, config: PrognosisConfig) -> WearScore:
+    alarm = first_alarm(joint_rows)
+    forecasts = replay(joint_rows, config, forecast_from=alarm.cycle if alarm else len(joint_rows))
+    return score_wearing(law, joint_rows, forecasts)
+
+
+def mean_table(per_draw: list[list[WearScore]]) -> dict[str, dict[str, float | None]]:
+    """:func:`law_table` of each draw (``per_draw[j][k]``: joint j, draw k; one draw for the real inputs),
+    α–λ and coverage averaged over the draws."""
+    tables = []
+    for k in range(len(per_draw[0])):
+        table = law_table([scores[k] for scores in per_draw])
+        straight = [scores[k] for scores in per_draw if scores[k].law in STRAIGHT_LAWS]
+        if straight:
+            table["straight"] = law_table(straight)["all"]
+        tables.append(table)
+    out: dict[str, dict[str, float | None]] = {}
+    for law in tables[0]:
+        out[law] = {"joints": tables[0][law]["joints"]}
+        for key in ("alpha_lambda", "coverage", "relative_accuracy"):
+            values = [t[law][key] for t in tables if t[law][key] is not None]
+            out[law][key] = float(np.mean(values)) if values else None
     return out
 
 
@@ -77,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--wear", default="4801-4806", help="seeds of wearing robots (default 4801-4806)")
     parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     parser.add_argument("--keep-series", action="store_true", help="use inputs kept by other code")
+    parser.add_argument("--repeats", type=int, default=5, help="noise draws of the synthetic inputs (default 5)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a [prognosis] setting other than the shipped one (e.g. forgetting=0.99)")
     parser.add_argument("--json", type=Path, help="write every number here")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
@@ -85,10 +114,12 @@ def main(argv: list[str] | None = None) -> int:
     seeds = parse_seeds(args.wear)
     wearing = fleet("wear", seeds, args.jobs, args.keep_series)
     known = fleet("known_model", seeds, args.jobs, args.keep_series)
+    config = dataclasses.replace(PrognosisConfig(), **{k: json.loads(v) for k, v in
+                                                       (item.split("=", 1) for item in args.set)})
     with ProcessPoolExecutor(max(1, min(args.jobs, len(seeds)))) as pool:
-        per_robot = list(pool.map(score_robot, wearing, known))
+        per_robot = list(pool.map(score_robot, wearing, known, [config] * len(seeds), [args.repeats] * len(seeds)))
     joints = [j for robot in per_robot for j in robot]
-    tables = {v: law_table([scores[v] for _, scores, _ in joints]) for v in VARIANTS}
+    tables = {v: mean_table([scores[v] for _, scores, _ in joints]) for v in VARIANTS}
     print(f"{'law':<12} {'joints':>6} " + " ".join(f"{v + ' α–λ / cov':>26}" for v in VARIANTS))
     for law in tables["agent"]:
         cells = [f"{_cell(tables[v][law]['alpha_lambda'], '.2f')} / {_cell(tables[v][law]['coverage'], '.2f')}"
@@ -97,16 +128,18 @@ def main(argv: list[str] | None = None) -> int:
     summaries = [s for _, _, s in joints]
     print("\nper joint: bias (estimate − true wear, true wear 10–30) and the nominal coefficients' reading of 35")
     for s in summaries:
-        passed = "".join("✓" if s["alpha_lambda"][v] else "·" for v in VARIANTS)
+        passed = " ".join(f"{s['alpha_lambda'][v]:.1f}" for v in VARIANTS)
         print(f"  seed {s['seed']} joint {s['joint']} {s['law']:<12} α–λ {passed}  bias agent "
-              f"{_cell(s['bias']['agent'], '+.1f')}, known model {_cell(s['bias']['known_model'], '+.1f')}; "
+              f"{_cell(s['bias']['agent'], '+.1f')}, posterior mean {_cell(s['bias']['posterior_mean'], '+.1f')}, "
+              f"known model {_cell(s['bias']['known_model'], '+.1f')}; "
               f"35 reads {s['nominal_reading_at_critical']:.1f}")
-    for variant in ("agent", "known_model"):
+    for variant in ("agent", "posterior_mean", "known_model"):
         b = np.array([s["bias"][variant] for s in summaries if s["bias"][variant] is not None])
         print(f"{variant}: bias over {b.size} joints: mean {b.mean():+.2f}, sd {b.std(ddof=1):.2f}, "
               f"|bias| ≤ 2 on {int(np.sum(np.abs(b) <= 2))}")
     if args.json:
-        args.json.write_text(json.dumps({"tables": tables, "joints": summaries}, indent=1, default=str))
+        args.json.write_text(json.dumps({"settings": dataclasses.asdict(config), "repeats": args.repeats,
+                                         "tables": tables, "joints": summaries}, indent=1, default=str))
     print(f"{len(joints)} wearing joints, {time.monotonic() - started:.0f} s")
     return 0
 
