@@ -142,7 +142,8 @@ class CycleRow:
     """What the prognosis is fed in one cycle of one joint, with the truth: ``t`` controller time at the
     cycle's end [s]; ``estimate``/``std`` the symptom's ``wear.estimate``/``wear.std``; ``alarm`` any of
     the joint's detectors latched; ``learning`` the joint still learns its friction model; ``partial``;
-    ``posterior_mean`` the symptom's ``wear.posterior_mean`` (None in inputs kept before it was recorded)."""
+    ``posterior_mean`` the symptom's ``wear.posterior_mean``; ``temperature`` the temperature the KL
+    compensation used (``kl.temperature.value``) [°C] (both None in inputs kept before they were recorded)."""
 
     cycle: int
     t: float
@@ -153,6 +154,7 @@ class CycleRow:
     learning: bool
     partial: bool
     posterior_mean: float | None = None
+    temperature: float | None = None
 
     def to_list(self) -> list[Any]:
         return list(asdict(self).values())
@@ -168,7 +170,8 @@ def symptom_row(symptom: Symptom, truth: float) -> CycleRow:
     wear = record.get("wear") or {}
     learning = "friction model" in (record.get("reasons") or {}).get("kl", "")
     return CycleRow(int(record["cycle"]), float(record["t"]), truth, wear.get("estimate"), wear.get("std"),
-                    bool(record["alarm"]), learning, bool(record.get("partial", False)), wear.get("posterior_mean"))
+                    bool(record["alarm"]), learning, bool(record.get("partial", False)), wear.get("posterior_mean"),
+                    ((record.get("kl") or {}).get("temperature") or {}).get("value"))
 
 
 def robot_series(config: SimConfig, settings: dict[str, Any] | None = None) -> dict[int, list[CycleRow]]:
