@@ -5,6 +5,10 @@ metrics of :mod:`studies.prognosis_metrics`:
 * ``agent``              the agent's wear estimates (its learned friction model, nominal wear coefficients);
 * ``posterior_mean``     the agent's posterior means of the wear instead of its estimates (the modes), with
                          the same std (the posterior's, which is taken about the mean);
+* ``shuffled_in_bins``   the true wear plus the agent's own errors (estimate − truth), permuted in time
+                         within bins of 2.5 wear units: the errors' size and wear-dependent bias kept, their
+                         correlation over time broken;
+* ``shuffled``           the same errors permuted over the whole life: only their distribution kept;
 * ``known_model``        the estimates of the same agent given each joint's true friction model (the
                          simulator's individually varied parameters, wear coefficients included; kept by
                          :mod:`studies.prognosis_series` as kind ``known_model``, with its own alarms);
@@ -31,7 +35,11 @@ from joint_model.friction import DEFAULT_PARAMS, wear_friction
 from sim_controller.config import DEFAULT_SPEEDS
 from studies.prognosis_fleet import CycleRow
 
-VARIANTS = ("agent", "posterior_mean", "known_model", "wear_coefficients", "truth")
+VARIANTS = ("agent", "posterior_mean", "known_model", "shuffled_in_bins", "shuffled", "wear_coefficients", "truth")
+#: The synthetic inputs (noise draws, averaged).
+SYNTHETIC = ("shuffled_in_bins", "shuffled", "wear_coefficients", "truth")
+#: Width of the true-wear bins within which ``shuffled_in_bins`` permutes the errors.
+SHUFFLE_BIN = 2.5
 #: True wear grid [wear units] on which the nominal equivalent is computed (interpolated between).
 _WEAR_GRID = np.arange(0.0, 80.0001, 0.5)
 #: The laws a local linear trend covers (its rate constant between changes): α–λ is judged on these.
@@ -65,6 +73,23 @@ def synthetic_rows(rows: Sequence[CycleRow], reading: np.ndarray | None, rng: np
             continue
         level = r.wear if reading is None else float(np.interp(r.wear, reading[0], reading[1]))
         out.append(dataclasses.replace(r, estimate=max(0.0, level + float(r.std) * float(rng.standard_normal()))))
+    return out
+
+
+def shuffled_rows(rows: Sequence[CycleRow], rng: np.random.Generator, bin_width: float | None) -> list[CycleRow]:
+    """``rows`` with their errors (estimate − true wear) permuted among the rows that have an estimate: within
+    bins of ``bin_width`` true wear, or over all of them (None); estimates stay ≥ 0."""
+    kept = [k for k, r in enumerate(rows) if r.estimate is not None and math.isfinite(r.wear)]
+    errors = np.array([rows[k].estimate - rows[k].wear for k in kept])
+    wear = np.array([rows[k].wear for k in kept])
+    groups = np.zeros(wear.size) if bin_width is None else np.floor(wear / bin_width)
+    permuted = errors.copy()
+    for g in np.unique(groups):
+        members = np.flatnonzero(groups == g)
+        permuted[members] = errors[rng.permutation(members)]
+    out = list(rows)
+    for k, e in zip(kept, permuted):
+        out[k] = dataclasses.replace(rows[k], estimate=max(0.0, rows[k].wear + float(e)))
     return out
 
 

@@ -96,3 +96,26 @@ def test_synthetic_estimates_follow_the_reading_keep_the_gaps_and_the_bias_is_re
     kept = [k for k in range(10, 31) if k % 5]
     assert bias_in_band(out) == pytest.approx(0.1 * sum(kept) / len(kept))
     assert bias_in_band(out, (50.0, 60.0)) is None
+
+
+def test_shuffled_errors_keep_their_values_within_their_wear_bins_or_over_the_life():
+    import numpy as np
+
+    from studies.prognosis_error_budget import shuffled_rows
+
+    # wear 10 … 60, errors −3 … +3 (never clipped at 0), a gap every 9th cycle
+    rows = [CycleRow(k, 60.0 * k, 10.0 + k / 4, (10.0 + k / 4 + (k % 7) - 3.0) if k % 9 else None, 1.0,
+                     False, False, False) for k in range(200)]
+
+    def errors(rs, keep=lambda r: True):
+        return sorted(round(r.estimate - r.wear, 9) for r in rs if r.estimate is not None and keep(r))
+
+    for width in (2.5, None):
+        out = shuffled_rows(rows, np.random.default_rng(3), width)
+        assert [r.estimate is None for r in out] == [r.estimate is None for r in rows]
+        assert errors(out) == errors(rows)                                  # the same errors …
+        assert [o.estimate for o in out] != [r.estimate for r in rows]      # … in another order
+    out = shuffled_rows(rows, np.random.default_rng(3), 2.5)
+    for b in range(4, 24):                                                 # … and none left its bin
+        in_bin = lambda r, b=b: int(r.wear // 2.5) == b                    # noqa: E731
+        assert errors(out, in_bin) == errors(rows, in_bin)

@@ -31,12 +31,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from edge_monitor.features.prognosis import PrognosisConfig  # noqa: E402
 from joint_model import CRITICAL_WEAR, FrictionParams  # noqa: E402
 from studies.prognosis_error_budget import (  # noqa: E402
+    SHUFFLE_BIN,
     STRAIGHT_LAWS,
     VARIANTS,
     bias_in_band,
     joint_summary,
     nominal_equivalent,
     posterior_mean_rows,
+    shuffled_rows,
     synthetic_rows,
 )
 from studies.prognosis_fleet import known_model_settings, robot_config, robot_laws  # noqa: E402
@@ -56,17 +58,26 @@ def score_robot(wear_robot: dict[str, Any], known_robot: dict[str, Any], config:
     for joint, joint_rows in agent_rows.items():
         law = wear_robot["laws"][joint]["law"]
         reading = nominal_equivalent(FrictionParams.from_mapping(settings["joint"][str(joint)]["friction"]))
-        draws = [np.random.default_rng([seed, joint, 48, k]) for k in range(repeats)]
+        def draws(variant: str) -> list[np.random.Generator]:
+            return _draws(seed, joint, variant, repeats)
+
         inputs = {"agent": [joint_rows], "posterior_mean": [posterior_mean_rows(joint_rows)],
                   "known_model": [known_rows[joint]],
-                  "wear_coefficients": [synthetic_rows(joint_rows, reading, rng) for rng in draws],
-                  "truth": [synthetic_rows(joint_rows, None, rng) for rng in draws]}
+                  "shuffled_in_bins": [shuffled_rows(joint_rows, g, SHUFFLE_BIN) for g in draws("shuffled_in_bins")],
+                  "shuffled": [shuffled_rows(joint_rows, g, None) for g in draws("shuffled")],
+                  "wear_coefficients": [synthetic_rows(joint_rows, reading, g) for g in draws("wear_coefficients")],
+                  "truth": [synthetic_rows(joint_rows, None, g) for g in draws("truth")]}
         scores = {variant: [_score(law, r, config) for r in inputs[variant]] for variant in VARIANTS}
         biases = {"agent": bias_in_band(joint_rows), "posterior_mean": bias_in_band(inputs["posterior_mean"][0]),
                   "known_model": bias_in_band(known_rows[joint])}
         at_critical = float(np.interp(CRITICAL_WEAR, *reading))
         out.append((law, scores, joint_summary(law, joint, seed, scores, biases, at_critical)))
     return out
+
+
+def _draws(seed: int, joint: int, variant: str, repeats: int) -> list[np.random.Generator]:
+    """The noise draws of one synthetic input of one joint: its own seeds, independent of the others'."""
+    return [np.random.default_rng([seed, joint, 48, k, VARIANTS.index(variant)]) for k in range(repeats)]
 
 
 def _score(law: str, joint_rows: list, config: PrognosisConfig) -> WearScore:
@@ -120,11 +131,11 @@ def main(argv: list[str] | None = None) -> int:
         per_robot = list(pool.map(score_robot, wearing, known, [config] * len(seeds), [args.repeats] * len(seeds)))
     joints = [j for robot in per_robot for j in robot]
     tables = {v: mean_table([scores[v] for _, scores, _ in joints]) for v in VARIANTS}
-    print(f"{'law':<12} {'joints':>6} " + " ".join(f"{v + ' α–λ / cov':>26}" for v in VARIANTS))
+    print(f"{'law':<12} {'joints':>6} " + " ".join(f"{v + ' α–λ / cov':>27}" for v in VARIANTS))
     for law in tables["agent"]:
         cells = [f"{_cell(tables[v][law]['alpha_lambda'], '.2f')} / {_cell(tables[v][law]['coverage'], '.2f')}"
                  for v in VARIANTS]
-        print(f"{law:<12} {tables['agent'][law]['joints']:>6} " + " ".join(f"{c:>26}" for c in cells))
+        print(f"{law:<12} {tables['agent'][law]['joints']:>6} " + " ".join(f"{c:>27}" for c in cells))
     summaries = [s for _, _, s in joints]
     print("\nper joint: bias (estimate − true wear, true wear 10–30) and the nominal coefficients' reading of 35")
     for s in summaries:
