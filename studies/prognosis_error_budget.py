@@ -63,7 +63,8 @@ def nominal_equivalent(joint: FrictionParams, nominal: FrictionParams = DEFAULT_
     return _WEAR_GRID.copy(), out
 
 
-def synthetic_rows(rows: Sequence[CycleRow], reading: np.ndarray | None, rng: np.random.Generator) -> list[CycleRow]:
+def synthetic_rows(rows: Sequence[CycleRow], reading: tuple[np.ndarray, np.ndarray] | None,
+                   rng: np.random.Generator) -> list[CycleRow]:
     """``rows`` with each estimate replaced by the true wear read through ``reading`` ((grid, values); None:
     the truth) plus N(0, std²) noise, std the row's own; rows without an estimate keep none."""
     out = []
@@ -80,7 +81,7 @@ def shuffled_rows(rows: Sequence[CycleRow], rng: np.random.Generator, bin_width:
     """``rows`` with their errors (estimate − true wear) permuted among the rows that have an estimate: within
     bins of ``bin_width`` true wear, or over all of them (None); estimates stay ≥ 0."""
     kept = [k for k, r in enumerate(rows) if r.estimate is not None and math.isfinite(r.wear)]
-    errors = np.array([rows[k].estimate - rows[k].wear for k in kept])
+    errors = np.array([float(rows[k].estimate or 0.0) - rows[k].wear for k in kept])
     wear = np.array([rows[k].wear for k in kept])
     groups = np.zeros(wear.size) if bin_width is None else np.floor(wear / bin_width)
     permuted = errors.copy()

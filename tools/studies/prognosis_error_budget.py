@@ -100,7 +100,7 @@ def mean_table(per_draw: list[list[WearScore]]) -> dict[str, dict[str, float | N
     for law in tables[0]:
         out[law] = {"joints": tables[0][law]["joints"]}
         for key in ("alpha_lambda", "coverage", "relative_accuracy"):
-            values = [t[law][key] for t in tables if t[law][key] is not None]
+            values = [float(v) for t in tables if (v := t[law][key]) is not None]
             out[law][key] = float(np.mean(values)) if values else None
     return out
 
