@@ -1,5 +1,5 @@
 """Where the prognosis's error comes from (docs/PROGNOSIS.md, "Where it fails"): the agent's trend model
-replayed on the same wearing joints with four inputs, from the agent's to an ideal one, scored with the
+replayed on the same wearing joints with seven inputs, from the agent's to an ideal one, scored with the
 metrics of :mod:`studies.prognosis_metrics`:
 
 * ``agent``              the agent's wear estimates (its learned friction model, nominal wear coefficients);
@@ -17,8 +17,8 @@ metrics of :mod:`studies.prognosis_metrics`:
                          what the ±8 % individual variation of the wear coefficients alone costs;
 * ``truth``              the true wear plus that noise: the trend model's own error.
 
-The two synthetic inputs keep the agent's alarms, stds and skipped cycles, so they differ from ``agent``
-only in the estimates' bias (and their scatter, which is the stated std instead of the measured 1.1–1.4×).
+The four synthetic inputs (``shuffled_in_bins``, ``shuffled``, ``wear_coefficients``, ``truth``) keep the
+agent's alarms, stds and skipped cycles, so they differ from ``agent`` only in the estimates' errors.
 """
 
 from __future__ import annotations
@@ -36,8 +36,6 @@ from sim_controller.config import DEFAULT_SPEEDS
 from studies.prognosis_fleet import CycleRow
 
 VARIANTS = ("agent", "posterior_mean", "known_model", "shuffled_in_bins", "shuffled", "wear_coefficients", "truth")
-#: The synthetic inputs (noise draws, averaged).
-SYNTHETIC = ("shuffled_in_bins", "shuffled", "wear_coefficients", "truth")
 #: Width of the true-wear bins within which ``shuffled_in_bins`` permutes the errors.
 SHUFFLE_BIN = 2.5
 #: True wear grid [wear units] on which the nominal equivalent is computed (interpolated between).

@@ -146,6 +146,18 @@ def score_wearing(law: str, rows: Sequence[CycleRow], forecasts: Sequence[Foreca
     return score
 
 
+def score_joint(law: str, rows: Sequence[CycleRow], config: PrognosisConfig) -> WearScore:
+    """The metrics of one wearing joint under ``config``: its prognosis replayed from its first alarm."""
+    alarm = first_alarm(rows)
+    forecasts = replay(rows, config, forecast_from=alarm.cycle if alarm else len(rows))
+    return score_wearing(law, rows, forecasts)
+
+
+def cell(value: float | None, spec: str) -> str:
+    """A table cell: ``value`` formatted by ``spec``, "–" for none."""
+    return "–" if value is None else format(value, spec)
+
+
 @dataclass
 class HealthyScore:
     """One healthy joint: cycles after learning, of which beyond the horizon, and early warnings."""

@@ -1,11 +1,10 @@
 #!/usr/bin/env python3
-"""Where the prognosis's α–λ error comes from: the agent's trend model on the same wearing joints fed the
-agent's estimates, the estimates with each joint's true friction model, the true wear read through the
-nominal wear coefficients, and the true wear itself (:mod:`studies.prognosis_error_budget`).
+"""Where the prognosis's α–λ error comes from: the agent's trend model on the same wearing joints fed seven
+inputs, from the agent's estimates to the true wear (:data:`studies.prognosis_error_budget.VARIANTS`).
 
 Usage: ``python tools/studies/prognosis_error_budget.py --wear 4801-4806 [--repeats 5] [--set forgetting=0.99]
-[--jobs 2] [--keep-series] [--json PATH]``. The first run computes the ``known_model`` inputs (≈ 3 min per robot alone) next to the
-``wear`` ones that ``tools/studies/prognosis_series.py`` keeps.
+[--jobs 2] [--keep-series] [--json PATH]``. The first run computes the ``known_model`` inputs (≈ 3 min per
+robot alone) next to the ``wear`` ones that ``tools/studies/prognosis_series.py`` keeps.
 """
 
 from __future__ import annotations
@@ -42,9 +41,9 @@ from studies.prognosis_error_budget import (  # noqa: E402
     synthetic_rows,
 )
 from studies.prognosis_fleet import known_model_settings, robot_config, robot_laws  # noqa: E402
-from studies.prognosis_metrics import WearScore, first_alarm, law_table, replay, score_wearing  # noqa: E402
+from studies.prognosis_metrics import WearScore, cell, law_table, score_joint  # noqa: E402
 from studies.prognosis_series import fleet, rows  # noqa: E402
-from studies.settings import parse_seeds  # noqa: E402
+from studies.settings import parse_seeds, parse_set  # noqa: E402
 
 
 def score_robot(wear_robot: dict[str, Any], known_robot: dict[str, Any], config: PrognosisConfig,
@@ -58,16 +57,15 @@ def score_robot(wear_robot: dict[str, Any], known_robot: dict[str, Any], config:
     for joint, joint_rows in agent_rows.items():
         law = wear_robot["laws"][joint]["law"]
         reading = nominal_equivalent(FrictionParams.from_mapping(settings["joint"][str(joint)]["friction"]))
-        def draws(variant: str) -> list[np.random.Generator]:
-            return _draws(seed, joint, variant, repeats)
-
         inputs = {"agent": [joint_rows], "posterior_mean": [posterior_mean_rows(joint_rows)],
                   "known_model": [known_rows[joint]],
-                  "shuffled_in_bins": [shuffled_rows(joint_rows, g, SHUFFLE_BIN) for g in draws("shuffled_in_bins")],
-                  "shuffled": [shuffled_rows(joint_rows, g, None) for g in draws("shuffled")],
-                  "wear_coefficients": [synthetic_rows(joint_rows, reading, g) for g in draws("wear_coefficients")],
-                  "truth": [synthetic_rows(joint_rows, None, g) for g in draws("truth")]}
-        scores = {variant: [_score(law, r, config) for r in inputs[variant]] for variant in VARIANTS}
+                  "shuffled_in_bins": [shuffled_rows(joint_rows, g, SHUFFLE_BIN)
+                                       for g in _draws(seed, joint, "shuffled_in_bins", repeats)],
+                  "shuffled": [shuffled_rows(joint_rows, g, None) for g in _draws(seed, joint, "shuffled", repeats)],
+                  "wear_coefficients": [synthetic_rows(joint_rows, reading, g)
+                                        for g in _draws(seed, joint, "wear_coefficients", repeats)],
+                  "truth": [synthetic_rows(joint_rows, None, g) for g in _draws(seed, joint, "truth", repeats)]}
+        scores = {variant: [score_joint(law, r, config) for r in inputs[variant]] for variant in VARIANTS}
         biases = {"agent": bias_in_band(joint_rows), "posterior_mean": bias_in_band(inputs["posterior_mean"][0]),
                   "known_model": bias_in_band(known_rows[joint])}
         at_critical = float(np.interp(CRITICAL_WEAR, *reading))
@@ -78,12 +76,6 @@ def score_robot(wear_robot: dict[str, Any], known_robot: dict[str, Any], config:
 def _draws(seed: int, joint: int, variant: str, repeats: int) -> list[np.random.Generator]:
     """The noise draws of one synthetic input of one joint: its own seeds, independent of the others'."""
     return [np.random.default_rng([seed, joint, 48, k, VARIANTS.index(variant)]) for k in range(repeats)]
-
-
-def _score(law: str, joint_rows: list, config: PrognosisConfig) -> WearScore:
-    alarm = first_alarm(joint_rows)
-    forecasts = replay(joint_rows, config, forecast_from=alarm.cycle if alarm else len(joint_rows))
-    return score_wearing(law, joint_rows, forecasts)
 
 
 def mean_table(per_draw: list[list[WearScore]]) -> dict[str, dict[str, float | None]]:
@@ -105,18 +97,14 @@ def mean_table(per_draw: list[list[WearScore]]) -> dict[str, dict[str, float | N
     return out
 
 
-def _cell(value: Any, spec: str) -> str:
-    return "–" if value is None else format(value, spec)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--wear", default="4801-4806", help="seeds of wearing robots (default 4801-4806)")
     parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     parser.add_argument("--keep-series", action="store_true", help="use inputs kept by other code")
     parser.add_argument("--repeats", type=int, default=5, help="noise draws of the synthetic inputs (default 5)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a [prognosis] setting other than the shipped one (e.g. forgetting=0.99)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", type=parse_set,
+                        help="a [prognosis] setting other than the shipped one, the value as JSON (e.g. forgetting=0.99)")
     parser.add_argument("--json", type=Path, help="write every number here")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
@@ -125,15 +113,15 @@ def main(argv: list[str] | None = None) -> int:
     seeds = parse_seeds(args.wear)
     wearing = fleet("wear", seeds, args.jobs, args.keep_series)
     known = fleet("known_model", seeds, args.jobs, args.keep_series)
-    config = dataclasses.replace(PrognosisConfig(), **{k: json.loads(v) for k, v in
-                                                       (item.split("=", 1) for item in args.set)})
+    changes: dict[str, Any] = {key: tuple(v) if isinstance(v, list) else v for key, v in args.set}
+    config = dataclasses.replace(PrognosisConfig(), **changes)
     with ProcessPoolExecutor(max(1, min(args.jobs, len(seeds)))) as pool:
         per_robot = list(pool.map(score_robot, wearing, known, [config] * len(seeds), [args.repeats] * len(seeds)))
     joints = [j for robot in per_robot for j in robot]
     tables = {v: mean_table([scores[v] for _, scores, _ in joints]) for v in VARIANTS}
     print(f"{'law':<12} {'joints':>6} " + " ".join(f"{v + ' α–λ / cov':>27}" for v in VARIANTS))
     for law in tables["agent"]:
-        cells = [f"{_cell(tables[v][law]['alpha_lambda'], '.2f')} / {_cell(tables[v][law]['coverage'], '.2f')}"
+        cells = [f"{cell(tables[v][law]['alpha_lambda'], '.2f')} / {cell(tables[v][law]['coverage'], '.2f')}"
                  for v in VARIANTS]
         print(f"{law:<12} {tables['agent'][law]['joints']:>6} " + " ".join(f"{c:>27}" for c in cells))
     summaries = [s for _, _, s in joints]
@@ -141,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     for s in summaries:
         passed = " ".join(f"{s['alpha_lambda'][v]:.1f}" for v in VARIANTS)
         print(f"  seed {s['seed']} joint {s['joint']} {s['law']:<12} α–λ {passed}  bias agent "
-              f"{_cell(s['bias']['agent'], '+.1f')}, posterior mean {_cell(s['bias']['posterior_mean'], '+.1f')}, "
-              f"known model {_cell(s['bias']['known_model'], '+.1f')}; "
+              f"{cell(s['bias']['agent'], '+.1f')}, posterior mean {cell(s['bias']['posterior_mean'], '+.1f')}, "
+              f"known model {cell(s['bias']['known_model'], '+.1f')}; "
               f"35 reads {s['nominal_reading_at_critical']:.1f}")
     for variant in ("agent", "posterior_mean", "known_model"):
         b = np.array([s["bias"][variant] for s in summaries if s["bias"][variant] is not None])

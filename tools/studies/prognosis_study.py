@@ -32,12 +32,12 @@ sys.path.insert(0, str(ROOT))
 from edge_monitor.features.prognosis import PrognosisConfig  # noqa: E402
 from studies.prognosis_metrics import (  # noqa: E402
     ALPHA,
-    first_alarm,
+    cell,
     law_table,
     oracle_line,
     replay,
     score_healthy,
-    score_wearing,
+    score_joint,
 )
 from studies.prognosis_series import add_fleet_arguments, fleets, rows  # noqa: E402
 
@@ -63,10 +63,7 @@ def evaluate(config: PrognosisConfig, wearing: list[dict[str, Any]], healthy: li
     scores = []
     for robot in wearing:
         for joint, joint_rows in rows(robot).items():
-            law = robot["laws"][joint]["law"]
-            alarm = first_alarm(joint_rows)
-            forecasts = replay(joint_rows, config, forecast_from=alarm.cycle if alarm else len(joint_rows))
-            scores.append(score_wearing(law, joint_rows, forecasts))
+            scores.append(score_joint(robot["laws"][joint]["law"], joint_rows, config))
     healthy_scores = [score_healthy(replay(joint_rows, config)) for robot in healthy
                       for joint_rows in rows(robot).values()]
     cycles = sum(h.cycles for h in healthy_scores)
@@ -93,21 +90,17 @@ def oracle(wearing: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
                   "median_error": float(sorted(errors)[len(errors) // 2])} for law, errors in out.items()}
 
 
-def _cell(value: Any, spec: str) -> str:
-    return "–" if value is None else format(value, spec)
-
-
 def print_table(results: dict[str, dict[str, Any]]) -> None:
     print(f"{'model':<14} {'law':<12} {'joints':>6} {'alarmed':>7} {'wear@alarm':>10} {'coverage':>8} "
           f"{'α–λ':>6} {'RA':>6} {'PH':>6}")
     for model, result in results.items():
         for law, row in result["laws"].items():
-            print(f"{model:<14} {law:<12} {row['joints']:>6} {row['alarmed']:>7} {_cell(row['alarm_wear'], '.1f'):>10} "
-                  f"{_cell(row['coverage'], '.2f'):>8} {_cell(row['alpha_lambda'], '.2f'):>6} "
-                  f"{_cell(row['relative_accuracy'], '.2f'):>6} {_cell(row['horizon_share'], '.2f'):>6}")
+            print(f"{model:<14} {law:<12} {row['joints']:>6} {row['alarmed']:>7} {cell(row['alarm_wear'], '.1f'):>10} "
+                  f"{cell(row['coverage'], '.2f'):>8} {cell(row['alpha_lambda'], '.2f'):>6} "
+                  f"{cell(row['relative_accuracy'], '.2f'):>6} {cell(row['horizon_share'], '.2f'):>6}")
         h = result["healthy"]
         print(f"{model:<14} {'healthy':<12} {h['joints']:>6} joints, {h['cycles']} cycles: beyond the horizon "
-              f"{_cell(h['beyond_share'], '.4f')} (worst joint {_cell(h['worst_joint_beyond_share'], '.4f')}), "
+              f"{cell(h['beyond_share'], '.4f')} (worst joint {cell(h['worst_joint_beyond_share'], '.4f')}), "
               f"{h['warnings']} early warning(s)")
 
 
