@@ -45,6 +45,10 @@ log = logging.getLogger(__name__)
 ALWAYS_FREE: tuple[str, ...] = ("fc0", "fs0", "fv0")
 TEMPERATURE_TERMS: tuple[str, ...] = ("fsxi", "fvxi")
 LOAD_TERMS: tuple[str, ...] = ("fcl", "fsl")
+#: The load regressor's noise [fraction of max torque]: the controller's estimate (σl ≈ 0.1 in the simulator), and
+#: the load the plateaus measure (within 2·10⁻³ of the truth on simulated cycles; 0.01 with margin).
+ESTIMATED_LOAD_NOISE = 0.1
+MEASURED_LOAD_NOISE = 0.01
 #: Alternations of (per-cycle temperatures ↔ parameters).
 ALTERNATIONS = 3
 #: Temperature grid of the per-cycle fit [°C].
@@ -81,6 +85,7 @@ class _Cycle:
     friction: list[float]
     load: float
     motor: float | None          # the cycle's motor temperature [°C]
+    measured: bool = False       # ``load`` measured at the test cycle's plateaus (else the controller's estimate)
 
 
 class JointModelLearner:
@@ -113,12 +118,22 @@ class JointModelLearner:
         curve = cycle.friction
         if len(curve.speeds) < 2 or cycle.partial:
             return False
-        load = self.default_load if cycle.load_mean is None else abs(cycle.load_mean)
-        self._cycles.append(_Cycle(list(curve.speeds), list(curve.torque), load, self._motor))
+        load, measured = self._load(cycle)
+        self._cycles.append(_Cycle(list(curve.speeds), list(curve.torque), load, self._motor, measured))
         if len(self._cycles) < self.config.learning_cycles:
             return False
         self._identify()
         return True
+
+    def _load(self, cycle: CycleInput) -> tuple[float, bool]:
+        """The cycle's |τl| and whether it was measured: the torque the plateaus carried (both directions,
+        to the torque noise), else the controller's estimate (σl ≈ 0.1), else the default load."""
+        carried = cycle.friction.load_torque
+        if carried is not None and math.isfinite(carried):
+            return abs(carried), True
+        if cycle.load_mean is not None and math.isfinite(cycle.load_mean):
+            return abs(cycle.load_mean), False
+        return self.default_load, False
 
     # ------------------------------------------------------------------ identification
     def _temperatures(self, params: FrictionParams) -> np.ndarray:
@@ -150,7 +165,8 @@ class JointModelLearner:
         if self._span(temperatures) >= self.config.temperature_span:
             free += TEMPERATURE_TERMS
         loads = np.array([c.load for c in self._cycles])
-        if loads.var() > 4 * 0.1 ** 2:         # the controller's σl is ~0.1: the regressor noise
+        noise = MEASURED_LOAD_NOISE if all(c.measured for c in self._cycles) else ESTIMATED_LOAD_NOISE
+        if loads.var() > 4 * noise ** 2:       # the regressor's own noise would bias them otherwise
             free += LOAD_TERMS
         return free
 
