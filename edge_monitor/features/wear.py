@@ -1,8 +1,9 @@
 """The wear feature: one maximum-likelihood wear estimate per cycle (docs/ALGORITHMS.md §3).
 
 Wraps :class:`~edge_monitor.features.wear_estimation.WearEstimator` for the agent: takes the cycle's
-friction curve and the controller's load estimate (or the configured prior when the controller sends
-none) and gives the ``"wear"`` record section and the quantity ``wear``.
+friction curve and its load — the torque the test cycle's plateaus carried where they measured it, else
+the controller's load estimate, else the configured prior — and gives the ``"wear"`` record section and
+the quantity ``wear``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,13 @@ from edge_monitor.features.temperature_prior import MotorTemperaturePrior
 from edge_monitor.features.wear_estimation import ESTIMATION_METHODS, WearEstimator
 from joint_model import CRITICAL_WEAR, FRICTION_NOISE_STD, FrictionParams
 
+#: Where the load the likelihood takes comes from (``[wear] load``).
+LOAD_SOURCES = ("measured", "estimate")
+#: σl of a load measured at the plateaus [fraction of max torque]: the mean of (τ⁺ + τ⁻)/2 over the levels is
+#: within 2·10⁻³ of the simulated truth (tests/test_kl_load_compensation.py); 0.01 with margin. The
+#: controller's estimate has σl ≈ 0.1, and its error moves every friction datum of a cycle alike by
+#: s(v)·(μl − |τl|), which the likelihood can only explain with temperature and wear.
+MEASURED_LOAD_STD = 0.01
 #: Section of a symptom when there is no estimate.
 EMPTY_SECTION: dict[str, Any] = {"estimate": None, "std": None, "temperature": None}
 
@@ -41,6 +49,7 @@ class WearConfig:
     prior_cycles: int = 20                   # cycles that learn how the motor temperature relates to ξ
     default_load_mean: float = 0.5           # μl when the controller sends no load estimate
     default_load_std: float = 0.1            # σl when the controller sends none
+    load: str = "measured"                   # "measured" at the plateaus where they are, else the estimate; "estimate"
     critical: float = CRITICAL_WEAR
 
     def __post_init__(self) -> None:
@@ -55,6 +64,7 @@ class WearConfig:
                 f"must be within ±1, got {self.default_load_mean}")
         require(math.isfinite(self.default_load_std) and 0 <= self.default_load_std <= 1, "wear.default_load_std",
                 f"must be 0 … 1, got {self.default_load_std}")
+        require(self.load in LOAD_SOURCES, "wear.load", f"must be one of {LOAD_SOURCES}, got {self.load!r}")
         require(math.isfinite(self.critical) and 0 < self.critical <= 100, "wear.critical",
                 f"must be in (0, 100], got {self.critical}")
         require(isinstance(self.prior_cycles, int) and 3 <= self.prior_cycles <= 10_000, "wear.prior_cycles",
@@ -95,10 +105,20 @@ class WearFeature:
                        segment: NDArray[np.int64] | None) -> None:
         """The wear estimate needs only the friction curve."""
 
+    def load(self, cycle: CycleInput) -> tuple[float, float]:
+        """The cycle's load μl and its std σl: with ``load = "measured"`` the torque the test cycle's plateaus
+        carried (to the torque noise: σl :data:`MEASURED_LOAD_STD`), else the controller's estimate, else the
+        configured prior."""
+        c = self.config
+        carried = cycle.friction.load_torque
+        if c.load == "measured" and carried is not None and math.isfinite(carried):
+            return abs(carried), MEASURED_LOAD_STD
+        return (c.default_load_mean if cycle.load_mean is None else cycle.load_mean,
+                c.default_load_std if cycle.load_std is None else cycle.load_std)
+
     def update(self, cycle: CycleInput, context: Mapping[str, float]) -> FeatureOutput:
         c = self.config
-        load_mean = c.default_load_mean if cycle.load_mean is None else cycle.load_mean
-        load_std = c.default_load_std if cycle.load_std is None else cycle.load_std
+        load_mean, load_std = self.load(cycle)
         curve = cycle.friction
         use_prior = c.motor_temperature_prior
         if use_prior:
