@@ -1,6 +1,8 @@
-"""The same simulated robot through three controllers: our frames, CiA 402 drives and a foreign DBC without
-cycle, segment or temperature signals (docs/CONNECTING.md). Records each with ``sim-controller record
---profile``, replays it with ``edge-monitor replay [--mapping]`` and prints a Markdown table: alarms
+"""The same simulated robot through five controller kinds: our frames, CiA 402 drives, a foreign DBC without
+cycle, segment or temperature signals, and our recording as a CSV and as a Parquet trace table
+(docs/CONNECTING.md). Records each with ``sim-controller record --profile`` (a trace: our frames, written out
+with ``edge-monitor export-trace``), replays it with ``edge-monitor replay [--mapping]`` and prints a Markdown
+table: alarms
 (joint, cycle, quantity), detection delay after the wear ramp starts, and the worn and a healthy joint's
 wear estimate ± its reported std at a few cycles, beside the true wear.
 
@@ -25,7 +27,9 @@ BIN = Path(sys.executable).parent
 PROFILES = {"native": ("native", None),
             "cia402": ("cia402", ROOT / "protocol/mappings/cia402.toml"),
             "foreign DBC": (f"dbc:{ROOT / 'protocol/mappings/foreign_robot.toml'}",
-                            ROOT / "protocol/mappings/foreign_robot.toml")}
+                            ROOT / "protocol/mappings/foreign_robot.toml"),
+            "CSV trace": ("trace:csv", None),
+            "Parquet trace": ("trace:parquet", None)}
 
 
 def run_profile(name: str, profile: str, mapping: Path | None, args: argparse.Namespace) -> dict:
@@ -35,16 +39,25 @@ def run_profile(name: str, profile: str, mapping: Path | None, args: argparse.Na
     t0 = time.perf_counter()
     subprocess.run([str(BIN / "sim-controller"), "record", "--out", str(log), "--joints", str(args.joints),
                     "--cycles", str(args.cycles), "--seed", str(args.seed), "--wear-ramp", args.wear_ramp,
-                    "--truth", str(truth), "--profile", profile, "-q"], check=True)
+                    "--truth", str(truth), "--profile", "native" if profile.startswith("trace:") else profile, "-q"],
+                   check=True)
+    replayed = log
+    if profile.startswith("trace:"):          # our recording as a trace table, replayed with the mapping written beside it
+        replayed = out / f"{stem}.{profile.split(':', 1)[1]}"
+        mapping = replayed.with_suffix(".toml")
+        subprocess.run([str(BIN / "edge-monitor"), "export-trace", str(log), "--out", str(replayed), "--force", "-q"],
+                       check=True)
     t1 = time.perf_counter()
     jsonl.unlink(missing_ok=True)
-    cmd = [str(BIN / "edge-monitor"), "replay", str(log), "--json", "--jsonl", str(jsonl), "-q"]
+    cmd = [str(BIN / "edge-monitor"), "replay", str(replayed), "--json", "--jsonl", str(jsonl), "-q"]
     if mapping is not None:
         cmd += ["--mapping", str(mapping)]
     stats = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
     t2 = time.perf_counter()
     if not args.keep:
         log.unlink()
+        if replayed != log:
+            replayed.unlink()
     return {"stats": stats, "symptoms": [json.loads(line) for line in jsonl.open()],
             "truth": [json.loads(line) for line in truth.open() if '"joint"' in line],
             "record_s": t1 - t0, "replay_s": t2 - t1}
@@ -112,7 +125,8 @@ def main() -> int:
          lambda r: f"{_mean_std(r, worn, start):.2f}")
     line(f"healthy joints: RMS wear error, cycles {start}–{args.cycles - 1}",
          lambda r: f"{_rms_error(r, worn, start):.2f}")
-    line("frames", lambda r: f"{r['stats'].get('frames_total', 0):,}")
+    line("frames (a trace: none, rows)", lambda r: f"{r['stats']['frames_total']:,}" if r["stats"].get("frames_total")
+         else "–")
     return 0
 
 
