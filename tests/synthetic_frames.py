@@ -33,9 +33,11 @@ def cycle_profile(speeds, hold_s=1.2, ramp_s=0.1, pause_s=0.1, production=True):
     return np.concatenate(v_parts), np.concatenate(seg_parts)
 
 
-def cycle_torque(speed, rng, load=0.5, temperature=40.0, wear=0.0, noise=2e-3, inertia=2e-4, gravity=0.3):
-    """Motor torque along a speed profile: gravity + friction (§1 model) + inertia + white noise."""
+def cycle_torque(speed, rng, load=0.5, temperature=40.0, wear=0.0, noise=2e-3, inertia=2e-4, gravity=None):
+    """Motor torque along a speed profile: gravity + friction (§1 model) + inertia + white noise. The gravity
+    torque is the load the gearbox carries, the |τl| of the friction model (as in the simulator), unless given."""
     acc = np.gradient(speed) * RATE
+    gravity = load if gravity is None else gravity
     return (gravity + np.sign(speed) * friction_magnitude(speed, load, temperature, wear)
             + inertia * acc + rng.normal(0, noise, speed.size))
 

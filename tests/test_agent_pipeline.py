@@ -46,6 +46,15 @@ def frames():
     return make_frames(4, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 20.0 * j, seed=1)
 
 
+@pytest.fixture(scope="module")
+def identifiable_frames():
+    """Both joints worn (10 and 20) where the wear likelihood has curvature: on an unworn joint it is flat to
+    the rounding of its inputs over ≈ 10⁻⁵ wear units (the wear bump vanishes faster than any power of ϖ), so
+    an answer there moves by that much with the summation order of the friction data, beyond the optimiser's
+    own tolerance. The tests of how frames are grouped are of the pipeline, not of that flatness."""
+    return make_frames(4, joints=(0, 1), speeds=SPEEDS, wear=lambda j, c: 10.0 + 10.0 * j, seed=1)
+
+
 def test_one_symptom_per_joint_and_cycle_with_model_friction(frames):
     agent = Agent(small_config())
     outs = feed(agent, frames) + agent.finish()
@@ -393,7 +402,7 @@ def _scaled(record, factor: float):
 
 @pytest.mark.parametrize("speeds", [SPEEDS, ()], ids=["configured speeds", "levels from segment codes"])
 @pytest.mark.parametrize("block", [7, 90, 2500, 100_000])
-def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, block, speeds, monkeypatch):
+def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(identifiable_frames, block, speeds, monkeypatch):
     """Live, a block is whatever arrived in ``LiveSource.batch_s``; a joint gathers samples into
     batches before its sample-level work (joint_monitor.SAMPLE_BATCH). The symptoms, learning and
     monitoring cycles alike, equal those of a sample-level pass over blocks of 7 frames without that
@@ -410,7 +419,7 @@ def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, bl
     def symptoms(size, batch):
         monkeypatch.setattr(joint_monitor, "SAMPLE_BATCH", batch)
         agent = Agent(small_config(speeds))
-        return [s.to_dict() for s in feed(agent, frames, block=size) + agent.finish()]
+        return [s.to_dict() for s in feed(agent, identifiable_frames, block=size) + agent.finish()]
 
     if speeds not in _SAMPLE_LEVEL:
         _SAMPLE_LEVEL[speeds] = symptoms(7, 1)
@@ -428,7 +437,10 @@ def test_symptoms_do_not_depend_on_how_frames_are_grouped_into_blocks(frames, bl
 def test_a_stream_that_stops_inside_a_cycle_keeps_its_gathered_samples(frames, monkeypatch):
     """``finish(close_open_cycle=False)`` (a replay with --no-close, a run stopped by a signal): the
     joints' saved state (counters, the open cycle's KL window) covers every sample received, as
-    without the gathering."""
+    without the gathering. Floats to 10⁻⁵: the wear optimiser stops within 10⁻⁶ (xatol), and where its
+    likelihood is flat (an unworn joint) another summation order of the same samples moves its answer, and
+    what is compensated with it, by up to ≈ 10⁻⁶ (measured 2·10⁻⁷); a sample lost or counted twice moves
+    a KDE mass by ≈ 1/N ≥ 10⁻⁴ and a counter by 1."""
     import edge_monitor.pipeline.joint_monitor as joint_monitor
 
     def states(batch):
@@ -441,7 +453,7 @@ def test_a_stream_that_stops_inside_a_cycle_keeps_its_gathered_samples(frames, m
     gathered, unbatched = states(512), states(1)
     assert gathered.keys() == unbatched.keys() == {0, 1}
     for joint in gathered:
-        assert _numbers_close(gathered[joint], unbatched[joint]), joint
+        assert _numbers_close(gathered[joint], unbatched[joint], atol=1e-5), joint
 
 
 def test_records_carry_utc_wall_time_from_the_frame_timestamps_across_a_tick_wrap():

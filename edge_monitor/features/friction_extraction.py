@@ -60,7 +60,7 @@ class FrictionCurve:
     skipped: dict[str, int] = field(default_factory=dict)
     #: the joint torque the gearbox carried at the test angle: mean over the data of ``(τ⁺ + τ⁻)/2``
     #: (gravity and payload; friction cancels), None without data. The load of the §1 model is its
-    #: magnitude (docs/KL_DETECTOR.md, "Load compensation").
+    #: magnitude (docs/KL_DETECTOR.md, "Load compensation"; the wear likelihood's, docs/WEAR_ESTIMATION.md).
     load_torque: float | None = None
 
     def to_record(self) -> dict:
@@ -130,7 +130,7 @@ class FrictionExtractor:
         order = np.argsort(speeds)
         curve = FrictionCurve(speeds=[speeds[i] for i in order], torque=[torque[i] for i in order],
                               stderr=[stderr[i] for i in order], skipped=dict(self._skipped),
-                              load_torque=float(np.mean(carried)) if carried else None)
+                              load_torque=_carried(carried))
         self._moments.clear()
         self._skipped.clear()
         return curve
@@ -148,3 +148,14 @@ def _measured_speed(fwd: DirectionMoments, bwd: DirectionMoments) -> float:
     """The datum's speed when levels are not configured: the mean |speed| of both directions [rad/s],
     to 1e-3 rad/s (the mean of hundreds of samples of 0.005 rad/s resolution)."""
     return round(0.5 * (abs(fwd.speed_sum) / fwd.n + abs(bwd.speed_sum) / bwd.n), 3)
+
+
+#: Decimals the carried torque is kept to: it is measured to ≈ 10⁻³ (the torque noise over a plateau); the digits
+#: below 10⁻⁹ are the summation order's (how the samples came in blocks), and the wear likelihood, flat near
+#: ϖ = 0, would carry them into its optimiser's answer (tests/test_agent_pipeline.py, the block test).
+_CARRIED_DECIMALS = 9
+
+
+def _carried(carried: list[float]) -> float | None:
+    """The mean of the levels' (τ⁺ + τ⁻)/2, rounded to :data:`_CARRIED_DECIMALS`; None without a level."""
+    return round(float(np.mean(carried)), _CARRIED_DECIMALS) if carried else None
