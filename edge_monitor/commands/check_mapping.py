@@ -34,7 +34,8 @@ from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError, add_can_argum
 
 FALLBACK = {"temperature": "site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
                            "lubricant temperature read from the friction for the detectors' stages, spans and slack",
-            "load": "configured load prior ([wear] default_load_mean ± default_load_std)"}
+            "load": "the load the test cycle's plateaus measure (the configured prior [wear] default_load_mean ± "
+                    "default_load_std only for a cycle without plateaus in both directions)"}
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
