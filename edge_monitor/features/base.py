@@ -8,6 +8,7 @@ plus one entry in :mod:`edge_monitor.features.registry`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol
 
@@ -35,6 +36,24 @@ class CycleInput:
     load_std: float | None = None
     motor_temperature: float | None = None
     partial: bool = False
+
+
+#: σl of a load measured at the plateaus [fraction of max torque]: the mean of (τ⁺ + τ⁻)/2 over the levels is
+#: within 2·10⁻³ of the simulated truth (tests/test_kl_load_compensation.py); 0.01 with margin. The
+#: controller's estimate has σl ≈ 0.1.
+MEASURED_LOAD_STD = 0.01
+
+
+def cycle_load(cycle: CycleInput, source: str = "measured") -> tuple[float, str] | None:
+    """The cycle's |τl| and where it comes from: with ``source = "measured"`` the torque the test cycle's
+    plateaus carried (``FrictionCurve.load_torque``, to the torque noise) where there is one, else (or with
+    ``"estimate"``) the controller's estimate; None with neither."""
+    measured, estimate = cycle.friction.load_torque, cycle.load_mean
+    if source == "measured" and measured is not None and math.isfinite(measured):
+        return abs(measured), "measured"
+    if estimate is not None and math.isfinite(estimate):
+        return abs(estimate), "estimate"
+    return None
 
 
 @dataclass

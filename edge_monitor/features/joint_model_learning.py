@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from edge_monitor.errors import require
-from edge_monitor.features.base import CycleInput
+from edge_monitor.features.base import MEASURED_LOAD_STD, CycleInput, cycle_load
 from edge_monitor.features.temperature_prior import MIN_SPREAD, implausible_offset
 from joint_model import FrictionParams, nominal_friction
 from joint_model.identification import CommissioningData, IdentificationDataError, identify_linear
@@ -45,10 +45,9 @@ log = logging.getLogger(__name__)
 ALWAYS_FREE: tuple[str, ...] = ("fc0", "fs0", "fv0")
 TEMPERATURE_TERMS: tuple[str, ...] = ("fsxi", "fvxi")
 LOAD_TERMS: tuple[str, ...] = ("fcl", "fsl")
-#: The load regressor's noise [fraction of max torque]: the controller's estimate (σl ≈ 0.1 in the simulator), and
-#: the load the plateaus measure (within 2·10⁻³ of the truth on simulated cycles; 0.01 with margin).
+#: The load regressor's noise [fraction of max torque] when it is the controller's estimate (σl ≈ 0.1 in the
+#: simulator); a measured load's is :data:`~edge_monitor.features.base.MEASURED_LOAD_STD`.
 ESTIMATED_LOAD_NOISE = 0.1
-MEASURED_LOAD_NOISE = 0.01
 #: Alternations of (per-cycle temperatures ↔ parameters).
 ALTERNATIONS = 3
 #: Temperature grid of the per-cycle fit [°C].
@@ -126,14 +125,10 @@ class JointModelLearner:
         return True
 
     def _load(self, cycle: CycleInput) -> tuple[float, bool]:
-        """The cycle's |τl| and whether it was measured: the torque the plateaus carried (both directions,
-        to the torque noise), else the controller's estimate (σl ≈ 0.1), else the default load."""
-        carried = cycle.friction.load_torque
-        if carried is not None and math.isfinite(carried):
-            return abs(carried), True
-        if cycle.load_mean is not None and math.isfinite(cycle.load_mean):
-            return abs(cycle.load_mean), False
-        return self.default_load, False
+        """The cycle's |τl| (:func:`~edge_monitor.features.base.cycle_load`, else the default load) and
+        whether it was measured at the plateaus."""
+        found = cycle_load(cycle)
+        return (self.default_load, False) if found is None else (found[0], found[1] == "measured")
 
     # ------------------------------------------------------------------ identification
     def _temperatures(self, params: FrictionParams) -> np.ndarray:
@@ -165,7 +160,7 @@ class JointModelLearner:
         if self._span(temperatures) >= self.config.temperature_span:
             free += TEMPERATURE_TERMS
         loads = np.array([c.load for c in self._cycles])
-        noise = MEASURED_LOAD_NOISE if all(c.measured for c in self._cycles) else ESTIMATED_LOAD_NOISE
+        noise = MEASURED_LOAD_STD if all(c.measured for c in self._cycles) else ESTIMATED_LOAD_NOISE
         if loads.var() > 4 * noise ** 2:       # the regressor's own noise would bias them otherwise
             free += LOAD_TERMS
         return free

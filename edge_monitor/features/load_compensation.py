@@ -24,7 +24,7 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from edge_monitor.features.base import CycleInput
+from edge_monitor.features.base import CycleInput, cycle_load
 from joint_model import FrictionParams
 from joint_model.friction import load_sensitivity
 
@@ -58,12 +58,7 @@ class LoadCompensation:
     def cycle_load(self, cycle: CycleInput) -> tuple[float, str] | None:
         """The cycle's |τl| and where it comes from, or None if it has neither a measured nor an
         estimated load."""
-        measured, estimate = cycle.friction.load_torque, cycle.load_mean
-        if self.source == "measured" and measured is not None and math.isfinite(measured):
-            return abs(measured), "measured"
-        if estimate is not None and math.isfinite(estimate):
-            return abs(estimate), "estimate"
-        return None
+        return cycle_load(cycle, self.source)
 
     def change(self, load: tuple[float, str] | None) -> tuple[float | None, dict[str, Any] | None]:
         """ε = |τl| − reference of a usable cycle (the first one sets the reference) and its record

@@ -16,18 +16,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.errors import check_learned_with, require
-from edge_monitor.features.base import CycleInput, FeatureOutput
+from edge_monitor.features.base import MEASURED_LOAD_STD, CycleInput, FeatureOutput, cycle_load
 from edge_monitor.features.temperature_prior import MotorTemperaturePrior
 from edge_monitor.features.wear_estimation import ESTIMATION_METHODS, WearEstimator
 from joint_model import CRITICAL_WEAR, FRICTION_NOISE_STD, FrictionParams
 
 #: Where the load the likelihood takes comes from (``[wear] load``).
 LOAD_SOURCES = ("measured", "estimate")
-#: σl of a load measured at the plateaus [fraction of max torque]: the mean of (τ⁺ + τ⁻)/2 over the levels is
-#: within 2·10⁻³ of the simulated truth (tests/test_kl_load_compensation.py); 0.01 with margin. The
-#: controller's estimate has σl ≈ 0.1, and its error moves every friction datum of a cycle alike by
-#: s(v)·(μl − |τl|), which the likelihood can only explain with temperature and wear.
-MEASURED_LOAD_STD = 0.01
 #: Section of a symptom when there is no estimate.
 EMPTY_SECTION: dict[str, Any] = {"estimate": None, "std": None, "temperature": None}
 
@@ -107,12 +102,14 @@ class WearFeature:
 
     def load(self, cycle: CycleInput) -> tuple[float, float]:
         """The cycle's load μl and its std σl: with ``load = "measured"`` the torque the test cycle's plateaus
-        carried (to the torque noise: σl :data:`MEASURED_LOAD_STD`), else the controller's estimate, else the
-        configured prior."""
+        carried (:func:`~edge_monitor.features.base.cycle_load`, σl :data:`MEASURED_LOAD_STD`), else the
+        controller's estimate as it came, else the configured prior. An error of the estimate moves every
+        friction datum of the cycle alike by s(v)·(μl − |τl|), which the likelihood can only read as
+        temperature or wear."""
         c = self.config
-        carried = cycle.friction.load_torque
-        if c.load == "measured" and carried is not None and math.isfinite(carried):
-            return abs(carried), MEASURED_LOAD_STD
+        found = cycle_load(cycle, c.load)
+        if found is not None and found[1] == "measured":
+            return found[0], MEASURED_LOAD_STD
         return (c.default_load_mean if cycle.load_mean is None else cycle.load_mean,
                 c.default_load_std if cycle.load_std is None else cycle.load_std)
 
