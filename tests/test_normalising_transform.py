@@ -14,7 +14,7 @@ from scipy import stats
 
 from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.stats.detector_config import DetectorConfigError
-from edge_monitor.stats.normalising_transform import LAMBDA_MAX, LAMBDA_MIN, TransformError, YeoJohnson, _yj
+from edge_monitor.stats.normalising_transform import LAMBDA_MAX, LAMBDA_MIN, TransformError, YeoJohnson, yeo_johnson
 from edge_monitor.stats.sequential_detector import DetectorConfig, SequentialDetector
 
 finite = st.floats(-50.0, 50.0, allow_nan=False)
@@ -25,7 +25,15 @@ lambdas = st.floats(LAMBDA_MIN, LAMBDA_MAX)
 @given(st.lists(finite, min_size=1, max_size=30), lambdas)
 def test_the_map_is_scipys_yeo_johnson(values: list[float], lam: float) -> None:
     u = np.asarray(values)
-    assert np.allclose(_yj(u, lam), stats.yeojohnson(u, lam), rtol=1e-9, atol=1e-12)
+    assert np.allclose(yeo_johnson(u, lam), stats.yeojohnson(u, lam), rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(finite, lambdas), min_size=1, max_size=30))
+def test_one_exponent_per_value_maps_each_value_as_scipy_does(pairs: list[tuple[float, float]]) -> None:
+    u, lam = (np.asarray(column) for column in zip(*pairs))
+    expected = [stats.yeojohnson(np.array([x]), float(k))[0] for x, k in zip(u, lam)]
+    assert np.allclose(yeo_johnson(u, lam), expected, rtol=1e-9, atol=1e-12)
 
 
 @settings(max_examples=60, deadline=None)

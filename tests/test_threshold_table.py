@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -137,3 +138,31 @@ def test_the_table_tool_can_recompute_one_quantitys_entry_alone() -> None:
         [(wear.steady_nominal, wear.steady_at, tuple(wear.steady_drift_mean), tuple(wear.steady_drift_sd), 1)]
     assert len(wanted("scalar", [], "steady")) > 1
     assert {dim for _, dim, _ in wanted("vector", [0.0, 0.5], "steady", "joint")} == {3}
+
+
+def test_the_steady_scalars_are_tabulated_with_their_transforms_learning_error_and_old_jobs_re_derive() -> None:
+    """A steady scalar detector learns a Yeo–Johnson transform before its Gaussian: its calibration simulates
+    the exponent's learning error (``transform``), and the table holds those settings, so no agent simulates
+    at run time; the joint vector's calibration does not (stated in docs/DETECTION.md). A calibration job
+    saved before the field existed reads as "none" and counts as calibrated elsewhere: restored, its
+    threshold is re-derived for the current settings."""
+    from edge_monitor.stats.calibration import CalibrationBudget, CalibrationJob
+    from edge_monitor.stats.detector_state import recalibrated
+
+    config = DecisionConfig()
+    for quantity in ("wear", "kl_raw", "kl_weighted"):
+        d = config.detector_config(quantity)
+        at = d.calibration("steady")
+        assert at["transform"] == "yeo-johnson" and d.calibration("warm-up")["transform"] == "none"
+        settings = GaussianSettings(d.steady_nominal, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
+                                    float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
+                                    tuple(at["wander"]), at["transform"])
+        found = lookup(settings, 1e6)
+        assert found is not None and found.threshold > lookup(replace(settings, transform="none"), 1e6).threshold
+    assert JOINT.calibration("steady")["transform"] == "none"
+    job = CalibrationJob(((0.0,), (1.0,), (2.0,)), "gauss", 100, 1e4, 0.6, 1.0, "recursive", CalibrationBudget(),
+                         **config.detector_config("wear").calibration("steady"))
+    old = {k: v for k, v in job.to_dict().items() if k != "transform"}
+    assert CalibrationJob.from_dict(job.to_dict()) == job
+    assert CalibrationJob.from_dict(old).transform == "none"
+    assert recalibrated(CalibrationJob.from_dict(old), config.detector_config("wear").calibration("steady"))

@@ -136,12 +136,12 @@ class Calibration:
 def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, gamma0: float, rho: float,
                         budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
                         at: str, drift_mean: tuple[float, ...] = (), drift_sd: tuple[float, ...] = (),
-                        wander: tuple[float, ...] = ()) -> Calibration:
+                        wander: tuple[float, ...] = (), transform: str = "none") -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
     tabulated for the shipped settings (:mod:`~edge_monitor.stats.threshold_table`), else simulated
     (cached) with ``GAUSSIAN_DRAW_FACTOR`` × ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
     settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
-                                float(clip_sigma), at, drift_mean, drift_sd, wander)
+                                float(clip_sigma), at, drift_mean, drift_sd, wander, transform)
     try:
         corr = correlation(values)
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -166,7 +166,8 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
               mode: GLRMode = "recursive", budget: CalibrationBudget = CalibrationBudget(),
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
               clip_sigma: float = 0.0, at: str = "boundary", drift_mean: ArrayLike = (),
-              drift_sd: ArrayLike = (), simulate_from: str = "model", wander: ArrayLike = ()) -> Calibration:
+              drift_sd: ArrayLike = (), simulate_from: str = "model", wander: ArrayLike = (),
+              transform: str = "none") -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
@@ -175,7 +176,9 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     (:func:`stream_shifts`): ``"boundary"`` (the agent's default), ``"healthy_drift"`` or ``"nominal"``;
     ``drift_mean``/``drift_sd`` (one per dimension, in standard deviations of the nominal values)
     describe the healthy drift for ``"healthy_drift"``, ``wander`` (per dimension, a variance fraction)
-    its slow serial wander (Gaussian nominals only, :mod:`~edge_monitor.stats.gaussian_calibration`).
+    its slow serial wander (Gaussian nominals only, :mod:`~edge_monitor.stats.gaussian_calibration`);
+    ``transform``: ``"yeo-johnson"`` when ``nominal`` holds the values of a scalar detector after a transform it
+    learned from them, whose exponent's learning error the Gaussian path then simulates too.
     ``simulate_from``: ``"model"`` (p̂0) or ``"values"`` (:class:`SmoothedBootstrap` of ``nominal``), see
     the module docstring."""
     if at not in CALIBRATE_AT:
@@ -189,7 +192,7 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
             return tuple(float(x) for x in np.ravel(given)) if at == "healthy_drift" else ()
 
         return _calibrate_gaussian(values, window, arl0, gamma0, rho, budget, direction, allowance, clip_sigma, at,
-                                   per_axis(drift_mean), per_axis(drift_sd), per_axis(wander))
+                                   per_axis(drift_mean), per_axis(drift_sd), per_axis(wander), transform)
     seed = FIXED_SEED if seed is None else seed
     rng = np.random.default_rng(seed)
     model = fit_density(values, kind)
@@ -370,13 +373,14 @@ class CalibrationJob:
     drift_sd: tuple[float, ...] = ()
     simulate_from: str = "model"
     wander: tuple[float, ...] = ()
+    transform: str = "none"
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
                          "exact" if self.mode == "exact" else "recursive", self.budget,
                          direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma,
                          at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd,
-                         simulate_from=self.simulate_from, wander=self.wander)
+                         simulate_from=self.simulate_from, wander=self.wander, transform=self.transform)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget),
@@ -392,4 +396,5 @@ class CalibrationJob:
                    drift_mean=tuple(float(x) for x in state.get("drift_mean", ())),
                    drift_sd=tuple(float(x) for x in state.get("drift_sd", ())),
                    simulate_from=str(state.get("simulate_from", "model")),
-                   wander=tuple(float(x) for x in state.get("wander", ())))
+                   wander=tuple(float(x) for x in state.get("wander", ())),
+                   transform=str(state.get("transform", "none")))

@@ -169,12 +169,22 @@ class DetectorConfig:
     def calibration(self, stage: str) -> dict[str, Any]:
         """Where the calibration of ``stage`` ("warm-up" | "steady") simulates the detector, as the
         :class:`~edge_monitor.stats.calibration.CalibrationJob` fields ``at``, ``drift_mean``, ``drift_sd``,
-        ``wander`` (standard units; docs/DETECTION.md, "Two stages")."""
+        ``wander`` (standard units) and ``transform`` (the learned transform it simulates; docs/DETECTION.md,
+        "Two stages")."""
         if stage == "steady":
             return {"at": self.steady_at, "drift_mean": tuple(self.steady_drift_mean),
-                    "drift_sd": tuple(self.steady_drift_sd), "wander": tuple(self.steady_wander)}
+                    "drift_sd": tuple(self.steady_drift_sd), "wander": tuple(self.steady_wander),
+                    "transform": self.steady_learned_transform}
         return {"at": self.calibrate_at, "drift_mean": tuple(self.drift_mean), "drift_sd": tuple(self.drift_sd),
-                "wander": ()}
+                "wander": (), "transform": "none"}
+
+    @property
+    def steady_learned_transform(self) -> str:
+        """The steady transform whose learning error the calibration simulates: ``steady_transform`` for a
+        scalar detector that learns one, else "none" (a vector's exponents are not simulated: its calibration
+        treats the transformed values as the Gaussian they were fitted to)."""
+        learns = self.steady_transform != "none" and any(self.transform_axes or (True,))
+        return self.steady_transform if learns and self.dim == 1 else "none"
 
     @property
     def budget(self) -> CalibrationBudget:

@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 from edge_monitor.stats.gaussian_fleet import (  # noqa: F401  (WANDER_COEFFICIENT: re-exported)
     SEED,
     WANDER_COEFFICIENT,
+    LearnedTransforms,
     StreamNoise,
     first_passages,
     fit_nominals,
@@ -101,10 +102,14 @@ class GaussianSettings:
     drift_mean: tuple[float, ...] = ()     # "healthy_drift": each nominal's streams moved by drift_mean +
     drift_sd: tuple[float, ...] = ()       # drift_sd·z (standard units, one z per nominal, per axis)
     wander: tuple[float, ...] = ()         # per axis: the variance fraction of the slow AR(1) wander
+    transform: str = "none"                # "yeo-johnson": a scalar detector that learns this transform before
+                                           # its Gaussian, its exponent's learning error simulated too
 
     def __post_init__(self) -> None:
         if not any(self.wander):               # no wander on any axis: one setting, one table key
             object.__setattr__(self, "wander", ())
+        if self.transform not in ("none", "yeo-johnson"):
+            raise ValueError(f"transform = {self.transform!r}; choose 'none' or 'yeo-johnson'")
 
 
 @dataclass(frozen=True)
@@ -217,6 +222,8 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     segments of :data:`SEGMENT` cycles, so memory stays O(CHUNK·(SEGMENT + grid)))."""
     started = time.process_time()
     r = np.asarray(corr, dtype=float)
+    if settings.transform != "none" and r.shape[0] > 1:
+        raise ValueError("a learned transform is simulated for scalar detectors only")
     lower_chol = np.linalg.cholesky(r)
     rng = np.random.default_rng(SEED)
     grid = np.arange(H_STEP, H_MAX, H_STEP)
@@ -230,13 +237,20 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
             index = np.arange(first, first + g)
             means, covs, weight = scalar_fits(settings.n0, index, rng) if r.shape[0] == 1 else \
                 vector_fits(settings.n0, index, lower_chol, rng)
+            learned = None if settings.transform == "none" else \
+                LearnedTransforms.fit(rng.standard_normal((g, settings.n0)), means[:, 0], np.sqrt(covs[:, 0, 0]))
         else:
-            means, covs = fit_nominals(noise.sequence(g, settings.n0))
+            samples = noise.sequence(g, settings.n0)
+            means, covs = fit_nominals(samples)
             weight = np.ones(g)
+            learned = None if settings.transform == "none" else LearnedTransforms.fit(samples[:, :, 0])
+        if learned is not None:             # the detector's Gaussian is the transformed values'
+            means, covs = learned.z_mean[:, None], learned.z_var[:, None, None]
         glr = fleet_detectors(settings, means, covs, budget.streams)
         weights.append(weight * drift_weights[first:first + g])
         shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
-        passage = first_passages(glr, shift, noise, budget.steps, grid)
+        observe = None if learned is None else learned.repeat(budget.streams).apply
+        passage = first_passages(glr, shift, noise, budget.steps, grid, observe)
         alarmed = passage < budget.steps
         shape = (g, budget.streams, grid.size)
         events.append(alarmed.reshape(shape).sum(axis=1))

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,6 +19,7 @@ from scipy.stats import norm
 
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 from edge_monitor.stats.learning_error import TILTS as FIT_TILTS
+from edge_monitor.stats.normalising_transform import YeoJohnson, yeo_johnson
 
 if TYPE_CHECKING:
     from edge_monitor.stats.gaussian_calibration import GaussianSettings
@@ -129,10 +131,49 @@ class StreamNoise:
         return np.stack([self.step(g) for _ in range(n)], axis=1)
 
 
+@dataclass(frozen=True)
+class LearnedTransforms:
+    """Per scalar nominal (G,): the Yeo–Johnson transform its detector learned, z = YJ((y − center)/scale; lam),
+    and the Gaussian it fitted to its transformed learning values (``z_mean``, ``z_var`` with ddof = 1), as
+    :class:`~edge_monitor.stats.sequential_detector.SequentialDetector` learns its steady nominal."""
+
+    center: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    lam: NDArray[np.float64]
+    z_mean: NDArray[np.float64]
+    z_var: NDArray[np.float64]
+
+    @classmethod
+    def fit(cls, samples: NDArray[np.float64], center: NDArray[np.float64] | None = None,
+            scale: NDArray[np.float64] | None = None) -> "LearnedTransforms":
+        """Fit each learning set of ``samples`` (G, N0). ``center``/``scale`` (G,): the learning sets' mean and
+        sd drawn elsewhere (the fit's exact law); ``samples`` then give only each set's standardised shape,
+        which for Gaussian values is independent of its mean and sd (Basu's theorem), so λ̂ and the fitted
+        Gaussian of the transformed values are exactly those of a set with that mean and sd."""
+        fits = [YeoJohnson.fit(row) for row in samples]
+        lam = np.array([float(f.lambdas[0]) for f in fits])
+        u = (samples - samples.mean(axis=1, keepdims=True)) / samples.std(axis=1, ddof=1, keepdims=True)
+        z = yeo_johnson(u, lam[:, None])
+        return cls(samples.mean(axis=1) if center is None else np.asarray(center, dtype=float),
+                   samples.std(axis=1, ddof=1) if scale is None else np.asarray(scale, dtype=float),
+                   lam, z.mean(axis=1), z.var(axis=1, ddof=1))
+
+    def repeat(self, streams: int) -> "LearnedTransforms":
+        """Each nominal's transform for its ``streams`` detectors (G·streams,)."""
+        rep = functools.partial(np.repeat, repeats=streams)
+        return LearnedTransforms(rep(self.center), rep(self.scale), rep(self.lam), rep(self.z_mean), rep(self.z_var))
+
+    def apply(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Transformed values (B, 1) of one value per detector ``y`` (B, 1)."""
+        return yeo_johnson((y[:, 0] - self.center) / self.scale, self.lam)[:, None]
+
+
 def first_passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: StreamNoise, steps: int,
-                   grid: NDArray[np.float64]) -> NDArray[np.int64]:
+                   grid: NDArray[np.float64],
+                   observe: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None) -> NDArray[np.int64]:
     """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never;
-    detector b's stream moved by ``shift[b]`` (standard units)."""
+    detector b's stream moved by ``shift[b]`` (standard units) and seen through ``observe`` (a learned
+    transform) if given."""
     b, d = glr.means.shape
     noise.start(b)
     first = np.full((b, grid.size), steps, dtype=np.int64)
@@ -141,7 +182,8 @@ def first_passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: Str
         length = min(SEGMENT, steps - start)
         stats = np.empty((b, length))
         for t in range(length):
-            stats[:, t] = glr.update(noise.step(b) + shift)
+            y = noise.step(b) + shift
+            stats[:, t] = glr.update(y if observe is None else observe(y))
         stats[:, 0] = np.maximum(stats[:, 0], running)
         np.maximum.accumulate(stats, axis=1, out=stats)
         running = stats[:, -1]

@@ -34,20 +34,19 @@ class TransformError(ValueError):
     """Values unusable for fitting the transform (too few, non-finite, constant) or a damaged state."""
 
 
-def _yj(u: NDArray[np.float64], lam: float) -> NDArray[np.float64]:
-    """Yeo–Johnson of ``u`` with exponent ``lam`` (vectorised, both branches)."""
-    out = np.empty_like(u)
-    pos = u >= 0
-    up, un = u[pos], u[~pos]
-    with np.errstate(over="ignore"):            # (1 + u)^λ beyond ≈ 1e308: inf, which the detector skips
-        out[pos] = np.log1p(up) if abs(lam) < 1e-12 else np.expm1(lam * np.log1p(up)) / lam
-        out[~pos] = (-np.log1p(-un) if abs(lam - 2) < 1e-12
-                     else -np.expm1((2 - lam) * np.log1p(-un)) / (2 - lam))
-    return out
+def yeo_johnson(u: ArrayLike, lam: ArrayLike) -> NDArray[np.float64]:
+    """Yeo–Johnson of ``u`` with exponent ``lam``, both broadcast (one λ, or one per row of a fleet)."""
+    u, lam = np.broadcast_arrays(np.asarray(u, dtype=float), np.asarray(lam, dtype=float))
+    log_up = np.log1p(np.abs(u))                 # log(1 + u) for u ≥ 0, log(1 − u) below
+    zero, two = np.abs(lam) < 1e-12, np.abs(lam - 2) < 1e-12
+    with np.errstate(over="ignore", invalid="ignore"):   # (1 + u)^λ beyond ≈ 1e308: inf, which the detector skips
+        up = np.where(zero, log_up, np.expm1(lam * log_up) / np.where(zero, 1.0, lam))
+        down = np.where(two, -log_up, -np.expm1((2 - lam) * log_up) / np.where(two, 1.0, 2 - lam))
+    return np.where(u >= 0, up, down)
 
 
 def _yj_inverse(z: NDArray[np.float64], lam: float) -> NDArray[np.float64]:
-    """Inverse of :func:`_yj` (z ≥ 0 ↔ u ≥ 0). Values beyond the image of the reals (only for λ < 0 or
+    """Inverse of :func:`yeo_johnson` (z ≥ 0 ↔ u ≥ 0). Values beyond the image of the reals (only for λ < 0 or
     λ > 2, outside the fitted range) map to ±inf."""
     out = np.empty_like(z)
     pos = z >= 0
@@ -102,7 +101,7 @@ class YeoJohnson:
         """z for ``y`` of shape (d,) or (n, d); same shape back."""
         arr = np.asarray(y, dtype=float)
         u = (arr.reshape(-1, self.dim) - self.center) / self.scale
-        z = np.column_stack([_yj(u[:, k], float(lam)) for k, lam in enumerate(self.lambdas)])
+        z = yeo_johnson(u, self.lambdas)
         return z.reshape(arr.shape)
 
     def invert(self, z: ArrayLike) -> NDArray[np.float64]:

@@ -6,14 +6,15 @@ detectors' warm-up and steady settings, the joint vector at each tabulated KL co
 target ARL0 in ``--targets``, the threshold is read from the table as the agent reads it, and then
 ``--detectors`` detectors are simulated, each learning its own nominal from N0 values and then watching
 its stream for ``--cycles`` cycles, with the stream law the entry was calibrated for (at the nominal,
-at the allowance boundary, or the healthy drift and slow wander). Unlike the calibration, which reads
+at the allowance boundary, or the healthy drift and slow wander; a steady scalar detector learning its
+Yeo–Johnson transform from its own learning values first). Unlike the calibration, which reads
 first passages from a fresh start, every alarm here is acknowledged and the statistic restarts on the
 same nominal, as the agent's are; and the draws come from another seed. Delivered ARL0 = detector-cycles
 / alarms, with a 95 % interval from the alarms counted per detector (clustered: a badly learned nominal
 alarms again and again).
 
 Usage: ``python tools/studies/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--stage
-warm-up|steady] [--rho 0.5] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
+warm-up|steady] [--rho 0.5] [--transform yeo-johnson|none] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
 ``--detectors 1024``; a status line per entry).
 """
 
@@ -58,14 +59,18 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     r = np.asarray(corr, dtype=float)
     rng = np.random.default_rng(seed)
     noise = gf.StreamNoise(np.linalg.cholesky(r), settings.wander, rng)
-    glr = gf.fleet_detectors(settings, *gf.fit_nominals(noise.sequence(detectors, settings.n0)), 1)   # plain sets
+    samples = noise.sequence(detectors, settings.n0)                                  # plain learning sets
+    learned = None if settings.transform == "none" else gf.LearnedTransforms.fit(samples[:, :, 0])
+    nominal = gf.fit_nominals(samples) if learned is None else (learned.z_mean[:, None], learned.z_var[:, None, None])
+    glr = gf.fleet_detectors(settings, *nominal, 1)
     shift = gf.stream_shifts(settings, detectors, r.shape[0])[0]       # plain draws: every weight 1
     if settings.at == "healthy_drift":             # the check's own fleet drift, not the calibration's order
         shift = shift[rng.permutation(detectors)]
     noise.start(detectors)
     alarms = np.zeros(detectors)
     for _ in range(cycles):
-        alarm = glr.update(noise.step(detectors) + shift) >= h
+        y = noise.step(detectors) + shift
+        alarm = glr.update(y if learned is None else learned.apply(y)) >= h
         if alarm.any():
             alarms += alarm
             glr.restart(alarm)
@@ -104,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stage", choices=("all", "warm-up", "steady"), default="all",
                         help="only the entries of the warm-up or of the steady nominal")
     parser.add_argument("--rho", type=float, default=None, help="only the joint vector's entry of this KL correlation")
+    parser.add_argument("--transform", choices=("yeo-johnson", "none"), default=None,
+                        help="only the entries of scalar detectors that learn this transform (steady) or none")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
@@ -117,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         if args.rho is not None and (dim == 1 or abs(entry_correlation(e)[1][2] - args.rho) > 1e-9):
             continue
+        if args.transform is not None and entry_settings(e).transform != args.transform:
+            continue
         for target in (float(t) for t in args.targets.split(",")):
             row = check(e, target, args.detectors, CHECK_SEED + k)
             if row is not None:
@@ -126,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         s = r["settings"]
         name = f"{s['at']}, N0 {s['n0']}" + (f", drift {s['drift_mean']} ± {s['drift_sd']}" if s["drift_mean"] else "") \
-            + (f", wander {s['wander']}" if s.get("wander") else "")
+            + (f", wander {s['wander']}" if s.get("wander") else "") \
+            + (f", {s['transform']}" if s.get("transform", "none") != "none" else "")
         print(f"| {name} | {r['dim']} | {'' if r['rho'] is None else r['rho']} | {r['target']:.0f} | "
               f"{r['threshold']:.3f} ± {r['h_se']:.3f} | {r['delivered']:.0f} ({r['low']:.0f} … {r['high']:.0f}) | "
               f"{r['ratio']:.2f} | {r['alarms']} |")

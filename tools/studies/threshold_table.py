@@ -65,11 +65,11 @@ def shipped_settings(config: DecisionConfig | None = None, quantities: tuple[str
     out: list[GaussianSettings] = []
     for quantity in quantities:
         d = c.detector_config(quantity)
-        for n0, at, mean, sd, wander in ((d.n_nominal, d.calibrate_at, d.drift_mean, d.drift_sd, ()),
-                                         (d.steady_nominal, d.steady_at, d.steady_drift_mean, d.steady_drift_sd,
-                                          d.steady_wander)):
+        for stage, n0 in (("warm-up", d.n_nominal), ("steady", d.steady_nominal)):
+            at = d.calibration(stage)
             settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
-                                        float(d.clip_sigma), at, tuple(mean), tuple(sd), tuple(wander))
+                                        float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
+                                        tuple(at["wander"]), at["transform"])
             if settings not in out:
                 out.append(settings)
     return out
@@ -80,7 +80,8 @@ def scalar_settings(config: DecisionConfig | None = None) -> list[GaussianSettin
     c = config or DecisionConfig()
     out = shipped_settings(c)
     steady_nominal = GaussianSettings(c.steady_nominal, c.window, c.gamma0, c.rho, c.direction, float(c.allowance),
-                                      float(c.clip_sigma), "nominal")      # the option without drift
+                                      float(c.clip_sigma), "nominal",      # the option without drift
+                                      transform=c.detector_config("wear").steady_learned_transform)
     return out + ([steady_nominal] if steady_nominal not in out else [])
 
 
