@@ -14,7 +14,7 @@ same nominal, as the agent's are; and the draws come from another seed. Delivere
 alarms again and again).
 
 Usage: ``python tools/studies/arl_check.py [--targets 1e3,1e4,1e5] [--only scalar|vector] [--stage
-warm-up|steady] [--rho 0.5] [--transform yeo-johnson|none] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
+warm-up|steady] [--rho 0.5] [--transform yeo-johnson|none] [--learn-transform] [--detectors 16384] [--json OUT]`` (scalars: ≈ 2 min per entry and target here; the vector ≈ 4–10× that, run it with
 ``--detectors 1024``; a status line per entry).
 """
 
@@ -30,6 +30,7 @@ import logging  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
@@ -81,14 +82,19 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     return arl, arl * math.exp(-1.96 * se_log), arl * math.exp(1.96 * se_log), int(total)
 
 
-def check(entry: dict[str, Any], target: float, detectors: int, seed: int) -> dict[str, Any] | None:
+def check(entry: dict[str, Any], target: float, detectors: int, seed: int,
+          learn_transform: bool = False) -> dict[str, Any] | None:
+    """One entry at one target; ``learn_transform``: the simulated scalar detectors learn a Yeo–Johnson
+    transform whatever the entry was calibrated for (what an entry without it delivers to the agent's steady
+    detectors, which learn one)."""
     settings, corr = entry_settings(entry), entry_correlation(entry)
     found = lookup(settings, target, corr)
     if found is None:
         return None
     cycles = int(max(2000, ALARMS * target / detectors))          # ≈ ALARMS alarms if the target holds
     started = time.process_time()
-    arl, low, high, alarms = delivered(settings, corr, found.threshold, detectors, cycles, seed)
+    simulated = replace(settings, transform="yeo-johnson") if learn_transform and len(corr) == 1 else settings
+    arl, low, high, alarms = delivered(simulated, corr, found.threshold, detectors, cycles, seed)
     row = {"settings": entry["settings"], "dim": len(corr), "rho": corr[1][2] if len(corr) > 1 else None,
            "target": target, "threshold": found.threshold, "h_se": found.h_se, "detectors": detectors,
            "cycles": cycles, "alarms": alarms, "delivered": arl, "low": low, "high": high,
@@ -111,6 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rho", type=float, default=None, help="only the joint vector's entry of this KL correlation")
     parser.add_argument("--transform", choices=("yeo-johnson", "none"), default=None,
                         help="only the entries of scalar detectors that learn this transform (steady) or none")
+    parser.add_argument("--learn-transform", action="store_true",
+                        help="scalar detectors learn a Yeo-Johnson transform even where the entry was calibrated "
+                             "without one (what such an entry delivers to the agent's steady detectors)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
@@ -127,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.transform is not None and entry_settings(e).transform != args.transform:
             continue
         for target in (float(t) for t in args.targets.split(",")):
-            row = check(e, target, args.detectors, CHECK_SEED + k)
+            row = check(e, target, args.detectors, CHECK_SEED + k, args.learn_transform)
             if row is not None:
                 rows.append(row)
     print("| settings | d | ρ | target | h [nats] | delivered ARL0 (95 %) | delivered / target | alarms |")
