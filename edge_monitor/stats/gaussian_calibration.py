@@ -16,7 +16,11 @@ cycle in d = 1), so many more can be simulated than with a general mixture:
    √N0·μ̂ ~ N(0, 1), the spread (N0 − 1)·σ̂² ~ χ²(N0 − 1); for d > 1 the whitened mean ~ N(0, I) and
    (N0 − 1)·Σ̂ ~ Wishart(N0 − 1, R)), by importance sampling (:func:`scalar_fits`, :func:`vector_fits`):
    the fleet's rate at a high threshold is decided by the few nominals learned too low and too narrow,
-   which plain draws of a few thousand learning sets hardly ever hold;
+   which plain draws of a few thousand learning sets hardly ever hold. A scalar detector that learns a
+   Yeo–Johnson transform first (``GaussianSettings.transform``, the steady stage) has its exponent fitted
+   to a plain standard normal set standing for the learning set's standardised shape (independent of its
+   mean and spread for Gaussian values), its Gaussian fitted to the transformed set, and its streams seen
+   through the transform (:class:`~edge_monitor.stats.gaussian_fleet.LearnedTransforms`);
 2. ``streams`` detectors per nominal on independent streams from N(0, R) moved by the calibration
    point (``"nominal"``: not at all; ``"boundary"``: ``allowance`` standard deviations up;
    ``"healthy_drift"``: nominal g's streams by ``drift_mean + drift_sd·z_g`` standard deviations, z_g the
