@@ -30,7 +30,9 @@ from numpy.typing import NDArray
 from edge_monitor.config import config_from_mapping
 from edge_monitor.stats.detector_config import CALIBRATION_KEYS
 from edge_monitor.stats.glr import WindowedGLR
+from sim_controller.scenario import scenario_config
 from studies.bank_replay import new_bank, replay_bank
+from studies.robots import pauses
 from studies.series import robot_series
 from studies.settings import settings_from
 from studies.statistics import poisson_interval
@@ -117,15 +119,17 @@ class StatisticPath:
         return count
 
 
-def statistic_paths(rows: list[dict[str, Any]], decision: Any) -> list[StatisticPath]:
+def statistic_paths(rows: list[dict[str, Any]], decision: Any,
+                    pauses: dict[int, float] | None = None) -> list[StatisticPath]:
     """Every nominal of every detector of one joint's kept series, replayed through the agent's
-    :class:`DetectorBank` (``decision`` should set a target no path reaches: no alarm cuts a path). A path's
-    inputs are what its GLR took (``WindowedGLR.latest``), one per cycle that reached it."""
+    :class:`DetectorBank` (``decision`` should set a target no path reaches: no alarm cuts a path), the robot's
+    stops (``pauses``: seconds before a cycle) seen as the agent sees them. A path's inputs are what its GLR
+    took (``WindowedGLR.latest``), one per cycle that reached it."""
     bank = new_bank(decision)
     paths: list[StatisticPath] = []
     current: dict[str, StatisticPath] = {}
     taken: dict[int, tuple[WindowedGLR, int]] = {}          # id → (GLR, observations taken when last seen)
-    for step in replay_bank(bank, rows, 0, "robot"):
+    for step in replay_bank(bank, rows, 0, "robot", pauses=pauses):
         for q, d in step.decisions.items():
             detector = bank.detectors[q]
             glr, job = detector.glr, detector.calibrated_job     # the GLR in use and its threshold's calibration
@@ -177,12 +181,12 @@ def check_variant(base: Any, variant: Any, name: str) -> None:
 
 
 def replay_joint(rows: list[dict[str, Any]], decision: Any, targets: tuple[float, ...],
-                 variants: dict[str, Any] | None = None) -> dict[str, Tally]:
+                 variants: dict[str, Any] | None = None, pauses: dict[int, float] | None = None) -> dict[str, Tally]:
     """``stage/quantity`` → Tally for one joint's kept series, thresholds as ``decision`` calibrates them;
     ``variants`` (name → another DecisionConfig) add ``name:stage/quantity`` tallies of the same paths
-    against the thresholds that config's calibration gives."""
+    against the thresholds that config's calibration gives; ``pauses`` as :func:`statistic_paths` takes them."""
     tallies: dict[str, Tally] = {}
-    for path in statistic_paths(rows, decision):
+    for path in statistic_paths(rows, decision, pauses):
         jobs = {"": path.job}
         for name, config in (variants or {}).items() if path.quantity in VARIED else ():
             jobs[f"{name}:"] = variant_job(path.job, path.stage, config.detector_config(path.quantity))
@@ -202,9 +206,10 @@ def replay_robot(job: tuple[Any, ...]) -> dict[str, Tally]:
     decision = config_from_mapping(settings_from(replay)).decision
     configs = {name: config_from_mapping(settings_from(replay + extra)).decision for name, extra in variants}
     out: dict[str, Tally] = {}
+    stops = pauses(scenario_config(scenario, {"seed": seed, "joints": 6, "cycles": cycles}))
     for joint, rows in robot_series(seed, cycles, 6, scenario).items():
         try:
-            tallies = replay_joint(rows, decision, targets, configs)
+            tallies = replay_joint(rows, decision, targets, configs, stops)
         except RuntimeError as exc:            # say which robot and joint (a healthy path beyond 10⁷)
             raise RuntimeError(f"seed {seed} joint {joint}: {exc}; leave that robot out (--fleet, --plant) "
                                "to measure the others") from None

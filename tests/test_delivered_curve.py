@@ -51,6 +51,19 @@ def _gaussian_rows(n: int, seed: int) -> list[dict]:
              "motor_temperature": None} for c, (w, r, k) in enumerate(values)]
 
 
+def test_a_stop_holds_the_kl_detectors_in_the_replay_as_in_the_agent() -> None:
+    """The robot's stops reach the replay as the agent sees them: after a 16-hour stop the KL detectors and the
+    joint vector hold for ``pause_hold_cycles`` cycles (a plant week's replay without them alarmed on kl_raw
+    right after its stops at 10⁷), the wear score does not."""
+    decision = config_from_mapping({"decision": {"arl0_cycles": 1.0e7}}).decision
+    rows = _gaussian_rows(400, 4)
+    inputs = {p.quantity: len(p.inputs) for p in statistic_paths(rows, decision)}
+    stopped = {p.quantity: len(p.inputs) for p in statistic_paths(rows, decision, {300: 16 * 3600.0})}
+    assert stopped["wear"] == inputs["wear"]
+    for q in ("kl_raw", "kl_weighted", "joint"):
+        assert inputs[q] - stopped[q] == decision.pause_hold_cycles, q
+
+
 def test_alarms_restart_the_statistic_like_an_acknowledge() -> None:
     """The path's GLR from fresh over its own inputs gives the statistics the agent reported, and at a
     threshold the path never reaches, no alarm; at one inside its range, alarms, each followed by a
