@@ -151,12 +151,11 @@ class LearnedTransforms:
         which for Gaussian values is independent of its mean and sd (Basu's theorem), so λ̂ and the fitted
         Gaussian of the transformed values are exactly those of a set with that mean and sd."""
         fits = [YeoJohnson.fit(row) for row in samples]
-        lam = np.array([float(f.lambdas[0]) for f in fits])
-        u = (samples - samples.mean(axis=1, keepdims=True)) / samples.std(axis=1, ddof=1, keepdims=True)
-        z = yeo_johnson(u, lam[:, None])
-        return cls(samples.mean(axis=1) if center is None else np.asarray(center, dtype=float),
-                   samples.std(axis=1, ddof=1) if scale is None else np.asarray(scale, dtype=float),
-                   lam, z.mean(axis=1), z.var(axis=1, ddof=1))
+        z = np.stack([f.apply(row[:, None])[:, 0] for f, row in zip(fits, samples)])   # as the agent transforms
+        own = {k: np.array([float(getattr(f, k)[0]) for f in fits]) for k in ("center", "scale", "lambdas")}
+        return cls(own["center"] if center is None else np.asarray(center, dtype=float),
+                   own["scale"] if scale is None else np.asarray(scale, dtype=float),
+                   own["lambdas"], z.mean(axis=1), z.var(axis=1, ddof=1))
 
     def repeat(self, streams: int) -> "LearnedTransforms":
         """Each nominal's transform for its ``streams`` detectors (G·streams,)."""
