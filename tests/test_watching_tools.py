@@ -36,6 +36,29 @@ def test_the_law_fit_recovers_a_known_drift():
     assert abs(law["wear_score"]) < 0.05
 
 
+@pytest.mark.parametrize("later_sd", [1.0, 0.5])
+def test_what_the_slack_leaves_reports_the_values_spread(later_sd):
+    """A joint warming 35 → 60 °C whose inputs keep their mean and have standard deviation ``later_sd`` after the
+    60 cycles their nominals learn from: the spread the study reports is that sd in the nominal's units. Each
+    estimate's relative error: the nominal's sd from 60 values ≈ 0.09, the spread's own from ≈ 500 values ≈ 0.03, so
+    4 combined errors ≈ 0.38·later_sd; the two cases (1 and 0.5) lie further apart than that, both sides checked."""
+    from edge_monitor.pipeline.decision_config import DecisionConfig
+
+    rng = np.random.default_rng(3)
+    n = 700
+    motor = np.concatenate([np.full(60, 35.0), np.linspace(35.0, 60.0, n - 60)]) + 5.0
+    rows = []
+    for k, t in enumerate(motor):
+        sd = 1.0 if k < 60 else later_sd
+        rows.append({"motor_temperature": float(t), "wear_score": rng.normal(0.0, sd),
+                     "kl_raw": math.exp(rng.normal(-3.0, 0.3 * sd)), "kl_weighted": math.exp(rng.normal(-4.0, 0.3 * sd))})
+    left = temperature_law_study.left_by_slack(rows, DecisionConfig(arl0_cycles=1e7), n)
+    for quantity in ("wear", "kl_raw", "kl_weighted"):
+        mean, spread = left[quantity]
+        assert spread == pytest.approx(later_sd, abs=0.38 * later_sd), quantity
+        assert math.isfinite(mean)
+
+
 def test_the_report_counts_coverage_alarms_and_false_alarms():
     coverage = {"wear": {"share": 1.0, "recent": 1.0, "cycles": 900, "not_tested": {}},
                 "kl_raw": {"share": 0.95, "recent": 1.0, "cycles": 900, "not_tested": {"held": 45}},

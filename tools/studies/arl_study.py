@@ -44,8 +44,8 @@ Parts (all with fixed seeds; select with --part, default all):
   load spread. The per-cycle quantities of each joint are computed once; then for each target ARL0
   (50 and 200; ``--targets``) the detectors run over them, with each cycle's motor temperature for
   their thermal settling test; a warm-up detector that alarms is reset and relearns (as after a
-  declared maintenance), a steady one is acknowledged (its statistic restarts on the same nominal),
-  and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
+  declared maintenance; ``--warm-up-alarm acknowledge``: acknowledged too), a steady one is acknowledged (its
+  statistic restarts on the same nominal), and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
   "stage", "target_arl0", "measured_arl0", "runs", "false_alarms", ...}, ...], "other_rows": [...]}``:
   ``rows`` are the steady stage (the nominal learned again once the joint's temperature settled, the
   stage ``arl0_cycles`` is stated for), ``other_rows`` the warm-up stage (threshold at the drift
@@ -542,14 +542,19 @@ class _BoundaryShift:
 def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | tuple[float, ...],
               draws: int = 48, allowance: float | None = None, boundary: bool = False,
               calibrate_at: str | None = None, workers: int = 1, steady_at: str | None = None,
-              steady_density: str | None = None, steady_transform: str | None = None) -> list[dict[str, object]]:
+              steady_density: str | None = None, steady_transform: str | None = None,
+              warm_up_alarm: str = "reset") -> list[dict[str, object]]:
     """Measured ARL0 of the agent's detectors (shipped defaults, ``arl0_cycles = target``; several
     targets: rows for each) with renewal, one row per quantity and stage (``"warm-up"``: the nominal
     learned after commissioning; ``"steady"``: the one learned again once the motor temperature
     settled, what ``arl0_cycles`` is stated for); ``boundary``: each detector's monitored values moved
     to the edge of its null (:class:`_BoundaryShift`) and its threshold calibrated there;
-    ``calibrate_at`` overrides ``decision.calibrate_at``, ``steady_at`` ``decision.steady_calibrate_at``. ``workers`` > 1: joints and targets run in
-    that many processes."""
+    ``calibrate_at`` overrides ``decision.calibrate_at``, ``steady_at`` ``decision.steady_calibrate_at``. A warm-up
+    alarm is followed by ``warm_up_alarm``: "reset" (relearn, as after a declared maintenance) or "acknowledge"
+    (judged false: the statistic restarts on the same nominal, as in the steady stage). ``workers`` > 1: joints and
+    targets run in that many processes."""
+    if warm_up_alarm not in ("reset", "acknowledge"):
+        raise ValueError(f"warm_up_alarm: expected 'reset' or 'acknowledge', got {warm_up_alarm!r}")
     from edge_monitor.pipeline.detectors import DecisionConfig
 
     targets = (target,) if isinstance(target, (int, float)) else tuple(target)
@@ -564,7 +569,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | t
         extra["steady_density"] = steady_density
     if steady_transform:
         extra["steady_transform"] = steady_transform
-    tasks = [(rows, joint, t, draws, extra, boundary) for t in targets for robot in series
+    tasks = [(rows, joint, t, draws, extra, boundary, warm_up_alarm) for t in targets for robot in series
              for joint, rows in robot.items()]
     if workers > 1:
         from concurrent.futures import ProcessPoolExecutor
@@ -588,7 +593,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | t
 
 
 def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: int, extra: dict[str, Any],
-               boundary: bool) -> dict[tuple[str, str], tuple[int, int, int]]:
+               boundary: bool, warm_up_alarm: str = "reset") -> dict[tuple[str, str], tuple[int, int, int]]:
     """One joint's ``(quantity, stage) → (monitored cycles, false alarms, runs)`` (see :func:`agent_arl`)."""
     from edge_monitor.features.registry import QUANTITIES
     from edge_monitor.pipeline.detectors import DecisionConfig
@@ -617,8 +622,8 @@ def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: i
                 counts[now][0] += 1
             if decision.alarm:
                 counts[now][1] += 1
-                if now == "steady":                       # judged false: the statistic restarts on the
-                    bank.detectors[q].acknowledge()       # same nominal (a relearning would cost 240 cycles)
+                if now == "steady" or warm_up_alarm == "acknowledge":  # judged false: the statistic restarts
+                    bank.detectors[q].acknowledge()       # on the same nominal (a relearning would cost 240 cycles)
                     counts[now][2] += 1
                 else:                                     # as after a declared maintenance
                     bank.detectors[q].reset()
@@ -743,6 +748,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="--agent: the steady nominal's density instead of decision.steady_density")
     parser.add_argument("--steady-transform", choices=("yeo-johnson", "none"), default=None,
                         help="--agent: the steady nominal's transform instead of decision.steady_transform")
+    parser.add_argument("--warm-up-alarm", choices=("reset", "acknowledge"), default="reset",
+                        help="--agent: after a warm-up false alarm the detector relearns (reset, as after a declared "
+                             "maintenance; default) or restarts its statistic on the same nominal (acknowledge)")
     parser.add_argument("--at-boundary", action="store_true",
                         help="--agent: also measure with each detector's values moved to the edge of its null")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
@@ -825,7 +833,7 @@ def _agent_main(args: argparse.Namespace) -> int:
              cycles, time.monotonic() - started)
     rows = agent_arl(series, targets, draws, args.allowance, calibrate_at=args.calibrate_at, workers=workers,
                      steady_at=args.steady_at, steady_density=args.steady_density,
-                     steady_transform=args.steady_transform)
+                     steady_transform=args.steady_transform, warm_up_alarm=args.warm_up_alarm)
     if args.at_boundary:
         rows += agent_arl(series, targets, draws, args.allowance, boundary=True, workers=workers)
     log.info("detectors done, %.0f s", time.monotonic() - started)
@@ -833,7 +841,8 @@ def _agent_main(args: argparse.Namespace) -> int:
     return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "scenario": args.scenario,
                         "calibration_draws": draws, "allowance": args.allowance, "calibrate_at": args.calibrate_at,
                         "steady_at": args.steady_at, "steady_density": args.steady_density,
-                        "steady_transform": args.steady_transform, "rows": steady,
+                        "steady_transform": args.steady_transform, "warm_up_alarm": args.warm_up_alarm,
+                        "rows": steady,
                         "other_rows": [r for r in rows if r not in steady]}, args.json)
 
 

@@ -10,9 +10,11 @@ is its first ``decision.n_nominal`` values, the span the smoothed motor temperat
 * the fleet's law: mean, sd and the largest a over joints, per input (the prior of ``[decision.temperature_slack]``);
 * what the shipped detectors test, replayed over the same rows (studies.bank_replay): per joint the mean of a warm-up
   scalar detector's value less its slack over the cycles more than 5 °C out, in standard deviations of its
-  nominal; mean, sd and the largest over joints (the drift ``[decision.healthy_drift]`` calibrates for).
+  nominal; mean, sd and the largest over joints (the drift ``[decision.healthy_drift]`` calibrates for);
+* the spread of the same values: per joint their standard deviation about the joint's own mean, in standard
+  deviations of the nominal (the calibration assumes 1: the values as noisy as the ones the nominal was learned from).
 
-Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--json OUT]``.
+Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--scenario NAME] [--json OUT]``.
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
 from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
 from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
+from sim_controller.scenario import scenario_config  # noqa: E402
 from studies.bank_replay import new_bank, replay_bank  # noqa: E402
+from studies.robots import pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
 
@@ -61,9 +65,11 @@ def law(rows: list[dict[str, Any]], n0: int, until: int) -> dict[str, float]:
     return out
 
 
-def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: int) -> dict[str, float]:
-    """Per warm-up scalar detector, the mean of its tested value less its slack [σ] over the cycles more than
-    :data:`OUT_BY` °C out (NaN with fewer than 30 of them)."""
+def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: int,
+                  stops: dict[int, float] | None = None) -> dict[str, tuple[float, float]]:
+    """Per warm-up scalar detector, the mean and the standard deviation of its tested value less its slack [σ]
+    over the cycles more than :data:`OUT_BY` °C out (NaN with fewer than 30 of them); ``stops``: the seconds the
+    robot stood still before a cycle, seen as the agent sees them."""
     bank = new_bank(decision)
     left: dict[str, list[float]] = {q: [] for q in SCALARS}
 
@@ -79,10 +85,11 @@ def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: i
             left[q].append(z - (slack[0] if slack else 0.0))
         return row
 
-    for step in replay_bank(bank, rows[:until], values=before):
+    for step in replay_bank(bank, rows[:until], values=before, pauses=stops):
         for alarm in step.raised:
             bank.detectors[alarm.quantity].acknowledge()
-    return {q: float(np.mean(v)) if len(v) >= 30 else math.nan for q, v in left.items()}
+    return {q: (float(np.mean(v)), float(np.std(v, ddof=1))) if len(v) >= 30 else (math.nan, math.nan)
+            for q, v in left.items()}
 
 
 def _summary(values: list[float]) -> dict[str, float]:
@@ -96,18 +103,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", required=True)
     parser.add_argument("--cycles", type=int, default=1000)
     parser.add_argument("--until", type=int, default=700, help="rows of the warm-up per joint (default 700)")
+    parser.add_argument("--scenario", default=None, help="simulator scenario of the kept series (e.g. plant_week)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     decision = DecisionConfig()
     laws: dict[str, list[float]] = {name: [] for name in INPUTS}
     left: dict[str, list[float]] = {q: [] for q in SCALARS}
+    spread: dict[str, list[float]] = {q: [] for q in SCALARS}
     for seed in parse_seeds(args.seeds):
-        for _, rows in sorted(robot_series(seed, args.cycles).items()):
+        stops = pauses(scenario_config(args.scenario, {"seed": seed, "joints": 6, "cycles": args.cycles}))
+        for _, rows in sorted(robot_series(seed, args.cycles, scenario=args.scenario).items()):
             for name, a in law(rows, decision.n_nominal, args.until).items():
                 laws[name].append(a)
-            for q, mean in left_by_slack(rows, decision, args.until).items():
+            for q, (mean, sd) in left_by_slack(rows, decision, args.until, stops).items():
                 left[q].append(mean)
-    out = {"law": {k: _summary(v) for k, v in laws.items()}, "left_by_slack": {k: _summary(v) for k, v in left.items()}}
+                spread[q].append(sd)
+    out = {"law": {k: _summary(v) for k, v in laws.items()}, "left_by_slack": {k: _summary(v) for k, v in left.items()},
+           "spread": {k: _summary(v) for k, v in spread.items()}}
     for part, table in out.items():
         for name, s in table.items():
             if "mean" in s:
