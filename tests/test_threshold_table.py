@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,14 @@ from edge_monitor.pipeline.detectors import DecisionConfig
 from edge_monitor.stats.calibration import calibrate
 from edge_monitor.stats.gaussian_calibration import GaussianSettings
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
-from edge_monitor.stats.threshold_table import entries_by_key, entry_rho, key, lookup, tabulated_correlation
+from edge_monitor.stats.threshold_table import (
+    entries_by_key,
+    entry_rho,
+    entry_settings,
+    key,
+    lookup,
+    tabulated_correlation,
+)
 
 JOINT = DecisionConfig().detector_config("joint")
 WARM_UP = GaussianSettings(JOINT.n_nominal, JOINT.window, JOINT.gamma0, JOINT.rho, JOINT.direction,
@@ -157,6 +165,17 @@ def test_the_steady_scalars_are_tabulated_with_their_transforms_learning_error_a
                                     float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
                                     tuple(at["wander"]), at["transform"])
         assert lookup(settings, 1e6) is not None, quantity
+    # The exponent's learning error makes a detector louder, so its threshold is higher than the same setting's
+    # without a transform, for every tabulated steady scalar setting that has both.
+    pairs = 0
+    for entries in entries_by_key().values():
+        settings = entry_settings(entries[0])
+        if settings.transform == "yeo-johnson" and len(entries[0]["correlation"]) == 1:
+            without = lookup(replace(settings, transform="none"), 1e6)
+            if without is not None:
+                pairs += 1
+                assert lookup(settings, 1e6).threshold > without.threshold, settings
+    assert pairs >= 3
     assert JOINT.calibration("steady")["transform"] == "none"
     job = CalibrationJob(((0.0,), (1.0,), (2.0,)), "gauss", 100, 1e4, 0.6, 1.0, "recursive", CalibrationBudget(),
                          **config.detector_config("wear").calibration("steady"))
