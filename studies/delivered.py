@@ -30,9 +30,8 @@ from numpy.typing import NDArray
 from edge_monitor.config import config_from_mapping
 from edge_monitor.stats.detector_config import CALIBRATION_KEYS
 from edge_monitor.stats.glr import WindowedGLR
-from sim_controller.scenario import scenario_config
 from studies.bank_replay import new_bank, replay_bank
-from studies.robots import pauses
+from studies.robots import kept_robot_pauses
 from studies.series import robot_series
 from studies.settings import settings_from
 from studies.statistics import poisson_interval
@@ -206,7 +205,7 @@ def replay_robot(job: tuple[Any, ...]) -> dict[str, Tally]:
     decision = config_from_mapping(settings_from(replay)).decision
     configs = {name: config_from_mapping(settings_from(replay + extra)).decision for name, extra in variants}
     out: dict[str, Tally] = {}
-    stops = pauses(scenario_config(scenario, {"seed": seed, "joints": 6, "cycles": cycles}))
+    stops = kept_robot_pauses(seed, cycles, scenario)
     for joint, rows in robot_series(seed, cycles, 6, scenario).items():
         try:
             tallies = replay_joint(rows, decision, targets, configs, stops)

@@ -98,6 +98,12 @@ def pauses(sim: SimConfig) -> dict[int, float]:
     return {event.cycle: 3600.0 * event.stop_hours for event in sim.timeline if event.stop_hours}
 
 
+def kept_robot_pauses(seed: int, cycles: int, scenario: str | None) -> dict[int, float]:
+    """:func:`pauses` of the robot :func:`~studies.series.robot_series` keeps for ``seed``, ``cycles`` and
+    ``scenario`` (its 6 joints; a scenario's timeline does not depend on them)."""
+    return pauses(scenario_config(scenario, {"seed": seed, "joints": 6, "cycles": cycles}))
+
+
 def without_motor_temperature(signals: CycleSignals) -> CycleSignals:
     """The cycle as a controller that sends no motor temperature sends it."""
     joints = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]

@@ -623,7 +623,7 @@ def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: i
             if decision.alarm:
                 counts[now][1] += 1
                 if now == "steady" or warm_up_alarm == "acknowledge":  # judged false: the statistic restarts
-                    bank.detectors[q].acknowledge()       # on the same nominal (a relearning would cost 240 cycles)
+                    bank.detectors[q].acknowledge()       # on the same nominal (no cycles spent relearning)
                     counts[now][2] += 1
                 else:                                     # as after a declared maintenance
                     bank.detectors[q].reset()

@@ -37,9 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
-from sim_controller.scenario import scenario_config  # noqa: E402
 from studies.bank_replay import new_bank, replay_bank, standard_units  # noqa: E402
-from studies.robots import pauses  # noqa: E402
+from studies.robots import kept_robot_pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
 from studies.statistics import variance_ratio  # noqa: E402
@@ -58,7 +57,7 @@ def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
     """Every tested steady value of one robot, less its temperature slack, in its detector's standard units
     (the robot's stops are pauses, as the agent sees them)."""
     decision = config_from_mapping({}).decision
-    sim = scenario_config(scenario, {"seed": seed, "joints": 6, "cycles": cycles})
+    stops = kept_robot_pauses(seed, cycles, scenario)
     out: Rows = []
     for joint, rows in robot_series(seed, cycles, 6, scenario).items():
         bank = new_bank(decision)
@@ -71,7 +70,7 @@ def steady_values(seed: int, scenario: str | None, cycles: int) -> Rows:
                 slack[name] = given[0] if given else 0.0
             return row
 
-        for step in replay_bank(bank, rows, joint, values=before, pauses=pauses(sim)):
+        for step in replay_bank(bank, rows, joint, values=before, pauses=stops):
             watched = bank.watched(step.row)
             for name in INPUTS:
                 det = bank.detectors[name]

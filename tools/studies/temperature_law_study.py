@@ -33,9 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
 from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
 from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
-from sim_controller.scenario import scenario_config  # noqa: E402
 from studies.bank_replay import new_bank, replay_bank  # noqa: E402
-from studies.robots import pauses  # noqa: E402
+from studies.robots import kept_robot_pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
 
@@ -111,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     left: dict[str, list[float]] = {q: [] for q in SCALARS}
     spread: dict[str, list[float]] = {q: [] for q in SCALARS}
     for seed in parse_seeds(args.seeds):
-        stops = pauses(scenario_config(args.scenario, {"seed": seed, "joints": 6, "cycles": args.cycles}))
+        stops = kept_robot_pauses(seed, args.cycles, args.scenario)
         for _, rows in sorted(robot_series(seed, args.cycles, scenario=args.scenario).items()):
             for name, a in law(rows, decision.n_nominal, args.until).items():
                 laws[name].append(a)
