@@ -20,7 +20,14 @@ from edge_monitor.stats.gaussian_calibration import (
     threshold,
     thresholds,
 )
-from edge_monitor.stats.gaussian_fleet import SEED, WANDER_COEFFICIENT, LearnedTransforms, StreamNoise, drift_draws
+from edge_monitor.stats.gaussian_fleet import (
+    SEED,
+    WANDER_COEFFICIENT,
+    LearnedTransforms,
+    StreamNoise,
+    drift_draws,
+    spread_draws,
+)
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 from edge_monitor.stats.learning_error import TILT_DIRECTION, TILTS, scalar_fits, vector_fits
 from edge_monitor.stats.normalising_transform import YeoJohnson, yeo_johnson
@@ -355,3 +362,58 @@ def test_one_winsorised_glitch_cannot_raise_an_alarm_at_the_default_target() -> 
     single = 0.5 * ((3.0 - 0.75) ** 2 - (3.0 - 3.0 * 0.6) ** 2)
     found = lookup(STEADY, 10_000) or threshold(STEADY, ((1.0,),), 10_000, BUDGET)
     assert found.threshold > single + 3 * found.h_se
+
+
+def _delivered_in_learned_units(settings: GaussianSettings, h: float, detectors: int, cycles: int,
+                                seed: int) -> tuple[float, int]:
+    """Measured ARL0 of ``detectors`` scalar detectors whose values follow ``settings``' law in their nominal's
+    learned units (written here from its definition, plain draws from another seed): each detector's nominal
+    is N(0, 1), its stream N(μ, r²) with μ ~ N(drift_mean, drift_sd²), r ~ N(spread_mean, spread_sd²), every
+    alarm acknowledged."""
+    rng = np.random.default_rng(seed)
+    mean = settings.drift_mean[0] + settings.drift_sd[0] * rng.standard_normal((detectors, 1))
+    spread = np.maximum(settings.spread_mean[0] + settings.spread_sd[0] * rng.standard_normal((detectors, 1)), 0.05)
+    ones = np.ones((detectors, 1))
+    glr = GaussianBatchGLR(np.zeros((detectors, 1)), np.ones((detectors, 1, 1)), settings.window, settings.gamma0,
+                           settings.rho, (np.full((detectors, 1), -np.inf), settings.allowance * ones),
+                           (-settings.clip_sigma * ones, settings.clip_sigma * ones))
+    alarms = 0
+    for _ in range(cycles):
+        alarm = glr.update(mean + spread * rng.standard_normal((detectors, 1))) >= h
+        alarms += int(alarm.sum())
+        if alarm.any():
+            glr.restart(alarm)
+    return detectors * cycles / max(alarms, 1), alarms
+
+
+@pytest.mark.slow
+def test_a_law_in_learned_units_is_calibrated_for_and_delivered() -> None:
+    """Both sides, on the warm-up kl_weighted's measured law (each joint's mean N(−0.126, 0.047²) and spread
+    N(0.908, 0.084²) in its nominal's learned units, the learning error inside them): the threshold calibrated
+    for that law delivers the target within its stated error; the one calibrated for the learning error and a
+    drift N(0, 0.08²) beyond it (what the warm-up assumed before) delivers clearly more, a quiet detector."""
+    law = dataclasses.replace(WARM_UP, at="healthy_drift", drift_mean=(-0.126,), drift_sd=(0.047,),
+                              spread_mean=(0.908,), spread_sd=(0.084,))
+    before = dataclasses.replace(WARM_UP, at="healthy_drift", drift_mean=(0.0,), drift_sd=(0.08,))
+    found, quiet = threshold(law, ((1.0,),), 1000.0, BUDGET), threshold(before, ((1.0,),), 1000.0, BUDGET)
+    assert found.threshold < quiet.threshold - 3 * math.hypot(found.h_se, quiet.h_se)
+    delivered, alarms = _delivered_in_learned_units(law, found.threshold, 256, 6000, seed=84)
+    assert abs(math.log(delivered / 1000.0)) <= _tolerance(law, ((1.0,),), 1000.0, alarms), (found, delivered)
+    assert _delivered_in_learned_units(law, quiet.threshold, 256, 6000, seed=85)[0] > 1.4 * 1000.0
+
+
+def test_the_spread_draws_are_weighted_without_bias_and_the_law_is_for_scalars_only() -> None:
+    """The spread law's draws, weighted, have the law's mean and variance and its upper tail, drawn far more
+    often there (the widest joints decide a deep threshold); tolerances 4 standard errors of each weighted
+    mean. A law is refused for a vector, with wander or a transform, or away from the healthy drift."""
+    n = 4096
+    spread, w = spread_draws(0.9, 0.1, np.arange(n))
+    z = (spread - 0.9) / 0.1
+    for value, expected in ((np.ones(n), 1.0), (z, 0.0), (z * z, 1.0), ((z > 3.0).astype(float), norm.sf(3.0))):
+        assert abs(np.mean(w * value) - expected) < 4 * np.std(w * value) / math.sqrt(n), expected
+    assert np.mean(z > 3.0) > 50 * norm.sf(3.0) and w.max() <= len(TILTS) + 1e-9
+    law = {"at": "healthy_drift", "drift_mean": (0.0,), "drift_sd": (0.1,), "spread_mean": (0.9,), "spread_sd": (0.1,)}
+    for bad in ({"wander": (0.09,)}, {"transform": "yeo-johnson"}, {"at": "boundary"},
+                {"spread_mean": (0.9, 0.9), "spread_sd": (0.1, 0.1)}):
+        with pytest.raises(ValueError, match="spread law"):
+            dataclasses.replace(WARM_UP, **{**law, **bad})

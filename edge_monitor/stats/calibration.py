@@ -136,12 +136,13 @@ class Calibration:
 def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, gamma0: float, rho: float,
                         budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
                         at: str, drift_mean: tuple[float, ...] = (), drift_sd: tuple[float, ...] = (),
-                        wander: tuple[float, ...] = (), transform: str = "none") -> Calibration:
+                        wander: tuple[float, ...] = (), transform: str = "none",
+                        spread: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())) -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
     tabulated for the shipped settings (:mod:`~edge_monitor.stats.threshold_table`), else simulated
     (cached) with ``GAUSSIAN_DRAW_FACTOR`` × ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
     settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
-                                float(clip_sigma), at, drift_mean, drift_sd, wander, transform)
+                                float(clip_sigma), at, drift_mean, drift_sd, wander, transform, *spread)
     try:
         corr = correlation(values)
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -167,7 +168,7 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
               clip_sigma: float = 0.0, at: str = "boundary", drift_mean: ArrayLike = (),
               drift_sd: ArrayLike = (), simulate_from: str = "model", wander: ArrayLike = (),
-              transform: str = "none") -> Calibration:
+              transform: str = "none", spread_mean: ArrayLike = (), spread_sd: ArrayLike = ()) -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
@@ -178,7 +179,10 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     describe the healthy drift for ``"healthy_drift"``, ``wander`` (per dimension, a variance fraction)
     its slow serial wander (Gaussian nominals only, :mod:`~edge_monitor.stats.gaussian_calibration`);
     ``transform``: ``"yeo-johnson"`` when ``nominal`` holds the values of a scalar detector after a transform it
-    learned from them, whose exponent's learning error the Gaussian path then simulates too.
+    learned from them, whose exponent's learning error the Gaussian path then simulates too. ``spread_mean``/
+    ``spread_sd`` (a scalar Gaussian nominal at ``"healthy_drift"``): the healthy joint's law in the nominal's
+    learned units, its drift and spread measured there with the learning error in them, which is then not
+    drawn again (:class:`~edge_monitor.stats.gaussian_calibration.GaussianSettings`).
     ``simulate_from``: ``"model"`` (p̂0) or ``"values"`` (:class:`SmoothedBootstrap` of ``nominal``), see
     the module docstring."""
     if at not in CALIBRATE_AT:
@@ -192,7 +196,10 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
             return tuple(float(x) for x in np.ravel(given)) if at == "healthy_drift" else ()
 
         return _calibrate_gaussian(values, window, arl0, gamma0, rho, budget, direction, allowance, clip_sigma, at,
-                                   per_axis(drift_mean), per_axis(drift_sd), per_axis(wander), transform)
+                                   per_axis(drift_mean), per_axis(drift_sd), per_axis(wander), transform,
+                                   (per_axis(spread_mean), per_axis(spread_sd)))
+    if len(np.ravel(spread_mean)):
+        raise ValueError("a spread law is simulated for Gaussian nominals only (kind 'gauss', model, recursive)")
     seed = FIXED_SEED if seed is None else seed
     rng = np.random.default_rng(seed)
     model = fit_density(values, kind)
@@ -374,17 +381,21 @@ class CalibrationJob:
     simulate_from: str = "model"
     wander: tuple[float, ...] = ()
     transform: str = "none"
+    spread_mean: tuple[float, ...] = ()
+    spread_sd: tuple[float, ...] = ()
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
                          "exact" if self.mode == "exact" else "recursive", self.budget,
                          direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma,
                          at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd,
-                         simulate_from=self.simulate_from, wander=self.wander, transform=self.transform)
+                         simulate_from=self.simulate_from, wander=self.wander, transform=self.transform,
+                         spread_mean=self.spread_mean, spread_sd=self.spread_sd)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget),
-                "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd), "wander": list(self.wander)}
+                "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd), "wander": list(self.wander),
+                "spread_mean": list(self.spread_mean), "spread_sd": list(self.spread_sd)}
 
     @classmethod
     def from_dict(cls, state: dict[str, Any]) -> "CalibrationJob":
@@ -397,4 +408,6 @@ class CalibrationJob:
                    drift_sd=tuple(float(x) for x in state.get("drift_sd", ())),
                    simulate_from=str(state.get("simulate_from", "model")),
                    wander=tuple(float(x) for x in state.get("wander", ())),
-                   transform=str(state.get("transform", "none")))
+                   transform=str(state.get("transform", "none")),
+                   spread_mean=tuple(float(x) for x in state.get("spread_mean", ())),
+                   spread_sd=tuple(float(x) for x in state.get("spread_sd", ())))

@@ -64,6 +64,7 @@ from edge_monitor.stats.gaussian_fleet import (  # noqa: F401  (WANDER_COEFFICIE
     fit_nominals,
     fleet_detectors,
     pairing,
+    spread_draws,
     stream_shifts,
 )
 from edge_monitor.stats.learning_error import scalar_fits, vector_fits
@@ -108,12 +109,25 @@ class GaussianSettings:
     wander: tuple[float, ...] = ()         # per axis: the variance fraction of the slow AR(1) wander
     transform: str = "none"                # "yeo-johnson": a scalar detector that learns this transform before
                                            # its Gaussian, its exponent's learning error simulated too
+    spread_mean: tuple[float, ...] = ()    # "healthy_drift" in learned units (a scalar): each nominal's streams
+    spread_sd: tuple[float, ...] = ()      # have spread spread_mean + spread_sd·z' and sit at drift_mean +
+                                           # drift_sd·z in the nominal's learned units, no learning error drawn
 
     def __post_init__(self) -> None:
         if not any(self.wander):               # no wander on any axis: one setting, one table key
             object.__setattr__(self, "wander", ())
         if self.transform not in ("none", "yeo-johnson"):
             raise ValueError(f"transform = {self.transform!r}; choose 'none' or 'yeo-johnson'")
+        if self.in_learned_units and (self.at != "healthy_drift" or len(self.spread_mean) != 1
+                                      or len(self.spread_sd) != 1 or self.wander or self.transform != "none"):
+            raise ValueError("a spread law (the healthy drift in learned units) is for a scalar warm-up detector "
+                             "calibrated at the healthy drift, without wander or transform: one spread mean and sd")
+
+    @property
+    def in_learned_units(self) -> bool:
+        """Whether the healthy joint is drawn in its nominal's learned units (a spread law is given): the drift
+        and spread measured there already hold the nominal's learning error, which is then not drawn again."""
+        return bool(self.spread_mean)
 
 
 @dataclass(frozen=True)
@@ -237,7 +251,14 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
         noise = StreamNoise(lower_chol, settings.wander, rng)
-        if not settings.wander:             # independent learning values: the fit's exact law
+        scale = None
+        if settings.in_learned_units:       # the measured law holds the learning error: the fit is exact
+            index = np.arange(first, first + g)
+            means, covs = np.zeros((g, 1)), np.ones((g, 1, 1))
+            spread, weight = spread_draws(settings.spread_mean[0], settings.spread_sd[0], index)
+            scale = np.repeat(spread, budget.streams)[:, None]
+            learned = None
+        elif not settings.wander:           # independent learning values: the fit's exact law
             index = np.arange(first, first + g)
             means, covs, weight = scalar_fits(settings.n0, index, rng) if r.shape[0] == 1 else \
                 vector_fits(settings.n0, index, lower_chol, rng)
@@ -254,7 +275,7 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
         weights.append(weight * drift_weights[first:first + g])
         shift = np.repeat(shifts[first:first + g], budget.streams, axis=0)
         observe = None if learned is None else learned.repeat(budget.streams).apply
-        passage = first_passages(glr, shift, noise, budget.steps, grid, observe)
+        passage = first_passages(glr, shift, noise, budget.steps, grid, observe, scale)
         alarmed = passage < budget.steps
         shape = (g, budget.streams, grid.size)
         events.append(alarmed.reshape(shape).sum(axis=1))

@@ -96,6 +96,23 @@ def drift_draws(nominals: int, tilts: tuple[float, ...] = (0.0,)) -> tuple[NDArr
     return z, np.exp(norm.logpdf(z) - log_mixture)
 
 
+#: Smallest spread a spread law's draw takes [learned standard deviations].
+MIN_SPREAD = 0.05
+
+
+def spread_draws(mean: float, sd: float, index: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each nominal's stream spread under a spread law N(``mean``, ``sd``) [learned standard deviations] and its
+    importance weight: nominal ``index[g]`` draws z' from proposal N(t_k, 1), k = index mod len(TILTS) of the
+    learning error's :data:`~edge_monitor.stats.learning_error.TILTS` (the slot a law in learned units leaves
+    free: the widest joints decide a deep threshold), spread max(mean + sd·z', :data:`MIN_SPREAD`), weight
+    φ(z')/mean_k φ(z' − t_k)."""
+    rng = np.random.default_rng([SEED, 4, int(index[0]) if index.size else 0])
+    t = np.asarray(FIT_TILTS, dtype=float)
+    z = rng.standard_normal(index.size) + t[index % t.size]
+    log_mixture = np.logaddexp.reduce(norm.logpdf(z[:, None] - t[None, :]), axis=1) - math.log(t.size)
+    return np.maximum(mean + sd * z, MIN_SPREAD), np.exp(norm.logpdf(z) - log_mixture)
+
+
 class StreamNoise:
     """Values in standard units with correlation R across axes: iid, or with a slow AR(1) wander
     carrying ``wander`` of each axis's variance (step 2 of the gaussian_calibration module docstring)."""
@@ -169,10 +186,11 @@ class LearnedTransforms:
 
 def first_passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: StreamNoise, steps: int,
                    grid: NDArray[np.float64],
-                   observe: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None) -> NDArray[np.int64]:
+                   observe: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+                   scale: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
     """First cycle (0-based) each detector's statistic reaches each grid threshold, ``steps`` if never;
-    detector b's stream moved by ``shift[b]`` (standard units) and seen through ``observe`` (a learned
-    transform) if given."""
+    detector b's stream scaled by ``scale[b]`` (a spread law, if given), moved by ``shift[b]`` (standard
+    units) and seen through ``observe`` (a learned transform) if given."""
     b, d = glr.means.shape
     noise.start(b)
     first = np.full((b, grid.size), steps, dtype=np.int64)
@@ -181,7 +199,8 @@ def first_passages(glr: GaussianBatchGLR, shift: NDArray[np.float64], noise: Str
         length = min(SEGMENT, steps - start)
         stats = np.empty((b, length))
         for t in range(length):
-            y = noise.step(b) + shift
+            y = noise.step(b) if scale is None else scale * noise.step(b)
+            y = y + shift
             stats[:, t] = glr.update(y if observe is None else observe(y))
         stats[:, 0] = np.maximum(stats[:, 0], running)
         np.maximum.accumulate(stats, axis=1, out=stats)

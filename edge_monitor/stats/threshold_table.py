@@ -33,6 +33,8 @@ from edge_monitor.stats.gaussian_calibration import Correlation, GaussianSetting
 
 #: The table's file inside the package.
 RESOURCE = "gaussian_thresholds.json"
+#: Settings that enter a key only when set (the entries computed before they existed keep their keys).
+OPTIONAL_FIELDS = ("spread_mean", "spread_sd")
 #: The pair of axes of a vector detector whose correlation indexes the table.
 VECTOR_AXES = (1, 2)
 
@@ -40,7 +42,8 @@ VECTOR_AXES = (1, 2)
 def key(settings: GaussianSettings, dim: int = 1) -> str:
     """The table key of ``settings`` for a ``dim``-dimensional detector (exact values: a table holds only
     what was computed)."""
-    fields = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()}
+    fields = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()
+              if not (k in OPTIONAL_FIELDS and v == ())}
     return json.dumps({**fields, **({"dim": dim} if dim > 1 else {})}, sort_keys=True)
 
 

@@ -7,7 +7,8 @@ target ARL0 in ``--targets``, the threshold is read from the table as the agent 
 ``--detectors`` detectors are simulated, each learning its own nominal from N0 values and then watching
 its stream for ``--cycles`` cycles, with the stream law the entry was calibrated for (at the nominal,
 at the allowance boundary, or the healthy drift and slow wander; a steady scalar detector learning its
-Yeo–Johnson transform from its own learning values first). Unlike the calibration, which reads
+Yeo–Johnson transform from its own learning values first; a warm-up scalar whose law is stated in its
+nominal's learned units, an exact nominal and each stream's spread drawn from that law). Unlike the calibration, which reads
 first passages from a fresh start, every alarm here is acknowledged and the statistic restarts on the
 same nominal, as the agent's are; and the draws come from another seed. Delivered ARL0 = detector-cycles
 / alarms, with a 95 % interval from the alarms counted per detector (clustered: a badly learned nominal
@@ -63,6 +64,11 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     samples = noise.sequence(detectors, settings.n0)                                  # plain learning sets
     learned = None if settings.transform == "none" else gf.LearnedTransforms.fit(samples[:, :, 0])
     nominal = gf.fit_nominals(samples) if learned is None else (learned.z_mean[:, None], learned.z_var[:, None, None])
+    scale = np.ones((detectors, 1))
+    if settings.in_learned_units:                  # the law is in learned units: an exact nominal, a spread drawn
+        nominal = (np.zeros((detectors, 1)), np.ones((detectors, 1, 1)))
+        scale = np.maximum(settings.spread_mean[0] + settings.spread_sd[0] * rng.standard_normal((detectors, 1)),
+                           gf.MIN_SPREAD)
     glr = gf.fleet_detectors(settings, *nominal, 1)
     shift = gf.stream_shifts(settings, detectors, r.shape[0])[0]       # plain draws: every weight 1
     if settings.at == "healthy_drift":             # the check's own fleet drift, not the calibration's order
@@ -70,7 +76,7 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     noise.start(detectors)
     alarms = np.zeros(detectors)
     for _ in range(cycles):
-        y = noise.step(detectors) + shift
+        y = scale * noise.step(detectors) + shift
         alarm = glr.update(y if learned is None else learned.apply(y)) >= h
         if alarm.any():
             alarms += alarm
