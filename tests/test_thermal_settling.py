@@ -456,3 +456,34 @@ def test_a_state_saved_before_the_smoothing_still_sees_the_first_stop() -> None:
         restored.update(_healthy(rng), "r", 0, cycle + k)
     assert restored.hold_temperature.stops == 1 and not restored.settling.settled
     assert all(d._steady_values is None for d in restored.detectors.values())
+
+
+def test_an_acknowledged_alarm_keeps_the_steady_values_collected_before_it() -> None:
+    """A settled joint collecting its steady values (60) raises a warm-up alarm on a glitch run, which an operator
+    judges false: the values collected before the alarm stay, none are added while it is latched, and the
+    collection goes on after the acknowledgement to a steady nominal. (It was dropped: with warm-up false alarms
+    at their stated rate a short target never reached its steady stage.) The other side: the detector whose
+    alarm is not acknowledged collects nothing more while latched."""
+    bank, rng, cycle = _collecting_steady_bank(13)
+    wear = bank.detectors["wear"]
+    collected = len(wear._steady_values or [])
+    assert collected >= 1
+    while not wear.alarmed:
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        bank.update({**_healthy(rng), "wear_score": 12.0}, "r", 0, cycle)
+        cycle += 1
+        collected += 1                                   # the alarm's own value too: collected before the test
+    latched = len(wear._steady_values or [])
+    for _ in range(5):                                   # latched: nothing is collected
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        bank.update(_healthy(rng), "r", 0, cycle)
+        cycle += 1
+    assert len(wear._steady_values or []) == latched == collected
+    bank.acknowledge("r", 0, cycle, ["wear"])
+    assert len(wear._steady_values or []) == latched and not wear.alarmed
+    while wear.stage != "steady":
+        bank.observe_temperature(50.0 + rng.normal(0.0, NOISE))
+        bank.update(_healthy(rng), "r", 0, cycle)
+        cycle += 1
+        assert cycle < 500
+    assert wear.state == "monitoring" and wear.fits == 2

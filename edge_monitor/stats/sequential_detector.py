@@ -200,10 +200,11 @@ class SequentialDetector:
 
     def acknowledge(self) -> None:
         """The latched alarm was judged false: clear it and restart the statistic on the same nominal
-        and threshold (no relearning, unlike :meth:`reset`)."""
+        and threshold (no relearning, unlike :meth:`reset`). Steady values collected before the alarm are
+        kept (they were healthy, the operator says) and the collection goes on; none were added while latched."""
         if self.glr is not None:
             self.glr.restart()
-        self._latched, self._steady_values = None, None
+        self._latched = None
         self._cycles = [None] * self.window
 
     def retarget(self, arl0: float) -> bool:
