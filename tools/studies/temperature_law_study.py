@@ -12,9 +12,14 @@ is its first ``decision.n_nominal`` values, the span the smoothed motor temperat
   scalar detector's value less its slack over the cycles more than 5 °C out, in standard deviations of its
   nominal; mean, sd and the largest over joints (the drift ``[decision.healthy_drift]`` calibrates for);
 * the spread of the same values: per joint their standard deviation about the joint's own mean, in standard
-  deviations of the nominal (the calibration assumes 1: the values as noisy as the ones the nominal was learned from).
+  deviations of the nominal;
+* the warm-up law (``[decision.warm_up_law]``): the same mean and spread per joint over every cycle its warm-up
+  detector tests, and their mean and sd over joints; and the shape of those values per joint (skewness, the share
+  above 2 of their sd, the variance ratios of 10- and 30-cycle means), averaged over joints.
 
-Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--scenario NAME] [--json OUT]``.
+Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--scenario NAME] [--json OUT]``;
+several groups pooled: ``--group 7001-7002 --group 401-407,7101-7104@plant_week:4400 --until 1200`` (seeds, then
+``@scenario`` and ``:cycles`` if not the default's).
 """
 
 from __future__ import annotations
@@ -64,11 +69,11 @@ def law(rows: list[dict[str, Any]], n0: int, until: int) -> dict[str, float]:
     return out
 
 
-def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: int,
-                  stops: dict[int, float] | None = None) -> dict[str, tuple[float, float]]:
-    """Per warm-up scalar detector, the mean and the standard deviation of its tested value less its slack [σ]
-    over the cycles more than :data:`OUT_BY` °C out (NaN with fewer than 30 of them); ``stops``: the seconds the
-    robot stood still before a cycle, seen as the agent sees them."""
+def tested_values(rows: list[dict[str, Any]], decision: DecisionConfig, until: int,
+                  stops: dict[int, float] | None = None, out_by: float = OUT_BY) -> dict[str, np.ndarray]:
+    """Per warm-up scalar detector, its tested values less its slack [σ of its nominal], in cycle order, over the
+    cycles more than ``out_by`` °C out (−inf: every cycle it tests); ``stops``: the seconds the robot stood still
+    before a cycle, seen as the agent sees them. An alarm is acknowledged (the statistic restarts)."""
     bank = new_bank(decision)
     left: dict[str, list[float]] = {q: [] for q in SCALARS}
 
@@ -77,7 +82,7 @@ def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: i
             detector = bank.detectors[q]
             side, d = bank.spans.outside(q, detector, bank.smoothed)
             density = detector.density
-            if detector.stage != "warm-up" or density is None or d <= OUT_BY:
+            if detector.stage != "warm-up" or density is None or d <= out_by:
                 continue
             slack = bank.spans.slack(q, QUANTITIES[q].inputs, detector, bank.smoothed)
             z = (_watched(row, QUANTITIES[q].inputs[0]) - density.mean[0]) / density.spread[0]
@@ -87,8 +92,27 @@ def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: i
     for step in replay_bank(bank, rows[:until], values=before, pauses=stops):
         for alarm in step.raised:
             bank.detectors[alarm.quantity].acknowledge()
+    return {q: np.asarray(v) for q, v in left.items()}
+
+
+def left_by_slack(rows: list[dict[str, Any]], decision: DecisionConfig, until: int,
+                  stops: dict[int, float] | None = None, out_by: float = OUT_BY) -> dict[str, tuple[float, float]]:
+    """Per warm-up scalar detector, the mean and the standard deviation of :func:`tested_values` (NaN with fewer
+    than 30 of them)."""
     return {q: (float(np.mean(v)), float(np.std(v, ddof=1))) if len(v) >= 30 else (math.nan, math.nan)
-            for q, v in left.items()}
+            for q, v in tested_values(rows, decision, until, stops, out_by).items()}
+
+
+def shape(values: np.ndarray) -> dict[str, float]:
+    """Of one joint's tested values: their skewness, the share above 2 of their own standard deviations (a
+    Gaussian's: 0.0228) and k·var(k-cycle mean)/var at k = 10 and 30 (independent values: 1); NaN with fewer
+    than 120 values."""
+    if values.size < 120:
+        return dict.fromkeys(("skewness", "above_2sd", "ratio_10", "ratio_30"), math.nan)
+    u = (values - values.mean()) / values.std()
+    ratios = {k: k * float(np.var(u[:u.size // k * k].reshape(-1, k).mean(axis=1))) for k in (10, 30)}
+    return {"skewness": float(np.mean(u ** 3)), "above_2sd": float(np.mean(u > 2.0)),
+            "ratio_10": ratios[10], "ratio_30": ratios[30]}
 
 
 def _summary(values: list[float]) -> dict[str, float]:
@@ -97,28 +121,52 @@ def _summary(values: list[float]) -> dict[str, float]:
             "min": float(v.min())} if v.size > 1 else {"joints": int(v.size)}
 
 
+def _group(text: str, cycles: int) -> tuple[str, str | None, int]:
+    """``SEEDS[@SCENARIO][:CYCLES]`` → (seeds, scenario, cycles)."""
+    seeds, _, rest = text.partition("@")
+    if ":" in (rest or seeds):
+        head, _, count = (rest or seeds).rpartition(":")
+        cycles = int(count)
+        seeds, rest = (seeds, head) if rest else (head, "")
+    return seeds, rest or None, cycles
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seeds", required=True)
+    parser.add_argument("--seeds", default=None)
+    parser.add_argument("--group", action="append", default=[],
+                        help="SEEDS[@SCENARIO][:CYCLES], pooled with --seeds and other groups (repeatable)")
     parser.add_argument("--cycles", type=int, default=1000)
     parser.add_argument("--until", type=int, default=700, help="rows of the warm-up per joint (default 700)")
     parser.add_argument("--scenario", default=None, help="simulator scenario of the kept series (e.g. plant_week)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
+    groups = [_group(g, args.cycles) for g in args.group]
+    if args.seeds:
+        groups.insert(0, (args.seeds, args.scenario, args.cycles))
+    if not groups:
+        parser.error("give --seeds or --group")
     decision = DecisionConfig()
     laws: dict[str, list[float]] = {name: [] for name in INPUTS}
-    left: dict[str, list[float]] = {q: [] for q in SCALARS}
-    spread: dict[str, list[float]] = {q: [] for q in SCALARS}
-    for seed in parse_seeds(args.seeds):
-        stops = kept_robot_pauses(seed, args.cycles, args.scenario)
-        for _, rows in sorted(robot_series(seed, args.cycles, scenario=args.scenario).items()):
-            for name, a in law(rows, decision.n_nominal, args.until).items():
-                laws[name].append(a)
-            for q, (mean, sd) in left_by_slack(rows, decision, args.until, stops).items():
-                left[q].append(mean)
-                spread[q].append(sd)
-    out = {"law": {k: _summary(v) for k, v in laws.items()}, "left_by_slack": {k: _summary(v) for k, v in left.items()},
-           "spread": {k: _summary(v) for k, v in spread.items()}}
+    parts = ("left_by_slack", "spread", "warm_up_mean", "warm_up_spread", "skewness", "above_2sd", "ratio_10",
+             "ratio_30")
+    found: dict[str, dict[str, list[float]]] = {part: {q: [] for q in SCALARS} for part in parts}
+    for seeds, scenario, cycles in groups:
+        for seed in parse_seeds(seeds):
+            stops = kept_robot_pauses(seed, cycles, scenario)
+            for _, rows in sorted(robot_series(seed, cycles, scenario=scenario).items()):
+                for name, a in law(rows, decision.n_nominal, args.until).items():
+                    laws[name].append(a)
+                for q, (mean, sd) in left_by_slack(rows, decision, args.until, stops).items():
+                    found["left_by_slack"][q].append(mean)
+                    found["spread"][q].append(sd)
+                for q, values in tested_values(rows, decision, args.until, stops, -math.inf).items():
+                    found["warm_up_mean"][q].append(float(np.mean(values)) if values.size >= 30 else math.nan)
+                    found["warm_up_spread"][q].append(float(np.std(values, ddof=1)) if values.size >= 30 else math.nan)
+                    for part, value in shape(values).items():
+                        found[part][q].append(value)
+    out = {"law": {k: _summary(v) for k, v in laws.items()},
+           **{part: {k: _summary(v) for k, v in found[part].items()} for part in parts}}
     for part, table in out.items():
         for name, s in table.items():
             if "mean" in s:
