@@ -70,8 +70,9 @@ def test_agent_arl_reports_the_steady_stage_once_the_motor_temperature_settles()
     assert all(warm[q]["monitored_cycles"] > 0 for q in warm)
 
 
-def test_agent_arl_acknowledges_warm_up_alarms_when_asked() -> None:
-    """``warm_up_alarm="acknowledge"``: a warm-up false alarm restarts the statistic on the same nominal, so every
+def test_agent_arl_acknowledges_warm_up_alarms_by_default_and_resets_them_when_asked() -> None:
+    """``warm_up_alarm="acknowledge"`` (the default, as the agent handles an alarm judged false): a warm-up false
+    alarm restarts the statistic on the same nominal, so every
     run after the first starts with an alarm and no cycle is spent relearning; with "reset" each alarm is followed
     by a new learning phase of 60 cycles. A stream that sits 3 σ above what it learned (after 60 cycles of N(0, 1))
     alarms in both, and the acknowledging detector tests more cycles; anything else is refused."""
@@ -82,9 +83,9 @@ def test_agent_arl_acknowledges_warm_up_alarms_when_asked() -> None:
     shift = np.where(np.arange(n) < 60, 0.0, 3.0)
     rows = [{"wear_score": float(w + s), "kl_raw": float(a), "kl_weighted": float(b)}
             for w, s, a, b in zip(rng.normal(size=n), shift, rng.lognormal(-3, 0.3, n), rng.lognormal(-4, 0.3, n))]
-    reset = {r["quantity"]: r for r in agent_arl([{0: rows}], 50.0, draws=16) if r["stage"] == "warm-up"}
-    ack = {r["quantity"]: r for r in agent_arl([{0: rows}], 50.0, draws=16, warm_up_alarm="acknowledge")
-           if r["stage"] == "warm-up"}
+    reset = {r["quantity"]: r for r in agent_arl([{0: rows}], 50.0, draws=16, warm_up_alarm="reset")
+             if r["stage"] == "warm-up"}
+    ack = {r["quantity"]: r for r in agent_arl([{0: rows}], 50.0, draws=16) if r["stage"] == "warm-up"}
     assert reset["wear"]["false_alarms"] >= 1 and ack["wear"]["false_alarms"] >= 1
     assert ack["wear"]["runs"] == 1 + ack["wear"]["false_alarms"]
     assert ack["wear"]["monitored_cycles"] > reset["wear"]["monitored_cycles"]

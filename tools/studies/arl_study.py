@@ -43,9 +43,10 @@ Parts (all with fixed seeds; select with --part, default all):
   simulator's fast path: healthy joints with the default individual variation, thermal drift and
   load spread. The per-cycle quantities of each joint are computed once; then for each target ARL0
   (50 and 200; ``--targets``) the detectors run over them, with each cycle's motor temperature for
-  their thermal settling test; a warm-up detector that alarms is reset and relearns (as after a
-  declared maintenance; ``--warm-up-alarm acknowledge``: acknowledged too), a steady one is acknowledged (its
-  statistic restarts on the same nominal), and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
+  their thermal settling test; a detector that alarms is acknowledged (its statistic restarts on the same
+  nominal, as the agent handles an alarm judged false; ``--warm-up-alarm reset``: a warm-up one relearns
+  instead, as after a declared maintenance, a renewal whose nominals, learned later in the warming, have absorbed
+  the drift the warm-up calibration is for), and measured ARL0 = monitored cycles / false alarms. Prints ``{"rows": [{"quantity",
   "stage", "target_arl0", "measured_arl0", "runs", "false_alarms", ...}, ...], "other_rows": [...]}``:
   ``rows`` are the steady stage (the nominal learned again once the joint's temperature settled, the
   stage ``arl0_cycles`` is stated for), ``other_rows`` the warm-up stage (threshold at the drift
@@ -543,7 +544,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | t
               draws: int = 48, allowance: float | None = None, boundary: bool = False,
               calibrate_at: str | None = None, workers: int = 1, steady_at: str | None = None,
               steady_density: str | None = None, steady_transform: str | None = None,
-              warm_up_alarm: str = "reset") -> list[dict[str, object]]:
+              warm_up_alarm: str = "acknowledge") -> list[dict[str, object]]:
     """Measured ARL0 of the agent's detectors (shipped defaults, ``arl0_cycles = target``; several
     targets: rows for each) with renewal, one row per quantity and stage (``"warm-up"``: the nominal
     learned after commissioning; ``"steady"``: the one learned again once the motor temperature
@@ -593,7 +594,7 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | t
 
 
 def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: int, extra: dict[str, Any],
-               boundary: bool, warm_up_alarm: str = "reset") -> dict[tuple[str, str], tuple[int, int, int]]:
+               boundary: bool, warm_up_alarm: str = "acknowledge") -> dict[tuple[str, str], tuple[int, int, int]]:
     """One joint's ``(quantity, stage) → (monitored cycles, false alarms, runs)`` (see :func:`agent_arl`)."""
     from edge_monitor.features.registry import QUANTITIES
     from edge_monitor.pipeline.detectors import DecisionConfig
@@ -748,9 +749,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="--agent: the steady nominal's density instead of decision.steady_density")
     parser.add_argument("--steady-transform", choices=("yeo-johnson", "none"), default=None,
                         help="--agent: the steady nominal's transform instead of decision.steady_transform")
-    parser.add_argument("--warm-up-alarm", choices=("reset", "acknowledge"), default="reset",
-                        help="--agent: after a warm-up false alarm the detector relearns (reset, as after a declared "
-                             "maintenance; default) or restarts its statistic on the same nominal (acknowledge)")
+    parser.add_argument("--warm-up-alarm", choices=("reset", "acknowledge"), default="acknowledge",
+                        help="--agent: after a warm-up false alarm the detector restarts its statistic on the same "
+                             "nominal (acknowledge, as the agent does; default) or relearns (reset, as after a "
+                             "declared maintenance)")
     parser.add_argument("--at-boundary", action="store_true",
                         help="--agent: also measure with each detector's values moved to the edge of its null")
     parser.add_argument("--shape", default="gaussian", choices=sorted(SHAPES), help="sequential part: nominal shape")
