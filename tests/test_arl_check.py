@@ -26,9 +26,18 @@ def _entry(at: str, dim: int, rho: float = 0.0, drifting: bool = True) -> dict:
     raise LookupError((at, dim, rho))
 
 
+def _law_entry(spread: float) -> dict:
+    """The warm-up scalar entry calibrated for a law in learned units of this mean spread."""
+    for group in entries_by_key().values():
+        for e in group:
+            if e["settings"].get("spread_mean") == [spread]:
+                return e
+    raise LookupError(spread)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("entry", [_entry("healthy_drift", 1), _entry("healthy_drift", 3, 0.5)],
-                         ids=["kl-steady", "joint-steady"])
+@pytest.mark.parametrize("entry", [_entry("healthy_drift", 1), _entry("healthy_drift", 3, 0.5), _law_entry(0.908)],
+                         ids=["kl-steady", "joint-steady", "kl_weighted-warm-up-law"])
 def test_the_tables_threshold_is_delivered_at_1000_and_a_lower_one_is_not(entry: dict) -> None:
     """Delivered within 3 standard errors (the table's h_se through the slope of log ARL0 in h, and the
     clustered measurement's) of 10³; half a nat lower delivers less than 0.7× (log ARL0 grows by ≥ 1 per

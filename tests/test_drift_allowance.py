@@ -281,6 +281,51 @@ def test_healthy_drift_settings_reach_each_detector_and_survive_the_state_round_
     assert restored.threshold == det.threshold and math.isfinite(det.threshold)
 
 
+def test_a_warm_up_law_reaches_the_scalar_warm_up_detectors_only_and_a_saved_nominal_is_recalibrated() -> None:
+    """``decision.warm_up_law`` (input → [mean, sd, spread, spread sd(, wander)]) reaches each scalar detector's warm-up
+    calibration (its mean law as the drift, its spread law beside it), not the joint vector (which keeps
+    ``healthy_drift``) nor a steady calibration; [] gives the input back to ``healthy_drift``; bad laws are
+    refused with the key named; a detector saved before the law re-derives its threshold for it (its
+    nominal is kept: the law is where the calibration simulates, not what the detector learned)."""
+    from edge_monitor.config import ConfigError, config_from_mapping
+    from edge_monitor.pipeline.healthy_drift import HEALTHY_DRIFT, WARM_UP_LAW
+
+    cfg = config_from_mapping({"decision": {"warm_up_law": {"kl_raw": [-0.2, 0.1, 0.9, 0.1], "wear_score": []}}})
+    decision = cfg.decision
+    kl_raw = decision.detector_config("kl_raw")
+    assert (kl_raw.drift_mean, kl_raw.drift_sd, kl_raw.spread_mean, kl_raw.spread_sd) == ((-0.2,), (0.1,), (0.9,), (0.1,))
+    assert kl_raw.calibration("steady")["spread_mean"] == () and kl_raw.calibration("warm-up")["spread_sd"] == (0.1,)
+    wear = decision.detector_config("wear")
+    assert (wear.drift_mean, wear.drift_sd, wear.spread_mean) == ((HEALTHY_DRIFT["wear_score"][0],),
+                                                                  (HEALTHY_DRIFT["wear_score"][1],), ())
+    joint = decision.detector_config("joint")
+    assert joint.spread_mean == () and joint.drift_mean == tuple(HEALTHY_DRIFT[q][0] for q in HEALTHY_DRIFT)
+    assert kl_raw.warm_up_wander == () and kl_raw.calibration("warm-up")["wander"] == ()
+    shipped = decision.detector_config("kl_weighted")
+    assert shipped.spread_mean == (WARM_UP_LAW["kl_weighted"][2],)
+    assert shipped.calibration("warm-up")["wander"] == (WARM_UP_LAW["kl_weighted"][4],) == (0.09,)
+    assert shipped.calibration("steady")["wander"] == (decision.steady_wander["kl_weighted"],)
+    wandering = config_from_mapping({"decision": {"warm_up_law": {"kl_raw": [-0.2, 0.1, 0.9, 0.1, 0.2]}}}).decision
+    assert wandering.detector_config("kl_raw").calibration("warm-up")["wander"] == (0.2,)
+    for bad, key in (({"kl_raw": [0.1, 0.1, 0.9]}, "decision.warm_up_law.kl_raw"), ({"torque": []}, "torque"),
+                     ({"kl_raw": [0.0, 0.1, 0.0, 0.1]}, "kl_raw"), ({"kl_raw": [0.0, -0.1, 1.0, 0.1]}, "kl_raw"),
+                     ({"kl_raw": [0.0, 0.1, 1.0, 0.1, 1.0]}, "kl_raw")):
+        with pytest.raises(ConfigError, match=key):
+            config_from_mapping({"decision": {"warm_up_law": bad}})
+    before = DetectorConfig(arl0=200.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
+                            drift_mean=(0.0,), drift_sd=(0.08,), calibration_draws=16, calibration_steps=600)
+    det = SequentialDetector(before)
+    for i, v in enumerate(np.random.default_rng(3).normal(size=60)):
+        det.update(v, i)
+    with_law = DetectorConfig(**{**before.__dict__, "drift_mean": (-0.126,), "drift_sd": (0.047,),
+                                 "spread_mean": (0.908,), "spread_sd": (0.084,)})
+    restored = SequentialDetector.from_state(with_law, json.loads(json.dumps(det.state_dict())))
+    restored.update(0.0, 60)
+    assert restored.state == "monitoring" and restored.calibrated_job is not None
+    assert restored.calibrated_job.spread_mean == (0.908,)
+    assert restored.threshold is not None and det.threshold is not None and restored.threshold < det.threshold
+
+
 def test_a_fleet_counts_the_mean_rate_of_its_learned_nominals_not_the_pooled_first_passages() -> None:
     """Two learned nominals of 4 simulated detectors each: one group alarms at cycle 10, the other never
     within 1000. A group's rate is (e − 1)/X = 3/40 (the small-sample correction of 4/40 for

@@ -405,7 +405,7 @@ def test_a_law_in_learned_units_is_calibrated_for_and_delivered() -> None:
 def test_the_spread_draws_are_weighted_without_bias_and_the_law_is_for_scalars_only() -> None:
     """The spread law's draws, weighted, have the law's mean and variance and its upper tail, drawn far more
     often there (the widest joints decide a deep threshold); tolerances 4 standard errors of each weighted
-    mean. A law is refused for a vector, with wander or a transform, or away from the healthy drift."""
+    mean. A law is refused for a vector, with a transform, or away from the healthy drift."""
     n = 4096
     spread, w = spread_draws(0.9, 0.1, np.arange(n))
     z = (spread - 0.9) / 0.1
@@ -413,7 +413,7 @@ def test_the_spread_draws_are_weighted_without_bias_and_the_law_is_for_scalars_o
         assert abs(np.mean(w * value) - expected) < 4 * np.std(w * value) / math.sqrt(n), expected
     assert np.mean(z > 3.0) > 50 * norm.sf(3.0) and w.max() <= len(TILTS) + 1e-9
     law = {"at": "healthy_drift", "drift_mean": (0.0,), "drift_sd": (0.1,), "spread_mean": (0.9,), "spread_sd": (0.1,)}
-    for bad in ({"wander": (0.09,)}, {"transform": "yeo-johnson"}, {"at": "boundary"},
+    for bad in ({"transform": "yeo-johnson"}, {"at": "boundary"},
                 {"spread_mean": (0.9, 0.9), "spread_sd": (0.1, 0.1)}):
         with pytest.raises(ValueError, match="spread law"):
             dataclasses.replace(WARM_UP, **{**law, **bad})

@@ -17,9 +17,11 @@ from edge_monitor.pipeline.healthy_drift import (
     STEADY_DRIFT_JOINT,
     STEADY_WANDER,
     TEMPERATURE_SLACK,
+    WARM_UP_LAW,
     healthy_drift,
     steady_wander,
     temperature_slack,
+    warm_up_law,
 )
 from edge_monitor.pipeline.thermal_settling import SettlingConfig
 from edge_monitor.stats.calibration import CALIBRATE_AT, MAX_ARL0, MIN_ARL0, CalibrationBudget
@@ -42,8 +44,8 @@ SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm
 #: Where the calibrations simulate the detectors (the point, the healthy drift after learning, the wander): not
 #: what a detector learned either, so not in the fingerprint; a saved nominal's threshold is re-derived for the
 #: current ones (``SequentialDetector.from_state``), and "keep" keeps the current ones.
-CALIBRATION_KEYS = ("calibrate_at", "healthy_drift", "steady_calibrate_at", "steady_drift", "steady_drift_joint",
-                    "steady_wander")
+CALIBRATION_KEYS = ("calibrate_at", "healthy_drift", "warm_up_law", "steady_calibrate_at", "steady_drift",
+                    "steady_drift_joint", "steady_wander")
 
 #: The periods a false-alarm budget may be stated per [days].
 BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
@@ -74,7 +76,9 @@ class DecisionConfig:
     ``warm_up_hold`` (quantities) makes their detectors hold instead (warm-up: warmer than that span by more
     than ``warm_up_hold_margin`` [°C], or colder; steady: colder).
     ``calibrate_at``: where the calibration simulates each warm-up detector (default ``"healthy_drift"``: a fleet
-    whose joints drift as ``healthy_drift`` (input → (mean, sd) [σ]) says, beyond the temperature slack;
+    whose joints drift as ``healthy_drift`` (input → (mean, sd) [σ]) says, beyond the temperature slack and the
+    learning error; a scalar detector of an input ``warm_up_law`` lists (input → (mean, sd, spread, spread sd)
+    [learned σ]) is drawn from that law in its nominal's learned units instead, learning error included;
     ``"boundary"``: every joint at the drift allowance, a bound; ``"nominal"``: no drift).
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
@@ -108,6 +112,7 @@ class DecisionConfig:
     calibration_steps: int = CalibrationBudget().max_steps
     calibrate_at: str = "healthy_drift"
     healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
+    warm_up_law: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(WARM_UP_LAW))
     steady_relearn: bool = True
     steady_calibrate_at: str = "healthy_drift"
     steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
@@ -157,6 +162,7 @@ class DecisionConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", healthy_drift(self.healthy_drift))
+        object.__setattr__(self, "warm_up_law", warm_up_law(self.warm_up_law))
         object.__setattr__(self, "steady_drift", healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
         object.__setattr__(self, "steady_drift_joint", healthy_drift(self.steady_drift_joint, "steady_drift_joint",
                                                                      STEADY_DRIFT_JOINT))
@@ -216,6 +222,8 @@ class DecisionConfig:
         drifting = self.calibrate_at == "healthy_drift"
         steady_drifting = self.steady_calibrate_at == "healthy_drift"
         steady_drift = self.steady_drift_joint if vector else self.steady_drift
+        law = self.warm_up_law.get(spec.inputs[0], ()) if drifting and not vector else ()
+        drift = [law[:2] if law else self.healthy_drift[q] for q in spec.inputs] if drifting else []
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
@@ -228,8 +236,9 @@ class DecisionConfig:
                               steady_simulate_from=self.steady_simulate_from,
                               transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs) if vector
                               else (True,),     # a scalar: its one input (the wear score is skewed too)
-                              drift_mean=tuple(self.healthy_drift[q][0] for q in spec.inputs if drifting),
-                              drift_sd=tuple(self.healthy_drift[q][1] for q in spec.inputs if drifting),
+                              drift_mean=tuple(d[0] for d in drift), drift_sd=tuple(d[1] for d in drift),
+                              spread_mean=tuple(law[2:3]), spread_sd=tuple(law[3:4]),
+                              warm_up_wander=tuple(law[4:5]) if law and law[4] > 0 else (),
                               steady_drift_mean=tuple(steady_drift[q][0] for q in spec.inputs if steady_drifting),
                               steady_drift_sd=tuple(steady_drift[q][1] for q in spec.inputs if steady_drifting),
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))

@@ -1,6 +1,6 @@
 """What healthy data do after a detector has learned its nominal, as the calibration assumes it: the
-``[decision.healthy_drift]``, ``[decision.steady_drift]``, ``[decision.steady_wander]`` and
-``[decision.temperature_slack]`` tables, their
+``[decision.healthy_drift]``, ``[decision.warm_up_law]``, ``[decision.steady_drift]``, ``[decision.steady_wander]``
+and ``[decision.temperature_slack]`` tables, their
 shipped values (measured on the simulator's healthy default robots, docs/DETECTION.md) and their
 validation (a :class:`~edge_monitor.errors.ConfigError` naming the key)."""
 
@@ -26,6 +26,25 @@ from edge_monitor.stats.calibration import MAX_DRIFT
 #: log kl_weighted (0.28, 0.17).
 HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.26), "kl_raw": (0.0, 0.08),
                                                   "kl_weighted": (0.0, 0.08)}
+#: What a healthy joint's scalar warm-up detector tests, in the units its nominal learned (mean 0, sd 1 of its
+#: learning values), as a law over joints: (mean, sd) of each joint's mean and (mean, sd) of each joint's
+#: spread [learned standard deviations], of its value less its temperature slack over every warm-up cycle it
+#: tests. Measured there, the law holds the nominal's learning error, so the calibration draws it instead of
+#: the learning error and [decision.healthy_drift] (which the joint vector keeps). The KL distances' values
+#: after learning are steadier than the ones they were learned from and the slack keeps their joints' means
+#: together: on 13 healthy robots (seeds 7001–7002 and the plant weeks 401–407, 7101–7104, their first 1 200
+#: cycles; 78 joints, ``tools/studies/temperature_law_study.py``) log kl_raw's means −0.141 ± 0.071 and spreads
+#: 0.975 ± 0.105, log kl_weighted's −0.126 ± 0.047 and 0.908 ± 0.084, where the learning error and
+#: [decision.healthy_drift] assumed means 0 ± 0.15 and spreads 1.01 ± 0.09 (docs/DETECTION.md, "The warm-up
+#: stage"). The wear score's joints differ in their spread as well as in their mean: means +0.061 ± 0.261,
+#: spreads 1.068 ± 0.211, where the learning error gives the spreads 1.01 ± 0.09.
+#: The fifth number: the fraction of the values' variance in a slow AR(1) wander (coefficient 0.7), as
+#: ``STEADY_WANDER``; the KL distances' warm-up values wander too (k·var(k-mean)/var ≈ 1.15–1.17 at k = 10 and
+#: 1.24–1.34 at k = 30; 0.09 gives 1.28 and 1.38): without it two held-out robots of 26 raised a KL false alarm
+#: at the default budget where 0.18 were due (docs/DETECTION.md, "The warm-up stage").
+WARM_UP_LAW: dict[str, tuple[float, float, float, float, float]] = {
+    "wear_score": (0.061, 0.261, 1.068, 0.211, 0.0), "kl_raw": (-0.141, 0.071, 0.975, 0.105, 0.09),
+    "kl_weighted": (-0.126, 0.047, 0.908, 0.084, 0.09)}
 #: The same once warm, for the scalar detectors: (mean, sd) over joints and operating periods of how far each
 #: input sits, after its steady nominal is learned, from that nominal (in its learned standard deviations,
 #: beyond the learning error the calibration simulates itself). Measured on a plant's ordinary week (the
@@ -98,6 +117,24 @@ def healthy_drift(given: Any, key: str = "healthy_drift",
     """``decision.healthy_drift`` (or ``key``): input → [mean, sd] [σ]."""
     return _per_input(given, key, defaults, _drift_pair, f"[mean, sd] in standard deviations (mean "
                       f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g})")
+
+
+def warm_up_law(given: Any) -> dict[str, tuple[float, float, float, float, float]]:
+    """``decision.warm_up_law``: input → [mean, sd, spread, spread sd] in learned standard deviations and optionally
+    the wander's variance fraction (default 0); an empty list leaves that input to ``[decision.healthy_drift]``
+    and the simulated learning error."""
+    def parse(law: Any) -> tuple[float, ...] | None:
+        if isinstance(law, (list, tuple)) and len(law) == 0:
+            return ()
+        ok = isinstance(law, (list, tuple)) and len(law) in (4, 5) and all(is_finite_number(v) for v in law)
+        values = tuple(float(v) for v in law) + (0.0,) * (5 - len(law)) if ok else ()
+        return values if ok and -MAX_DRIFT <= values[0] <= MAX_DRIFT and 0 <= values[1] <= MAX_DRIFT \
+            and 0.05 <= values[2] <= 5 and 0 <= values[3] <= MAX_DRIFT and 0 <= values[4] < 1 else None
+    parsed = _per_input(given, "warm_up_law", {**dict.fromkeys(HEALTHY_DRIFT, ()), **WARM_UP_LAW}, parse,
+                        f"[mean, sd, spread, spread sd(, wander)] in learned standard deviations (mean "
+                        f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sds 0 … {MAX_DRIFT:g}, spread 0.05 … 5, wander a variance "
+                        f"fraction 0 … <1), or [] for none")
+    return {name: law for name, law in parsed.items() if law}  # type: ignore[misc]
 
 
 def temperature_slack(given: Any) -> dict[str, tuple[float, float]]:

@@ -33,8 +33,8 @@ DEFAULT_STEADY_NOMINAL = 240
 #: Settings of where a calibration simulates the detector (the point, the drift after learning, the wander): not
 #: what the detector learned, so a saved nominal stays valid when they change and its threshold is re-derived
 #: (``SequentialDetector.from_state``), like a changed target.
-CALIBRATION_KEYS = ("calibrate_at", "drift_mean", "drift_sd", "steady_at", "steady_drift_mean", "steady_drift_sd",
-                    "steady_wander")
+CALIBRATION_KEYS = ("calibrate_at", "drift_mean", "drift_sd", "spread_mean", "spread_sd", "warm_up_wander", "steady_at",
+                    "steady_drift_mean", "steady_drift_sd", "steady_wander")
 #: The steady settings a detector learns with (the rest of :data:`STEADY_DEFAULTS`, after the calibration point).
 STEADY_LEARNED = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
 #: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
@@ -87,6 +87,9 @@ class DetectorConfig:
     calibrate_at: str = "boundary"
     drift_mean: tuple[float, ...] = ()
     drift_sd: tuple[float, ...] = ()
+    spread_mean: tuple[float, ...] = ()     # warm-up, a scalar: the healthy drift (above) and this spread law
+    spread_sd: tuple[float, ...] = ()       # are in the nominal's learned units (docs/DETECTION.md), its values
+    warm_up_wander: tuple[float, ...] = ()  # wandering with this variance fraction (a spread law only)
     steady_at: str = "healthy_drift"
     steady_drift_mean: tuple[float, ...] = ()
     steady_drift_sd: tuple[float, ...] = ()
@@ -144,6 +147,15 @@ class DetectorConfig:
             require(self.steady_wander == () or (len(self.steady_wander) == self.dim and all(
                 isinstance(v, (int, float)) and 0.0 <= v < 1.0 for v in self.steady_wander)), "steady_wander",
                 f"needs none or {self.dim} variance fraction(s) in 0 … <1, got {self.steady_wander!r}")
+            require(self.spread_mean == self.spread_sd == () or (
+                self.dim == 1 and self.calibrate_at == "healthy_drift"
+                and len(self.spread_mean) == len(self.spread_sd) == 1 and 0.05 <= self.spread_mean[0] <= 5
+                and 0 <= self.spread_sd[0] <= MAX_DRIFT), "spread_mean",
+                f"a spread law is one (mean 0.05 … 5, sd 0 … {MAX_DRIFT:g}) for a scalar detector calibrated at "
+                f"the healthy drift, got {self.spread_mean!r}, {self.spread_sd!r}")
+            require(self.warm_up_wander == () or (len(self.spread_mean) == len(self.warm_up_wander) == 1
+                                                  and 0.0 <= self.warm_up_wander[0] < 1.0), "warm_up_wander",
+                    f"one variance fraction in 0 … <1, with a spread law only, got {self.warm_up_wander!r}")
             if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
@@ -174,9 +186,10 @@ class DetectorConfig:
         if stage == "steady":
             return {"at": self.steady_at, "drift_mean": tuple(self.steady_drift_mean),
                     "drift_sd": tuple(self.steady_drift_sd), "wander": tuple(self.steady_wander),
-                    "transform": self.steady_learned_transform}
+                    "transform": self.steady_learned_transform, "spread_mean": (), "spread_sd": ()}
         return {"at": self.calibrate_at, "drift_mean": tuple(self.drift_mean), "drift_sd": tuple(self.drift_sd),
-                "wander": (), "transform": "none"}
+                "wander": tuple(self.warm_up_wander), "transform": "none", "spread_mean": tuple(self.spread_mean),
+                "spread_sd": tuple(self.spread_sd)}
 
     @property
     def steady_learned_transform(self) -> str:

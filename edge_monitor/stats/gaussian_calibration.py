@@ -111,7 +111,8 @@ class GaussianSettings:
                                            # its Gaussian, its exponent's learning error simulated too
     spread_mean: tuple[float, ...] = ()    # "healthy_drift" in learned units (a scalar): each nominal's streams
     spread_sd: tuple[float, ...] = ()      # have spread spread_mean + spread_sd·z' and sit at drift_mean +
-                                           # drift_sd·z in the nominal's learned units, no learning error drawn
+                                           # drift_sd·z in the nominal's learned units (with ``wander`` in their
+                                           # values, not in a learning set), no learning error drawn
 
     def __post_init__(self) -> None:
         if not any(self.wander):               # no wander on any axis: one setting, one table key
@@ -119,9 +120,9 @@ class GaussianSettings:
         if self.transform not in ("none", "yeo-johnson"):
             raise ValueError(f"transform = {self.transform!r}; choose 'none' or 'yeo-johnson'")
         if self.in_learned_units and (self.at != "healthy_drift" or len(self.spread_mean) != 1
-                                      or len(self.spread_sd) != 1 or self.wander or self.transform != "none"):
+                                      or len(self.spread_sd) != 1 or self.transform != "none"):
             raise ValueError("a spread law (the healthy drift in learned units) is for a scalar warm-up detector "
-                             "calibrated at the healthy drift, without wander or transform: one spread mean and sd")
+                             "calibrated at the healthy drift, without a transform: one spread mean and sd")
 
     @property
     def in_learned_units(self) -> bool:

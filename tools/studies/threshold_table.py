@@ -69,7 +69,8 @@ def shipped_settings(config: DecisionConfig | None = None, quantities: tuple[str
             at = d.calibration(stage)
             settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
                                         float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
-                                        tuple(at["wander"]), at["transform"])
+                                        tuple(at["wander"]), at["transform"], tuple(at["spread_mean"]),
+                                        tuple(at["spread_sd"]))
             if settings not in out:
                 out.append(settings)
     return out
