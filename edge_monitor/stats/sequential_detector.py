@@ -199,9 +199,8 @@ class SequentialDetector:
         self.resets += 1
 
     def acknowledge(self) -> None:
-        """The latched alarm was judged false: clear it and restart the statistic on the same nominal
-        and threshold (no relearning, unlike :meth:`reset`). Steady values collected before the alarm are
-        kept (they were healthy, the operator says) and the collection goes on; none were added while latched."""
+        """The latched alarm was judged false: restart the statistic on the same nominal and threshold (no
+        relearning, unlike :meth:`reset`); steady values collected before it are kept (none while latched)."""
         if self.glr is not None:
             self.glr.restart()
         self._latched = None
