@@ -39,8 +39,8 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.26), "kl
 #: stage"). The wear score's joints differ in their spread as well as in their mean: means +0.061 ± 0.261,
 #: spreads 1.068 ± 0.211, where the learning error gives the spreads 1.01 ± 0.09.
 #: The fifth number: the fraction of the values' variance in a slow AR(1) wander (coefficient 0.7), as
-#: ``STEADY_WANDER``; the KL distances' warm-up values wander too (k·var(k-mean)/var ≈ 1.15–1.17 at k = 10 and
-#: 1.24–1.34 at k = 30; 0.09 gives 1.28 and 1.38): without it two held-out robots of 26 raised a KL false alarm
+#: ``STEADY_WANDER``; the KL distances' warm-up values wander too (k·var(k-mean)/var ≈ 1.16–1.18 at k = 10 and
+#: 1.27–1.37 at k = 30; 0.09 gives 1.28 and 1.38): without it two held-out robots of 26 raised a KL false alarm
 #: at the default budget where 0.18 were due (docs/DETECTION.md, "The warm-up stage").
 WARM_UP_LAW: dict[str, tuple[float, float, float, float, float]] = {
     "wear_score": (0.061, 0.261, 1.068, 0.211, 0.0), "kl_raw": (-0.141, 0.071, 0.975, 0.105, 0.09),
