@@ -19,6 +19,23 @@ def _nominal(seed: int, n: int = 60, d: int = 1) -> np.ndarray:
     return np.random.default_rng(seed).normal(size=(n, d))
 
 
+def _refused(table: str, cases: tuple) -> None:
+    """Each (value, message) of ``cases`` as ``[decision.<table>]`` is a ConfigError matching the message."""
+    from edge_monitor.config import ConfigError, config_from_mapping
+
+    for bad, key in cases:
+        with pytest.raises(ConfigError, match=key):
+            config_from_mapping({"decision": {table: bad}})
+
+
+def _learned(config: DetectorConfig, seed: int):
+    """A detector with ``config`` after 60 standard normal values, and its last decision."""
+    det = SequentialDetector(config)
+    for i, v in enumerate(np.random.default_rng(seed).normal(size=60)):
+        decision = det.update(v, i)
+    return det, decision
+
+
 def test_null_box_and_clip_range_follow_the_nominal_spread() -> None:
     values = _nominal(0, d=2) * [1.0, 4.0] + [0.0, 10.0]
     std = values.std(axis=0, ddof=1)
@@ -257,7 +274,7 @@ def test_bad_calibration_placement_is_a_clear_error(kwargs: dict, match: str) ->
 def test_healthy_drift_settings_reach_each_detector_and_survive_the_state_round_trip() -> None:
     """``decision.healthy_drift`` (input → [mean, sd]) is merged over the defaults, validated with the
     key named, handed to each detector per input, and a detector saved with it restores with it."""
-    from edge_monitor.config import ConfigError, config_from_mapping
+    from edge_monitor.config import config_from_mapping
     from edge_monitor.pipeline.detectors import HEALTHY_DRIFT
 
     cfg = config_from_mapping({"decision": {"calibrate_at": "healthy_drift",
@@ -266,15 +283,11 @@ def test_healthy_drift_settings_reach_each_detector_and_survive_the_state_round_
     joint = cfg.detector_config("joint")
     assert joint.drift_mean == (HEALTHY_DRIFT["wear_score"][0], 0.5, HEALTHY_DRIFT["kl_weighted"][0])
     assert joint.drift_sd[1] == 0.25
-    for bad, key in (({"kl_raw": [0.1]}, "decision.healthy_drift.kl_raw"), ({"torque": [0, 1]}, "torque"),
-                     ({"wear_score": [0.1, -0.2]}, "wear_score"), ([1, 2], "expected a table")):
-        with pytest.raises(ConfigError, match=key):
-            config_from_mapping({"decision": {"healthy_drift": bad}})
+    _refused("healthy_drift", (({"kl_raw": [0.1]}, "decision.healthy_drift.kl_raw"), ({"torque": [0, 1]}, "torque"),
+                               ({"wear_score": [0.1, -0.2]}, "wear_score"), ([1, 2], "expected a table")))
     config = DetectorConfig(arl0=100.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
                             drift_mean=(0.3,), drift_sd=(0.3,), calibration_draws=16, calibration_steps=600)
-    det = SequentialDetector(config)
-    for i, v in enumerate(np.random.default_rng(2).normal(size=60)):
-        decision = det.update(v, i)
+    det, decision = _learned(config, seed=2)
     assert decision.calibration is not None and decision.calibration["at"] == "healthy_drift"
     state = json.loads(json.dumps(det.state_dict()))
     restored = SequentialDetector.from_state(config, state)
@@ -287,7 +300,7 @@ def test_a_warm_up_law_reaches_the_scalar_warm_up_detectors_only_and_a_saved_nom
     ``healthy_drift``) nor a steady calibration; [] gives the input back to ``healthy_drift``; bad laws are
     refused with the key named; a detector saved before the law re-derives its threshold for it (its
     nominal is kept: the law is where the calibration simulates, not what the detector learned)."""
-    from edge_monitor.config import ConfigError, config_from_mapping
+    from edge_monitor.config import config_from_mapping
     from edge_monitor.pipeline.healthy_drift import HEALTHY_DRIFT, WARM_UP_LAW
 
     cfg = config_from_mapping({"decision": {"warm_up_law": {"kl_raw": [-0.2, 0.1, 0.9, 0.1], "wear_score": []}}})
@@ -307,16 +320,12 @@ def test_a_warm_up_law_reaches_the_scalar_warm_up_detectors_only_and_a_saved_nom
     assert shipped.calibration("steady")["wander"] == (decision.steady_wander["kl_weighted"],)
     wandering = config_from_mapping({"decision": {"warm_up_law": {"kl_raw": [-0.2, 0.1, 0.9, 0.1, 0.2]}}}).decision
     assert wandering.detector_config("kl_raw").calibration("warm-up")["wander"] == (0.2,)
-    for bad, key in (({"kl_raw": [0.1, 0.1, 0.9]}, "decision.warm_up_law.kl_raw"), ({"torque": []}, "torque"),
-                     ({"kl_raw": [0.0, 0.1, 0.0, 0.1]}, "kl_raw"), ({"kl_raw": [0.0, -0.1, 1.0, 0.1]}, "kl_raw"),
-                     ({"kl_raw": [0.0, 0.1, 1.0, 0.1, 1.0]}, "kl_raw")):
-        with pytest.raises(ConfigError, match=key):
-            config_from_mapping({"decision": {"warm_up_law": bad}})
+    _refused("warm_up_law", (({"kl_raw": [0.1, 0.1, 0.9]}, "decision.warm_up_law.kl_raw"), ({"torque": []}, "torque"),
+                             ({"kl_raw": [0.0, 0.1, 0.0, 0.1]}, "kl_raw"), ({"kl_raw": [0.0, -0.1, 1.0, 0.1]}, "kl_raw"),
+                             ({"kl_raw": [0.0, 0.1, 1.0, 0.1, 1.0]}, "kl_raw")))
     before = DetectorConfig(arl0=200.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
                             drift_mean=(0.0,), drift_sd=(0.08,), calibration_draws=16, calibration_steps=600)
-    det = SequentialDetector(before)
-    for i, v in enumerate(np.random.default_rng(3).normal(size=60)):
-        det.update(v, i)
+    det, _ = _learned(before, seed=3)
     with_law = DetectorConfig(**{**before.__dict__, "drift_mean": (-0.126,), "drift_sd": (0.047,),
                                  "spread_mean": (0.908,), "spread_sd": (0.084,)})
     restored = SequentialDetector.from_state(with_law, json.loads(json.dumps(det.state_dict())))
