@@ -239,6 +239,7 @@ class DecisionConfig:
                               drift_mean=tuple(d[0] for d in drift), drift_sd=tuple(d[1] for d in drift),
                               spread_mean=tuple(law[2:3]), spread_sd=tuple(law[3:4]),
                               warm_up_wander=tuple(law[4:5]) if law and law[4] > 0 else (),
+                              warm_up_skew=tuple(law[5:6]) if law and law[5] != 0 else (),
                               steady_drift_mean=tuple(steady_drift[q][0] for q in spec.inputs if steady_drifting),
                               steady_drift_sd=tuple(steady_drift[q][1] for q in spec.inputs if steady_drifting),
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))

@@ -11,7 +11,7 @@ from typing import Any, TypeVar
 
 from edge_monitor.errors import ConfigError, require, shown
 from edge_monitor.records import is_finite_number
-from edge_monitor.stats.calibration import MAX_DRIFT
+from edge_monitor.stats.calibration import MAX_DRIFT, MAX_SKEW
 
 #: Healthy drift of each detector input in the warm-up stage, beyond what the temperature slack takes
 #: (:mod:`~edge_monitor.pipeline.temperature_slack`): (mean, sd) over joints of the value tested less its slack,
@@ -42,9 +42,13 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.26), "kl
 #: ``STEADY_WANDER``; the KL distances' warm-up values wander too (k·var(k-mean)/var ≈ 1.16–1.18 at k = 10 and
 #: 1.27–1.37 at k = 30; 0.09 gives 1.28 and 1.38): without it two held-out robots of 26 raised a KL false alarm
 #: at the default budget where 0.18 were due (docs/DETECTION.md, "The warm-up stage").
-WARM_UP_LAW: dict[str, tuple[float, float, float, float, float]] = {
-    "wear_score": (0.061, 0.261, 1.068, 0.211, 0.0), "kl_raw": (-0.141, 0.071, 0.975, 0.105, 0.09),
-    "kl_weighted": (-0.126, 0.047, 0.908, 0.084, 0.09)}
+#: The sixth: the skew-normal shape α of the values' iid part, fitted to their upper tail (the share above 2 of a
+#: joint's own sd, with the wander): log kl_raw's values put 1.4 % there where a Gaussian puts 2.3 %, and 0.22 %
+#: above 2.5 sd, which α = −1.76 predicts (0.24 %); the wear score's and kl_weighted's tails are no further from
+#: the Gaussian's at 2 and 2.5 sd together than a fitted shape is, so theirs is 0 (the same tool, ``tail_shape``).
+WARM_UP_LAW: dict[str, tuple[float, float, float, float, float, float]] = {
+    "wear_score": (0.061, 0.261, 1.068, 0.211, 0.0, 0.0), "kl_raw": (-0.141, 0.071, 0.975, 0.105, 0.09, -1.76),
+    "kl_weighted": (-0.126, 0.047, 0.908, 0.084, 0.09, 0.0)}
 #: The same once warm, for the scalar detectors: (mean, sd) over joints and operating periods of how far each
 #: input sits, after its steady nominal is learned, from that nominal (in its learned standard deviations,
 #: beyond the learning error the calibration simulates itself). Measured on a plant's ordinary week (the
@@ -119,21 +123,22 @@ def healthy_drift(given: Any, key: str = "healthy_drift",
                       f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g})")
 
 
-def warm_up_law(given: Any) -> dict[str, tuple[float, float, float, float, float]]:
+def warm_up_law(given: Any) -> dict[str, tuple[float, float, float, float, float, float]]:
     """``decision.warm_up_law``: input → [mean, sd, spread, spread sd] in learned standard deviations and optionally
-    the wander's variance fraction (default 0); an empty list leaves that input to ``[decision.healthy_drift]``
-    and the simulated learning error."""
+    the wander's variance fraction and the skew-normal shape of the iid part (default 0 each); an empty list leaves
+    that input to ``[decision.healthy_drift]`` and the simulated learning error."""
     def parse(law: Any) -> tuple[float, ...] | None:
         if isinstance(law, (list, tuple)) and len(law) == 0:
             return ()
-        ok = isinstance(law, (list, tuple)) and len(law) in (4, 5) and all(is_finite_number(v) for v in law)
-        values = tuple(float(v) for v in law) + (0.0,) * (5 - len(law)) if ok else ()
+        ok = isinstance(law, (list, tuple)) and len(law) in (4, 5, 6) and all(is_finite_number(v) for v in law)
+        values = tuple(float(v) for v in law) + (0.0,) * (6 - len(law)) if ok else ()
         return values if ok and -MAX_DRIFT <= values[0] <= MAX_DRIFT and 0 <= values[1] <= MAX_DRIFT \
-            and 0.05 <= values[2] <= 5 and 0 <= values[3] <= MAX_DRIFT and 0 <= values[4] < 1 else None
+            and 0.05 <= values[2] <= 5 and 0 <= values[3] <= MAX_DRIFT and 0 <= values[4] < 1 \
+            and abs(values[5]) <= MAX_SKEW else None
     parsed = _per_input(given, "warm_up_law", {**dict.fromkeys(HEALTHY_DRIFT, ()), **WARM_UP_LAW}, parse,
-                        f"[mean, sd, spread, spread sd(, wander)] in learned standard deviations (mean "
+                        f"[mean, sd, spread, spread sd(, wander(, skew))] in learned standard deviations (mean "
                         f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sds 0 … {MAX_DRIFT:g}, spread 0.05 … 5, wander a variance "
-                        f"fraction 0 … <1), or [] for none")
+                        f"fraction 0 … <1, skew a skew-normal shape −{MAX_SKEW:g} … {MAX_SKEW:g}), or [] for none")
     return {name: law for name, law in parsed.items() if law}  # type: ignore[misc]
 
 

@@ -78,6 +78,8 @@ STREAMS_PER_NOMINAL = 4
 CALIBRATE_AT = ("healthy_drift", "boundary", "nominal")
 #: Largest healthy drift a calibration accepts, mean or sd [standard deviations of the nominal values].
 MAX_DRIFT = 5.0
+#: Largest skew-normal shape |α| a warm-up law accepts (α = ±10: skewness ±0.96, nearly a half-normal's).
+MAX_SKEW = 10.0
 #: What the simulated nominal sets and streams are drawn from: the fitted density or the values.
 SIMULATE_FROM = ("model", "values")
 #: Seed of every simulation of a mixture density (the same learned values give the same threshold).
@@ -137,7 +139,7 @@ def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, g
                         budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
                         at: str, drift_mean: tuple[float, ...] = (), drift_sd: tuple[float, ...] = (),
                         wander: tuple[float, ...] = (), transform: str = "none",
-                        spread: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())) -> Calibration:
+                        spread: tuple[tuple[float, ...], ...] = ((), (), ())) -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
     tabulated for the shipped settings (:mod:`~edge_monitor.stats.threshold_table`), else simulated
     (cached) with ``GAUSSIAN_DRAW_FACTOR`` × ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
@@ -168,7 +170,8 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
               seed: int | None = None, direction: str = "both", allowance: float = 0.0,
               clip_sigma: float = 0.0, at: str = "boundary", drift_mean: ArrayLike = (),
               drift_sd: ArrayLike = (), simulate_from: str = "model", wander: ArrayLike = (),
-              transform: str = "none", spread_mean: ArrayLike = (), spread_sd: ArrayLike = ()) -> Calibration:
+              transform: str = "none", spread_mean: ArrayLike = (), spread_sd: ArrayLike = (),
+              skew: ArrayLike = ()) -> Calibration:
     """The threshold for mean run length ``arl0`` of a detector that learned ``nominal`` (N0 × d)
     with the ``kind`` density (see the module docstring); ``direction`` and ``allowance`` set the
     null hypothesis as the detector does (:func:`~edge_monitor.stats.glr_batch.null_box`) and
@@ -182,7 +185,8 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
     learned from them, whose exponent's learning error the Gaussian path then simulates too. ``spread_mean``/
     ``spread_sd`` (a scalar Gaussian nominal at ``"healthy_drift"``): the healthy joint's law in the nominal's
     learned units, its drift and spread measured there with the learning error in them, which is then not
-    drawn again (:class:`~edge_monitor.stats.gaussian_calibration.GaussianSettings`).
+    drawn again (:class:`~edge_monitor.stats.gaussian_calibration.GaussianSettings`); ``skew``, with that law: the
+    skew-normal shape of the values' iid part (their upper tail as measured).
     ``simulate_from``: ``"model"`` (p̂0) or ``"values"`` (:class:`SmoothedBootstrap` of ``nominal``), see
     the module docstring."""
     if at not in CALIBRATE_AT:
@@ -197,8 +201,8 @@ def calibrate(nominal: ArrayLike, kind: str, window: int, arl0: float, gamma0: f
 
         return _calibrate_gaussian(values, window, arl0, gamma0, rho, budget, direction, allowance, clip_sigma, at,
                                    per_axis(drift_mean), per_axis(drift_sd), per_axis(wander), transform,
-                                   (per_axis(spread_mean), per_axis(spread_sd)))
-    if len(np.ravel(spread_mean)):
+                                   (per_axis(spread_mean), per_axis(spread_sd), per_axis(skew)))
+    if len(np.ravel(spread_mean)) or len(np.ravel(skew)):
         raise ValueError("a spread law is simulated for Gaussian nominals only (kind 'gauss', model, recursive)")
     seed = FIXED_SEED if seed is None else seed
     rng = np.random.default_rng(seed)
@@ -383,6 +387,7 @@ class CalibrationJob:
     transform: str = "none"
     spread_mean: tuple[float, ...] = ()
     spread_sd: tuple[float, ...] = ()
+    skew: tuple[float, ...] = ()
 
     def run(self) -> Calibration:
         return calibrate(np.asarray(self.nominal), self.kind, self.window, self.arl0, self.gamma0, self.rho,
@@ -390,12 +395,12 @@ class CalibrationJob:
                          direction=self.direction, allowance=self.allowance, clip_sigma=self.clip_sigma,
                          at=self.at, drift_mean=self.drift_mean, drift_sd=self.drift_sd,
                          simulate_from=self.simulate_from, wander=self.wander, transform=self.transform,
-                         spread_mean=self.spread_mean, spread_sd=self.spread_sd)
+                         spread_mean=self.spread_mean, spread_sd=self.spread_sd, skew=self.skew)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "nominal": [list(v) for v in self.nominal], "budget": asdict(self.budget),
                 "drift_mean": list(self.drift_mean), "drift_sd": list(self.drift_sd), "wander": list(self.wander),
-                "spread_mean": list(self.spread_mean), "spread_sd": list(self.spread_sd)}
+                "spread_mean": list(self.spread_mean), "spread_sd": list(self.spread_sd), "skew": list(self.skew)}
 
     @classmethod
     def from_dict(cls, state: dict[str, Any]) -> "CalibrationJob":
@@ -410,4 +415,5 @@ class CalibrationJob:
                    wander=tuple(float(x) for x in state.get("wander", ())),
                    transform=str(state.get("transform", "none")),
                    spread_mean=tuple(float(x) for x in state.get("spread_mean", ())),
-                   spread_sd=tuple(float(x) for x in state.get("spread_sd", ())))
+                   spread_sd=tuple(float(x) for x in state.get("spread_sd", ())),
+                   skew=tuple(float(x) for x in state.get("skew", ())))

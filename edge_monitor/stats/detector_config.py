@@ -13,6 +13,7 @@ from edge_monitor.stats.calibration import (
     DEFAULT_ARL0,
     MAX_ARL0,
     MAX_DRIFT,
+    MAX_SKEW,
     MIN_ARL0,
     MIN_EVENTS,
     SIMULATE_FROM,
@@ -33,8 +34,8 @@ DEFAULT_STEADY_NOMINAL = 240
 #: Settings of where a calibration simulates the detector (the point, the drift after learning, the wander): not
 #: what the detector learned, so a saved nominal stays valid when they change and its threshold is re-derived
 #: (``SequentialDetector.from_state``), like a changed target.
-CALIBRATION_KEYS = ("calibrate_at", "drift_mean", "drift_sd", "spread_mean", "spread_sd", "warm_up_wander", "steady_at",
-                    "steady_drift_mean", "steady_drift_sd", "steady_wander")
+CALIBRATION_KEYS = ("calibrate_at", "drift_mean", "drift_sd", "spread_mean", "spread_sd", "warm_up_wander",
+                    "warm_up_skew", "steady_at", "steady_drift_mean", "steady_drift_sd", "steady_wander")
 #: The steady settings a detector learns with (the rest of :data:`STEADY_DEFAULTS`, after the calibration point).
 STEADY_LEARNED = ("steady_nominal", "steady_density", "steady_transform", "steady_simulate_from")
 #: (steady_at, steady_nominal, steady_density, steady_transform, steady_simulate_from) of the agent: left out of the
@@ -90,6 +91,7 @@ class DetectorConfig:
     spread_mean: tuple[float, ...] = ()     # warm-up, a scalar: the healthy drift (above) and this spread law
     spread_sd: tuple[float, ...] = ()       # are in the nominal's learned units (docs/DETECTION.md), its values
     warm_up_wander: tuple[float, ...] = ()  # wandering with this variance fraction (a spread law only)
+    warm_up_skew: tuple[float, ...] = ()    # skew-normal shape of their iid part, its upper tail (a spread law only)
     steady_at: str = "healthy_drift"
     steady_drift_mean: tuple[float, ...] = ()
     steady_drift_sd: tuple[float, ...] = ()
@@ -156,6 +158,10 @@ class DetectorConfig:
             require(self.warm_up_wander == () or (len(self.spread_mean) == len(self.warm_up_wander) == 1
                                                   and 0.0 <= self.warm_up_wander[0] < 1.0), "warm_up_wander",
                     f"one variance fraction in 0 … <1, with a spread law only, got {self.warm_up_wander!r}")
+            require(self.warm_up_skew == () or (len(self.spread_mean) == len(self.warm_up_skew) == 1
+                                                and abs(self.warm_up_skew[0]) <= MAX_SKEW), "warm_up_skew",
+                    f"one skew-normal shape in −{MAX_SKEW:g} … {MAX_SKEW:g}, with a spread law only, "
+                    f"got {self.warm_up_skew!r}")
             if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
@@ -186,10 +192,10 @@ class DetectorConfig:
         if stage == "steady":
             return {"at": self.steady_at, "drift_mean": tuple(self.steady_drift_mean),
                     "drift_sd": tuple(self.steady_drift_sd), "wander": tuple(self.steady_wander),
-                    "transform": self.steady_learned_transform, "spread_mean": (), "spread_sd": ()}
+                    "transform": self.steady_learned_transform, "spread_mean": (), "spread_sd": (), "skew": ()}
         return {"at": self.calibrate_at, "drift_mean": tuple(self.drift_mean), "drift_sd": tuple(self.drift_sd),
                 "wander": tuple(self.warm_up_wander), "transform": "none", "spread_mean": tuple(self.spread_mean),
-                "spread_sd": tuple(self.spread_sd)}
+                "spread_sd": tuple(self.spread_sd), "skew": tuple(self.warm_up_skew)}
 
     @property
     def steady_learned_transform(self) -> str:

@@ -113,16 +113,21 @@ class GaussianSettings:
     spread_sd: tuple[float, ...] = ()      # have spread spread_mean + spread_sd·z' and sit at drift_mean +
                                            # drift_sd·z in the nominal's learned units (with ``wander`` in their
                                            # values, not in a learning set), no learning error drawn
+    skew: tuple[float, ...] = ()           # with a spread law: the skew-normal shape α of the values' iid part
 
     def __post_init__(self) -> None:
         if not any(self.wander):               # no wander on any axis: one setting, one table key
             object.__setattr__(self, "wander", ())
+        if not any(self.skew):                 # Gaussian values: the key of before
+            object.__setattr__(self, "skew", ())
         if self.transform not in ("none", "yeo-johnson"):
             raise ValueError(f"transform = {self.transform!r}; choose 'none' or 'yeo-johnson'")
         if self.in_learned_units and (self.at != "healthy_drift" or len(self.spread_mean) != 1
                                       or len(self.spread_sd) != 1 or self.transform != "none"):
             raise ValueError("a spread law (the healthy drift in learned units) is for a scalar warm-up detector "
                              "calibrated at the healthy drift, without a transform: one spread mean and sd")
+        if self.skew and (not self.in_learned_units or len(self.skew) != 1):
+            raise ValueError("a skew (one skew-normal shape) is simulated with a spread law only")
 
     @property
     def in_learned_units(self) -> bool:
@@ -251,7 +256,7 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     events, exposure, weights = [], [], []
     for first in range(0, budget.nominals, per_chunk):
         g = min(per_chunk, budget.nominals - first)
-        noise = StreamNoise(lower_chol, settings.wander, rng)
+        noise = StreamNoise(lower_chol, settings.wander, rng, settings.skew)
         scale = None
         if settings.in_learned_units:       # the measured law holds the learning error: the fit is exact
             index = np.arange(first, first + g)

@@ -34,7 +34,7 @@ from edge_monitor.stats.gaussian_calibration import Correlation, GaussianSetting
 #: The table's file inside the package.
 RESOURCE = "gaussian_thresholds.json"
 #: Settings that enter a key only when set (the entries computed before they existed keep their keys).
-OPTIONAL_FIELDS = ("spread_mean", "spread_sd")
+OPTIONAL_FIELDS = ("spread_mean", "spread_sd", "skew")
 #: The pair of axes of a vector detector whose correlation indexes the table.
 VECTOR_AXES = (1, 2)
 

@@ -60,7 +60,7 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
     with threshold ``h`` over ``cycles`` cycles each, every alarm acknowledged."""
     r = np.asarray(corr, dtype=float)
     rng = np.random.default_rng(seed)
-    noise = gf.StreamNoise(np.linalg.cholesky(r), settings.wander, rng)
+    noise = gf.StreamNoise(np.linalg.cholesky(r), settings.wander, rng, settings.skew)
     samples = noise.sequence(detectors, settings.n0)                                  # plain learning sets
     learned = None if settings.transform == "none" else gf.LearnedTransforms.fit(samples[:, :, 0])
     nominal = gf.fit_nominals(samples) if learned is None else (learned.z_mean[:, None], learned.z_var[:, None, None])

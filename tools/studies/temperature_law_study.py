@@ -15,7 +15,9 @@ is its first ``decision.n_nominal`` values, the span the smoothed motor temperat
   deviations of the nominal;
 * the warm-up law (``[decision.warm_up_law]``): the same mean and spread per joint over every cycle its warm-up
   detector tests, and their mean and sd over joints; and the shape of those values per joint (skewness, the share
-  above 2 of their sd, the variance ratios of 10- and 30-cycle means), averaged over joints.
+  above 2 and above 2.5 of their sd, the variance ratios of 10- and 30-cycle means), averaged over joints;
+* the law's skew (its sixth number): the skew-normal shape whose values, with the law's wander, put the measured
+  share above 2 sd (:func:`tail_shape`), and the share above 2.5 sd that shape predicts, a check of the fit.
 
 Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--scenario NAME] [--json OUT]``;
 several groups pooled: ``--group 7001-7002 --group 401-407,7101-7104@plant_week:4400 --until 1200`` (seeds, then
@@ -32,6 +34,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.integrate import quad
+from scipy.optimize import brentq
+from scipy.stats import norm, skewnorm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
@@ -108,11 +113,44 @@ def shape(values: np.ndarray) -> dict[str, float]:
     Gaussian's: 0.0228) and k·var(k-cycle mean)/var at k = 10 and 30 (independent values: 1); NaN with fewer
     than 120 values."""
     if values.size < 120:
-        return dict.fromkeys(("skewness", "above_2sd", "ratio_10", "ratio_30"), math.nan)
+        return dict.fromkeys(("skewness", "above_2sd", "above_2_5sd", "ratio_10", "ratio_30"), math.nan)
     u = (values - values.mean()) / values.std()
     ratios = {k: k * float(np.var(u[:u.size // k * k].reshape(-1, k).mean(axis=1))) for k in (10, 30)}
     return {"skewness": float(np.mean(u ** 3)), "above_2sd": float(np.mean(u > 2.0)),
-            "ratio_10": ratios[10], "ratio_30": ratios[30]}
+            "above_2_5sd": float(np.mean(u > 2.5)), "ratio_10": ratios[10], "ratio_30": ratios[30]}
+
+
+def share_above(alpha: float, wander: float, x: float) -> float:
+    """P(v > x) of unit-variance values v = √(1 − f)·s + √f·w, s standardised skew-normal of shape ``alpha`` and w
+    standard normal (the wander, variance fraction f = ``wander``): the calibration's values
+    (edge_monitor.stats.gaussian_fleet.StreamNoise)."""
+    mean, var = (float(m) for m in skewnorm.stats(alpha, moments="mv"))
+    a, b = math.sqrt(1.0 - wander), math.sqrt(wander)
+    if wander == 0.0:
+        return float(skewnorm.sf(mean + math.sqrt(var) * x, alpha))
+    return float(quad(lambda w: norm.pdf(w) * skewnorm.sf(mean + math.sqrt(var) * (x - b * w) / a, alpha), -9, 9)[0])
+
+
+def tail_shape(above_2sd: float, wander: float) -> float:
+    """The skew-normal shape α whose values (:func:`share_above`) put ``above_2sd`` above 2 sd; NaN if no |α| ≤ 10
+    does (a Gaussian: α = 0, 0.0228)."""
+    low, high = (share_above(a, wander, 2.0) - above_2sd for a in (-10.0, 10.0))
+    if not (math.isfinite(above_2sd) and low <= 0.0 <= high):
+        return math.nan
+    return float(brentq(lambda a: share_above(a, wander, 2.0) - above_2sd, -10.0, 10.0, xtol=1e-4))
+
+
+def tail_fits(above_2sd: dict[str, dict[str, float]], decision: DecisionConfig) -> dict[str, dict[str, float]]:
+    """Per scalar input: :func:`tail_shape` of its joints' mean share above 2 sd, with the wander of its shipped
+    warm-up law, and the share above 2.5 sd that shape predicts."""
+    out = {}
+    for q, found in above_2sd.items():
+        law = decision.warm_up_law.get(QUANTITIES[q].inputs[0], ())
+        wander = law[4] if law else 0.0
+        alpha = tail_shape(found.get("mean", math.nan), wander)
+        out[q] = {"alpha": alpha, "wander": wander,
+                  "above_2_5sd": share_above(alpha, wander, 2.5) if math.isfinite(alpha) else math.nan}
+    return out
 
 
 def _summary(values: list[float]) -> dict[str, float]:
@@ -148,8 +186,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("give --seeds or --group")
     decision = DecisionConfig()
     laws: dict[str, list[float]] = {name: [] for name in INPUTS}
-    parts = ("left_by_slack", "spread", "warm_up_mean", "warm_up_spread", "skewness", "above_2sd", "ratio_10",
-             "ratio_30")
+    parts = ("left_by_slack", "spread", "warm_up_mean", "warm_up_spread", "skewness", "above_2sd", "above_2_5sd",
+             "ratio_10", "ratio_30")
     found: dict[str, dict[str, list[float]]] = {part: {q: [] for q in SCALARS} for part in parts}
     for seeds, scenario, cycles in groups:
         for seed in parse_seeds(seeds):
@@ -172,6 +210,10 @@ def main(argv: list[str] | None = None) -> int:
             if "mean" in s:
                 print(f"{part:>14} {name:>12}: {s['mean']:+.3f} ± {s['sd']:.3f} (min {s['min']:+.3f}, "
                       f"max {s['max']:+.3f}) over {s['joints']} joints")
+    out["tail_shape"] = tail_fits(out["above_2sd"], decision)
+    for name, fit in out["tail_shape"].items():
+        print(f"    tail_shape {name:>12}: skew-normal shape {fit['alpha']:+.2f} (share above 2.5 sd predicted "
+              f"{fit['above_2_5sd']:.4f}, measured {out['above_2_5sd'][name].get('mean', math.nan):.4f})")
     if args.json:
         args.json.write_text(json.dumps(out, indent=1) + "\n")
     return 0

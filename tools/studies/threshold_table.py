@@ -70,7 +70,7 @@ def shipped_settings(config: DecisionConfig | None = None, quantities: tuple[str
             settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
                                         float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
                                         tuple(at["wander"]), at["transform"], tuple(at["spread_mean"]),
-                                        tuple(at["spread_sd"]))
+                                        tuple(at["spread_sd"]), tuple(at["skew"]))
             if settings not in out:
                 out.append(settings)
     return out
