@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from learned_units import delivered_in_learned_units
 from scipy.stats import gamma, norm
 
 from edge_monitor.stats.calibration import CalibrationBudget, calibrate
@@ -364,28 +365,6 @@ def test_one_winsorised_glitch_cannot_raise_an_alarm_at_the_default_target() -> 
     assert found.threshold > single + 3 * found.h_se
 
 
-def _delivered_in_learned_units(settings: GaussianSettings, h: float, detectors: int, cycles: int,
-                                seed: int) -> tuple[float, int]:
-    """Measured ARL0 of ``detectors`` scalar detectors whose values follow ``settings``' law in their nominal's
-    learned units (written here from its definition, plain draws from another seed): each detector's nominal
-    is N(0, 1), its stream N(μ, r²) with μ ~ N(drift_mean, drift_sd²), r ~ N(spread_mean, spread_sd²), every
-    alarm acknowledged."""
-    rng = np.random.default_rng(seed)
-    mean = settings.drift_mean[0] + settings.drift_sd[0] * rng.standard_normal((detectors, 1))
-    spread = np.maximum(settings.spread_mean[0] + settings.spread_sd[0] * rng.standard_normal((detectors, 1)), 0.05)
-    ones = np.ones((detectors, 1))
-    glr = GaussianBatchGLR(np.zeros((detectors, 1)), np.ones((detectors, 1, 1)), settings.window, settings.gamma0,
-                           settings.rho, (np.full((detectors, 1), -np.inf), settings.allowance * ones),
-                           (-settings.clip_sigma * ones, settings.clip_sigma * ones))
-    alarms = 0
-    for _ in range(cycles):
-        alarm = glr.update(mean + spread * rng.standard_normal((detectors, 1))) >= h
-        alarms += int(alarm.sum())
-        if alarm.any():
-            glr.restart(alarm)
-    return detectors * cycles / max(alarms, 1), alarms
-
-
 @pytest.mark.slow
 def test_a_law_in_learned_units_is_calibrated_for_and_delivered() -> None:
     """Both sides, on the warm-up kl_weighted's measured law (each joint's mean N(−0.126, 0.047²) and spread
@@ -397,9 +376,9 @@ def test_a_law_in_learned_units_is_calibrated_for_and_delivered() -> None:
     before = dataclasses.replace(WARM_UP, at="healthy_drift", drift_mean=(0.0,), drift_sd=(0.08,))
     found, quiet = threshold(law, ((1.0,),), 1000.0, BUDGET), threshold(before, ((1.0,),), 1000.0, BUDGET)
     assert found.threshold < quiet.threshold - 3 * math.hypot(found.h_se, quiet.h_se)
-    delivered, alarms = _delivered_in_learned_units(law, found.threshold, 256, 6000, seed=84)
+    delivered, alarms = delivered_in_learned_units(law, found.threshold, 256, 6000, seed=84)
     assert abs(math.log(delivered / 1000.0)) <= _tolerance(law, ((1.0,),), 1000.0, alarms), (found, delivered)
-    assert _delivered_in_learned_units(law, quiet.threshold, 256, 6000, seed=85)[0] > 1.4 * 1000.0
+    assert delivered_in_learned_units(law, quiet.threshold, 256, 6000, seed=85)[0] > 1.4 * 1000.0
 
 
 def test_the_spread_draws_are_weighted_without_bias_and_the_law_is_for_scalars_only() -> None:

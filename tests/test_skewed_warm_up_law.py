@@ -8,15 +8,16 @@ import importlib.util
 import json
 import math
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
+from learned_units import delivered_in_learned_units
 from scipy.stats import skewnorm
 
 from edge_monitor.stats.calibration import CalibrationBudget, CalibrationJob
 from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSettings, threshold
 from edge_monitor.stats.gaussian_fleet import StreamNoise, skew_normal_standard
-from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
 from edge_monitor.stats.threshold_table import key
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,27 +66,10 @@ def test_the_study_fits_the_shape_the_calibration_draws() -> None:
     assert math.isnan(study.tail_shape(0.2, 0.0))
 
 
-def _delivered(settings: GaussianSettings, h: float, detectors: int, cycles: int, seed: int) -> tuple[float, int]:
-    """Measured ARL0 of detectors whose values follow the law in learned units with skew-normal values drawn by
-    scipy (not the calibration's generator): mean N(drift_mean, drift_sd²), spread N(spread_mean, spread_sd²),
-    every alarm acknowledged."""
-    rng = np.random.default_rng(seed)
-    alpha = settings.skew[0]
-    mean = settings.drift_mean[0] + settings.drift_sd[0] * rng.standard_normal((detectors, 1))
-    spread = np.maximum(settings.spread_mean[0] + settings.spread_sd[0] * rng.standard_normal((detectors, 1)), 0.05)
+def _skew_normal(alpha: float) -> Callable[[np.random.Generator, int], np.ndarray]:
+    """Unit-variance skew-normal values of shape ``alpha`` drawn by scipy (not the calibration's generator)."""
     centre, var = (float(m) for m in skewnorm.stats(alpha, moments="mv"))
-    ones = np.ones((detectors, 1))
-    glr = GaussianBatchGLR(np.zeros((detectors, 1)), np.ones((detectors, 1, 1)), settings.window, settings.gamma0,
-                           settings.rho, (np.full((detectors, 1), -np.inf), settings.allowance * ones),
-                           (-settings.clip_sigma * ones, settings.clip_sigma * ones))
-    alarms = 0
-    for _ in range(cycles):
-        e = (skewnorm.rvs(alpha, size=(detectors, 1), random_state=rng) - centre) / math.sqrt(var)
-        alarm = glr.update(mean + spread * e) >= h
-        alarms += int(alarm.sum())
-        if alarm.any():
-            glr.restart(alarm)
-    return detectors * cycles / max(alarms, 1), alarms
+    return lambda rng, n: (skewnorm.rvs(alpha, size=(n, 1), random_state=rng) - centre) / math.sqrt(var)
 
 
 @pytest.mark.slow
@@ -100,10 +84,11 @@ def test_a_skewed_law_is_calibrated_for_and_delivered() -> None:
     above = threshold(skewed, ((1.0,),), math.e * target, BUDGET)
     slope = 1.0 / (above.threshold - found.threshold)
     assert found.threshold < gaussian.threshold - 3 * math.hypot(found.h_se, gaussian.h_se)
-    delivered, alarms = _delivered(skewed, found.threshold, 256, 6000, seed=84)
+    values = _skew_normal(ALPHA)
+    delivered, alarms = delivered_in_learned_units(skewed, found.threshold, 256, 6000, 84, values)
     tolerance = 3.0 * math.hypot(slope * found.h_se, 1.0 / math.sqrt(alarms))
     assert abs(math.log(delivered / target)) <= tolerance, (found, delivered, alarms)
-    assert _delivered(skewed, gaussian.threshold, 256, 6000, seed=85)[0] > 2.0 * target
+    assert delivered_in_learned_units(skewed, gaussian.threshold, 256, 6000, 85, values)[0] > 2.0 * target
 
 
 def test_a_skew_is_for_a_spread_law_only_and_no_skew_keeps_the_key() -> None:
