@@ -141,3 +141,23 @@ def test_a_detector_saved_before_the_skew_re_derives_its_threshold_for_it() -> N
     assert restored.state == "monitoring" and restored.calibrated_job is not None
     assert restored.calibrated_job.skew == (ALPHA,)
     assert restored.threshold is not None and det.threshold is not None and restored.threshold < det.threshold
+
+
+def test_kl_raws_tail_shape_is_an_option_with_a_tabulated_threshold() -> None:
+    """The shipped law is Gaussian (shape 0); kl_raw's fitted shape −1.76, set in ``[decision.warm_up_law]``, finds
+    its thresholds in the shipped table (no simulation on the robot), lower than the Gaussian law's."""
+    from edge_monitor.config import config_from_mapping
+    from edge_monitor.pipeline.decision_config import DecisionConfig
+    from edge_monitor.stats.threshold_table import lookup
+
+    assert DecisionConfig().detector_config("kl_raw").calibration("warm-up")["skew"] == ()
+    option = config_from_mapping({"decision": {"warm_up_law": {
+        "kl_raw": [-0.141, 0.071, 0.975, 0.105, 0.09, -1.76]}}}).decision.detector_config("kl_raw")
+    law = option.calibration("warm-up")
+    settings = GaussianSettings(60, option.window, option.gamma0, option.rho, option.direction, option.allowance,
+                                option.clip_sigma, law["at"], law["drift_mean"], law["drift_sd"], law["wander"],
+                                law["transform"], law["spread_mean"], law["spread_sd"], law["skew"])
+    gaussian = dataclasses.replace(settings, skew=())
+    for target in (1e4, 2_629_800.0):
+        found, plain = lookup(settings, target), lookup(gaussian, target)
+        assert found is not None and plain is not None and found.threshold < plain.threshold - 0.5
