@@ -91,3 +91,17 @@ def test_agent_arl_acknowledges_warm_up_alarms_by_default_and_resets_them_when_a
     assert ack["wear"]["monitored_cycles"] > reset["wear"]["monitored_cycles"]
     with pytest.raises(ValueError, match="warm_up_alarm"):
         agent_arl([{0: rows}], 50.0, draws=16, warm_up_alarm="ignore")
+
+
+def test_each_row_carries_the_band_a_calibrated_detector_would_show() -> None:
+    """With 15.1 alarms due (the quick run's rows at target 200) a calibrated detector with Poisson alarms lands
+    between λ/23 and λ/8 (the count's 2.5 % and 97.5 % points, 8 and 23): wider than 0.67–1.5; with 1 197 due
+    (the held-out run's warm-up rows at 50) within ±6 %; no upper end where no alarm is a likely count."""
+    from arl_study import calibrated_ratio_band
+
+    low, high = calibrated_ratio_band(15.1)
+    assert low == pytest.approx(15.1 / 23) and high == pytest.approx(15.1 / 8)
+    assert low < 0.67 and high > 1.5
+    low, high = calibrated_ratio_band(1197.0)
+    assert 0.94 < low < 1.0 < high < 1.06
+    assert calibrated_ratio_band(1.0)[1] is None and calibrated_ratio_band(0.0) == [None, None]

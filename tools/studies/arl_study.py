@@ -589,8 +589,19 @@ def agent_arl(series: list[dict[int, list[dict[str, float]]]], target: float | t
     return [{"quantity": q, "stage": stage, "target_arl0": t,
              "measured_arl0": exposure / alarms if alarms else None, "monitored_cycles": exposure,
              "runs": runs, "false_alarms": alarms, "at_boundary": boundary,
-             "calibrate_at": calibrated_at if stage == "warm-up" else steady_calibrated_at}
+             "calibrate_at": calibrated_at if stage == "warm-up" else steady_calibrated_at,
+             "calibrated_ratio_95": calibrated_ratio_band(exposure / t)}
             for (t, q, stage), (exposure, alarms, runs) in sorted(total.items()) if exposure or runs]
+
+
+def calibrated_ratio_band(expected: float) -> list[float | None]:
+    """The central 95 % of measured / target ARL0 a detector calibrated exactly would show with ``expected`` alarms
+    due, its alarms independent (Poisson; clustered alarms and joints of their own laws widen it): λ over the
+    2.5 % and 97.5 % points of the count; None for an upper end where the 2.5 % point is no alarm."""
+    if expected <= 0:
+        return [None, None]
+    low, high = (float(stats.poisson.ppf(q, expected)) for q in (0.025, 0.975))
+    return [expected / high if high > 0 else None, expected / low if low > 0 else None]
 
 
 def _joint_arl(rows: list[dict[str, float]], joint: int, target: float, draws: int, extra: dict[str, Any],
