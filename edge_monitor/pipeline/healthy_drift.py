@@ -45,8 +45,8 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.26), "kl
 #: The sixth: the skew-normal shape α of the values' iid part (0: Gaussian), an option. log kl_raw's values put 1.4 %
 #: above 2 of a joint's own sd where a Gaussian puts 2.3 %, and 0.22 % above 2.5 sd; α = −1.76 fits both (the same
 #: tool, ``tail_shape``) and made kl_raw deliver its stated rate at short targets, but at the default budget it
-#: raised a false alarm on a held-out robot where 0.05 were due: its deep tail is not the fitted shape's
-#: (docs/DETECTION.md, "The warm-up stage"). So the shipped shapes are 0.
+#: raised a false alarm on a held-out robot where 0.05 were due, unexplained (the far tail measured is as light as
+#: the shape says; docs/DETECTION.md, "The warm-up stage"). So the shipped shapes are 0.
 WARM_UP_LAW: dict[str, tuple[float, float, float, float, float, float]] = {
     "wear_score": (0.061, 0.261, 1.068, 0.211, 0.0, 0.0), "kl_raw": (-0.141, 0.071, 0.975, 0.105, 0.09, 0.0),
     "kl_weighted": (-0.126, 0.047, 0.908, 0.084, 0.09, 0.0)}
