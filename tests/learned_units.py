@@ -1,15 +1,18 @@
-"""The detectors' delivered run length when their values follow a law in their nominal's learned units, simulated
-from the law's definition (an independent check of the Gaussian calibration's fleet; docs/DETECTION.md, "The warm-up
-stage")."""
+"""Independent checks of the Gaussian calibration (docs/DETECTION.md, "The warm-up stage"): the run length detectors
+deliver when their values follow a law in their nominal's learned units, simulated from the law's definition; the
+tolerance a delivered run length is judged with; a detector after its learning values."""
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
 
-from edge_monitor.stats.gaussian_calibration import GaussianSettings
+from edge_monitor.stats.detector_config import DetectorConfig
+from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSettings, threshold
 from edge_monitor.stats.glr_gaussian import GaussianBatchGLR
+from edge_monitor.stats.sequential_detector import Decision, SequentialDetector
 
 
 def delivered_in_learned_units(settings: GaussianSettings, h: float, detectors: int, cycles: int,
@@ -35,3 +38,24 @@ def delivered_in_learned_units(settings: GaussianSettings, h: float, detectors: 
         if alarm.any():
             glr.restart(alarm)
     return detectors * cycles / max(alarms, 1), alarms
+
+
+#: The tests' calibration budget (the defaults: 256 nominals × 4 streams × 2 000 cycles).
+BUDGET = GaussianBudget()
+
+
+def delivered_tolerance(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], target: float, alarms: int,
+                        budget: GaussianBudget = BUDGET) -> float:
+    """3 standard errors of log(delivered / target): the calibration's (h_se times the slope of log ARL0
+    in h, from the thresholds of target and e·target) and the measurement's (1/√alarms)."""
+    low, high = threshold(settings, corr, target, budget), threshold(settings, corr, math.e * target, budget)
+    slope = 1.0 / (high.threshold - low.threshold)
+    return 3.0 * math.hypot(slope * low.h_se, 1.0 / math.sqrt(max(alarms, 1)))
+
+
+def learned_detector(config: DetectorConfig, seed: int) -> tuple[SequentialDetector, Decision]:
+    """A detector with ``config`` after 60 standard normal values, and its last decision."""
+    det = SequentialDetector(config)
+    for i, v in enumerate(np.random.default_rng(seed).normal(size=60)):
+        decision = det.update(v, i)
+    return det, decision

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from learned_units import learned_detector
 
 from edge_monitor.stats.densities import fit_gaussian, fit_gce
 from edge_monitor.stats.glr import WindowedGLR
@@ -26,14 +27,6 @@ def _refused(table: str, cases: tuple) -> None:
     for bad, key in cases:
         with pytest.raises(ConfigError, match=key):
             config_from_mapping({"decision": {table: bad}})
-
-
-def _learned(config: DetectorConfig, seed: int):
-    """A detector with ``config`` after 60 standard normal values, and its last decision."""
-    det = SequentialDetector(config)
-    for i, v in enumerate(np.random.default_rng(seed).normal(size=60)):
-        decision = det.update(v, i)
-    return det, decision
 
 
 def test_null_box_and_clip_range_follow_the_nominal_spread() -> None:
@@ -287,7 +280,7 @@ def test_healthy_drift_settings_reach_each_detector_and_survive_the_state_round_
                                ({"wear_score": [0.1, -0.2]}, "wear_score"), ([1, 2], "expected a table")))
     config = DetectorConfig(arl0=100.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
                             drift_mean=(0.3,), drift_sd=(0.3,), calibration_draws=16, calibration_steps=600)
-    det, decision = _learned(config, seed=2)
+    det, decision = learned_detector(config, seed=2)
     assert decision.calibration is not None and decision.calibration["at"] == "healthy_drift"
     state = json.loads(json.dumps(det.state_dict()))
     restored = SequentialDetector.from_state(config, state)
@@ -325,7 +318,7 @@ def test_a_warm_up_law_reaches_the_scalar_warm_up_detectors_only_and_a_saved_nom
                              ({"kl_raw": [0.0, 0.1, 1.0, 0.1, 1.0]}, "kl_raw")))
     before = DetectorConfig(arl0=200.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
                             drift_mean=(0.0,), drift_sd=(0.08,), calibration_draws=16, calibration_steps=600)
-    det, _ = _learned(before, seed=3)
+    det, _ = learned_detector(before, seed=3)
     with_law = DetectorConfig(**{**before.__dict__, "drift_mean": (-0.126,), "drift_sd": (0.047,),
                                  "spread_mean": (0.908,), "spread_sd": (0.084,)})
     restored = SequentialDetector.from_state(with_law, json.loads(json.dumps(det.state_dict())))

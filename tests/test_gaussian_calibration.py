@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from learned_units import delivered_in_learned_units
+from learned_units import delivered_in_learned_units, delivered_tolerance
 from scipy.stats import gamma, norm
 
 from edge_monitor.stats.calibration import CalibrationBudget, calibrate
@@ -90,15 +90,6 @@ def _delivered(settings: GaussianSettings, h: float, corr: np.ndarray, detectors
     return detectors * cycles / max(alarms, 1), alarms
 
 
-def _tolerance(settings: GaussianSettings, corr: tuple[tuple[float, ...], ...], target: float, alarms: int,
-               budget: GaussianBudget = BUDGET) -> float:
-    """3 standard errors of log(delivered / target): the calibration's (h_se times the slope of log ARL0
-    in h, from the thresholds of target and e·target) and the measurement's (1/√alarms)."""
-    low, high = threshold(settings, corr, target, budget), threshold(settings, corr, math.e * target, budget)
-    slope = 1.0 / (high.threshold - low.threshold)
-    return 3.0 * math.hypot(slope * low.h_se, 1.0 / math.sqrt(max(alarms, 1)))
-
-
 def test_same_values_same_threshold_and_scalars_do_not_depend_on_the_values() -> None:
     rng = np.random.default_rng(1)
     values = rng.normal(5.0, 2.0, size=(240, 1))
@@ -118,7 +109,7 @@ def test_delivered_run_length_is_the_target_on_gaussian_values(target: float, cy
     side: 0.5 nat lower delivers less than 0.7× (log ARL0 grows by ≥ 1 per nat here)."""
     found = threshold(STEADY, ((1.0,),), target, BUDGET)
     delivered, alarms = _delivered(STEADY, found.threshold, np.eye(1), 256, cycles, seed=77)
-    tolerance = _tolerance(STEADY, ((1.0,),), target, alarms)
+    tolerance = delivered_tolerance(STEADY, ((1.0,),), target, alarms)
     assert tolerance < math.log(1.5)       # 3 SE at this budget; the shipped table is far more precise
     assert abs(math.log(delivered / target)) <= tolerance, (found, delivered, tolerance)
     assert _delivered(STEADY, found.threshold - 0.5, np.eye(1), 256, cycles, seed=78)[0] < 0.7 * target
@@ -178,7 +169,7 @@ def test_the_warm_up_threshold_is_delivered_at_the_allowance_boundary() -> None:
     delivered 0.68× here (docs/DETECTION.md)."""
     found = threshold(WARM_UP, ((1.0,),), 10_000.0, BUDGET)
     delivered, alarms = _delivered(WARM_UP, found.threshold, np.eye(1), 512, 20_000, seed=84, drift=(0.75, 0.0))
-    tolerance = _tolerance(WARM_UP, ((1.0,),), 10_000.0, alarms)
+    tolerance = delivered_tolerance(WARM_UP, ((1.0,),), 10_000.0, alarms)
     assert tolerance < math.log(1.5)
     assert abs(math.log(delivered / 10_000.0)) <= tolerance, (found, delivered, alarms, tolerance)
     lower = threshold(WARM_UP, ((1.0,),), 10_000.0 / math.e, BUDGET).threshold
@@ -194,7 +185,7 @@ def test_the_joint_vector_threshold_is_delivered_on_correlated_values() -> None:
     corr = np.array([[1.0, 0.05, 0.2], [0.05, 1.0, 0.65], [0.2, 0.65, 1.0]])
     correlated = threshold(STEADY, tuple(map(tuple, corr)), 1000.0, BUDGET)
     delivered, alarms = _delivered(STEADY, correlated.threshold, corr, 256, 6000, seed=79)
-    tolerance = _tolerance(STEADY, tuple(map(tuple, corr)), 1000.0, alarms)
+    tolerance = delivered_tolerance(STEADY, tuple(map(tuple, corr)), 1000.0, alarms)
     assert abs(math.log(delivered / 1000.0)) <= tolerance, (correlated, delivered, tolerance)
     assert _delivered(STEADY, correlated.threshold - 0.5, corr, 256, 6000, seed=82)[0] < 0.7 * 1000.0
 
@@ -213,7 +204,7 @@ def test_a_healthy_drift_after_learning_is_calibrated_for_and_delivered(tilts: t
     at_nominal = threshold(STEADY, ((1.0,),), 1000.0, BUDGET)
     assert found.threshold > at_nominal.threshold + 3 * math.hypot(found.h_se, at_nominal.h_se)
     delivered, alarms = _delivered(drifting, found.threshold, np.eye(1), 256, 6000, seed=80, drift=(0.1, 0.09))
-    tolerance = _tolerance(drifting, ((1.0,),), 1000.0, alarms, budget)
+    tolerance = delivered_tolerance(drifting, ((1.0,),), 1000.0, alarms, budget)
     assert abs(math.log(delivered / 1000.0)) <= tolerance, (found, delivered)
     naive, _ = _delivered(drifting, at_nominal.threshold, np.eye(1), 256, 6000, seed=81, drift=(0.1, 0.09))
     assert naive < 0.7 * 1000.0
@@ -295,7 +286,7 @@ def test_a_slow_wander_after_learning_is_calibrated_for_and_delivered() -> None:
     assert found.threshold > without.threshold + 3 * math.hypot(found.h_se, without.h_se)
     delivered, alarms = _delivered(wandering, found.threshold, np.eye(1), 256, 6000, seed=82, drift=(0.1, 0.09),
                                    wander=0.09)
-    assert abs(math.log(delivered / 1000.0)) <= _tolerance(wandering, ((1.0,),), 1000.0, alarms), (found, delivered)
+    assert abs(math.log(delivered / 1000.0)) <= delivered_tolerance(wandering, ((1.0,),), 1000.0, alarms), (found, delivered)
     naive, _ = _delivered(wandering, without.threshold, np.eye(1), 256, 6000, seed=83, drift=(0.1, 0.09), wander=0.09)
     assert naive < 0.8 * 1000.0
 
@@ -313,10 +304,10 @@ def test_a_learned_transform_is_calibrated_for_and_delivered() -> None:
     found, without = threshold(learned, ((1.0,),), 1000.0, budget), threshold(plain, ((1.0,),), 1000.0, budget)
     assert found.threshold > without.threshold + 3 * math.hypot(found.h_se, without.h_se)
     delivered, alarms = _delivered(learned, found.threshold, np.eye(1), 256, 6000, seed=84)
-    assert abs(math.log(delivered / 1000.0)) <= _tolerance(learned, ((1.0,),), 1000.0, alarms, budget), \
+    assert abs(math.log(delivered / 1000.0)) <= delivered_tolerance(learned, ((1.0,),), 1000.0, alarms, budget), \
         (found, delivered)
     naive, naive_alarms = _delivered(learned, without.threshold, np.eye(1), 512, 6000, seed=85)
-    assert math.log(naive / 1000.0) < -_tolerance(plain, ((1.0,),), 1000.0, naive_alarms, budget), naive
+    assert math.log(naive / 1000.0) < -delivered_tolerance(plain, ((1.0,),), 1000.0, naive_alarms, budget), naive
 
 
 def test_a_simulated_transform_is_the_one_a_learning_set_of_that_mean_and_sd_gives() -> None:
@@ -377,7 +368,7 @@ def test_a_law_in_learned_units_is_calibrated_for_and_delivered() -> None:
     found, quiet = threshold(law, ((1.0,),), 1000.0, BUDGET), threshold(before, ((1.0,),), 1000.0, BUDGET)
     assert found.threshold < quiet.threshold - 3 * math.hypot(found.h_se, quiet.h_se)
     delivered, alarms = delivered_in_learned_units(law, found.threshold, 256, 6000, seed=84)
-    assert abs(math.log(delivered / 1000.0)) <= _tolerance(law, ((1.0,),), 1000.0, alarms), (found, delivered)
+    assert abs(math.log(delivered / 1000.0)) <= delivered_tolerance(law, ((1.0,),), 1000.0, alarms), (found, delivered)
     assert delivered_in_learned_units(law, quiet.threshold, 256, 6000, seed=85)[0] > 1.4 * 1000.0
 
 

@@ -4,15 +4,15 @@ Gaussian's, simulated as skew-normal in the calibration (docs/DETECTION.md, "The
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import pytest
-from learned_units import delivered_in_learned_units
+from learned_units import delivered_in_learned_units, delivered_tolerance, learned_detector
 from scipy.stats import skewnorm
 
 from edge_monitor.stats.calibration import CalibrationBudget, CalibrationJob
@@ -20,21 +20,14 @@ from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSett
 from edge_monitor.stats.gaussian_fleet import StreamNoise, skew_normal_standard
 from edge_monitor.stats.threshold_table import key
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools" / "studies"))
+
+from temperature_law_study import share_above, tail_shape  # noqa: E402
+
 WARM_UP = GaussianSettings(60, 100, 0.6, 1.0, "increase", 0.75, 3.0, "healthy_drift", drift_mean=(-0.141,),
                            drift_sd=(0.071,), spread_mean=(0.975,), spread_sd=(0.105,))
 BUDGET = GaussianBudget(nominals=256, streams=4, steps=2000)
 ALPHA = -1.74
-
-
-def _study():
-    """tools/studies/temperature_law_study.py, where the law's skew is fitted."""
-    spec = importlib.util.spec_from_file_location("temperature_law_study",
-                                                  ROOT / "tools" / "studies" / "temperature_law_study.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_skew_normal_values_have_unit_variance_and_the_shapes_tail() -> None:
@@ -55,15 +48,14 @@ def test_the_study_fits_the_shape_the_calibration_draws() -> None:
     study's fit assumes for that shape (4 standard errors, clustering by the wander ignored: small at 9 %),
     and the study's fit returns the shape from that share; a Gaussian's share gives a shape near 0 (the share
     moves with α³ there)."""
-    study = _study()
     noise = StreamNoise(np.eye(1), (0.09,), np.random.default_rng(8), (ALPHA,))
     noise.start(2000)
     v = np.concatenate([noise.step(2000)[:, 0] for _ in range(100)])
-    p = study.share_above(ALPHA, 0.09, 2.0)
+    p = share_above(ALPHA, 0.09, 2.0)
     assert abs(v.var() - 1.0) < 0.02 and abs(np.mean(v > 2.0) - p) < 4 * math.sqrt(p * (1 - p) / v.size)
-    assert study.tail_shape(p, 0.09) == pytest.approx(ALPHA, abs=1e-3)
-    assert abs(study.tail_shape(study.share_above(0.0, 0.0, 2.0), 0.0)) < 1e-3
-    assert math.isnan(study.tail_shape(0.2, 0.0))
+    assert tail_shape(p, 0.09) == pytest.approx(ALPHA, abs=1e-3)
+    assert abs(tail_shape(share_above(0.0, 0.0, 2.0), 0.0)) < 1e-3
+    assert math.isnan(tail_shape(0.2, 0.0))
 
 
 def _skew_normal(alpha: float) -> Callable[[np.random.Generator, int], np.ndarray]:
@@ -81,12 +73,10 @@ def test_a_skewed_law_is_calibrated_for_and_delivered() -> None:
     skewed = dataclasses.replace(WARM_UP, skew=(ALPHA,))
     target = 1000.0
     found, gaussian = threshold(skewed, ((1.0,),), target, BUDGET), threshold(WARM_UP, ((1.0,),), target, BUDGET)
-    above = threshold(skewed, ((1.0,),), math.e * target, BUDGET)
-    slope = 1.0 / (above.threshold - found.threshold)
     assert found.threshold < gaussian.threshold - 3 * math.hypot(found.h_se, gaussian.h_se)
     values = _skew_normal(ALPHA)
     delivered, alarms = delivered_in_learned_units(skewed, found.threshold, 256, 6000, 84, values)
-    tolerance = 3.0 * math.hypot(slope * found.h_se, 1.0 / math.sqrt(alarms))
+    tolerance = delivered_tolerance(skewed, ((1.0,),), target, alarms, BUDGET)
     assert abs(math.log(delivered / target)) <= tolerance, (found, delivered, alarms)
     assert delivered_in_learned_units(skewed, gaussian.threshold, 256, 6000, 85, values)[0] > 2.0 * target
 
@@ -132,9 +122,7 @@ def test_a_detector_saved_before_the_skew_re_derives_its_threshold_for_it() -> N
     before = DetectorConfig(arl0=200.0, direction="increase", allowance=0.75, calibrate_at="healthy_drift",
                             drift_mean=(-0.141,), drift_sd=(0.071,), spread_mean=(0.975,), spread_sd=(0.105,),
                             calibration_draws=16, calibration_steps=600)
-    det = SequentialDetector(before)
-    for i, v in enumerate(np.random.default_rng(3).normal(size=60)):
-        det.update(v, i)
+    det, _ = learned_detector(before, seed=3)
     skewed = DetectorConfig(**{**before.__dict__, "warm_up_skew": (ALPHA,)})
     restored = SequentialDetector.from_state(skewed, json.loads(json.dumps(det.state_dict())))
     restored.update(0.0, 60)

@@ -139,12 +139,13 @@ def _calibrate_gaussian(values: NDArray[np.float64], window: int, arl0: float, g
                         budget: CalibrationBudget, direction: str, allowance: float, clip_sigma: float,
                         at: str, drift_mean: tuple[float, ...] = (), drift_sd: tuple[float, ...] = (),
                         wander: tuple[float, ...] = (), transform: str = "none",
-                        spread: tuple[tuple[float, ...], ...] = ((), (), ())) -> Calibration:
+                        law: tuple[tuple[float, ...], ...] = ((), (), ())) -> Calibration:
     """A Gaussian nominal's threshold in standard units (:mod:`~edge_monitor.stats.gaussian_calibration`):
     tabulated for the shipped settings (:mod:`~edge_monitor.stats.threshold_table`), else simulated
-    (cached) with ``GAUSSIAN_DRAW_FACTOR`` × ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles."""
+    (cached) with ``GAUSSIAN_DRAW_FACTOR`` × ``budget.draws`` detectors of ``budget.steps(arl0)`` cycles; ``law``:
+    a warm-up law in learned units, (spread mean, spread sd, skew) as :class:`GaussianSettings` takes them."""
     settings = GaussianSettings(len(values), int(window), float(gamma0), float(rho), direction, float(allowance),
-                                float(clip_sigma), at, drift_mean, drift_sd, wander, transform, *spread)
+                                float(clip_sigma), at, drift_mean, drift_sd, wander, transform, *law)
     try:
         corr = correlation(values)
     except (ValueError, np.linalg.LinAlgError) as exc:

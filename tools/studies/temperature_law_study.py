@@ -43,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
 from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
 from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
+from edge_monitor.stats.calibration import MAX_SKEW  # noqa: E402
 from studies.bank_replay import new_bank, replay_bank  # noqa: E402
 from studies.robots import kept_robot_pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
@@ -132,12 +133,12 @@ def share_above(alpha: float, wander: float, x: float) -> float:
 
 
 def tail_shape(above_2sd: float, wander: float) -> float:
-    """The skew-normal shape α whose values (:func:`share_above`) put ``above_2sd`` above 2 sd; NaN if no |α| ≤ 10
-    does (a Gaussian: α = 0, 0.0228)."""
-    low, high = (share_above(a, wander, 2.0) - above_2sd for a in (-10.0, 10.0))
+    """The skew-normal shape α whose values (:func:`share_above`) put ``above_2sd`` above 2 sd; NaN if no α within
+    the law's bound (±MAX_SKEW) does (a Gaussian: α = 0, 0.0228)."""
+    low, high = (share_above(a, wander, 2.0) - above_2sd for a in (-MAX_SKEW, MAX_SKEW))
     if not (math.isfinite(above_2sd) and low <= 0.0 <= high):
         return math.nan
-    return float(brentq(lambda a: share_above(a, wander, 2.0) - above_2sd, -10.0, 10.0, xtol=1e-4))
+    return float(brentq(lambda a: share_above(a, wander, 2.0) - above_2sd, -MAX_SKEW, MAX_SKEW, xtol=1e-4))
 
 
 def tail_fits(above_2sd: dict[str, dict[str, float]], decision: DecisionConfig) -> dict[str, dict[str, float]]:
