@@ -1,6 +1,7 @@
 """The agent's detectors over kept series: one joint's rows (:mod:`studies.series`) fed to a
 :class:`~edge_monitor.pipeline.detectors.DetectorBank` as the agent feeds it — the cycle's motor temperature
-first (thermal settling, holds), then the detector inputs — one step per row.
+first (thermal settling, holds; on a robot without one the lubricant temperature read from the friction), then
+the detector inputs — one step per row.
 
 Every study that runs only the detectors goes through :func:`replay_bank`. Between two steps the caller may
 act on the bank as an operator would (``bank.detectors[q].acknowledge()``, ``.reset()``); ``values`` may
@@ -18,10 +19,12 @@ import numpy as np
 
 from edge_monitor.pipeline.decision_config import DecisionConfig
 from edge_monitor.pipeline.detectors import DetectorBank
+from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
 from edge_monitor.records import Alarm, Decision
 from edge_monitor.stats.sequential_detector import SequentialDetector
 
-#: A kept row: ``cycle``, the detector inputs, ``motor_temperature`` [°C] and the simulator's truth.
+#: A kept row: ``cycle``, the detector inputs, ``motor_temperature`` [°C] (on a robot without one,
+#: ``friction_temperature``) and the simulator's truth.
 Row = dict[str, Any]
 
 
@@ -50,9 +53,16 @@ def replay_bank(bank: DetectorBank, rows: Iterable[Row], joint: int = 0, robot: 
         cycle = int(row.get("cycle", position))
         if pauses and pauses.get(cycle, 0.0) > 0:
             bank.pause(pauses[cycle])
-        bank.observe_temperature(row.get("motor_temperature"))
+        bank.observe_temperature(*detectors_temperature(row))
         decisions, raised = bank.update(values(row) if values is not None else row, robot, joint, cycle)
         yield BankStep(cycle, row, decisions, raised)
+
+
+def detectors_temperature(row: Row) -> tuple[float | None, str]:
+    """The temperature [°C] a row's detectors follow and what it is: its motor temperature, or on a robot without
+    one the lubricant temperature read from the friction (as edge_monitor.pipeline.temperature_source picks)."""
+    motor = row.get("motor_temperature")
+    return (motor, MOTOR_TEMPERATURE) if motor is not None else (row.get("friction_temperature"), FRICTION_TEMPERATURE)
 
 
 def standard_units(detector: SequentialDetector, value: float) -> float:

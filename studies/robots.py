@@ -12,10 +12,8 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Iterator
-
-import numpy as np
 
 from edge_monitor.config import config_from_mapping
 from edge_monitor.offline.fast_path import run_cycles
@@ -25,7 +23,7 @@ from sim_controller.config import SimConfig
 from sim_controller.cycle_mode import CycleSignals, cycle_signals
 from sim_controller.scenario import scenario_config
 from studies.bank_replay import new_bank, replay_bank
-from studies.series import robot_series
+from studies.series import robot_series, without_motor_temperature
 from studies.settings import Overrides, settings_from
 from studies.tally import DecisionTally
 
@@ -104,16 +102,11 @@ def kept_robot_pauses(seed: int, cycles: int, scenario: str | None) -> dict[int,
     return pauses(scenario_config(scenario, {"seed": seed, "joints": 6, "cycles": cycles}))
 
 
-def without_motor_temperature(signals: CycleSignals) -> CycleSignals:
-    """The cycle as a controller that sends no motor temperature sends it."""
-    joints = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]
-    return replace(signals, joints=joints)
-
-
 def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     """:func:`run_robot` from the per-cycle quantities :mod:`studies.series` keeps (computed once per code
     version): only the detectors run, the agent's own :class:`DetectorBank` at the same settings fed what
-    the fast path fed it (the detector inputs and the cycle's motor temperature). One difference: the
+    the fast path fed it (the detector inputs and the cycle's motor temperature, or on a robot without one the
+    lubricant temperature read from the friction). One difference: the
     series begin once the KL distances have values, ≈ 10 cycles after the wear score, so the wear
     detector's warm-up nominal is learned from later cycles than the agent's (tests/
     test_fleet_study_from_series.py). Wear must come from the scenario file (``--wear-ramp`` changes the
@@ -121,7 +114,7 @@ def run_robot_series(spec: RunSpec) -> dict[str, Any]:
     started = time.monotonic()
     sim = spec.sim_config()
     decision = config_from_mapping(settings_from(spec.overrides)).decision
-    series = robot_series(spec.seed, sim.cycles, sim.joints, spec.scenario)
+    series = robot_series(spec.seed, sim.cycles, sim.joints, spec.scenario, spec.motor_temperature)
     tally = DecisionTally()
     alarms: list[dict[str, Any]] = []
     wear_truth: dict[int, list[float]] = {}

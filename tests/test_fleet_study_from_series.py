@@ -22,17 +22,20 @@ wear = [ { kind = "ramp", start = 95, end = 150, from = 0, to = 60 } ]
 
 
 @pytest.mark.slow
-def test_the_detectors_over_kept_series_alarm_as_the_agent_does(tmp_path: Path, monkeypatch) -> None:
+@pytest.mark.parametrize("motor_temperature", [True, False], ids=["motor temperature", "none"])
+def test_the_detectors_over_kept_series_alarm_as_the_agent_does(tmp_path: Path, monkeypatch,
+                                                                  motor_temperature: bool) -> None:
     """2 joints, 150 cycles, joint 1 wearing 0 → 60 from cycle 95, a target of 50 cycles: the same alarms
     (joint, cycle, quantity, wear) and the same monitored cycles per quantity from the series computed
     once and then read from the cache; except the wear score's warm-up, which the series start ≈ 10
     cycles later (a row is kept once the KL distances have values too), so the wear detector's first
-    nominal is learned from later cycles."""
+    nominal is learned from later cycles. On a robot without motor temperature the detectors follow the
+    lubricant temperature read from the friction, kept in the series for it."""
     monkeypatch.setattr(series, "CACHE", tmp_path / "cache")
     scenario = tmp_path / "wear.toml"
     scenario.write_text(SCENARIO)
     spec = RunSpec(seed=3, cycles=None, joints=2, overrides=(("decision.arl0_cycles", 50),), progress=0,
-                   scenario=str(scenario))
+                   scenario=str(scenario), motor_temperature=motor_temperature)
     agent = run_robot(spec)
     detectors = run_robot_series(spec)
     assert list((tmp_path / "cache").iterdir())            # computed once, kept

@@ -21,7 +21,7 @@ is its first ``decision.n_nominal`` values, the span the smoothed motor temperat
 
 Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--scenario NAME] [--json OUT]``;
 several groups pooled: ``--group 7001-7002 --group 401-407,7101-7104@plant_week:4400 --until 1200`` (seeds, then
-``@scenario`` and ``:cycles`` if not the default's).
+``@scenario`` and ``:cycles`` if not the default's); ``--no-motor-temperature``: robots whose controller sends none.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from edge_monitor.features.registry import QUANTITIES  # noqa: E402
 from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
 from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
 from edge_monitor.stats.calibration import MAX_SKEW  # noqa: E402
-from studies.bank_replay import new_bank, replay_bank  # noqa: E402
+from studies.bank_replay import detectors_temperature, new_bank, replay_bank  # noqa: E402
 from studies.robots import kept_robot_pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
@@ -62,7 +62,7 @@ def _watched(row: dict[str, Any], name: str) -> float:
 def law(rows: list[dict[str, Any]], n0: int, until: int) -> dict[str, float]:
     """Per input, a of z = a·√d over rows n0 … until (see the module docstring)."""
     smoothing = HoldTemperature()
-    smoothed = np.array([np.nan if (t := smoothing.update(r.get("motor_temperature"))) is None else t
+    smoothed = np.array([np.nan if (t := smoothing.update(detectors_temperature(r)[0])) is None else t
                          for r in rows[:until]])
     lo, hi = np.nanmin(smoothed[:n0]), np.nanmax(smoothed[:n0])
     root = np.sqrt(np.maximum(0.0, np.maximum(smoothed - hi, lo - smoothed)))[n0:]
@@ -178,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cycles", type=int, default=1000)
     parser.add_argument("--until", type=int, default=700, help="rows of the warm-up per joint (default 700)")
     parser.add_argument("--scenario", default=None, help="simulator scenario of the kept series (e.g. plant_week)")
+    parser.add_argument("--no-motor-temperature", action="store_true",
+                        help="robots whose controller sends none (their detectors follow the friction's temperature)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     groups = [_group(g, args.cycles) for g in args.group]
@@ -193,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     for seeds, scenario, cycles in groups:
         for seed in parse_seeds(seeds):
             stops = kept_robot_pauses(seed, cycles, scenario)
-            for _, rows in sorted(robot_series(seed, cycles, scenario=scenario).items()):
+            for _, rows in sorted(robot_series(seed, cycles, scenario=scenario,
+                                                             motor_temperature=not args.no_motor_temperature).items()):
                 for name, a in law(rows, decision.n_nominal, args.until).items():
                     laws[name].append(a)
                 for q, (mean, sd) in left_by_slack(rows, decision, args.until, stops).items():

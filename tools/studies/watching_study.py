@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="agent setting (TOML value), e.g. decision.budget_period=\"week\"")
     parser.add_argument("--from-series", action="store_true",
                         help="only the detectors, over the per-cycle quantities studies/series.py keeps (computed once "
-                             "per code version; with motor temperature only, wear from the scenario file only)")
+                             "per code version; wear from the scenario file only)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write the run records here")
     args = parser.parse_args(argv)
@@ -135,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     specs = [RunSpec(seed, cycles, wear_ramps=tuple(args.wear_ramp), overrides=overrides, progress=200,
                      scenario=args.scenario, motor_temperature=not args.no_motor_temperature)
              for seed in parse_seeds(args.seeds)]
-    if args.from_series and (args.no_motor_temperature or args.wear_ramp):
-        parser.error("--from-series keeps the motor temperature and takes wear from the scenario file only")
+    if args.from_series and args.wear_ramp:
+        parser.error("--from-series takes wear from the scenario file only (--wear-ramp changes the simulation)")
     with ProcessPoolExecutor(max(1, min(args.jobs, len(specs)))) as pool:
         runs = list(pool.map(run_robot_series if args.from_series else run_robot, specs))
     print(report(runs, arl0))
