@@ -18,6 +18,7 @@ from edge_monitor.pipeline.healthy_drift import (
     STEADY_WANDER,
     TEMPERATURE_SLACK,
     WARM_UP_LAW,
+    WARM_UP_LAW_FRICTION,
     healthy_drift,
     steady_wander,
     temperature_slack,
@@ -44,8 +45,8 @@ SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm
 #: Where the calibrations simulate the detectors (the point, the healthy drift after learning, the wander): not
 #: what a detector learned either, so not in the fingerprint; a saved nominal's threshold is re-derived for the
 #: current ones (``SequentialDetector.from_state``), and "keep" keeps the current ones.
-CALIBRATION_KEYS = ("calibrate_at", "healthy_drift", "warm_up_law", "steady_calibrate_at", "steady_drift",
-                    "steady_drift_joint", "steady_wander")
+CALIBRATION_KEYS = ("calibrate_at", "healthy_drift", "warm_up_law", "warm_up_law_friction", "steady_calibrate_at",
+                    "steady_drift", "steady_drift_joint", "steady_wander")
 
 #: The periods a false-alarm budget may be stated per [days].
 BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
@@ -78,7 +79,9 @@ class DecisionConfig:
     ``calibrate_at``: where the calibration simulates each warm-up detector (default ``"healthy_drift"``: a fleet
     whose joints drift as ``healthy_drift`` (input → (mean, sd) [σ]) says, beyond the temperature slack and the
     learning error; a scalar detector of an input ``warm_up_law`` lists (input → (mean, sd, spread, spread sd)
-    [learned σ]) is drawn from that law in its nominal's learned units instead, learning error included;
+    [learned σ]) is drawn from that law in its nominal's learned units instead, learning error included — on a
+    joint whose controller sends no motor temperature (its detectors follow the friction's lubricant temperature)
+    from ``warm_up_law_friction`` where that lists the input;
     ``"boundary"``: every joint at the drift allowance, a bound; ``"nominal"``: no drift).
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
@@ -113,6 +116,7 @@ class DecisionConfig:
     calibrate_at: str = "healthy_drift"
     healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
     warm_up_law: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(WARM_UP_LAW))
+    warm_up_law_friction: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(WARM_UP_LAW_FRICTION))
     steady_relearn: bool = True
     steady_calibrate_at: str = "healthy_drift"
     steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
@@ -163,6 +167,8 @@ class DecisionConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "healthy_drift", healthy_drift(self.healthy_drift))
         object.__setattr__(self, "warm_up_law", warm_up_law(self.warm_up_law))
+        object.__setattr__(self, "warm_up_law_friction", warm_up_law(self.warm_up_law_friction, "warm_up_law_friction",
+                                                                     WARM_UP_LAW_FRICTION))
         object.__setattr__(self, "steady_drift", healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
         object.__setattr__(self, "steady_drift_joint", healthy_drift(self.steady_drift_joint, "steady_drift_joint",
                                                                      STEADY_DRIFT_JOINT))
@@ -194,6 +200,7 @@ class DecisionConfig:
         for quantity in self.quantities:
             try:
                 self.detector_config(quantity)
+                self.detector_config(quantity, friction_temperature=True)
             except ConfigError as exc:      # "field: message" → "decision.<config key> (quantity …): message"
                 field, _, message = str(exc).partition(": ")
                 if QUANTITIES[quantity].dim > 1:
@@ -216,13 +223,16 @@ class DecisionConfig:
                     f"{self.budget_text} is outside {MIN_ARL0:g} … {MAX_ARL0:g} cycles per detector; state a "
                     f"budget a {self.budget_period} of {self.cycles_per_day:g} cycles can deliver")
 
-    def detector_config(self, quantity: str) -> DetectorConfig:
+    def detector_config(self, quantity: str, friction_temperature: bool = False) -> DetectorConfig:
+        """``quantity``'s detector settings; ``friction_temperature``: on a joint whose detectors follow the
+        lubricant temperature read from the friction (no motor temperature), calibrated for its warm-up law."""
         spec = QUANTITIES[quantity]
         vector = spec.dim > 1
         drifting = self.calibrate_at == "healthy_drift"
         steady_drifting = self.steady_calibrate_at == "healthy_drift"
         steady_drift = self.steady_drift_joint if vector else self.steady_drift
-        law = self.warm_up_law.get(spec.inputs[0], ()) if drifting and not vector else ()
+        laws = {**self.warm_up_law, **self.warm_up_law_friction} if friction_temperature else self.warm_up_law
+        law = laws.get(spec.inputs[0], ()) if drifting and not vector else ()
         drift = [law[:2] if law else self.healthy_drift[q] for q in spec.inputs] if drifting else []
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,

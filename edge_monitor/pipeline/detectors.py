@@ -34,10 +34,10 @@ from edge_monitor.pipeline.healthy_drift import (  # noqa: F401  (re-exported: t
     STEADY_WANDER,
 )
 from edge_monitor.pipeline.hold_temperature import HoldTemperature
-from edge_monitor.pipeline.nominal_temperature import MOTOR_TEMPERATURE, NominalSpans
+from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE, NominalSpans
 from edge_monitor.pipeline.thermal_settling import ThermalSettling
 from edge_monitor.records import Alarm, Decision, finite_or_none
-from edge_monitor.stats.detector_config import DEFAULT_NOMINAL  # noqa: F401  (re-exported for the studies)
+from edge_monitor.stats.detector_config import DEFAULT_NOMINAL, DetectorConfig  # noqa: F401  (DEFAULT_NOMINAL re-exported)
 from edge_monitor.stats.sequential_detector import Calibrator, SequentialDetector
 
 log = logging.getLogger(__name__)
@@ -49,6 +49,8 @@ SETTLING_KEY = "_thermal_settling"
 SPANS_KEY, OLD_SPANS_KEY = "_nominal_temperature", "_steady_temperature"
 #: Key of the smoothed temperature the holds read (not a quantity name).
 HOLD_KEY = "_hold_temperature"
+#: Key of the temperature the detectors are calibrated for (not a quantity name; absent: the motor temperature).
+CALIBRATED_FOR_KEY = "_calibrated_for"
 
 #: Reason of the decisions of a cycle that is kept out of the detectors.
 PARTIAL_REASON = "partial cycle: not used by the detectors"
@@ -85,6 +87,7 @@ class DetectorBank:
         self.hold_temperature = HoldTemperature()      # its smoothing, which the spans and holds read
         self.smoothed: float | None = None            # the current cycle's smoothed temperature [°C] (holds)
         self.temperature_source = MOTOR_TEMPERATURE
+        self.calibrated_for = MOTOR_TEMPERATURE        # the temperature the detectors' calibrations assume
         self.spans = NominalSpans(warm_up_hold=config.warm_up_hold,   # the temperatures of the nominals (holds)
                                   warm_margin=config.warm_up_hold_margin, warm_side=config.steady_relearn,
                                   slack_prior=config.temperature_slack)
@@ -101,6 +104,7 @@ class DetectorBank:
         joint warms again from where the stop left it."""
         self.temperature = finite_or_none(temperature)
         self.temperature_source = source
+        self._calibrate_for(source)
         stops = self.hold_temperature.stops
         self.smoothed = self.hold_temperature.update(self.temperature)
         if self.hold_temperature.stops > stops:        # a stop: the warming starts over, so does the settling
@@ -114,6 +118,21 @@ class DetectorBank:
                     self.spans.restart(quantity)
             elif not settled:
                 detector.cancel_steady()      # warming again: the values collected are not steady
+
+    def _detector_config(self, quantity: str) -> DetectorConfig:
+        return self.config.detector_config(quantity, friction_temperature=self.calibrated_for == FRICTION_TEMPERATURE)
+
+    def _calibrate_for(self, source: str) -> None:
+        """Calibrations for the temperature the detectors follow: a joint without motor temperature has its own
+        warm-up law (``decision.warm_up_law_friction``). On a change, a detector whose settings differ re-derives its
+        threshold on the same nominal (a detector not yet learned just takes them)."""
+        if source == self.calibrated_for:
+            return
+        self.calibrated_for = source
+        for quantity, detector in self.detectors.items():
+            config = self._detector_config(quantity)
+            if config != detector.config:
+                self.detectors[quantity] = SequentialDetector.from_state(config, detector.state_dict(), self.calibrator)
 
     def keep_settling(self, previous: "DetectorBank") -> None:
         """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled), and its count of
@@ -254,8 +273,8 @@ class DetectorBank:
 
     def state_dict(self) -> dict[str, Any]:
         out = {q: {**d.state_dict(), "inputs": self._fingerprint(q)} for q, d in self.detectors.items()}
-        return {**out, SETTLING_KEY: self.settling.state_dict(),
-                SPANS_KEY: self.spans.state_dict(), HOLD_KEY: self.hold_temperature.state_dict()}
+        return {**out, SETTLING_KEY: self.settling.state_dict(), SPANS_KEY: self.spans.state_dict(),
+                HOLD_KEY: self.hold_temperature.state_dict(), CALIBRATED_FOR_KEY: self.calibrated_for}
 
     def _check_inputs(self, quantity: str, saved: Any) -> None:
         """:class:`StateMismatch` naming what changed if ``quantity``'s detector learned on other values."""
@@ -277,6 +296,8 @@ class DetectorBank:
         """Restore detectors from ``state``; a detector whose settings or inputs changed since it was
         learned starts learning again. Returns one message per relearned detector."""
         messages: list[str] = []
+        self.calibrated_for = FRICTION_TEMPERATURE if state.get(CALIBRATED_FOR_KEY) == FRICTION_TEMPERATURE \
+            else MOTOR_TEMPERATURE
         if isinstance(state.get(SETTLING_KEY), dict):
             self.settling = ThermalSettling.from_state(self.config.settling, state[SETTLING_KEY])
         self.hold_temperature = HoldTemperature.from_state(state.get(HOLD_KEY)) if HOLD_KEY in state else \
@@ -292,7 +313,7 @@ class DetectorBank:
                 continue
             try:
                 self._check_inputs(quantity, saved.get("inputs"))
-                self.detectors[quantity] = SequentialDetector.from_state(self.config.detector_config(quantity), saved,
+                self.detectors[quantity] = SequentialDetector.from_state(self._detector_config(quantity), saved,
                                                                          self.calibrator)
             except StateMismatch as exc:
                 self.spans.forget(quantity)

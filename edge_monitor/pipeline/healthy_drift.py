@@ -1,6 +1,6 @@
 """What healthy data do after a detector has learned its nominal, as the calibration assumes it: the
-``[decision.healthy_drift]``, ``[decision.warm_up_law]``, ``[decision.steady_drift]``, ``[decision.steady_wander]``
-and ``[decision.temperature_slack]`` tables, their
+``[decision.healthy_drift]``, ``[decision.warm_up_law]``, ``[decision.warm_up_law_friction]``,
+``[decision.steady_drift]``, ``[decision.steady_wander]`` and ``[decision.temperature_slack]`` tables, their
 shipped values (measured on the simulator's healthy default robots, docs/DETECTION.md) and their
 validation (a :class:`~edge_monitor.errors.ConfigError` naming the key)."""
 
@@ -50,6 +50,23 @@ HEALTHY_DRIFT: dict[str, tuple[float, float]] = {"wear_score": (0.05, 0.26), "kl
 WARM_UP_LAW: dict[str, tuple[float, float, float, float, float, float]] = {
     "wear_score": (0.061, 0.261, 1.068, 0.211, 0.0, 0.0), "kl_raw": (-0.141, 0.071, 0.975, 0.105, 0.09, 0.0),
     "kl_weighted": (-0.126, 0.047, 0.908, 0.084, 0.09, 0.0)}
+#: The warm-up law of a joint whose controller sends no motor temperature, per input where it differs from
+#: :data:`WARM_UP_LAW` (``[decision.warm_up_law_friction]``; shipped empty: such joints are calibrated as joints with
+#: one). Its detectors follow the lubricant temperature its wear estimate reads from the friction, and that estimate,
+#: free to trade temperature for wear cycle by cycle, makes the wear score spread wider with a heavier upper tail.
+#: Measured as WARM_UP_LAW (``temperature_law_study.py --no-motor-temperature``) on 10 healthy robots without motor
+#: temperature (seeds 7001–7006 and the plant weeks 401–404, their first 1 200 cycles; 60 joints),
+#: :data:`MEASURED_WARM_UP_LAW_FRICTION`: spreads 1.184 ± 0.231, 3.0 % of the values above 2 of a joint's own sd, 1.0
+#: % above 2.5 (the same robots with a motor temperature, seeds 7001–7004: spreads 1.069, 2.3 % and 0.7 %); the
+#: skew-normal shape +1.41 fits the share above 2 sd and predicts those above 2.5, 3 and 3.5 sd (1.08 %, 0.34 %,
+#: 0.094 %; measured 1.07 %, 0.38 %, 0.108 %; a Gaussian 0.62 %, 0.135 %, 0.023 %). Not shipped: the threshold at a
+#: long target follows the law of the joints' means, whose sd was 0.238 there but 0.297 on 72 other joints
+#: (7341–7352), so the measured law lowers the default budget's threshold (11.8 nats where 14.5) on a sample that may
+#: understate it; and on 20 held-out robots it changed no alarm at one per robot-week or robot-year
+#: (docs/WITHOUT_MOTOR_TEMPERATURE.md). The KL distances' laws lie within their sds of WARM_UP_LAW's.
+WARM_UP_LAW_FRICTION: dict[str, tuple[float, float, float, float, float, float]] = {}
+MEASURED_WARM_UP_LAW_FRICTION: dict[str, tuple[float, float, float, float, float, float]] = {
+    "wear_score": (-0.075, 0.238, 1.184, 0.231, 0.0, 1.41)}
 #: The same once warm, for the scalar detectors: (mean, sd) over joints and operating periods of how far each
 #: input sits, after its steady nominal is learned, from that nominal (in its learned standard deviations,
 #: beyond the learning error the calibration simulates itself). Measured on a plant's ordinary week (the
@@ -124,10 +141,12 @@ def healthy_drift(given: Any, key: str = "healthy_drift",
                       f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sd 0 … {MAX_DRIFT:g})")
 
 
-def warm_up_law(given: Any) -> dict[str, tuple[float, float, float, float, float, float]]:
-    """``decision.warm_up_law``: input → [mean, sd, spread, spread sd] in learned standard deviations and optionally
-    the wander's variance fraction and the skew-normal shape of the iid part (default 0 each); an empty list leaves
-    that input to ``[decision.healthy_drift]`` and the simulated learning error."""
+def warm_up_law(given: Any, key: str = "warm_up_law",
+                defaults: Mapping[str, tuple[float, ...]] = WARM_UP_LAW) -> dict[str, tuple[float, ...]]:
+    """``decision.warm_up_law`` (or ``key``): input → [mean, sd, spread, spread sd] in learned standard deviations and
+    optionally the wander's variance fraction and the skew-normal shape of the iid part (default 0 each); an empty
+    list: none (``warm_up_law``: that input is left to ``[decision.healthy_drift]`` and the simulated learning error;
+    ``warm_up_law_friction``: to ``warm_up_law``)."""
     def parse(law: Any) -> tuple[float, ...] | None:
         if isinstance(law, (list, tuple)) and len(law) == 0:
             return ()
@@ -136,11 +155,11 @@ def warm_up_law(given: Any) -> dict[str, tuple[float, float, float, float, float
         return values if ok and -MAX_DRIFT <= values[0] <= MAX_DRIFT and 0 <= values[1] <= MAX_DRIFT \
             and 0.05 <= values[2] <= 5 and 0 <= values[3] <= MAX_DRIFT and 0 <= values[4] < 1 \
             and abs(values[5]) <= MAX_SKEW else None
-    parsed = _per_input(given, "warm_up_law", {**dict.fromkeys(HEALTHY_DRIFT, ()), **WARM_UP_LAW}, parse,
+    parsed = _per_input(given, key, {**dict.fromkeys(HEALTHY_DRIFT, ()), **defaults}, parse,
                         f"[mean, sd, spread, spread sd(, wander(, skew))] in learned standard deviations (mean "
                         f"−{MAX_DRIFT:g} … {MAX_DRIFT:g}, sds 0 … {MAX_DRIFT:g}, spread 0.05 … 5, wander a variance "
                         f"fraction 0 … <1, skew a skew-normal shape −{MAX_SKEW:g} … {MAX_SKEW:g}), or [] for none")
-    return {name: law for name, law in parsed.items() if law}  # type: ignore[misc]
+    return {name: law for name, law in parsed.items() if law}
 
 
 def temperature_slack(given: Any) -> dict[str, tuple[float, float]]:

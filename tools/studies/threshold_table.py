@@ -60,11 +60,11 @@ def shipped_settings(config: DecisionConfig | None = None, quantities: tuple[str
                                                                                         "kl_weighted")
                      ) -> list[GaussianSettings]:
     """The warm-up and steady settings of the agent's detectors of ``quantities`` (one per distinct
-    healthy drift)."""
+    healthy drift), on joints with a motor temperature and without one."""
     c = config or DecisionConfig()
     out: list[GaussianSettings] = []
-    for quantity in quantities:
-        d = c.detector_config(quantity)
+    for quantity, friction in ((q, f) for q in quantities for f in (False, True)):
+        d = c.detector_config(quantity, friction_temperature=friction)
         for stage, n0 in (("warm-up", d.n_nominal), ("steady", d.steady_nominal)):
             at = d.calibration(stage)
             settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
