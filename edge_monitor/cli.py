@@ -19,11 +19,12 @@ from typing import Sequence
 
 from protocol import package_version
 from protocol.console import (
-    EXIT_INTERRUPTED,
     UsageError,
     configure_logging,
     install_conventions,
+    interrupted_exit,
     subcommands,
+    terminate_like_interrupt,
     usage_error,
     verbosity,
 )
@@ -63,12 +64,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     configure_logging(verbosity(args))
     try:
-        return int(args.func(args) or 0)
+        with terminate_like_interrupt():
+            return int(args.func(args) or 0)
     except UsageError as exc:       # a bad value found after parsing: the subcommand's usage, exit 2
         return usage_error(subcommands(parser)[args.command], str(exc))
-    except KeyboardInterrupt:
-        print(f"edge-monitor {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        return interrupted_exit(f"edge-monitor {args.command}", exc)
 
 
 if __name__ == "__main__":

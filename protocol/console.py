@@ -27,11 +27,13 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 #: Interrupted with Ctrl-C before the work was done.
 EXIT_INTERRUPTED = 130
+#: Terminated by SIGTERM before the work was done (a command that runs until stopped ends with 0 instead).
+EXIT_TERMINATED = 143
 
 EXIT_CODES_HELP = (
     "exit codes: 0 ok; 1 runtime failure (a CAN link, log or output file cannot be opened, read or written, "
     "or the link failed); 2 usage error (bad arguments or values, invalid input or settings file, no CAN "
-    "interface configured); 130 interrupted (Ctrl-C)")
+    "interface configured); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM) before the work was done")
 
 #: Said once under any help that cites docs/: a wheel installs none of them.
 DOCS_NOTE = ("docs/…: the project's documentation, in its source repository (a wheel installs none of it); "
@@ -39,6 +41,8 @@ DOCS_NOTE = ("docs/…: the project's documentation, in its source repository (a
              "--list")
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+log = logging.getLogger(__name__)
 
 
 class UsageError(ValueError):
@@ -126,6 +130,68 @@ def usage_error(parser: argparse.ArgumentParser, message: str) -> int:
     parser.print_usage(sys.stderr)
     print(f"{parser.prog}: error: {message}", file=sys.stderr)
     return EXIT_USAGE
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived: raised where Ctrl-C's KeyboardInterrupt would be, so the same clean-up runs."""
+
+
+def _raise_terminated(signum: int, _frame: Any) -> None:
+    raise Terminated(f"signal {signum}")
+
+
+@contextmanager
+def terminate_like_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM takes Ctrl-C's path (:class:`Terminated`: worker processes stopped, outputs
+    closed, a message, exit code 143) instead of Python's default, which kills the process at once and
+    leaves its workers and their semaphores behind. A command that runs until stopped installs its own
+    handler over this one. Outside the main thread signals cannot be caught: nothing changes there."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def interrupted_exit(command: str, exc: KeyboardInterrupt) -> int:
+    """Say that ``command`` was interrupted or terminated, on stderr; the exit code for it."""
+    if isinstance(exc, Terminated):
+        print(f"{command}: terminated (SIGTERM)", file=sys.stderr)
+        return EXIT_TERMINATED
+    print(f"{command}: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
+class DeferredInterrupt:
+    """Ctrl-C or SIGTERM noted, not raised (:func:`deferred_interrupts`): ``pending`` is what to raise."""
+
+    def __init__(self) -> None:
+        self.pending: KeyboardInterrupt | None = None
+
+    def note(self, signum: int, _frame: Any) -> None:
+        if self.pending is None:
+            log.warning("signal %d: stopping after the current block", signum)
+        self.pending = Terminated(f"signal {signum}") if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+@contextmanager
+def deferred_interrupts() -> Iterator[DeferredInterrupt]:
+    """Within the block, Ctrl-C and SIGTERM are noted instead of raised, so that a writer is never cut
+    mid-container (a BLF file so cut cannot be read back); the loop checks ``pending``, ends, closes its
+    outputs and raises it. Outside the main thread signals cannot be caught: nothing changes there."""
+    deferred = DeferredInterrupt()
+    if threading.current_thread() is not threading.main_thread():
+        yield deferred
+        return
+    previous = {signum: signal.signal(signum, deferred.note) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield deferred
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def stop_on_signals() -> threading.Event:

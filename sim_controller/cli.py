@@ -28,11 +28,11 @@ from protocol import package_version
 from protocol.console import (
     EXIT_CODES_HELP,
     EXIT_FAILURE,
-    EXIT_INTERRUPTED,
     add_can_arguments,
     can_options,
     configure_logging,
     install_conventions,
+    interrupted_exit,
     subcommands,
     verbosity,
 )
@@ -259,7 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "record":
             summary = record(config, args.out, args.truth, progress=verbosity(args) >= 0, encoder=encoder)
-        else:
+        else:                               # SIGTERM: its normal end (stop after the current block)
             if (problem := _run_option_error(args)) is not None:
                 usage_error(problem)
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
@@ -270,9 +270,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (LinkError, OSError) as exc:
         print(f"sim-controller: {exc}", file=sys.stderr)
         return EXIT_FAILURE
-    except KeyboardInterrupt:
-        print(f"sim-controller {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        return interrupted_exit(f"sim-controller {args.command}", exc)
     if args.summary_json:
         print(json.dumps(summary.to_dict()))
     elif verbosity(args) >= 0:

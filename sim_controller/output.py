@@ -25,7 +25,7 @@ from typing import IO, Any, Callable
 
 import can
 
-from protocol.console import progress_bar
+from protocol.console import deferred_interrupts, progress_bar
 from protocol.links import open_bus
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
@@ -122,18 +122,25 @@ def record(config: SimConfig, path: str | Path, truth_path: str | Path | None = 
     status = _Progress(controller, f"record {path}")
     start = time.perf_counter()
     sent = 0
-    try:
-        with progress_bar(config.cycles, f"record {Path(path).name}", enabled=progress, unit="cycle") as bar:
-            for block in controller.frames():
-                writer.write_block(block)
-                sent += len(block)
-                truth.drain()
-                bar.update(controller.cycles_done - bar.n)
-                if bar.disable:
-                    status.tick()
-    finally:
-        writer.stop()
-        truth.close(sent)
+    with deferred_interrupts() as interrupt:     # Ctrl-C, SIGTERM: end after the block, never mid-container
+        try:
+            with progress_bar(config.cycles, f"record {Path(path).name}", enabled=progress, unit="cycle") as bar:
+                for block in controller.frames():
+                    writer.write_block(block)
+                    sent += len(block)
+                    truth.drain()
+                    bar.update(controller.cycles_done - bar.n)
+                    if bar.disable:
+                        status.tick()
+                    if interrupt.pending is not None:
+                        break
+        finally:
+            writer.stop()
+            truth.close(sent)
+    if interrupt.pending is not None:
+        log.warning("%s: stopped after %d frames (%d complete cycles); the log is readable up to there",
+                    path, sent, controller.cycles_done)
+        raise interrupt.pending
     wall = time.perf_counter() - start
     return RunSummary(sent, 0, controller.cycles_done, controller.simulated_seconds, wall,
                       dict(controller.injector.counts))

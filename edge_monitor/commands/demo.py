@@ -38,7 +38,15 @@ from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sinks.loopback import free_loopback_port
 from edge_monitor.sinks.zenoh_session import ZenohOptions
 from edge_monitor.sources.frame_source import LiveSource
-from protocol.console import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, verbosity
+from protocol.console import (
+    EXIT_FAILURE,
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
+    EXIT_USAGE,
+    Terminated,
+    UsageError,
+    verbosity,
+)
 
 log = logging.getLogger(__name__)
 
@@ -171,12 +179,12 @@ def run(args: argparse.Namespace) -> int:
         agent_thread.start()
         truth = out / "truth.jsonl"
         sim = subprocess.Popen(sim_command(sim_link, args, truth), stdin=subprocess.DEVNULL)
-        interrupted = False
+        interrupted: KeyboardInterrupt | None = None
         try:
             sim_rc = sim.wait()
             runner.wait_drained(quiet_s=2.0)
-        except KeyboardInterrupt:       # Ctrl-C: stop the simulator, still show what was seen so far
-            interrupted = True
+        except KeyboardInterrupt as exc:    # Ctrl-C or SIGTERM: stop the simulator, still show what was seen
+            interrupted = exc
             sim.terminate()
             sim_rc = sim.wait()
         runner.stop_event.set()
@@ -201,8 +209,8 @@ def run(args: argparse.Namespace) -> int:
               f"frames {frames['frames_total']} (ok {frames['frames_ok']}); wall {summary['demo']['wall_s']} s")
         if rrd:
             print(f"recording: {rrd}  (open with: {rerun_command()} {rrd})")
-    if interrupted:
-        return EXIT_INTERRUPTED
+    if interrupted is not None:
+        return EXIT_TERMINATED if isinstance(interrupted, Terminated) else EXIT_INTERRUPTED
     return 0 if sim_rc == 0 else EXIT_FAILURE
 
 

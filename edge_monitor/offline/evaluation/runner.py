@@ -17,16 +17,14 @@ writes it). Progress: a tqdm bar on a terminal, and an INFO status line at most 
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import multiprocessing
 import os
 import signal
-import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,7 +36,7 @@ from edge_monitor.offline.evaluation.factors import Factor
 from edge_monitor.offline.evaluation.simulate import PointResult, PointSpec, run_point
 from edge_monitor.offline.evaluation.surrogate import fit_surrogate, validation_fit
 from edge_monitor.records import finite_or_none, to_strict
-from protocol.console import progress_bar
+from protocol.console import progress_bar, terminate_like_interrupt
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +105,7 @@ def simulate_points(specs: list[PointSpec], jobs: int, progress: bool = True) ->
                 last = now
                 log.info("evaluate: %d/%d design points simulated, %.0f s", len(results), len(specs), now - started)
 
-        with _sigterm_as_interrupt():
+        with terminate_like_interrupt():
             if jobs <= 1:
                 for spec in specs:
                     done(run_point(spec))
@@ -125,28 +123,11 @@ def simulate_points(specs: list[PointSpec], jobs: int, progress: bool = True) ->
     return [results[i] for i in sorted(results)]
 
 
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises :class:`KeyboardInterrupt` while the simulation runs, so it takes Ctrl-C's path
-    (workers terminated, exit 130). Only in the main thread, where Python can install handlers."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def _ignore_sigint() -> None:
     """Workers leave Ctrl-C (sent to the whole process group) to the parent, which terminates them;
     that SIGTERM ends a worker silently (the default action), not through the parent's handler that a
-    forked worker would otherwise inherit from :func:`_sigterm_as_interrupt` (a traceback per worker)."""
+    forked worker would otherwise inherit from :func:`protocol.console.terminate_like_interrupt` (a traceback
+    per worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
