@@ -12,6 +12,24 @@ from edge_monitor.stats.densities import DensityError
 log = logging.getLogger(__name__)
 
 
+def exit_with_parent() -> None:
+    """In a worker process: end it when the process that started it is gone. A pool's worker waits for
+    work for ever, so a parent killed with SIGKILL (no clean-up) would leave it behind, holding its
+    memory; a daemon thread waits on the parent's sentinel and exits the worker then."""
+    import multiprocessing
+    import os
+    import threading
+
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        parent.join()               # returns when the parent's end of its sentinel pipe closes
+        os._exit(0)                 # nothing of the worker's is worth keeping: its results have no reader
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 class Pending:
     """A calibration under way: :meth:`result` is None until it is done."""
 
@@ -64,7 +82,7 @@ class ProcessCalibrator:
         self._pool: concurrent.futures.Executor
         try:
             self._pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+                max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=exit_with_parent)
         except OSError as exc:       # e.g. no /dev/shm (minimal containers, initramfs): no semaphores
             log.warning("calibration worker process unavailable (%s); calibrating in a background thread "
                         "instead (frames are still taken, the numerics share the CPU)", exc)
