@@ -12,7 +12,7 @@ Units: speed rad/s, torque a fraction of the joint's maximum torque, temperature
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Iterator
 
 import numpy as np
@@ -53,6 +53,12 @@ class CycleSignals:
     status_segments: NDArray[np.int64]
     joints: list[JointSignals]
     truth: list[dict[str, Any]]
+
+
+def without_motor_temperature(signals: CycleSignals) -> CycleSignals:
+    """The cycle as a controller that sends no motor temperature sends it (every status value NaN)."""
+    joints = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]
+    return replace(signals, joints=joints)
 
 
 def _signals(sc: SimulatedCycle) -> CycleSignals:

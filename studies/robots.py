@@ -20,10 +20,10 @@ from edge_monitor.offline.fast_path import run_cycles
 from edge_monitor.pipeline.agent import Agent
 from edge_monitor.pipeline.coverage import Coverage
 from sim_controller.config import SimConfig
-from sim_controller.cycle_mode import CycleSignals, cycle_signals
+from sim_controller.cycle_mode import CycleSignals, cycle_signals, without_motor_temperature
 from sim_controller.scenario import scenario_config
 from studies.bank_replay import new_bank, replay_bank
-from studies.series import robot_series, without_motor_temperature
+from studies.series import robot_series
 from studies.settings import Overrides, settings_from
 from studies.tally import DecisionTally
 

@@ -12,10 +12,10 @@ has none in its rows; they carry ``friction_temperature``, the lubricant tempera
 reads from the friction, which its detectors follow instead (studies.bank_replay.detectors_temperature).
 
 The cache (:data:`CACHE`, ``.cache/fleet_series/``) is keyed by seed, joints, cycles, the scenario's
-content and a hash of the code the quantities depend on (simulator, joint model, features, fast path,
-defaults; the defaults by their settings without comments and without ``[decision]``, which the detectors
-alone read), so a code change recomputes. :func:`fleet` runs robots in parallel processes. The command
-line is tools/studies/fleet_series.py.
+content and a hash of the code the quantities depend on (simulator but its file and link writers, joint
+model, features, fast path, defaults; the defaults by their settings without comments and without
+``[decision]``, which the detectors alone read), so a code change recomputes. :func:`fleet` runs robots
+in parallel processes. The command line is tools/studies/fleet_series.py.
 """
 
 from __future__ import annotations
@@ -27,9 +27,8 @@ import logging
 import time
 import tomllib
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 #: The repository the code hash reads and the cache lives in.
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,6 +43,8 @@ SOURCES = ("joint_model", "sim_controller", "protocol/frames.py", "edge_monitor/
            "edge_monitor/pipeline/cycle_assembly.py", "edge_monitor/pipeline/joint_monitor.py",
            "edge_monitor/pipeline/agent.py", "edge_monitor/sources/ingest.py", "edge_monitor/sources/samples.py",
            "edge_monitor/sources/cycle_arrays.py")
+#: Of those, what writes frames to files and links, which the fast path never uses: a change there keeps them.
+NOT_SOURCES = ("sim_controller/cli.py", "sim_controller/output.py", "sim_controller/log_writers.py")
 
 #: Per joint, its rows in cycle order (see the module docstring).
 Series = dict[int, list[dict[str, float]]]
@@ -58,8 +59,10 @@ def code_hash() -> str:
         path = ROOT / name
         files = sorted(path.rglob("*")) if path.is_dir() else [path]
         for file in files:
-            if file.is_file() and file.suffix in (".py", ".toml") and "__pycache__" not in file.parts:
-                digest.update(str(file.relative_to(ROOT)).encode())
+            relative = file.relative_to(ROOT).as_posix()
+            if (file.is_file() and file.suffix in (".py", ".toml") and "__pycache__" not in file.parts
+                    and relative not in NOT_SOURCES):
+                digest.update(relative.encode())
                 digest.update(settings_bytes(file) if file.suffix == ".toml" else file.read_bytes())
     return digest.hexdigest()[:12]
 
@@ -89,58 +92,17 @@ def cache_path(seed: int, cycles: int, joints: int, scenario: str | None, code: 
 def compute(seed: int, cycles: int, joints: int = 6, scenario: str | None = None,
             motor_temperature: bool = True) -> Series:
     """Per joint, the rows of every cycle with feature values (see the module docstring)."""
+    from edge_monitor.offline.fast_path import detector_inputs_with_truth
+
     config = _config(seed, cycles, joints, scenario)
     out: Series = {}
     started = time.monotonic()
     kept = ("motor_temperature",) * motor_temperature + ("temperature", "load", "wear")
-    for joint, cycle, values, truth in _detector_inputs(config, motor_temperature):
+    for joint, cycle, values, truth in detector_inputs_with_truth(config, motor_temperature=motor_temperature):
         out.setdefault(joint, []).append({"cycle": cycle, **values, **{k: float(truth[k]) for k in kept if k in truth}})
         if joint == 0 and cycle % 100 == 99:
             log.info("seed %d: cycle %d/%d, %.0f s", seed, cycle + 1, cycles, time.monotonic() - started)
     return out
-
-
-Row = tuple[int, int, dict[str, float], dict[str, Any]]
-
-
-def _detector_inputs(config: Any, motor_temperature: bool) -> Iterator[Row]:
-    """The fast path's detector inputs with the truth (edge_monitor.offline.fast_path.detector_inputs_with_truth);
-    without motor temperature, the same from cycles whose status frames carry none, each row's values with the wear
-    estimate's ``friction_temperature`` added. (Written here rather than as an option of the fast path, whose code
-    keys every kept series.)"""
-    from edge_monitor.config import config_from_mapping
-    from edge_monitor.offline.fast_path import CycleFeeder, detector_inputs_with_truth
-    from edge_monitor.pipeline.agent import Agent
-    from sim_controller.cycle_mode import cycle_signals
-
-    if motor_temperature:
-        yield from detector_inputs_with_truth(config)
-        return
-    feeder = CycleFeeder(Agent(config_from_mapping({"decision": {"enabled": False}})))
-    truth: dict[tuple[int, int], dict[str, Any]] = {}
-
-    def rows(symptoms: list[Any]) -> Iterator[Row]:
-        for symptom in symptoms:
-            record = symptom.to_dict()
-            wear, kl = record.get("wear") or {}, record.get("kl") or {}
-            known = truth.pop((int(record["cycle"]), int(record["joint"])), {})
-            values = {"wear_score": wear.get("score"), "kl_raw": kl.get("raw"), "kl_weighted": kl.get("weighted"),
-                      "friction_temperature": wear.get("temperature")}
-            if all(v is not None for v in values.values()):
-                yield int(record["joint"]), int(record["cycle"]), {k: float(v or 0.0) for k, v in values.items()}, known
-
-    for signals in cycle_signals(config):
-        truth.update({(signals.cycle, j): t for j, t in enumerate(signals.truth)})
-        yield from rows(feeder.update(without_motor_temperature(signals)))
-    yield from rows(feeder.finish())
-
-
-def without_motor_temperature(signals: Any) -> Any:
-    """The cycle (``CycleSignals``) as a controller that sends no motor temperature sends it."""
-    import numpy as np
-
-    joints = [replace(j, motor_temperature=np.full_like(j.motor_temperature, np.nan)) for j in signals.joints]
-    return replace(signals, joints=joints)
 
 
 def robot_series(seed: int, cycles: int, joints: int = 6, scenario: str | None = None,

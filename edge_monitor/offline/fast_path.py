@@ -16,10 +16,15 @@ from edge_monitor.pipeline.agent import Agent
 from edge_monitor.records import Symptom
 from edge_monitor.sources.cycle_arrays import CycleArraySource
 from sim_controller.config import SimConfig
-from sim_controller.cycle_mode import CycleSignals, cycle_signals
+from sim_controller.cycle_mode import CycleSignals, cycle_signals, without_motor_temperature
 
 #: The per-cycle values the agent's detectors watch (before their log transform).
 DETECTOR_INPUTS = ("wear_score", "kl_raw", "kl_weighted")
+#: Where each is in a symptom record: (part, key).
+DETECTOR_FIELDS = {"wear_score": ("wear", "score"), "kl_raw": ("kl", "raw"), "kl_weighted": ("kl", "weighted")}
+
+#: (joint, cycle, values, truth): a row of :func:`detector_inputs_with_truth`.
+Row = tuple[int, int, dict[str, float], dict[str, Any]]
 
 
 class CycleFeeder:
@@ -56,28 +61,31 @@ def detector_inputs(config: SimConfig, settings: Mapping[str, Any] | None = None
         yield joint, cycle, values
 
 
-def detector_inputs_with_truth(config: SimConfig, settings: Mapping[str, Any] | None = None
-                               ) -> Iterator[tuple[int, int, dict[str, float], dict[str, Any]]]:
+def detector_inputs_with_truth(config: SimConfig, settings: Mapping[str, Any] | None = None, *,
+                               motor_temperature: bool = True) -> Iterator[Row]:
     """:func:`detector_inputs` with the simulator's ground truth of each joint-cycle (lubricant
-    temperature [°C], load, wear, …: ``CycleSignals.truth``)."""
+    temperature [°C], load, wear, …: ``CycleSignals.truth``). ``motor_temperature=False``: the cycles as
+    a controller that sends none sends them, and each row's values also hold ``friction_temperature``,
+    the lubricant temperature [°C] the wear estimate read from the friction (the detectors follow it)."""
     tables: dict[str, Any] = {key: dict(value) for key, value in (settings or {}).items()}
     tables["decision"] = {**tables.get("decision", {}), "enabled": False}
     feeder = CycleFeeder(Agent(config_from_mapping(tables)))
     truth: dict[tuple[int, int], dict[str, Any]] = {}
+    fields = dict(DETECTOR_FIELDS)
+    if not motor_temperature:
+        fields["friction_temperature"] = ("wear", "temperature")
 
-    def rows(symptoms: list[Symptom]) -> Iterator[tuple[int, int, dict[str, float], dict[str, Any]]]:
+    def rows(symptoms: list[Symptom]) -> Iterator[Row]:
         for symptom in symptoms:
             record = symptom.to_dict()
             joint, cycle = int(record["joint"]), int(record["cycle"])
             known = truth.pop((cycle, joint), {})
-            wear, kl = record.get("wear") or {}, record.get("kl") or {}
-            score, raw, weighted = wear.get("score"), kl.get("raw"), kl.get("weighted")
-            if score is None or raw is None or weighted is None:   # model learning or KL nominal still learning
+            values = {name: (record.get(part) or {}).get(key) for name, (part, key) in fields.items()}
+            if any(v is None for v in values.values()):    # model learning or KL nominal still learning
                 continue
-            values = {"wear_score": float(score), "kl_raw": float(raw), "kl_weighted": float(weighted)}
-            yield joint, cycle, values, known
+            yield joint, cycle, {name: float(v) for name, v in values.items() if v is not None}, known
 
     for signals in cycle_signals(config):
         truth.update({(signals.cycle, j): t for j, t in enumerate(signals.truth)})
-        yield from rows(feeder.update(signals))
+        yield from rows(feeder.update(signals if motor_temperature else without_motor_temperature(signals)))
     yield from rows(feeder.finish())

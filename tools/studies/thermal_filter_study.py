@@ -42,9 +42,11 @@ from edge_monitor.features.lubricant_thermal_filter import (  # noqa: E402
 from edge_monitor.offline.fast_path import CycleFeeder  # noqa: E402
 from edge_monitor.pipeline.agent import Agent  # noqa: E402
 from edge_monitor.pipeline.pauses import PAUSE_S  # noqa: E402
-from sim_controller.cycle_mode import cycle_signals  # noqa: E402
+from sim_controller.cycle_mode import (
+    cycle_signals,  # noqa: E402
+    without_motor_temperature,  # noqa: E402
+)
 from sim_controller.scenario import scenario_config  # noqa: E402
-from studies.robots import without_motor_temperature  # noqa: E402
 from studies.settings import parse_seeds  # noqa: E402
 
 log = logging.getLogger("thermal_filter_study")
