@@ -80,12 +80,23 @@ def detector_inputs_with_truth(config: SimConfig, settings: Mapping[str, Any] | 
             record = symptom.to_dict()
             joint, cycle = int(record["joint"]), int(record["cycle"])
             known = truth.pop((cycle, joint), {})
-            values = {name: (record.get(part) or {}).get(key) for name, (part, key) in fields.items()}
-            if any(v is None for v in values.values()):    # model learning or KL nominal still learning
-                continue
-            yield joint, cycle, {name: float(v) for name, v in values.items() if v is not None}, known
+            values = _record_values(record, fields)
+            if values is not None:
+                yield joint, cycle, values, known
 
     for signals in cycle_signals(config):
         truth.update({(signals.cycle, j): t for j, t in enumerate(signals.truth)})
         yield from rows(feeder.update(signals if motor_temperature else without_motor_temperature(signals)))
     yield from rows(feeder.finish())
+
+
+def _record_values(record: Mapping[str, Any], fields: Mapping[str, tuple[str, str]]) -> dict[str, float] | None:
+    """The symptom record's values of ``fields`` (name: (part, key)), or None while one is missing (the
+    joint's model or its KL nominal still learning)."""
+    values: dict[str, float] = {}
+    for name, (part, key) in fields.items():
+        value = (record.get(part) or {}).get(key)
+        if value is None:
+            return None
+        values[name] = float(value)
+    return values
