@@ -128,3 +128,35 @@ def test_a_table_that_does_not_fit_its_mapping(recording, tmp_path):
     assert done.returncode == 2 and "column 'J1 velocity [rad/s]' is not in the table" in done.stderr
     done = subprocess.run([*EM, "replay", str(csv)], capture_output=True, text=True)
     assert done.returncode == 2 and "needs --mapping" in done.stderr
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+@pytest.mark.parametrize("stop, code", [(KeyboardInterrupt, 130), (OSError(28, "No space left on device"), 1)])
+def test_an_export_cut_short_leaves_no_half_table(recording, tmp_path, monkeypatch, capsys, suffix, stop, code):
+    """Ctrl-C (or SIGTERM) or a full disk after the first rows: no table under --out, no partial file, no
+    mapping (before, the half table stayed under its name, a Parquet one unreadable without its footer, and a
+    second export refused to write over it); the next export then writes the whole table."""
+    import edge_monitor.cli
+    from edge_monitor.sources.trace_export import TraceWriter
+
+    _, log = recording
+    out = tmp_path / f"cut{suffix}"
+    real_write, calls = TraceWriter.write, []
+
+    def write_then_stop(self, block):
+        real_write(self, block)
+        calls.append(1)
+        if len(calls) == 2:
+            raise stop
+    monkeypatch.setattr(TraceWriter, "write", write_then_stop)
+    assert edge_monitor.cli.main(["export-trace", str(log), "--out", str(out), "-q"]) == code
+    assert len(calls) == 2 and sorted(p.name for p in tmp_path.iterdir()) == []
+    assert "export-trace" in capsys.readouterr().err
+    monkeypatch.setattr(TraceWriter, "write", real_write)
+    assert edge_monitor.cli.main(["export-trace", str(log), "--out", str(out), "-q"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([out.name, out.with_suffix(".toml").name])
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(out) if suffix == ".parquet" else pcsv.read_csv(
+        out, parse_options=pcsv.ParseOptions(delimiter=";"))
+    assert table.num_rows > 0

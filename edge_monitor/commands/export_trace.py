@@ -2,8 +2,9 @@
 replays it (``edge-monitor replay TRACE.csv --mapping TRACE.toml``). Decoded as the agent decodes it:
 our frames, or another controller's with ``--mapping``. The table and its mapping are new files: an
 existing one (or the recording, or the mapping read) is never written over without ``--force``, and
-never the input. Exit codes: 2 a bad option or output path, 1 a recording that cannot be read or an
-output that cannot be written."""
+never the input. The table gets its name only when complete: an export cut short leaves none. Exit
+codes: 2 a bad option or output path, 1 a recording that cannot be read or an output that cannot be
+written."""
 
 from __future__ import annotations
 
@@ -91,8 +92,14 @@ def run(args: argparse.Namespace) -> int:
         writer.close()
         mapping.write_text(writer.mapping_text(), encoding="utf-8")
     except (FileNotFoundError, LogReadError, OSError) as exc:
+        if writer is not None:
+            writer.discard()
         print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
         return EXIT_FAILURE
+    except BaseException:           # Ctrl-C, SIGTERM: no half table left under --out
+        if writer is not None:
+            writer.discard()
+        raise
     print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
           f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
     return 0

@@ -20,13 +20,17 @@ from edge_monitor.sources.samples import IngestBlock
 
 
 class TraceWriter:
-    """Writes the runs of :class:`IngestBlock` s as rows (see the module docstring)."""
+    """Writes the runs of :class:`IngestBlock` s as rows (see the module docstring). The rows go to a hidden
+    ``.<name>.partial<suffix>`` beside ``path``, which :meth:`close` renames to ``path`` and :meth:`discard`
+    deletes: an export cut short (Ctrl-C, SIGTERM, a full disk) leaves no half table under the final name
+    (a Parquet file without its footer cannot be read at all)."""
 
     def __init__(self, path: str | Path, joints: list[int], rate_hz: float, separator: str = ";",
                  time_unit: str = "s", status: bool = True) -> None:
         self.path, self.joints, self.rate_hz = Path(path), joints, rate_hz
         self.separator, self.time_unit, self.status = separator, time_unit, status
         self.parquet = self.path.suffix.lower() in (".parquet", ".pq")
+        self.partial = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
         self._writer: Any = None
         self.rows = 0
 
@@ -71,17 +75,30 @@ class TraceWriter:
         if self._writer is None:
             if self.parquet:
                 import pyarrow.parquet as pq
-                self._writer = pq.ParquetWriter(str(self.path), table.schema)
+                self._writer = pq.ParquetWriter(str(self.partial), table.schema)
             else:
                 import pyarrow.csv as pcsv
-                self._writer = pcsv.CSVWriter(str(self.path), table.schema,
+                self._writer = pcsv.CSVWriter(str(self.partial), table.schema,
                                               write_options=pcsv.WriteOptions(delimiter=self.separator))
         self._writer.write_table(table)
         self.rows += table.num_rows
 
     def close(self) -> None:
+        """Finish the table and give it its name (nothing is written without rows)."""
         if self._writer is not None:
             self._writer.close()
+            self._writer = None
+            self.partial.replace(self.path)
+
+    def discard(self) -> None:
+        """Stop and delete what was written (an export that did not finish)."""
+        try:
+            if self._writer is not None:
+                self._writer.close()
+        except Exception:     # noqa: BLE001 — the file goes anyway; the error that stopped the export is reported
+            pass
+        self._writer = None
+        self.partial.unlink(missing_ok=True)
 
     def mapping_text(self) -> str:
         """The ``trace`` mapping of this table (cycles from its cycle/segment columns)."""
