@@ -8,9 +8,11 @@ an extrapolation of the model, so the agent says so: per joint it keeps, for eac
 of the cycles its current nominals were learned from (:meth:`OperatingRange.update` with
 ``collecting`` while a detector collects nominal values, ``fitted`` when one fits its nominal), and
 reports each cycle's covariates, which of them lie outside the learned range widened by a margin, and
-an advisory when a covariate leaves the range ("entered", at once) or is back for good ("left", after
-:data:`RETURN_CYCLES` cycles in a row inside: a new load range that overlaps the learned one would
-otherwise flap between the two every few cycles). The detectors keep monitoring (their
+an advisory when a covariate has left the range ("entered", after :data:`ENTER_CYCLES` cycles in a row
+outside: one cycle's motor temperature scatters by ≈ 3 °C, and a single cycle beyond the margin is that
+scatter, not a new condition) or is back for good ("left", after :data:`RETURN_CYCLES` cycles in a row
+inside: a new load range that overlaps the learned one would otherwise flap between the two every few
+cycles). The detectors keep monitoring (their
 quantities are compensated, and holding them would blind the agent to wear during a new regime; where the
 motor temperature is far from the one a nominal was learned at they test with a temperature slack,
 :mod:`~edge_monitor.pipeline.nominal_temperature`); every alarm carries the covariates next to the learned
@@ -38,6 +40,9 @@ MARGINS: dict[str, float] = {"load": 0.02, "motor_temperature": 2.0}
 RELATIVE_MARGIN = 0.1
 #: Cycles in a row inside the learned range before an advisory says the covariate is back.
 RETURN_CYCLES = 20
+#: Cycles in a row outside it before an advisory says the covariate has left it (a new load or a hotter
+#: hall stays outside; one cycle's scatter does not: 3 in a row beyond the margin by chance is rare).
+ENTER_CYCLES = 3
 
 
 @dataclass
@@ -79,6 +84,7 @@ class OperatingRange:
     was_collecting: bool = False
     now_outside: set[str] = field(default_factory=set)     # covariates outside in the last cycle
     usual: dict[str, Span] = field(default_factory=dict)    # values seen on the joint's usual path (``update``)
+    entering: dict[str, int] = field(default_factory=dict)  # cycles in a row outside, before an advisory
 
     def _widened(self, name: str, span: Span) -> Span:
         """A new learned range: ``span``, and the usual path seen so far."""
@@ -132,7 +138,12 @@ class OperatingRange:
         span = self.learned.get(name)
         if name not in self.advised:
             if name not in self.now_outside:
+                self.entering.pop(name, None)
                 return None
+            self.entering[name] = self.entering.get(name, 0) + 1
+            if self.entering[name] < ENTER_CYCLES:
+                return None
+            del self.entering[name]
             self.advised[name] = 0
             return RangeEvent(name, "entered", value, (span.lo, span.hi)) if span else None
         back = self.advised[name] = 0 if name in self.now_outside else self.advised[name] + 1
@@ -150,13 +161,13 @@ class OperatingRange:
     def reset(self) -> None:
         """A declared maintenance: the nominals are learned again, and so is their range."""
         self.learned, self.collecting, self.advised, self.was_collecting = {}, {}, {}, False
-        self.now_outside, self.usual = set(), {}
+        self.now_outside, self.usual, self.entering = set(), {}, {}
 
     def state_dict(self) -> dict[str, Any]:
         return {"learned": {k: [s.lo, s.hi] for k, s in self.learned.items() if not s.empty},
                 "collecting": {k: [s.lo, s.hi] for k, s in self.collecting.items() if not s.empty},
                 "outside": sorted(self.advised), "inside_run": dict(self.advised),
-                "was_collecting": self.was_collecting,
+                "was_collecting": self.was_collecting, "entering": dict(self.entering),
                 "usual": {k: [s.lo, s.hi] for k, s in self.usual.items() if not s.empty}}
 
     @classmethod
@@ -176,6 +187,10 @@ class OperatingRange:
             out.advised = {name: n if isinstance(n := runs.get(name, 0), int) and 0 <= n < RETURN_CYCLES else 0
                            for name in outside if name in out.learned}
         out.was_collecting = state.get("was_collecting") is True
+        entering = state.get("entering")             # a state saved before it has none: counted afresh
+        if isinstance(entering, dict):
+            out.entering = {name: n for name, n in entering.items() if name in MARGINS and name not in out.advised
+                            and isinstance(n, int) and not isinstance(n, bool) and 0 < n < ENTER_CYCLES}
         return out
 
 
