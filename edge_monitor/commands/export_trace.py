@@ -12,6 +12,7 @@ import argparse
 import sys
 import tomllib
 from pathlib import Path
+from typing import Any
 
 from edge_monitor.commands.common import load_agent_config, open_mapped_source
 from edge_monitor.commands.output_paths import check_output, same_file
@@ -71,38 +72,45 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     cfg, source = open_mapped_source(load_agent_config(args), args.mapping)
     source = source or Ingest(rate_hz=cfg.rate_hz, joints=cfg.joints)
+    try:
+        writer = _export(args, cfg.rate_hz, cfg.block_size, source)
+        if writer is None:
+            print(f"edge-monitor export-trace: no joint samples in {args.file}", file=sys.stderr)
+            return EXIT_FAILURE
+        mapping.write_text(writer.mapping_text(), encoding="utf-8")
+    except (FileNotFoundError, LogReadError, OSError) as exc:
+        print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
+          f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
+    return 0
+
+
+def _export(args: argparse.Namespace, rate_hz: float, block_size: int, source: Any) -> TraceWriter | None:
+    """Write the recording's joint samples to the table ``--out``; None if it has none. Whatever stops the
+    export (a read error, a full disk, Ctrl-C, SIGTERM) leaves no half table under ``--out``."""
     blocks: list[IngestBlock] = []         # held until the first samples tell which joints there are
     writer: TraceWriter | None = None
     try:
-        for ids, data, dlc, ts in log_blocks(args.file, cfg.block_size):
+        for ids, data, dlc, ts in log_blocks(args.file, block_size):
             blocks.append(source.update(ids, data, dlc, ts))
-            writer = writer or _writer(args, cfg.rate_hz, blocks)
+            writer = writer or _writer(args, rate_hz, blocks)
             if writer is not None:
                 for block in blocks:
                     writer.write(block)
                 blocks = []
         if hasattr(source, "flush"):
             blocks.append(source.flush())
-        writer = writer or _writer(args, cfg.rate_hz, blocks)
-        if writer is None:
-            print(f"edge-monitor export-trace: no joint samples in {args.file}", file=sys.stderr)
-            return EXIT_FAILURE
-        for block in blocks:
-            writer.write(block)
-        writer.close()
-        mapping.write_text(writer.mapping_text(), encoding="utf-8")
-    except (FileNotFoundError, LogReadError, OSError) as exc:
+        writer = writer or _writer(args, rate_hz, blocks)
         if writer is not None:
-            writer.discard()
-        print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
-    except BaseException:           # Ctrl-C, SIGTERM: no half table left under --out
+            for block in blocks:
+                writer.write(block)
+            writer.close()
+        return writer
+    except BaseException:
         if writer is not None:
             writer.discard()
         raise
-    print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
-          f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
-    return 0
 
 
 def _writer(args: argparse.Namespace, rate_hz: float, blocks: list[IngestBlock]) -> TraceWriter | None:
