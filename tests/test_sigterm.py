@@ -105,3 +105,25 @@ def test_sim_controller_record_stopped_leaves_a_readable_log(tmp_path: Path, sig
     assert "Traceback" not in err and "leaked" not in err
     frames = sum(1 for _ in can.LogReader(str(log)))
     assert frames > 0
+
+
+@pytest.mark.slow
+def test_demo_stopped_by_sigterm_stops_the_simulator_and_still_summarises(tmp_path: Path):
+    """The demo, a real process with its simulator, agent and Zenoh: SIGTERM once symptoms flow. It stops
+    the simulator, writes its summary of what was seen, says so and exits 143."""
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "demo", "--cycles", "100000", "--joints", "1",
+                             "--nominal-cycles", "10", "--out", str(out), "--rerun", "off", "-q"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    symptoms = out / "symptoms.jsonl"
+    deadline = time.monotonic() + 300
+    while (not symptoms.exists() or symptoms.stat().st_size == 0) and proc.poll() is None:
+        assert time.monotonic() < deadline, "no symptom written in 300 s"
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=180)
+    assert proc.returncode == EXIT_TERMINATED, err
+    assert "edge-monitor demo: terminated (SIGTERM)" in err and "Traceback" not in err
+    summary = (out / "summary.json").read_text()
+    assert '"simulator_exit_code"' in summary

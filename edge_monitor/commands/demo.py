@@ -40,11 +40,9 @@ from edge_monitor.sinks.zenoh_session import ZenohOptions
 from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import (
     EXIT_FAILURE,
-    EXIT_INTERRUPTED,
-    EXIT_TERMINATED,
     EXIT_USAGE,
-    Terminated,
     UsageError,
+    interrupted_exit,
     verbosity,
 )
 
@@ -66,7 +64,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("demo", help="simulated controller + agent + Zenoh + Rerun in one command",
                               description=__doc__)
     p.add_argument("--cycles", type=int, default=DEMO_CYCLES, help=f"test cycles to simulate (default {DEMO_CYCLES})")
-    p.add_argument("--joints", type=int, default=DEMO_JOINTS, help=f"joints (default {DEMO_JOINTS})")
+    p.add_argument("--joints", type=int, default=DEMO_JOINTS,
+                   help=f"joints (default {DEMO_JOINTS}; joint {WORN_JOINT} wears, joint 0 of a 1-joint robot)")
     p.add_argument("--speedup", type=float, default=8.0,
                    help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
     p.add_argument("--seed", type=int, default=7)
@@ -94,6 +93,11 @@ def demo_config(out: Path, nominal_cycles: int) -> AgentConfig:
     )
 
 
+def worn_joint(joints: int) -> int:
+    """The joint the demo wears: :data:`WORN_JOINT`, or the last one of a robot with fewer joints."""
+    return min(WORN_JOINT, joints - 1)
+
+
 def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
     """The simulator at its default individual variation (±8 % per joint) and thermal drift; the wear
     ramp (0 → 60 over ``RAMP_CYCLES``) starts 5 cycles after the agent has learned the joint's model and
@@ -103,7 +107,7 @@ def sim_command(link: str, args: argparse.Namespace, truth: Path) -> list[str]:
             "--joints", str(args.joints), "--cycles", str(args.cycles), "--seed", str(args.seed),
             "--speeds", ",".join(str(v) for v in DEMO_SPEEDS), "--plateau-time", "0.9",
             "--speedup", str(args.speedup),
-            "--wear-ramp", f"{WORN_JOINT}:{wear_start}:{wear_start + RAMP_CYCLES}:0:60",
+            "--wear-ramp", f"{worn_joint(args.joints)}:{wear_start}:{wear_start + RAMP_CYCLES}:0:60",
             "--truth", str(truth), *(["-q"] if verbosity(args) < 0 else [])]
 
 
@@ -153,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
         sim_link, agent_link, link_desc = choose_link(args.link, stack)
         if verbosity(args) >= 0 and not args.json:
             print(f"demo: link {link_desc}; zenoh peer on {endpoint}; rerun {spec}; {args.cycles} cycles, "
-                  f"{args.joints} joints, wear ramp on joint {WORN_JOINT}", flush=True)
+                  f"{args.joints} joints, wear ramp on joint {worn_joint(args.joints)}", flush=True)
         try:
             app = build_app(cfg, Outputs(jsonl=cfg.jsonl, zenoh=ZenohOptions(mode="peer", listen=[endpoint]),
                                          rerun=spec, rerun_fallback=str(out / "demo.rrd"), maintenance=True),
@@ -210,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
         if rrd:
             print(f"recording: {rrd}  (open with: {rerun_command()} {rrd})")
     if interrupted is not None:
-        return EXIT_TERMINATED if isinstance(interrupted, Terminated) else EXIT_INTERRUPTED
+        return interrupted_exit("edge-monitor demo", interrupted)
     return 0 if sim_rc == 0 else EXIT_FAILURE
 
 
