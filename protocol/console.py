@@ -194,12 +194,18 @@ def deferred_interrupts() -> Iterator[DeferredInterrupt]:
             signal.signal(signum, handler)
 
 
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM (the normal end of a command that runs until stopped)."""
+def stop_on_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM), say: str = "") -> threading.Event:
+    """An event set by any of ``signums`` (the normal end of a command that runs until stopped), with
+    ``say`` logged as a warning when it comes (e.g. what the command does before it ends)."""
     stop = threading.Event()
+
+    def handler(signum: int, _frame: Any) -> None:
+        if say and not stop.is_set():
+            log.warning("signal %d: %s", signum, say)
+        stop.set()
     if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, lambda *_: stop.set())
+        for signum in signums:
+            signal.signal(signum, handler)
     return stop
 
 

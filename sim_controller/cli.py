@@ -21,7 +21,6 @@ import json
 import logging
 import signal
 import sys
-import threading
 from typing import Any, NoReturn, Sequence
 
 from protocol import package_version
@@ -33,6 +32,7 @@ from protocol.console import (
     configure_logging,
     install_conventions,
     interrupted_exit,
+    stop_on_signals,
     subcommands,
     verbosity,
 )
@@ -215,18 +215,6 @@ def _run_option_error(args: argparse.Namespace) -> str | None:
     return None
 
 
-def _stop_on_sigterm() -> threading.Event:
-    """An event set by SIGTERM (``run`` then ends after the current block, truth and summary complete)."""
-    stop = threading.Event()
-
-    def handler(signum: int, _frame: Any) -> None:
-        log.warning("signal %d: stopping after the current frame block", signum)
-        stop.set()
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, handler)
-    return stop
-
-
 def _encoder(args: argparse.Namespace, config: SimConfig) -> Any:
     """The frame encoder of ``--profile`` (None: our frames)."""
     if args.profile == "native":
@@ -263,8 +251,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             if (problem := _run_option_error(args)) is not None:
                 usage_error(problem)
             speedup = None if args.speedup == 0 else (args.speedup or 1.0)
+            stop = stop_on_signals((signal.SIGTERM,), "stopping after the current frame block")
             summary = run(config, args.link, speedup=speedup, truth_path=args.truth, bus_kwargs=can_options(args),
-                          stop=_stop_on_sigterm().is_set, max_pause=args.max_pause, encoder=encoder)
+                          stop=stop.is_set, max_pause=args.max_pause, encoder=encoder)
     except LinkUsageError as exc:        # a bad link, interface or log suffix, no CAN configured: exit 2
         usage_error(str(exc))
     except (LinkError, OSError) as exc:
