@@ -59,11 +59,12 @@ def replay(rows: Sequence[CycleRow], config: PrognosisConfig, decision: Decision
     out = []
     for row in rows:
         use = not (row.learning or row.partial)
+        wear = getattr(row, config.wear_input)
         if row.cycle < forecast_from:
-            prognosis.trend.update(row.cycle, row.estimate if use else None, row.std if use else None)
+            prognosis.trend.update(row.cycle, wear if use else None, row.std if use else None)
             rate.update(row.t)
             continue
-        forecast = prognosis.update(row.cycle, row.estimate, row.std, use=use, alarm=row.alarm,
+        forecast = prognosis.update(row.cycle, wear, row.std, use=use, alarm=row.alarm,
                                     cycles_per_day=rate.cycles_per_day)
         rate.update(row.t)
         prognosis.warning_change(forecast)

@@ -235,6 +235,7 @@ def test_cycles_not_used_move_the_trend_on_without_feeding_it():
     ("warning_probability", 1.0, "prognosis.warning_probability"),
     ("learning_cycles", 1, "prognosis.learning_cycles"),
     ("window", 2, "prognosis.window"),
+    ("wear_input", "mode", "prognosis.wear_input"),
 ])
 def test_bad_settings_are_refused_by_name(field, value, message):
     with pytest.raises(ConfigError, match=message):

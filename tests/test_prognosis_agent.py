@@ -92,15 +92,32 @@ def test_the_wearing_joint_gets_a_forecast_with_its_alarm_and_the_healthy_one_no
 
 
 def test_the_published_series_replayed_gives_the_published_prognosis(run):
-    # the prognosis study's premise: the trend sees only what a symptom publishes (estimate, std, the
+    # the prognosis study's premise: the trend sees only what a symptom publishes (its wear input, std, the
     # joint's alarm state, partial), so replaying a joint's symptoms reproduces its prognosis exactly
     agent, symptoms = run
     records = [s.to_dict() for s in symptoms if s.joint == 0]
     prognosis = JointPrognosis(agent.config.prognosis, agent.config.critical_wear_for(0))
+    wear_input = agent.config.prognosis.wear_input
     for r in records:
-        forecast = prognosis.update(r["cycle"], r["wear"]["estimate"], r["wear"]["std"], use=not r.get("partial"),
+        forecast = prognosis.update(r["cycle"], r["wear"].get(wear_input), r["wear"]["std"], use=not r.get("partial"),
                                     alarm=r["alarm"], cycles_per_day=r["prognosis"]["cycles_per_day"])
         assert forecast.section() == r["prognosis"]
+
+
+def test_the_posterior_mean_feeds_the_trend_when_configured(frames):
+    # wear_input = "posterior_mean": the published posterior means replayed give the published prognosis,
+    # and it differs from the default's (the two inputs differ on a wearing joint)
+    agent = Agent(config(wear_input="posterior_mean"))
+    records = [s.to_dict() for s in feed(agent, frames) + agent.finish() if s.joint == 0]
+    by_mean, by_estimate = (JointPrognosis(agent.config.prognosis, agent.config.critical_wear_for(0)) for _ in "ab")
+    changed = 0
+    for r in records:
+        fed = dict(use=not r.get("partial"), alarm=r["alarm"], cycles_per_day=r["prognosis"]["cycles_per_day"])
+        assert by_mean.update(r["cycle"], r["wear"]["posterior_mean"], r["wear"]["std"], **fed).section() \
+            == r["prognosis"]
+        changed += by_estimate.update(r["cycle"], r["wear"]["estimate"], r["wear"]["std"], **fed).section() \
+            != r["prognosis"]
+    assert changed > 0
 
 
 def test_a_maintenance_starts_the_trend_again(frames):

@@ -40,6 +40,9 @@ GRID_REACH = 20.0
 #: The early warning is "left" once the probability has stayed below half its level this many cycles in a
 #: row (as an operating-range advisory: a forecast that comes and goes does not page every few cycles).
 WARNING_CLEAR_CYCLES = 20
+#: What the trend can be fed each cycle, keys of the wear section (docs/OUTPUTS.md): the maximum-likelihood
+#: ``estimate`` or the ``posterior_mean`` under the flat prior; both with the posterior ``std``.
+WEAR_INPUTS = ("estimate", "posterior_mean")
 
 
 @dataclass(frozen=True)
@@ -65,9 +68,12 @@ class PrognosisConfig:
     trend_sigma: float = 1.0             # the rate must be this many of its std above 0 to be a trend
     warning_probability: float = 0.0     # early warning when P(critical within warning_horizon_days) ≥ this (0: off)
     warning_horizon_days: float = 7.0
+    wear_input: str = "estimate"         # what the trend is fed each cycle: a key of WEAR_INPUTS
 
     def __post_init__(self) -> None:
         TrendConfig(**self._trend_fields())              # validates the model's settings
+        require(self.wear_input in WEAR_INPUTS, "prognosis.wear_input",
+                f"must be one of {', '.join(WEAR_INPUTS)}, got {self.wear_input!r}")
         require(isinstance(self.horizons_days, tuple) and 1 <= len(self.horizons_days) <= 8
                 and all(is_finite_number(h) and 0 < h <= 3650 for h in self.horizons_days)
                 and len(set(self.horizons_days)) == len(self.horizons_days),

@@ -270,7 +270,7 @@ class JointMonitor:
         and the advisories with its early warning, if any."""
         assert self.prognosis is not None
         rate = self.config.decision.cycles_per_day if self.rate is None else self.rate.cycles_per_day
-        forecast = self.prognosis.update(cycle.cycle, wear.get("estimate"), wear.get("std"),
+        forecast = self.prognosis.update(cycle.cycle, wear.get(self.config.prognosis.wear_input), wear.get("std"),
                                          use=not (learning or cycle.partial),
                                          alarm=any(d.alarm for d in decisions.values()), cycles_per_day=rate)
         section = forecast.section()
