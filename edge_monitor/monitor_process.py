@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import queue
+import signal
 import traceback
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -27,6 +28,7 @@ from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
 from edge_monitor.sources.samples import IngestBlock
+from protocol.console import terminate_like_interrupt
 
 log = logging.getLogger(__name__)
 
@@ -100,6 +102,7 @@ class MonitorProcess:
         self._process = ctx.Process(target=_serve, name="edge-monitor-monitoring", daemon=True,
                                     args=(config, outputs, log_level, log_format, self._inbox, self._outbox))
         self._process.start()
+        self._finished = False
         self.setup: MonitorResult | None = self._wait("ready")
 
     @property
@@ -128,13 +131,22 @@ class MonitorProcess:
                 self._check_alive()
         result = self._wait("done")
         assert result is not None
+        self._finished = True
         self._process.join(timeout=30)
         return result
 
     def close(self) -> None:
-        """Stop the child if it still runs (an interrupted replay)."""
+        """Stop the child if it still runs (an interrupted replay: it closes its outputs on SIGTERM). The
+        blocks it did not take are dropped: waiting at exit to hand them to a child that is gone hung the
+        replay for ever (found 2026-11-30, Ctrl-C with ``--jobs 2``)."""
+        if not self._finished:
+            self._inbox.cancel_join_thread()
         if self._process.is_alive():
             self._process.terminate()
+            self._process.join(timeout=5)
+        if self._process.is_alive():
+            log.warning("the monitoring process did not stop within 5 s of SIGTERM; killed")
+            self._process.kill()
             self._process.join(timeout=5)
 
     def _wait(self, kind: str) -> MonitorResult | None:
@@ -163,8 +175,10 @@ def _serve(config: Any, outputs: Any, log_level: int, log_format: str, inbox: An
     """The child: an agent after ingest, on the parent's blocks, until "finish"."""
     logging.basicConfig(level=log_level, format=log_format)
     logging.getLogger().setLevel(log_level)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)      # Ctrl-C reaches the whole group: the parent decides
     try:
-        outbox.put(_monitor(config, outputs, inbox, outbox))
+        with terminate_like_interrupt():            # the parent's SIGTERM: outputs closed on the way out
+            outbox.put(_monitor(config, outputs, inbox, outbox))
     except BaseException as exc:      # noqa: BLE001 — reported to the parent, which stops the replay with it
         outbox.put(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
 

@@ -4,6 +4,7 @@ semaphores behind (found 2026-11-30: "the replay process is gone", "6 leaked sem
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -127,3 +128,40 @@ def test_demo_stopped_by_sigterm_stops_the_simulator_and_still_summarises(tmp_pa
     assert "edge-monitor demo: terminated (SIGTERM)" in err and "Traceback" not in err
     summary = (out / "summary.json").read_text()
     assert '"simulator_exit_code"' in summary
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum, to_group, code", [(signal.SIGINT, True, 130), (signal.SIGTERM, False, 143)])
+def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, signum, to_group, code):
+    """``replay --jobs 2`` stopped mid-log: Ctrl-C in a terminal reaches the whole process group, SIGTERM
+    from a supervisor only the main process. Either way it exits with its code, the monitoring process is
+    gone and the symptoms written are whole lines. Before, the main process hung at exit for ever: its queue
+    waited to hand blocks to a child that was gone (found 2026-11-30)."""
+    log = tmp_path / "long.blf"
+    subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(log), "--joints", "2",
+                    "--cycles", "60"], check=True, capture_output=True, timeout=600)
+    jsonl = tmp_path / "s.jsonl"
+    proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "-v", "replay", str(log), "--jobs", "2",
+                             "--rerun", "off", "--jsonl", str(jsonl)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        seen = []
+        assert proc.stderr is not None
+        for line in proc.stderr:                 # at work: the child has its first joint
+            seen.append(line)
+            if "monitoring started" in line:
+                break
+        time.sleep(1.0)
+        if to_group:
+            os.killpg(proc.pid, signum)
+        else:
+            proc.send_signal(signum)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    err = "".join(seen) + err
+    assert proc.returncode == code, err[-3000:]
+    assert "Traceback" not in err
+    for line in jsonl.read_text().splitlines():
+        json.loads(line)
