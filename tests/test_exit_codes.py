@@ -56,6 +56,11 @@ CASES = [
     # demo
     ("edge", ["demo", "--joints", "9"], 2),
     ("edge", ["demo", "--cycles", "1"], 2),
+    ("edge", ["demo", "--speedup", "-1", "--out", "{dir}/d"], 2),
+    ("edge", ["demo", "--seed", "-1", "--out", "{dir}/d"], 2),
+    ("edge", ["demo", "--nominal-cycles", "0", "--out", "{dir}/d"], 2),
+    ("edge", ["demo", "--out", "{bad_csv}"], 2),
+    ("edge", ["demo", "--link", "foo"], 2),
     # design, commission, fit-weights, glr, evaluate
     ("edge", ["design"], 2),
     ("edge", ["design", "--points", "0"], 2),
@@ -136,3 +141,15 @@ def test_every_subcommand_has_a_row_in_the_table():
     for tool, build in (("edge", edge_monitor.cli.build_parser), ("sim", sim_controller.cli.build_parser)):
         covered = {argv[0] for t, argv, _ in CASES if t == tool}
         assert set(subcommands(build())) <= covered, f"{tool}: add rows for {set(subcommands(build())) - covered}"
+
+
+def test_a_refused_demo_leaves_the_previous_demos_outputs(tmp_path, capsys):
+    """Every option is checked before --out is touched (a bad value once deleted the last demo's symptoms)."""
+    out = tmp_path / "demo"
+    (out / "state").mkdir(parents=True)
+    kept = [out / "symptoms.jsonl", out / "truth.jsonl", out / "state" / "agent_state.json"]
+    for path in kept:
+        path.write_text("{}\n")
+    assert exit_code("edge", ["demo", "--nominal-cycles", "-5", "--out", str(out)]) == 2
+    assert "--nominal-cycles -5" in capsys.readouterr().err
+    assert all(path.exists() for path in kept)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import subprocess
 import sys
@@ -40,7 +41,6 @@ from edge_monitor.sinks.zenoh_session import ZenohOptions
 from edge_monitor.sources.frame_source import LiveSource
 from protocol.console import (
     EXIT_FAILURE,
-    EXIT_USAGE,
     UsageError,
     interrupted_exit,
     verbosity,
@@ -68,11 +68,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help=f"joints (default {DEMO_JOINTS}; joint {WORN_JOINT} wears, joint 0 of a 1-joint robot)")
     p.add_argument("--speedup", type=float, default=8.0,
                    help="simulated seconds per wall second (slcan over a pty carries ~15k frames/s)")
-    p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--seed", type=int, default=7, help="the simulator's random seed (default 7; ≥ 0)")
     p.add_argument("-o", "--out", default=DEFAULT_OUT, help="directory for the recording, symptoms, truth and state")
     p.add_argument("--rerun", default=None,
-                   help="off | save:PATH | spawn (default: spawn with a display, else save:<out>/demo.rrd)")
-    p.add_argument("--link", default="auto", help="auto | pty | vcan (auto: vcan0 if available, else pty)")
+                   help="off | save:PATH | spawn | connect:URL (default: spawn with a display, else "
+                        "save:<out>/demo.rrd)")
+    p.add_argument("--link", default="auto", choices=("auto", "pty", "vcan"),
+                   help="auto | pty | vcan (auto: vcan0 if available, else pty)")
     p.add_argument("--json", action="store_true",
                    help="print the run summary as JSON instead of the table (it is always written to "
                         "<out>/summary.json; schema: edge-monitor schema summary)")
@@ -132,23 +134,33 @@ def rerun_spec(requested: str | None, out: Path) -> str:
     return "spawn" if has_display else f"save:{out / 'demo.rrd'}"
 
 
-def run(args: argparse.Namespace) -> int:
-    from protocol.links import LinkError, open_bus
+def _checked_config(args: argparse.Namespace, out: Path) -> AgentConfig:
+    """The demo's configuration, or UsageError (exit 2) for an option the demo or its simulator refuses."""
     if args.cycles < 2 or args.joints < 1 or args.joints > 8:
         raise UsageError("need --cycles >= 2 and 1 <= --joints <= 8")
-    if verbosity(args) >= 0:        # the demo shows its status line unless -q
-        logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
-    out = Path(args.out)
+    if not (math.isfinite(args.speedup) and args.speedup >= 0):
+        raise UsageError(f"--speedup {args.speedup}: must be a number ≥ 0 (0: as fast as the link carries)")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: must be ≥ 0")
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: is a file; give a folder for the demo's outputs")
     if args.out != DEFAULT_OUT:             # a typo in --out must not make a directory tree
         check_parent(out, "--out")
+    try:
+        return demo_config(out, args.nominal_cycles)
+    except ConfigError as exc:
+        raise UsageError(f"--nominal-cycles {args.nominal_cycles}: {exc}") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from protocol.links import LinkError, open_bus
+    out = Path(args.out)
+    cfg = _checked_config(args, out)        # every option checked before --out is touched
+    if verbosity(args) >= 0:        # the demo shows its status line unless -q
+        logging.getLogger("edge_monitor.status").setLevel(logging.INFO)
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("symptoms.jsonl", "truth.jsonl", "state/agent_state.json"):
         (out / stale).unlink(missing_ok=True)
-    try:
-        cfg = demo_config(out, args.nominal_cycles)
-    except ConfigError as exc:
-        print(f"edge-monitor demo: {exc}", file=sys.stderr)
-        return EXIT_USAGE
     port = free_loopback_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     spec = rerun_spec(args.rerun, out)

@@ -20,6 +20,8 @@ def same_file(a: Path, b: Path) -> bool:
 def check_parent(path: str | Path, option: str) -> None:
     """UsageError (exit code 2) unless the folder ``path`` goes into exists."""
     parent = Path(path).parent
+    if parent.exists() and not parent.is_dir():
+        raise UsageError(f"{option} {path}: {parent} is a file, not a folder: fix the path")
     if not parent.is_dir():
         raise UsageError(f"{option} {path}: its folder {parent} does not exist: create it (mkdir -p {parent}) or "
                          "fix the path")
