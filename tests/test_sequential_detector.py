@@ -283,7 +283,8 @@ def test_a_rederived_threshold_does_not_inherit_the_first_calibrations_waiting_m
     for i, v in enumerate(rng.normal(size=70)):
         det.update(v, i)
     assert det.threshold is not None
-    saved = {**json.loads(json.dumps(det.state_dict())), "waiting_max": 0.9 * det.threshold}
+    crossing = {"statistic": 0.9 * det.threshold, "cycle": 66, "change_cycle": 62}
+    saved = {**json.loads(json.dumps(det.state_dict())), "waiting": crossing}
     drifting = dataclasses.replace(config, calibrate_at="healthy_drift", drift_mean=(0.05,), drift_sd=(0.41,))
     back = SequentialDetector.from_state(drifting, saved)
     back.update(0.0, 70)
@@ -293,3 +294,10 @@ def test_a_rederived_threshold_does_not_inherit_the_first_calibrations_waiting_m
     pending = SequentialDetector.from_state(drifting, first)
     pending.update(0.0, 70)
     assert pending.threshold == pytest.approx(back.threshold) and pending.alarmed
+    # the alarm is the crossing's: its statistic, cycle and change cycle, not those of the cycle it came in
+    assert pending.crossing == crossing
+    older = {**first, "waiting_max": crossing["statistic"]}            # a state saved before "waiting"
+    del older["waiting"]
+    restored = SequentialDetector.from_state(drifting, older)
+    restored.update(0.0, 70)
+    assert restored.alarmed and restored.crossing["statistic"] == crossing["statistic"]

@@ -186,9 +186,12 @@ class DetectorBank:
             self.reasons[quantity] = coverage_reason(decision, learning, all(map(math.isfinite, value)), held)
             self.spans.track(quantity, detector, collecting, detector.fits > fits, self._span_temperature)
             decisions[quantity] = decision
-            if decision.alarm and not was_alarmed:
-                alarms.append(Alarm(robot, joint, cycle, quantity, "raised", decision.statistic, decision.threshold,
-                                    decision.miss_probability, decision.change_cycle))
+            if decision.alarm and not was_alarmed:       # the crossing's numbers (it may have come while calibrating)
+                crossing = detector.crossing or {}
+                statistic = crossing.get("statistic", decision.statistic)
+                change = crossing.get("change_cycle", decision.change_cycle)
+                alarms.append(Alarm(robot, joint, cycle, quantity, "raised", statistic, decision.threshold,
+                                    decision.miss_probability, change))
         self.after_pause = (max(0, self.after_pause[0] - 1), self.after_pause[1])
         return decisions, alarms
 

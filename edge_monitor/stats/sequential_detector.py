@@ -3,23 +3,19 @@ window-limited GLR.
 
 One detector watches one per-cycle quantity (wear estimate, log ``kl.raw``, log ``kl.weighted``) or a
 vector of them (``dim`` > 1). It collects ``n_nominal`` finite values, fits the nominal density
-(docs/ALGORITHMS.md §5), calibrates its alarm threshold for the stated mean run length to false alarm
-``arl0`` by simulating its own statistic under its own learned nominal model
-(:mod:`edge_monitor.stats.calibration`), and then runs :class:`~edge_monitor.stats.glr.WindowedGLR`
-on every new value. With ``pf`` set instead (an expert option) the threshold is the asymptotic
-½·χ²_d quantile at 1 − Pf of one test. An alarm is latched after the first threshold crossing until
-:meth:`SequentialDetector.reset` (a declared maintenance), which also restarts learning. Non-finite
-values are skipped and counted and never touch the state.
+(docs/ALGORITHMS.md §5), calibrates its alarm threshold for the mean run length to false alarm ``arl0``
+by simulation (:mod:`edge_monitor.stats.calibration`; with ``pf``, an expert option, the asymptotic
+½·χ²_d quantile at 1 − Pf of one test), then runs :class:`~edge_monitor.stats.glr.WindowedGLR` on
+every new value. The first crossing latches an alarm until :meth:`SequentialDetector.reset` (a declared
+maintenance, which restarts learning). Non-finite values are skipped and counted, never touch the state.
 
-A calibration may run in another process (live agent): until its threshold arrives the detector
-monitors without deciding ("calibrating"); the first decision with the threshold also accounts for the
-statistics of those cycles.
+A calibration may run in another process (live agent): until its threshold arrives the detector monitors
+without deciding; a statistic that crossed meanwhile raises the alarm when the threshold comes.
 
 Two stages: the nominal learned right after commissioning is the *warm-up* nominal, calibrated at
-``calibrate_at``. When the joint's temperature has settled (:meth:`SequentialDetector.begin_steady`,
-called by the decision layer) the detector learns its nominal again from the next ``steady_nominal``
-values, still deciding with the warm-up threshold meanwhile, and calibrates that *steady* nominal at
-``steady_at`` (docs/DETECTION.md, "Two stages").
+``calibrate_at``. Once the joint's temperature has settled (:meth:`SequentialDetector.begin_steady`)
+the detector learns its nominal again from the next ``steady_nominal`` values, deciding with the warm-up
+threshold meanwhile, and calibrates that *steady* nominal at ``steady_at`` (docs/DETECTION.md).
 """
 
 from __future__ import annotations
@@ -92,7 +88,7 @@ class SequentialDetector:
         self._job: CalibrationJob | None = None
         self.calibrated_job: CalibrationJob | None = None      # the job of the threshold in use (for :meth:`retarget`)
         self._pending: Pending | None = None
-        self._waiting_max = 0.0            # largest statistic while the calibration was under way
+        self._waiting: dict[str, Any] = {"statistic": 0.0}  # the largest statistic while calibrating, and when
         self.stage = "warm-up"             # "warm-up" | "steady" (see the module docstring)
         self._steady_values: list[list[float]] | None = None    # the steady nominal being learned
         self.transform: YeoJohnson | None = None    # applied to every value before the GLR (steady stage)
@@ -115,6 +111,11 @@ class SequentialDetector:
     def alarmed(self) -> bool:
         """Whether an alarm is latched (until :meth:`reset`)."""
         return self._latched is not None
+
+    @property
+    def crossing(self) -> dict[str, Any] | None:
+        """The latched alarm's crossing: its ``statistic``, ``cycle`` and ``change_cycle`` (None without one)."""
+        return None if self._latched is None else dict(self._latched)
 
     @property
     def density(self) -> GaussianMixture | None:
@@ -217,7 +218,7 @@ class SequentialDetector:
         job = self._job or self.calibrated_job
         if self.glr is None or job is None:
             return False
-        self._job, self._waiting_max = replace(job, arl0=arl0), 0.0
+        self._job, self._waiting = replace(job, arl0=arl0), {"statistic": 0.0}
         self._pending = self.calibrator.submit(self._job)
         return True
 
@@ -299,8 +300,8 @@ class SequentialDetector:
         log.info("threshold %.3f for ARL0 %.0f cycles (%s, %d × %d simulated cycles, %.1f s CPU)",
                  calibration.threshold, calibration.arl0, calibration.method, calibration.draws,
                  calibration.steps, calibration.cpu_s)
-        if self._waiting_max >= calibration.threshold and self._latched is None:
-            self._latched = {"cycle": int(cycle), "change_cycle": None, "statistic": self._waiting_max}
+        if self._waiting["statistic"] >= calibration.threshold and self._latched is None:    # crossed meanwhile
+            self._latched = {"cycle": int(cycle), "change_cycle": None, **self._waiting}
 
     def _learning_reason(self) -> str:
         return self._learning_note or f"learning {len(self._nominal)}/{self._n_learn}"
@@ -322,7 +323,8 @@ class SequentialDetector:
         change_cycle = self._cycles[result.change_index % self.window]
         delta = self._shift_in_units(result.delta)
         if self.threshold is None:
-            self._waiting_max = max(self._waiting_max, result.statistic)
+            if result.statistic > self._waiting["statistic"]:
+                self._waiting = {"statistic": result.statistic, "cycle": int(cycle), "change_cycle": change_cycle}
             return Decision("monitoring", result.statistic, None, False, change_cycle, delta, None,
                             "calibrating the threshold", self.calibration_record())
         if result.alarm and self._latched is None:
@@ -374,7 +376,7 @@ class SequentialDetector:
                 "calibration": None if self.calibration is None else self.calibration.to_dict(),
                 "calibration_job": None if self._job is None else self._job.to_dict(), "arl0": self.arl0,
                 "calibrated_job": None if self.calibrated_job is None else self.calibrated_job.to_dict(),
-                "waiting_max": self._waiting_max,
+                "waiting": dict(self._waiting),
                 "cycles": list(self._cycles), "latched": None if self._latched is None else dict(self._latched),
                 "learning_note": self._learning_note, "counters": self.counters(), "stage": self.stage,
                 "steady_values": None if self._steady_values is None else [list(v) for v in self._steady_values],
@@ -399,7 +401,7 @@ class SequentialDetector:
             det.calibrated_job = CalibrationJob.from_dict(state["calibrated_job"])
         if state.get("calibration_job") is not None and det.glr is not None:
             det._job = CalibrationJob.from_dict(state["calibration_job"])
-        det._waiting_max = float(state.get("waiting_max", 0.0))
+        det._waiting = dict(state.get("waiting") or {"statistic": float(state.get("waiting_max", 0.0))})
         det._cycles = [None if c is None else int(c) for c in state["cycles"]]
         det._latched = None if state["latched"] is None else dict(state["latched"])
         det._learning_note = state.get("learning_note", "")
@@ -407,7 +409,7 @@ class SequentialDetector:
         job = det._job or det.calibrated_job
         if config.pf is None and job is not None and recalibrated(job, det._calibration):   # calibrated elsewhere
             det._job = replace(job, **det._calibration)      # than the config says: re-derived; a threshold in
-            det._waiting_max = det._waiting_max if det.calibration is None else 0.0   # use decides meanwhile
+            det._waiting = det._waiting if det.calibration is None else {"statistic": 0.0}   # use decides meanwhile
         if det._job is not None:                    # (the saved threshold decides until then)
             det._pending = det.calibrator.submit(det._job)
         det._steady_values = saved_steady_values(state.get("steady_values"), det)
