@@ -75,6 +75,8 @@ CASES = [
     ("edge", ["evaluate", "--factors", "nosuchfactor"], 2),
     # the consumers
     ("edge", ["view", "--rerun", "bogus"], 2),
+    ("edge", ["view", "--duration", "-3", "--rerun", "off"], 2),
+    ("edge", ["view", "--count", "0", "--rerun", "off"], 2),
     ("edge", ["view", "--robot", "a/b", "--rerun", "save:{dir}/v.rrd"], 2),
     ("edge", ["listen", "--joint", "-1"], 2),
     ("edge", ["listen", "--kind", "a/b"], 2),
@@ -92,6 +94,7 @@ CASES = [
     ("edge", ["check-mapping", f"{MISSING}/c.log", "--mapping", f"{MISSING}/m.toml"], 2),
     ("edge", ["check-mapping", f"{MISSING}/c.log"], 1),
     ("edge", ["export-trace", f"{MISSING}/run.blf", "--out", f"{MISSING}/x.csv"], 1),
+    ("edge", ["export-trace", "{ok_csv}", "--out", "{dir}/x.csv"], 2),
     # the historian and its questions
     ("edge", ["historian"], 2),                                              # no database named
     ("edge", ["historian", "--db", "postgresql://u:secret@127.0.0.1/x"], 2),  # a password on the command line

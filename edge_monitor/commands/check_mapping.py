@@ -32,7 +32,7 @@ from edge_monitor.sources.samples import DecodedSamples, IngestBlock, JointColum
 from edge_monitor.sources.signal_check import SignalCheck
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError, add_can_arguments, can_options
 
-FALLBACK = {"temperature": "site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
+FALLBACK = {"temperature": "the site temperature range ([wear] temperature_min … temperature_max) for the wear, the "
                            "lubricant temperature read from the friction for the detectors' stages, spans and slack",
             "load": "the load the test cycle's plateaus measure (the configured prior [wear] default_load_mean ± "
                     "default_load_std only for a cycle without plateaus in both directions)"}
@@ -176,7 +176,7 @@ def _text(report: dict[str, Any]) -> str:
         for q, unit in (("speed", "rad/s"), ("torque", "of T_ref"), ("load", "of T_ref"), ("temperature", "°C")):
             text = _fmt(jr[q], unit)
             if jr[q] is None and q in FALLBACK:
-                text += f" → the agent uses the {FALLBACK[q]}"
+                text += f" → the agent uses {FALLBACK[q]}"
             lines.append(f"  {q:<12} {text}")
         lines.append(f"  steady speeds found [rad/s]: {jr['steady_speeds'] or 'none'}")
     levels = report["test_cycle_levels"]

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from edge_monitor.records import to_json
 from edge_monitor.sinks.zenoh_session import DEFAULT_ROUTER_PORT, MODES, ZenohOptions
-from protocol.console import EXIT_FAILURE, EXIT_USAGE
+from protocol.console import EXIT_FAILURE, EXIT_USAGE, UsageError
 
 if TYPE_CHECKING:     # the agent's modules load only for the commands that run it: listen starts fast
     from edge_monitor.config import AgentConfig
@@ -76,6 +76,14 @@ def add_subscriber_arguments(parser: argparse.ArgumentParser, counted: str) -> N
                         help="only what is published from now on, not what the agents' publishers still cache")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     parser.add_argument("--count", type=int, default=None, metavar="N", help=f"stop after N {counted}")
+
+
+def check_subscriber_arguments(args: argparse.Namespace) -> None:
+    """UsageError (exit code 2) for a ``--count`` below 1 or a ``--duration`` not above 0."""
+    if args.count is not None and args.count < 1:
+        raise UsageError(f"--count {args.count}: must be ≥ 1")
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError(f"--duration {args.duration}: must be > 0 s")
 
 
 def zenoh_options(args: argparse.Namespace) -> ZenohOptions:

@@ -20,8 +20,8 @@ from edge_monitor.sources.ingest import Ingest
 from edge_monitor.sources.log_source import LogReadError, log_blocks
 from edge_monitor.sources.samples import IngestBlock
 from edge_monitor.sources.trace_export import TraceWriter
-from edge_monitor.sources.trace_table import TRACE_SUFFIXES
-from protocol.console import EXIT_FAILURE, UsageError
+from edge_monitor.sources.trace_table import TRACE_SUFFIXES, is_trace_file
+from protocol.console import EXIT_FAILURE, UsageError, verbosity
 from protocol.signal_mapping import MappingError, mapping_from_dict
 
 
@@ -63,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.file).is_file():         # a recording that is not there: a runtime failure, before the outputs
         print(f"edge-monitor export-trace: {args.file}: no such file", file=sys.stderr)
         return EXIT_FAILURE
+    if is_trace_file(args.file):
+        raise UsageError(f"{args.file}: already a trace table; export-trace takes a CAN log (.blf, .asc, .log, ...): "
+                         f"replay the table with `edge-monitor replay {args.file} --mapping MAPPING`")
     mapping = check_outputs(args)
     try:
         import pyarrow  # noqa: F401 — the table writer
@@ -78,11 +81,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"edge-monitor export-trace: no joint samples in {args.file}", file=sys.stderr)
             return EXIT_FAILURE
         mapping.write_text(writer.mapping_text(), encoding="utf-8")
-    except (FileNotFoundError, LogReadError, OSError) as exc:
+    except (FileNotFoundError, LogReadError) as exc:
         print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
         return EXIT_FAILURE
-    print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
-          f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
+    except OSError as exc:
+        print(f"edge-monitor export-trace: writing {args.out} failed ({exc}): check that its folder is writable "
+              "and has space", file=sys.stderr)
+        return EXIT_FAILURE
+    if verbosity(args) >= 0:                # -q: errors only
+        print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
+              f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
     return 0
 
 

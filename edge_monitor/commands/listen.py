@@ -28,11 +28,12 @@ from typing import Any
 from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
+    check_subscriber_arguments,
     zenoh_options,
 )
 from edge_monitor.records import to_json
 from edge_monitor.run_failures import setup_failure
-from edge_monitor.sinks.keys import PREFIX, check_robot_name
+from edge_monitor.sinks.keys import KINDS, PREFIX, check_robot_name
 from edge_monitor.sinks.zenoh_publisher import ReceivedRecord, SymptomSubscriber
 from edge_monitor.sinks.zenoh_session import open_session
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals, verbosity
@@ -92,10 +93,10 @@ def _check(args: argparse.Namespace) -> None:
     for kind in args.kind:
         if not kind or any(c in kind for c in "/*$?# "):
             raise UsageError(f"--kind {kind!r}: one key segment such as symptom, alarm or health")
-    if args.count is not None and args.count < 1:
-        raise UsageError(f"--count {args.count}: must be ≥ 1")
-    if args.duration is not None and not args.duration > 0:
-        raise UsageError(f"--duration {args.duration}: must be > 0 s")
+        if kind not in KINDS:               # kept: a newer agent may publish it
+            log.warning("--kind %s: not a kind this version's agents publish (%s); waiting for it anyway",
+                        kind, ", ".join(KINDS))
+    check_subscriber_arguments(args)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,6 +16,7 @@ import time
 from edge_monitor.commands.common import (
     add_subscriber_arguments,
     add_zenoh_arguments,
+    check_subscriber_arguments,
     zenoh_options,
 )
 from edge_monitor.commands.history_view import add_history_view_arguments, draw_history
@@ -59,6 +60,7 @@ class _Counts:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_subscriber_arguments(args)
     if args.history:
         return draw_history(args)
     try:
