@@ -251,3 +251,51 @@ def test_a_dataclass_row_is_what_the_database_gets():
     row = row_of("symptom", "r1", 0, symptom("r1", 0, 1, prognosis=prognosis(3.0)), START)
     assert not isinstance(row, Rejection)
     assert dataclasses.asdict(row)["days_median"] == 3.0 and row.ident == "0/1/2026-11-18T11:07:10.000Z"
+
+
+def test_history_reads_only_a_history_database_and_says_when_one_is_damaged(tmp_path, capsys):
+    """`history --db` only reads: another SQLite file is refused and left as it was (it was once given the
+    historian's tables and WAL mode); a stored record that no longer parses is "damaged" (exit 1), not a
+    traceback; over Zenoh the same failure is the historian's (exit 1), not the question's (exit 2)."""
+    import hashlib
+    import sqlite3
+
+    import edge_monitor.cli
+    from edge_monitor.historian.client import HistoryRefused, HistoryUnavailable, zenoh_asker
+
+    other = tmp_path / "other.db"
+    with sqlite3.connect(other) as raw:
+        raw.execute("CREATE TABLE foo (x)")
+    before = hashlib.sha256(other.read_bytes()).hexdigest()
+    assert edge_monitor.cli.main(["history", "--db", str(other), "--fleet"]) == 1
+    assert "not a history database" in capsys.readouterr().err
+    assert hashlib.sha256(other.read_bytes()).hexdigest() == before and not (tmp_path / "other.db-wal").exists()
+
+    damaged = tmp_path / "plant.db"
+    from edge_monitor.historian.db_url import parse_db
+    conn = connect(parse_db(str(damaged)))
+    insert_rows(conn, symptoms_with_friction([symptom("r1", 0, 1)]))
+    for table in ("records", "joints"):            # what a flipped page leaves: JSON cut short
+        conn.run(f"UPDATE {table} SET body = '{{\"robot\": ' ")
+    conn.close()
+    for question in (["--fleet"], ["--kind", "symptom"]):
+        assert edge_monitor.cli.main(["history", "--db", str(damaged), *question]) == 1
+        err = capsys.readouterr().err
+        assert "damaged" in err and "Traceback" not in err
+
+    class Reply:
+        def __init__(self, body):
+            self.ok, self.err = None, type("Err", (), {"payload": type("P", (), {"to_string": lambda s: body})()})()
+
+    class Session:
+        def __init__(self, body):
+            self.body = body
+
+        def get(self, _selector, timeout):
+            return [Reply(self.body)]
+
+    query = HistoryQuery(what="fleet")
+    with pytest.raises(HistoryUnavailable, match="damaged"):
+        zenoh_asker(Session('{"error": "the history is damaged", "refused": false}'))(query)
+    with pytest.raises(HistoryRefused):
+        zenoh_asker(Session('{"error": "unknown parameter x"}'))(query)     # an older historian: a refusal

@@ -42,9 +42,12 @@ def zenoh_asker(session: zenoh.Session, timeout_s: float = DEFAULT_TIMEOUT_S) ->
                 return json.loads(reply.ok.payload.to_string())
             text = reply.err.payload.to_string() if reply.err is not None else ""
             try:
-                error = json.loads(text).get("error")
+                parsed = json.loads(text)
+                error, refused = parsed.get("error"), parsed.get("refused", True)
             except (ValueError, AttributeError):
-                error = text[:300]
+                error, refused = text[:300], True
+            if not refused:             # the question was fine; the historian could not answer it now
+                raise HistoryUnavailable(f"the historian could not answer {selector}: {error}")
             raise HistoryRefused(f"the historian refused {selector}: {error}")
         raise HistoryUnavailable(f"no historian answered {history_key(query.what)} within {timeout_s:g} s: is "
                                  "`edge-monitor historian` running and connected to the same router (and allowed "

@@ -11,9 +11,10 @@ a kill -9 of the historian and a power cut.
 
 from __future__ import annotations
 
+import json
 import logging
 import sqlite3
-from contextlib import contextmanager
+from contextlib import closing, contextmanager
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
@@ -42,6 +43,20 @@ class RecordRefused(DatabaseError):
 
 class DriverMissing(DatabaseError):
     """PostgreSQL was asked for but psycopg is not installed."""
+
+
+def stored_record(body: str) -> dict[str, Any]:
+    """A record as the database keeps it (its JSON text), or DatabaseError if that text is damaged."""
+    try:
+        record = json.loads(body)
+    except (ValueError, TypeError) as exc:
+        raise DatabaseError(f"the history database is damaged: a stored record does not parse ({exc}); restore "
+                            "it from a backup, or rebuild it with `edge-monitor historian import` of the agents' "
+                            "JSONL files") from None
+    if not isinstance(record, dict):
+        raise DatabaseError("the history database is damaged: a stored record is not a JSON object; restore it "
+                            "from a backup")
+    return record
 
 
 def _psycopg() -> Any:
@@ -135,9 +150,8 @@ def _one_line(exc: BaseException) -> str:
 def connect(target: DbTarget, migrate: bool = True, create: bool = True) -> Connection:
     """A new connection to ``target`` with its schema at the latest version (``migrate``); ``create``: a
     SQLite file that does not exist is made (else: DatabaseUnavailable, for commands that only read)."""
-    if target.dialect == SQLITE and not create and not Path(str(target.path)).is_file():
-        raise DatabaseUnavailable(f"no history database at {target.path}: fix --db, or start `edge-monitor historian "
-                                  f"--db {target.path}` first")
+    if target.dialect == SQLITE and not create:
+        _check_history_file(Path(str(target.path)))
     conn = Connection(_open_sqlite(target) if target.dialect == SQLITE else _open_postgres(target), target)
     if migrate:
         try:
@@ -146,6 +160,23 @@ def connect(target: DbTarget, migrate: bool = True, create: bool = True) -> Conn
             conn.close()
             raise
     return conn
+
+
+def _check_history_file(path: Path) -> None:
+    """DatabaseUnavailable unless ``path`` is a SQLite file the historian made (checked read-only: a command
+    that only reads must not turn another SQLite file into a history database)."""
+    if not path.is_file():
+        raise DatabaseUnavailable(f"no history database at {path}: fix --db, or start `edge-monitor historian "
+                                  f"--db {path}` first")
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as raw:
+            found = raw.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'schema_version'")
+            is_history = found.fetchone() is not None
+    except sqlite3.Error as exc:
+        raise DatabaseUnavailable(f"cannot read SQLite {path}: {exc}; is it a history database?") from exc
+    if not is_history:
+        raise DatabaseUnavailable(f"{path} is a SQLite database but not a history database (no schema_version "
+                                  "table): fix --db")
 
 
 def _open_sqlite(target: DbTarget) -> sqlite3.Connection:

@@ -13,10 +13,9 @@ refused it: ``source`` says which).
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
-from edge_monitor.historian.database import Connection
+from edge_monitor.historian.database import Connection, stored_record
 from edge_monitor.historian.identity import forecast_days
 from edge_monitor.historian.query_spec import HistoryQuery
 from edge_monitor.historian.times import utc_of_seconds
@@ -51,7 +50,7 @@ def fleet_answer(conn: Connection, query: HistoryQuery, now: float, online: set[
     maintenance = _maintenance(conn, where, params)
     joints = []
     for rank, (robot, joint, cycle, utc, body) in enumerate(rows[:query.limit], start=1):
-        record = json.loads(body)
+        record = stored_record(body)
         agent = agents.get(robot, {})
         joints.append({
             "rank": rank, "robot": robot, "joint": joint, "cycle": cycle, "utc": utc,

@@ -8,11 +8,10 @@ been heard of. Records come back as published, with ``kind`` in front.
 
 from __future__ import annotations
 
-import json
 import time
 from typing import Any
 
-from edge_monitor.historian.database import Connection
+from edge_monitor.historian.database import Connection, stored_record
 from edge_monitor.historian.fleet import fleet_answer
 from edge_monitor.historian.query_spec import Cursor, HistoryQuery
 from edge_monitor.historian.times import DAY_S, utc_of_seconds
@@ -72,7 +71,7 @@ def _records(conn: Connection, query: HistoryQuery) -> dict[str, Any]:
                      (*params, query.limit + 1))
     page = rows[:query.limit]
     truncated = len(rows) > query.limit
-    items = [{"kind": kind, **json.loads(body)} for _id, kind, _at, body in page]
+    items = [{"kind": kind, **stored_record(body)} for _id, kind, _at, body in page]
     return {"records": items, "count": len(items), "truncated": truncated,
             "next": Cursor(page[-1][2], page[-1][0]).text() if truncated else None}
 
@@ -83,7 +82,7 @@ def _open_alarms(conn: Connection, query: HistoryQuery) -> dict[str, Any]:
     where.append("is_open = 1")
     rows = conn.rows(f"SELECT fault, body FROM faults WHERE {' AND '.join(where)} "
                      "ORDER BY robot, joint, fault LIMIT ?", (*params, query.limit + 1))
-    items = [{"kind": "alarm", **json.loads(body)} for _fault, body in rows[:query.limit]]
+    items = [{"kind": "alarm", **stored_record(body)} for _fault, body in rows[:query.limit]]
     return {"records": items, "count": len(items), "truncated": len(rows) > query.limit, "next": None}
 
 

@@ -6,7 +6,8 @@ daily, status and the parameters of :mod:`edge_monitor.historian.query_spec` (``
 ``edge/history/records?robot=r1;joint=2;kind=symptom;since=7d;limit=500``. The reply comes on the key
 asked for, encoding ``application/json`` (schemas: ``edge-monitor schema history|fleet``). A malformed
 selector (unknown question or parameter, a value out of range) gets ``reply_err`` with
-``{"error": "…"}`` naming the parameter; a robot never heard of gets an empty answer that says so
+``{"error": "…", "refused": true}`` naming the parameter (``"refused": false``: a good question the historian
+cannot answer now, its database unavailable or damaged); a robot never heard of gets an empty answer that says so
 (``robot_known: false``). Queries that cover other keys (``edge/**``) are answered only for the keys
 of the history: an agent's state query is never answered here.
 """
@@ -67,15 +68,15 @@ class HistoryQueryable:
         try:
             body = future.result(timeout=ANSWER_TIMEOUT_S)
         except DatabaseError as exc:
-            self._error(query, f"the history's database is unavailable: {exc}", history_key(what))
+            self._error(query, f"the history's database is unavailable: {exc}", history_key(what), refused=False)
             return
         except TimeoutError:
             self._error(query, f"no answer within {ANSWER_TIMEOUT_S:g} s: narrow the question (robot, kind, "
-                               "since/until, a smaller limit)", history_key(what))
+                               "since/until, a smaller limit)", history_key(what), refused=False)
             return
         except Exception as exc:       # never raise into Zenoh; say what went wrong
             log.exception("history query %s failed", query.selector)
-            self._error(query, f"the historian failed on this question: {exc}", history_key(what))
+            self._error(query, f"the historian failed on this question: {exc}", history_key(what), refused=False)
             return
         self._reply(query, history_key(what), body)
 
@@ -86,10 +87,12 @@ class HistoryQueryable:
         except Exception as exc:
             log.warning("history reply on %s failed: %s", key, exc)
 
-    def _error(self, query: zenoh.Query, message: str, key: str = HISTORY_PREFIX) -> None:
+    def _error(self, query: zenoh.Query, message: str, key: str = HISTORY_PREFIX, refused: bool = True) -> None:
+        """``reply_err``: ``refused`` the question as asked (a client's usage error), else unanswerable now."""
         self.refused += 1
         try:
-            query.reply_err(to_json({"error": message, "key": key}), encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply_err(to_json({"error": message, "key": key, "refused": refused}),
+                            encoding=zenoh.Encoding.APPLICATION_JSON)
         except Exception as exc:
             log.debug("history error reply failed: %s", exc)
 
