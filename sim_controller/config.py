@@ -32,6 +32,8 @@ from sim_controller.wear_scenarios import WearEvent, WearProfile, parse_wear_law
 DEFAULT_SPEEDS = DEFAULT_SPEED_LEVELS
 #: Largest |speed| the MotorState frame can carry [rad/s].
 MAX_SPEED = 600.0
+#: The latest start time a recording may have [s since 1970]: the year 3000 (BLF and ASC headers keep a date).
+MAX_START_TIME = 32_503_680_000.0
 
 
 class SimConfigError(ValueError):
@@ -89,7 +91,7 @@ class SimConfig:
     # faults, restarts
     faults: FaultSpec = FaultSpec()
     # output
-    start_time: float = 0.0            # timestamp offset of tick 0 in record mode [s]
+    start_time: float = 0.0            # timestamp offset of tick 0 in record mode [s] (≤ MAX_START_TIME)
     block_time: float = 0.5            # length of the frame blocks yielded [s]
     joint_overrides: tuple[JointOverride | None, ...] = ()
     # plant changes over the run (sim_controller.timeline): events in increasing cycle order
@@ -179,7 +181,9 @@ def validate(c: SimConfig) -> None:
              f"must be in (0, 1e6], got {c.time_acceleration!r}")
     _require(_finite(c.heating) and c.heating >= 0, "heating", f"must be ≥ 0 °C per unit power, got {c.heating!r}")
     _require(len(c.wear) <= c.joints, "wear", f"{len(c.wear)} wear profiles for {c.joints} joints")
-    _require(_finite(c.start_time) and c.start_time >= 0, "start_time", f"must be ≥ 0 s, got {c.start_time!r}")
+    _require(_finite(c.start_time) and 0 <= c.start_time <= MAX_START_TIME, "start_time",
+             f"must be 0 … {MAX_START_TIME:.0f} s (the year 3000: log formats keep a calendar date), "
+             f"got {c.start_time!r}")
     _require(_finite(c.block_time) and 0.01 <= c.block_time <= 60, "block_time",
              f"must be 0.01 … 60 s, got {c.block_time!r}")
     _require(len(c.joint_overrides) <= c.joints, "joint_overrides",

@@ -86,8 +86,9 @@ class WearEvent:
             return self.from_ + (self.to - self.from_) * x
         if self.kind == "power":
             return self.from_ + (self.to - self.from_) * x ** self.exponent
-        span = (self.end - self.start) / self.tau
-        return self.from_ + (self.to - self.from_) * math.expm1(x * span) / math.expm1(span)
+        span = (self.end - self.start) / self.tau       # expm1(x·span)/expm1(span), written not to overflow
+        share = math.exp(span * (x - 1)) * math.expm1(-x * span) / math.expm1(-span)
+        return self.from_ + (self.to - self.from_) * share
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"kind": self.kind, "start": self.start}

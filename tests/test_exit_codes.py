@@ -117,6 +117,7 @@ CASES = [
     ("sim", ["record", "--out", "x.txt", *FAST], 2),
     ("sim", ["record", "--out", f"{MISSING}/x.blf", *FAST], 1),
     ("sim", ["record", "--out", "x.blf", "--joints", "9"], 2),
+    ("sim", ["record", "--out", "{dir}/t.blf", "--start-time", "3e11", *FAST], 2),
 ]
 
 MAINS = {"edge": edge_monitor.cli.main, "sim": sim_controller.cli.main}
