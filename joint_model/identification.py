@@ -152,6 +152,10 @@ def _grid_start(data: CommissioningData, base: FrictionParams) -> NDArray[np.flo
         cost = float(np.sum(projected_residual(data, rho, base) ** 2))
         if cost < best_cost:
             best, best_cost = np.array(rho), cost
+    if best is None:
+        raise IdentificationDataError(f"no friction model fits these data (the residuals are not finite; the largest "
+                                      f"|friction| is {float(np.max(np.abs(data.friction))):.3g}): is the friction "
+                                      "column a joint's friction torque in N·m?")
     return np.asarray(best)
 
 

@@ -34,8 +34,11 @@ def files(tmp_path_factory):
     (d / "bad.toml").write_text("[decision]\npf = 7\n")
     (d / "bad.csv").write_text("speed,temperature\n1,x\n")
     (d / "ok.csv").write_text("x\n1\n2\n3\n")
+    rows = [f"{s},{t},0.5,1e300" for s in (1, 5, 20, 60, 150) for t in (25, 45)]
+    (d / "huge.csv").write_text("speed,temperature,load,friction\n" + "\n".join(rows) + "\n")
+    (d / "latin.csv").write_bytes(b"\xff\xfespeed,temperature,load,friction\n")
     return {"bad_toml": str(d / "bad.toml"), "bad_csv": str(d / "bad.csv"), "ok_csv": str(d / "ok.csv"),
-            "dir": str(d)}
+            "huge_csv": str(d / "huge.csv"), "latin_csv": str(d / "latin.csv"), "dir": str(d)}
 
 
 #: (tool, argv, expected exit code); {closed}/{taken} ports, {bad_toml}/{bad_csv}/{ok_csv}/{dir} files.
@@ -67,6 +70,8 @@ CASES = [
     ("edge", ["design", "--points", "2", "-o", f"{MISSING}/design.json"], 1),
     ("edge", ["commission", f"{MISSING}/nominal.csv"], 2),
     ("edge", ["commission", "{bad_csv}"], 2),
+    ("edge", ["commission", "{huge_csv}", "-o", "{dir}/c.toml"], 2),
+    ("edge", ["commission", "{latin_csv}", "-o", "{dir}/c.toml"], 2),
     ("edge", ["fit-weights", "--healthy", f"{MISSING}/h.csv", "--faulty", f"{MISSING}/f.csv"], 2),
     ("edge", ["fit-weights"], 2),
     ("edge", ["glr", "--nominal", "{ok_csv}", "--test", "{ok_csv}", "--pf", "1.5"], 2),

@@ -48,6 +48,8 @@ def load_csv(path: str | Path) -> CommissioningData:
                     columns[column].append(_parse_number(row.get(column), column, row_number, path))
     except OSError as exc:
         raise CommissioningDataError(f"{path}: cannot read: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise CommissioningDataError(f"{path}: not UTF-8 text (byte {exc.start}): save the CSV as UTF-8") from None
     return make_data(**{c: np.array(columns[c]) for c in CSV_COLUMNS})
 
 
