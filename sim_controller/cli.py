@@ -246,6 +246,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         usage_error(str(exc))
     try:
         if args.command == "record":
+            if args.truth and os.path.abspath(args.truth) == os.path.abspath(args.out):
+                usage_error(f"--truth {args.truth} is the log --out: give the truth file another name")
             summary = record(config, args.out, args.truth, progress=verbosity(args) >= 0, encoder=encoder)
         else:                               # SIGTERM: its normal end (stop after the current block)
             if (problem := _run_option_error(args)) is not None:

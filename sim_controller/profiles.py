@@ -40,6 +40,8 @@ STATUS_EVERY = 10
 CIA402_REFERENCE_TORQUE_NM = (30.0, 30.0, 21.0, 9.0, 9.0, 6.0, 6.0, 6.0)
 TEMPERATURE_OBJECT = 0x2010
 STATUS_ENABLED, STATUS_SWITCHED_ON = 0x0637, 0x0233
+#: The mappings shipped with the protocol package (``dbc:NAME`` finds them by name).
+SHIPPED_MAPPINGS = Path(str(resources.files("protocol") / "mappings"))
 
 
 class ProfileError(ValueError):
@@ -185,6 +187,16 @@ class ProfileEncoder:
         return self.layout.encode(sc, spacing, self.start_time, self.rate)
 
 
+def mapping_path(name: str) -> Path:
+    """The mapping file ``name`` names: a file there, else a shipped mapping of that name (``foreign_robot``
+    or ``foreign_robot.toml`` in ``protocol/mappings``), else ``name`` (loading it then says it is missing)."""
+    given = Path(name)
+    if given.exists():
+        return given
+    shipped = SHIPPED_MAPPINGS / (name if name.endswith(".toml") else f"{name}.toml")
+    return shipped if given.parent == Path(".") and shipped.is_file() else given
+
+
 def profile_encoder(profile: str, joints: int, start_time: float, rate: float) -> ProfileEncoder | None:
     """The encoder of ``--profile`` (None: native). Raises ProfileError (or MappingError) with the fix."""
     if profile == "native":
@@ -192,5 +204,5 @@ def profile_encoder(profile: str, joints: int, start_time: float, rate: float) -
     if profile == "cia402":
         return ProfileEncoder(cia402_layout(joints), start_time, rate)
     if profile.startswith("dbc:"):
-        return ProfileEncoder(dbc_layout(load_mapping(profile[4:]), joints), start_time, rate)
+        return ProfileEncoder(dbc_layout(load_mapping(mapping_path(profile[4:])), joints), start_time, rate)
     raise ProfileError(f"profile: native, cia402 or dbc:MAPPING.toml, got {profile!r}")

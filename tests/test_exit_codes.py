@@ -123,6 +123,8 @@ CASES = [
     ("sim", ["record", "--out", f"{MISSING}/x.blf", *FAST], 1),
     ("sim", ["record", "--out", "x.blf", "--joints", "9"], 2),
     ("sim", ["record", "--out", "{dir}/t.blf", "--start-time", "3e11", *FAST], 2),
+    ("sim", ["record", "--out", "{dir}/same.log", "--truth", "{dir}/same.log", *FAST], 2),
+    ("sim", ["record", "--out", "{dir}/f.blf", "--profile", "dbc:no_such_mapping", *FAST], 2),
 ]
 
 MAINS = {"edge": edge_monitor.cli.main, "sim": sim_controller.cli.main}
@@ -162,3 +164,9 @@ def test_a_refused_demo_leaves_the_previous_demos_outputs(tmp_path, capsys):
     assert exit_code("edge", ["demo", "--nominal-cycles", "-5", "--out", str(out)]) == 2
     assert "--nominal-cycles -5" in capsys.readouterr().err
     assert all(path.exists() for path in kept)
+
+
+def test_a_shipped_mapping_is_found_by_name_as_the_help_says(tmp_path, capsys):
+    log = tmp_path / "foreign.blf"
+    assert exit_code("sim", ["record", "--out", str(log), "--profile", "dbc:foreign_robot", "-q", *FAST]) == 0
+    assert log.stat().st_size > 0
