@@ -170,3 +170,26 @@ def test_a_shipped_mapping_is_found_by_name_as_the_help_says(tmp_path, capsys):
     log = tmp_path / "foreign.blf"
     assert exit_code("sim", ["record", "--out", str(log), "--profile", "dbc:foreign_robot", "-q", *FAST]) == 0
     assert log.stat().st_size > 0
+
+
+def test_a_log_the_agent_cannot_use_is_a_failure_that_says_why(tmp_path, capsys):
+    """A foreign controller's log replayed without its mapping, and random text under a log's suffix:
+    nothing monitored, exit 1 and the reason (both once "succeeded" with 0 cycles and no hint)."""
+    foreign = tmp_path / "foreign.blf"
+    assert exit_code("sim", ["record", "--out", str(foreign), "--profile", "dbc:foreign_robot", "-q", *FAST]) == 0
+    assert exit_code("edge", ["replay", str(foreign), "--rerun", "off"]) == 1
+    assert "--mapping" in capsys.readouterr().err
+    noise = tmp_path / "noise.log"
+    noise.write_bytes(bytes(range(256)) * 20)
+    assert exit_code("edge", ["replay", str(noise), "--rerun", "off"]) == 1
+    assert "is it a CAN log?" in capsys.readouterr().err
+
+
+def test_what_the_input_lost_is_said_by_reason():
+    from edge_monitor.commands.replay import input_notes
+
+    stats = {"cycles": 3, "frames_total": 0, "unknown_id": 0, "malformed": 1,
+             "details": {"samples_dropped": {"time_backwards": 469975, "not_finite": 0}}}
+    notes, nothing = input_notes("run.csv", stats, None)
+    assert notes == ["run.csv: samples dropped: time backwards 469975", "run.csv: frames not used: malformed 1"]
+    assert nothing is None

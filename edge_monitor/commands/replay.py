@@ -174,9 +174,28 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
             print(f"log: {report.skipped} unreadable record(s) skipped"
                   + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
                      else ""))
-    for problem in result.failures:
+    notes, nothing = input_notes(args.file, stats, report)
+    for note in notes:
+        log.warning("%s", note)
+    for problem in result.failures + ([nothing] if nothing else []):
         print(f"edge-monitor replay: {problem}", file=sys.stderr)
-    return EXIT_FAILURE if result.failures else 0
+    return EXIT_FAILURE if result.failures or nothing else 0
+
+
+def input_notes(file: str, stats: dict[str, Any], report: Any) -> tuple[list[str], str | None]:
+    """What the input lost (lines for the log: samples dropped and frames not used, by reason), and why
+    nothing was monitored when a log held nothing the agent could use (None when something was)."""
+    dropped = {k: v for k, v in (stats.get("details", {}).get("samples_dropped") or {}).items() if v}
+    unused = {k: stats[k] for k in ("unknown_id", "malformed") if stats.get(k)}
+    notes = [f"{file}: {what}: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items())
+             for what, counts in (("samples dropped", dropped), ("frames not used", unused)) if counts]
+    nothing = None
+    if stats["cycles"] == 0 and stats["frames_total"] and stats.get("unknown_id") == stats["frames_total"]:
+        nothing = (f"no frame of {file} has an id this agent decodes ({stats['frames_total']} frames): a foreign "
+                   "controller's log? replay it with --mapping (docs/CONNECTING.md)")
+    elif stats["cycles"] == 0 and not stats["frames_total"] and getattr(report, "skipped", 0):
+        nothing = f"nothing in {file} is readable ({report.skipped} unreadable record(s)): is it a CAN log?"
+    return notes, nothing
 
 
 def run(args: argparse.Namespace) -> int:
