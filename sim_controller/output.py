@@ -26,7 +26,7 @@ from typing import IO, Any, Callable
 import can
 
 from protocol.console import deferred_interrupts, progress_bar
-from protocol.links import open_bus
+from protocol.links import LinkError, open_bus
 from sim_controller.config import SimConfig
 from sim_controller.controller import Controller
 from sim_controller.log_writers import block_messages, open_block_writer
@@ -45,6 +45,8 @@ MAX_LAG_S = 1.0
 DEFAULT_MAX_PAUSE_S = 600.0
 #: Longest single sleep while pacing, so that ``stop()`` is honoured during a long pause [s].
 SLEEP_SLICE_S = 0.25
+#: Sends failing this many times in a row end ``run``: the link is gone (a closed pty or TCP peer), not busy.
+MAX_FAILED_IN_ROW = 100
 
 
 @dataclass
@@ -166,7 +168,7 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
     t0: float | None = None
     last_t: float | None = None                   # controller time of the last frame sent [s]
     shift = 0.0                                   # schedule moved on after stalls and cut pauses [s]
-    sent = errors = 0
+    sender = _Sender(bus, str(link))
     stopped = stop or (lambda: False)
     try:
         for block in controller.frames():
@@ -183,26 +185,49 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
                     delay = start + shift + (t - t0) / speedup - time.perf_counter()
                     if delay < -MAX_LAG_S:
                         shift -= delay
-                    elif delay > PACING_SLACK_S:   # sleep in ≥ 1 ms steps; frames between go out back to back
-                        time.sleep(delay)
+                    elif delay > PACING_SLACK_S and not _wait_until(time.perf_counter() + delay, stopped):
+                        break                      # ≥ 1 ms steps; frames between go out back to back
                 message.timestamp = wall0 + (time.perf_counter() - start)
-                try:
-                    bus.send(message, timeout=1.0)
-                    sent += 1
-                except can.CanError as exc:
-                    errors += 1
-                    if errors == 1 or errors % 1000 == 0:
-                        log.warning("send failed on %s (%d so far): %s", link, errors, exc)
+                sender.send(message)
             truth.drain()
             progress.tick()
             if stopped():
                 break
     finally:
-        truth.close(sent, errors)
-        bus.shutdown()
+        truth.close(sender.sent, sender.errors)
+        _shut_down(bus, str(link))
     wall = time.perf_counter() - start
-    return RunSummary(sent, errors, controller.cycles_done, controller.simulated_seconds, wall,
+    return RunSummary(sender.sent, sender.errors, controller.cycles_done, controller.simulated_seconds, wall,
                       dict(controller.injector.counts))
+
+
+class _Sender:
+    """Puts frames on the bus, counting those that fail; LinkError once :data:`MAX_FAILED_IN_ROW` fail in a row."""
+
+    def __init__(self, bus: can.BusABC, link: str) -> None:
+        self.bus, self.link = bus, link
+        self.sent = self.errors = self.in_row = 0
+
+    def send(self, message: can.Message) -> None:
+        try:
+            self.bus.send(message, timeout=1.0)
+        except can.CanError as exc:
+            self.errors, self.in_row = self.errors + 1, self.in_row + 1
+            if self.errors == 1 or self.errors % 1000 == 0:
+                log.warning("send failed on %s (%d so far): %s", self.link, self.errors, exc)
+            if self.in_row >= MAX_FAILED_IN_ROW:
+                raise LinkError(f"the link {self.link} failed: {self.in_row} frames in a row could not be sent "
+                                f"({exc}); is the other end still there?") from None
+            return
+        self.sent, self.in_row = self.sent + 1, 0
+
+
+def _shut_down(bus: can.BusABC, link: str) -> None:
+    """Close the bus; a link already gone may refuse that too (said at debug level: its failure was said)."""
+    try:
+        bus.shutdown()
+    except (can.CanError, OSError) as exc:
+        log.debug("closing %s: %s", link, exc)
 
 
 def _cut_pause(gap: float, speedup: float, max_pause: float, cycle: int) -> float:
