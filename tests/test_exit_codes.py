@@ -48,6 +48,7 @@ CASES = [
     ("edge", ["run", "-i", "nosuchbus", "-c", "x", "--no-zenoh"], 2),
     ("edge", ["run", "--link", "virtual:x", "--no-zenoh", "--config", "{bad_toml}"], 2),
     ("edge", ["run", "--link", "virtual:x", "--zenoh-connect", "not-an-endpoint"], 2),
+    ("edge", ["run", "--link", "virtual:x", "--zenoh-listen", "tcp/127.0.0.1:99999"], 2),
     ("edge", ["run", "--link", "virtual:x", "--no-zenoh", "--rerun", "bogus"], 2),
     ("edge", ["run", "--link", f"slcan:{MISSING}/tty", "--no-zenoh", "--pf", "0.01"], 1),
     ("edge", ["run", "--link", "virtual:x", "--zenoh-mode", "client", "--zenoh-connect",
@@ -114,6 +115,7 @@ CASES = [
     ("edge", ["router", "--tls-cert", "x.pem"], 2),
     ("edge", ["router", "--config", f"{MISSING}/router.json5"], 2),
     ("edge", ["router", "--port", "{taken}"], 1),
+    ("edge", ["router", "--port", "70000"], 2),
     ("edge", ["slcan-hub", "--port", "70000"], 2),
     ("edge", ["slcan-hub", "--port", "{taken}"], 1),
     # sim-controller

@@ -59,6 +59,9 @@ def options_of(args: argparse.Namespace) -> RouterOptions:
 def run(args: argparse.Namespace) -> int:
     import zenoh
     zenoh.try_init_log_from_env()
+    if args.port is not None and not 0 <= args.port <= 65535:
+        print(f"{NAME}: --port {args.port}: must be 0 … 65535 (0 picks a free one)", file=sys.stderr)
+        return EXIT_USAGE
     try:
         config, endpoints = router_config(options_of(args))
     except (ZenohSetupError, ZenohSecurityError) as exc:

@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 MODES = ("peer", "client", "router")
 DEFAULT_ROUTER_PORT = 7447
 _ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
+_PORT_RE = re.compile(r"^(?:tcp|udp|tls|quic|ws)/.*:(\d+)(?:[#?].*)?$")
 
 
 class ZenohSetupError(ValueError):
@@ -71,6 +72,10 @@ class ZenohOptions:
                         f"zenoh {name} endpoint {endpoint!r} is not of the form PROTO/HOST:PORT; "
                         f"fix --zenoh-{name}, e.g. tcp/127.0.0.1:{DEFAULT_ROUTER_PORT}"
                     )
+                port = _PORT_RE.search(endpoint)
+                if port is not None and not 0 <= int(port.group(1)) <= 65535:
+                    raise ZenohSetupError(f"zenoh {name} endpoint {endpoint!r}: port {port.group(1)} is not 0 … 65535; "
+                                          f"fix --zenoh-{name}")
         if self.config_file is not None and not Path(self.config_file).is_file():
             raise ZenohSetupError(f"zenoh config file {self.config_file!r} does not exist; fix --zenoh-config")
         if self.tls is not None:
