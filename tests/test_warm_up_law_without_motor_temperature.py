@@ -1,5 +1,5 @@
-"""A joint whose controller sends no motor temperature may have its own warm-up law (``[decision.warm_up_law_friction]``,
-shipped empty; the measured one an option): its detectors follow the lubricant temperature the wear estimate reads
+"""A joint whose controller sends no motor temperature has its own warm-up law (``[decision.warm_up_law_friction]``,
+the wear score's measured on such robots): its detectors follow the lubricant temperature the wear estimate reads
 from the friction, and its wear score spreads wider with a heavier upper tail (edge_monitor/pipeline/healthy_drift.py,
 docs/WITHOUT_MOTOR_TEMPERATURE.md). The detector bank calibrates for the temperature its joint has, keeps that across
 a restart, and re-derives on the same nominals when a motor temperature appears."""
@@ -14,20 +14,16 @@ import pytest
 
 from edge_monitor.config import ConfigError, config_from_mapping
 from edge_monitor.pipeline.detectors import DetectorBank
-from edge_monitor.pipeline.healthy_drift import MEASURED_WARM_UP_LAW_FRICTION, WARM_UP_LAW
+from edge_monitor.pipeline.healthy_drift import WARM_UP_LAW, WARM_UP_LAW_FRICTION
 from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTOR_TEMPERATURE
 
 
 def test_the_law_without_motor_temperature_reaches_the_wear_detector_alone_and_is_validated() -> None:
-    """Shipped empty, both kinds of joint are calibrated alike. The measured law, stated for the wear score, reaches its
-    warm-up calibration (skew included) on a joint without motor temperature only; the KL detectors and the joint
-    vector stay as on a joint with one. ``[]`` gives the input back to ``warm_up_law``; another input may be listed;
-    a bad law names its key."""
-    shipped = config_from_mapping({}).decision
-    for quantity in ("wear", "kl_raw", "kl_weighted", "joint"):
-        assert shipped.detector_config(quantity, friction_temperature=True) == shipped.detector_config(quantity)
-    law = MEASURED_WARM_UP_LAW_FRICTION["wear_score"]
-    decision = config_from_mapping({"decision": {"warm_up_law_friction": {"wear_score": list(law)}}}).decision
+    """The shipped law, stated for the wear score, reaches its warm-up calibration (skew included) on a joint without
+    motor temperature only; the KL detectors and the joint vector stay as on a joint with one. ``[]`` gives the input
+    back to ``warm_up_law``; another input may be listed; a bad law names its key."""
+    law = WARM_UP_LAW_FRICTION["wear_score"]
+    decision = config_from_mapping({}).decision
     motor, friction = decision.detector_config("wear"), decision.detector_config("wear", friction_temperature=True)
     assert motor.spread_mean == (WARM_UP_LAW["wear_score"][2],) and motor.warm_up_skew == ()
     assert (friction.drift_mean, friction.drift_sd, friction.spread_mean, friction.spread_sd, friction.warm_up_skew) \
@@ -39,18 +35,18 @@ def test_the_law_without_motor_temperature_reaches_the_wear_detector_alone_and_i
     assert given_back.detector_config("wear", friction_temperature=True) == given_back.detector_config("wear")
     listed = config_from_mapping({"decision": {"warm_up_law_friction": {"kl_raw": [-0.1, 0.1, 1.1, 0.1]}}}).decision
     assert listed.detector_config("kl_raw", friction_temperature=True).spread_mean == (1.1,)
-    assert listed.detector_config("wear", friction_temperature=True) == listed.detector_config("wear")
+    assert listed.detector_config("wear", friction_temperature=True) == friction      # the shipped wear law kept
     for bad in ({"wear_score": [0.0, 0.1, 0.0, 0.1]}, {"wear_score": [0.0, 0.1, 1.0, 0.1, 0.0, 11.0]}):
         with pytest.raises(ConfigError, match="decision.warm_up_law_friction.wear_score"):
             config_from_mapping({"decision": {"warm_up_law_friction": bad}})
 
 
-#: The measured law as a user states it (``[decision.warm_up_law_friction]``).
-OPTION = {"decision": {"warm_up_law_friction": {"wear_score": list(MEASURED_WARM_UP_LAW_FRICTION["wear_score"])}}}
+#: The shipped law as a user states it (``[decision.warm_up_law_friction]``).
+OPTION = {"decision": {"warm_up_law_friction": {"wear_score": list(WARM_UP_LAW_FRICTION["wear_score"])}}}
 
 
 def _learned_bank(source: str) -> DetectorBank:
-    """A joint's detectors with the measured law stated, after their warm-up nominals, fed healthy values while the
+    """A joint's detectors with the shipped law stated, after their warm-up nominals, fed healthy values while the
     joint warms (0.2 °C a cycle: not settled, so they stay in the warm-up stage) from ``source``."""
     decision = config_from_mapping(OPTION).decision
     bank, rng = DetectorBank(decision, {}), np.random.default_rng(11)
@@ -63,7 +59,7 @@ def _learned_bank(source: str) -> DetectorBank:
 
 def test_the_bank_calibrates_for_its_joints_temperature_keeps_it_and_re_derives_when_a_motor_temperature_appears(
         ) -> None:
-    """With the measured law stated, on a joint without motor temperature the wear detector's warm-up threshold is that
+    """With the shipped law stated, on a joint without motor temperature the wear detector's warm-up threshold is that
     law's (read from the shipped table; another than on a joint with one); the KL detectors' are the same on both. A
     restart restores it as saved; the first motor temperature re-derives the wear threshold on the same nominal for
     the law of joints with one (the saved threshold decides until the re-derived one is in)."""
