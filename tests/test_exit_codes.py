@@ -36,9 +36,11 @@ def files(tmp_path_factory):
     (d / "ok.csv").write_text("x\n1\n2\n3\n")
     rows = [f"{s},{t},0.5,1e300" for s in (1, 5, 20, 60, 150) for t in (25, 45)]
     (d / "huge.csv").write_text("speed,temperature,load,friction\n" + "\n".join(rows) + "\n")
+    (d / "empty.blf").write_bytes(b"")
     (d / "latin.csv").write_bytes(b"\xff\xfespeed,temperature,load,friction\n")
     return {"bad_toml": str(d / "bad.toml"), "bad_csv": str(d / "bad.csv"), "ok_csv": str(d / "ok.csv"),
-            "huge_csv": str(d / "huge.csv"), "latin_csv": str(d / "latin.csv"), "dir": str(d)}
+            "huge_csv": str(d / "huge.csv"), "latin_csv": str(d / "latin.csv"),
+            "empty_blf": str(d / "empty.blf"), "dir": str(d)}
 
 
 #: (tool, argv, expected exit code); {closed}/{taken} ports, {bad_toml}/{bad_csv}/{ok_csv}/{dir} files.
@@ -55,6 +57,7 @@ CASES = [
               "tcp/127.0.0.1:{closed}"], 1),
     # replay
     ("edge", ["replay", f"{MISSING}/run.blf"], 1),
+    ("edge", ["replay", "{empty_blf}", "--rerun", "off"], 1),
     ("edge", ["replay", f"{MISSING}/run.blf", "--config", "{bad_toml}"], 2),
     ("edge", ["replay", f"{MISSING}/run.blf", "--rerun", "bogus"], 2),
     # demo

@@ -138,6 +138,8 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
         require_regular(p)
     except NotARegularFile as exc:
         raise LogReadError(f"cannot read {p}: {exc.reason}; give a log file") from None
+    if p.stat().st_size == 0:
+        raise LogReadError(f"{p} is empty (0 bytes): was its recording stopped before it wrote anything?")
     report = report if report is not None else LogReport()
     try:
         reader = can.LogReader(str(p))
