@@ -1,21 +1,19 @@
-"""Per-quantity sequential detector of the agent: learning phase, threshold calibration, then
-window-limited GLR.
+"""Per-quantity sequential detector of the agent: learning phase, threshold calibration, then window-limited GLR.
 
-One detector watches one per-cycle quantity (wear estimate, log ``kl.raw``, log ``kl.weighted``) or a
-vector of them (``dim`` > 1). It collects ``n_nominal`` finite values, fits the nominal density
-(docs/ALGORITHMS.md §5), calibrates its alarm threshold for the mean run length to false alarm ``arl0``
-by simulation (:mod:`edge_monitor.stats.calibration`; with ``pf``, an expert option, the asymptotic
-½·χ²_d quantile at 1 − Pf of one test), then runs :class:`~edge_monitor.stats.glr.WindowedGLR` on
-every new value. The first crossing latches an alarm until :meth:`SequentialDetector.reset` (a declared
-maintenance, which restarts learning). Non-finite values are skipped and counted, never touch the state.
-
-A calibration may run in another process (live agent): until its threshold arrives the detector monitors
-without deciding; a statistic that crossed meanwhile raises the alarm when the threshold comes.
+One detector watches one per-cycle quantity (wear estimate, log ``kl.raw``, log ``kl.weighted``) or a vector of
+them (``dim`` > 1). It collects ``n_nominal`` finite values, fits the nominal density (docs/ALGORITHMS.md §5),
+calibrates its alarm threshold for the mean run length to false alarm ``arl0`` by simulation
+(:mod:`edge_monitor.stats.calibration`; with ``pf``, an expert option, the asymptotic ½·χ²_d quantile at 1 − Pf
+of one test), then runs :class:`~edge_monitor.stats.glr.WindowedGLR` on every new value. The first crossing
+latches an alarm until :meth:`SequentialDetector.reset` (a declared maintenance, which restarts learning).
+Non-finite values are skipped and counted, never touch the state. A calibration may run in another process
+(live agent): until its threshold arrives the detector monitors without deciding; a statistic that crossed
+meanwhile raises the alarm when the threshold comes.
 
 Two stages: the nominal learned right after commissioning is the *warm-up* nominal, calibrated at
-``calibrate_at``. Once the joint's temperature has settled (:meth:`SequentialDetector.begin_steady`)
-the detector learns its nominal again from the next ``steady_nominal`` values, deciding with the warm-up
-threshold meanwhile, and calibrates that *steady* nominal at ``steady_at`` (docs/DETECTION.md).
+``calibrate_at``. Once the joint's temperature has settled (:meth:`SequentialDetector.begin_steady`) the
+detector learns its nominal again from the next ``steady_nominal`` values, deciding with the warm-up threshold
+meanwhile, and calibrates that *steady* nominal at ``steady_at`` (docs/DETECTION.md).
 """
 
 from __future__ import annotations
