@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Iterator, TextIO
 
 from tqdm import tqdm
@@ -192,6 +193,14 @@ def deferred_interrupts() -> Iterator[DeferredInterrupt]:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file (the same inode, or the same resolved path if one is missing)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
 
 
 def stop_on_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM), say: str = "") -> threading.Event:

@@ -21,6 +21,7 @@ import json
 import logging
 import signal
 import sys
+from pathlib import Path
 from typing import Any, NoReturn, Sequence
 
 from protocol import package_version
@@ -32,6 +33,7 @@ from protocol.console import (
     configure_logging,
     install_conventions,
     interrupted_exit,
+    same_file,
     stop_on_signals,
     subcommands,
     verbosity,
@@ -246,7 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         usage_error(str(exc))
     try:
         if args.command == "record":
-            if args.truth and os.path.abspath(args.truth) == os.path.abspath(args.out):
+            if args.truth and same_file(Path(args.truth), Path(args.out)):
                 usage_error(f"--truth {args.truth} is the log --out: give the truth file another name")
             summary = record(config, args.out, args.truth, progress=verbosity(args) >= 0, encoder=encoder)
         else:                               # SIGTERM: its normal end (stop after the current block)

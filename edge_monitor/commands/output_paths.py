@@ -6,15 +6,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from protocol.console import UsageError
-
-
-def same_file(a: Path, b: Path) -> bool:
-    """Whether ``a`` and ``b`` name one file (the same inode, or the same resolved path if one is missing)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return a.resolve() == b.resolve()
+from protocol.console import UsageError, same_file  # noqa: F401 (same_file: the commands' import)
 
 
 def check_parent(path: str | Path, option: str) -> None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from edge_monitor.sinks.loopback import MAX_PORT, is_port
 from edge_monitor.sinks.zenoh_router import (
     DEFAULT_HOST,
     RouterOptions,
@@ -59,8 +60,8 @@ def options_of(args: argparse.Namespace) -> RouterOptions:
 def run(args: argparse.Namespace) -> int:
     import zenoh
     zenoh.try_init_log_from_env()
-    if args.port is not None and not 0 <= args.port <= 65535:
-        print(f"{NAME}: --port {args.port}: must be 0 … 65535 (0 picks a free one)", file=sys.stderr)
+    if args.port is not None and not is_port(args.port):
+        print(f"{NAME}: --port {args.port}: must be 0 … {MAX_PORT} (0 picks a free one)", file=sys.stderr)
         return EXIT_USAGE
     try:
         config, endpoints = router_config(options_of(args))

@@ -13,6 +13,7 @@ import argparse
 import sys
 import threading
 
+from edge_monitor.sinks.loopback import MAX_PORT, is_port
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals
 from protocol.slcan_hub import SlcanHub
 
@@ -29,8 +30,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    if not 0 <= args.port <= 65535:
-        raise UsageError(f"--port {args.port}: must be 0 … 65535")
+    if not is_port(args.port):
+        raise UsageError(f"--port {args.port}: must be 0 … {MAX_PORT}")
     if args.max_buffer < 1:
         raise UsageError(f"--max-buffer {args.max_buffer}: must be ≥ 1")
     try:

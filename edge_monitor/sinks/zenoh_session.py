@@ -19,6 +19,7 @@ from typing import Any
 import zenoh
 
 from edge_monitor.errors import key_name
+from edge_monitor.sinks.loopback import MAX_PORT, is_port
 from edge_monitor.sinks.zenoh_security import (
     TlsFiles,
     apply_settings,
@@ -73,9 +74,9 @@ class ZenohOptions:
                         f"fix --zenoh-{name}, e.g. tcp/127.0.0.1:{DEFAULT_ROUTER_PORT}"
                     )
                 port = _PORT_RE.search(endpoint)
-                if port is not None and not 0 <= int(port.group(1)) <= 65535:
-                    raise ZenohSetupError(f"zenoh {name} endpoint {endpoint!r}: port {port.group(1)} is not 0 … 65535; "
-                                          f"fix --zenoh-{name}")
+                if port is not None and not is_port(int(port.group(1))):
+                    raise ZenohSetupError(f"zenoh {name} endpoint {endpoint!r}: port {port.group(1)} is not "
+                                          f"0 … {MAX_PORT}; fix --zenoh-{name}")
         if self.config_file is not None and not Path(self.config_file).is_file():
             raise ZenohSetupError(f"zenoh config file {self.config_file!r} does not exist; fix --zenoh-config")
         if self.tls is not None:
