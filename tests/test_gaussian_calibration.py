@@ -372,10 +372,11 @@ def test_a_law_in_learned_units_is_calibrated_for_and_delivered() -> None:
     assert delivered_in_learned_units(law, quiet.threshold, 256, 6000, seed=85)[0] > 1.4 * 1000.0
 
 
-def test_the_spread_draws_are_weighted_without_bias_and_the_law_is_for_scalars_only() -> None:
+def test_the_spread_draws_are_weighted_without_bias_and_the_law_needs_one_spread_per_axis() -> None:
     """The spread law's draws, weighted, have the law's mean and variance and its upper tail, drawn far more
     often there (the widest joints decide a deep threshold); tolerances 4 standard errors of each weighted
-    mean. A law is refused for a vector, with a transform, or away from the healthy drift."""
+    mean. A law is refused with a transform, away from the healthy drift, without one sd per spread, and for a
+    vector with wander."""
     n = 4096
     spread, w = spread_draws(0.9, 0.1, np.arange(n))
     z = (spread - 0.9) / 0.1
@@ -384,6 +385,7 @@ def test_the_spread_draws_are_weighted_without_bias_and_the_law_is_for_scalars_o
     assert np.mean(z > 3.0) > 50 * norm.sf(3.0) and w.max() <= len(TILTS) + 1e-9
     law = {"at": "healthy_drift", "drift_mean": (0.0,), "drift_sd": (0.1,), "spread_mean": (0.9,), "spread_sd": (0.1,)}
     for bad in ({"transform": "yeo-johnson"}, {"at": "boundary"},
-                {"spread_mean": (0.9, 0.9), "spread_sd": (0.1, 0.1)}):
+                {"spread_mean": (0.9, 0.9), "spread_sd": (0.1,)},
+                {"spread_mean": (0.9, 0.0), "spread_sd": (0.1, 0.0), "wander": (0.1, 0.1)}):
         with pytest.raises(ValueError, match="spread law"):
             dataclasses.replace(WARM_UP, **{**law, **bad})

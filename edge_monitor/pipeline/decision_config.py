@@ -234,6 +234,12 @@ class DecisionConfig:
         laws = {**self.warm_up_law, **self.warm_up_law_friction} if friction_temperature else self.warm_up_law
         law = laws.get(spec.inputs[0], ()) if drifting and not vector else ()
         drift = [law[:2] if law else self.healthy_drift[q] for q in spec.inputs] if drifting else []
+        spread_mean, spread_sd, skew = tuple(law[2:3]), tuple(law[3:4]), tuple(law[5:6]) if law and law[5] else ()
+        axis_laws = [self.warm_up_law_friction.get(q, ()) if drifting and vector and friction_temperature else ()
+                     for q in spec.inputs]      # a vector's axes with their own law: drawn from it (without wander)
+        if any(axis_laws):
+            drift = [a[:2] if a else d for a, d in zip(axis_laws, drift)]
+            spread_mean, spread_sd, skew = (tuple(a[k] if a else 0.0 for a in axis_laws) for k in (2, 3, 5))
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
@@ -247,9 +253,9 @@ class DecisionConfig:
                               transform_axes=tuple(self.log_scale and q in LOG_SCALE for q in spec.inputs) if vector
                               else (True,),     # a scalar: its one input (the wear score is skewed too)
                               drift_mean=tuple(d[0] for d in drift), drift_sd=tuple(d[1] for d in drift),
-                              spread_mean=tuple(law[2:3]), spread_sd=tuple(law[3:4]),
+                              spread_mean=spread_mean, spread_sd=spread_sd,
                               warm_up_wander=tuple(law[4:5]) if law and law[4] > 0 else (),
-                              warm_up_skew=tuple(law[5:6]) if law and law[5] != 0 else (),
+                              warm_up_skew=skew if any(skew) else (),
                               steady_drift_mean=tuple(steady_drift[q][0] for q in spec.inputs if steady_drifting),
                               steady_drift_sd=tuple(steady_drift[q][1] for q in spec.inputs if steady_drifting),
                               steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))

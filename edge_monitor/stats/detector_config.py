@@ -88,8 +88,8 @@ class DetectorConfig:
     calibrate_at: str = "boundary"
     drift_mean: tuple[float, ...] = ()
     drift_sd: tuple[float, ...] = ()
-    spread_mean: tuple[float, ...] = ()     # warm-up, a scalar: the healthy drift (above) and this spread law
-    spread_sd: tuple[float, ...] = ()       # are in the nominal's learned units (docs/DETECTION.md), its values
+    spread_mean: tuple[float, ...] = ()     # warm-up: the healthy drift (above) and this spread law are in the
+    spread_sd: tuple[float, ...] = ()       # nominal's learned units (docs/DETECTION.md; a vector: per axis, 0 none)
     warm_up_wander: tuple[float, ...] = ()  # wandering with this variance fraction (a spread law only)
     warm_up_skew: tuple[float, ...] = ()    # skew-normal shape of their iid part, its upper tail (a spread law only)
     steady_at: str = "healthy_drift"
@@ -150,18 +150,19 @@ class DetectorConfig:
                 isinstance(v, (int, float)) and 0.0 <= v < 1.0 for v in self.steady_wander)), "steady_wander",
                 f"needs none or {self.dim} variance fraction(s) in 0 … <1, got {self.steady_wander!r}")
             require(self.spread_mean == self.spread_sd == () or (
-                self.dim == 1 and self.calibrate_at == "healthy_drift"
-                and len(self.spread_mean) == len(self.spread_sd) == 1 and 0.05 <= self.spread_mean[0] <= 5
-                and 0 <= self.spread_sd[0] <= MAX_DRIFT), "spread_mean",
-                f"a spread law is one (mean 0.05 … 5, sd 0 … {MAX_DRIFT:g}) for a scalar detector calibrated at "
-                f"the healthy drift, got {self.spread_mean!r}, {self.spread_sd!r}")
-            require(self.warm_up_wander == () or (len(self.spread_mean) == len(self.warm_up_wander) == 1
+                self.calibrate_at == "healthy_drift" and len(self.spread_mean) == len(self.spread_sd) == self.dim
+                and all(0.05 <= m <= 5 or (m == 0 and self.dim > 1) for m in self.spread_mean)
+                and any(self.spread_mean) and all(0 <= sd <= MAX_DRIFT for sd in self.spread_sd)), "spread_mean",
+                f"a spread law is one per axis (mean 0.05 … 5, a vector's axis 0 where it keeps its learning error; "
+                f"sd 0 … {MAX_DRIFT:g}) for a detector calibrated at the healthy drift, got {self.spread_mean!r}, "
+                f"{self.spread_sd!r}")
+            require(self.warm_up_wander == () or (self.dim == len(self.spread_mean) == len(self.warm_up_wander) == 1
                                                   and 0.0 <= self.warm_up_wander[0] < 1.0), "warm_up_wander",
-                    f"one variance fraction in 0 … <1, with a spread law only, got {self.warm_up_wander!r}")
-            require(self.warm_up_skew == () or (len(self.spread_mean) == len(self.warm_up_skew) == 1
-                                                and abs(self.warm_up_skew[0]) <= MAX_SKEW), "warm_up_skew",
-                    f"one skew-normal shape in −{MAX_SKEW:g} … {MAX_SKEW:g}, with a spread law only, "
-                    f"got {self.warm_up_skew!r}")
+                    f"one variance fraction in 0 … <1, with a scalar's spread law only, got {self.warm_up_wander!r}")
+            require(self.warm_up_skew == () or (len(self.spread_mean) == len(self.warm_up_skew)
+                                                and all(abs(a) <= MAX_SKEW for a in self.warm_up_skew)),
+                    "warm_up_skew", f"one skew-normal shape per axis in −{MAX_SKEW:g} … {MAX_SKEW:g}, with a spread "
+                    f"law only, got {self.warm_up_skew!r}")
             if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT

@@ -67,6 +67,7 @@ from edge_monitor.stats.gaussian_fleet import (  # noqa: F401  (WANDER_COEFFICIE
     spread_draws,
     stream_shifts,
 )
+from edge_monitor.stats.learning_error import TILTS as FIT_TILTS
 from edge_monitor.stats.learning_error import scalar_fits, vector_fits
 
 log = logging.getLogger(__name__)
@@ -112,7 +113,8 @@ class GaussianSettings:
     spread_mean: tuple[float, ...] = ()    # "healthy_drift" in learned units (a scalar): each nominal's streams
     spread_sd: tuple[float, ...] = ()      # have spread spread_mean + spread_sd·z' and sit at drift_mean +
                                            # drift_sd·z in the nominal's learned units (with ``wander`` in their
-                                           # values, not in a learning set), no learning error drawn
+                                           # values, not in a learning set), no learning error drawn; a vector:
+                                           # one per axis, spread_mean 0 where an axis keeps its learning error
     skew: tuple[float, ...] = ()           # with a spread law: the skew-normal shape α of the values' iid part
 
     def __post_init__(self) -> None:
@@ -122,18 +124,27 @@ class GaussianSettings:
             object.__setattr__(self, "skew", ())
         if self.transform not in ("none", "yeo-johnson"):
             raise ValueError(f"transform = {self.transform!r}; choose 'none' or 'yeo-johnson'")
-        if self.in_learned_units and (self.at != "healthy_drift" or len(self.spread_mean) != 1
-                                      or len(self.spread_sd) != 1 or self.transform != "none"):
-            raise ValueError("a spread law (the healthy drift in learned units) is for a scalar warm-up detector "
-                             "calibrated at the healthy drift, without a transform: one spread mean and sd")
-        if self.skew and (not self.in_learned_units or len(self.skew) != 1):
-            raise ValueError("a skew (one skew-normal shape) is simulated with a spread law only")
+        law = self.spread_mean or self.spread_sd
+        if law and (self.at != "healthy_drift" or len(self.spread_mean) != len(self.spread_sd)
+                    or self.transform != "none" or (len(self.spread_mean) > 1 and any(self.wander))):
+            raise ValueError("a spread law (the healthy drift in learned units) is for a warm-up detector calibrated "
+                             "at the healthy drift, without a transform: one spread mean and sd per axis (a vector: "
+                             "without wander)")
+        if self.skew and len(self.skew) != len(self.spread_mean):
+            raise ValueError("a skew (one skew-normal shape per axis of the spread law) is simulated with a spread "
+                             "law only")
 
     @property
     def in_learned_units(self) -> bool:
-        """Whether the healthy joint is drawn in its nominal's learned units (a spread law is given): the drift
-        and spread measured there already hold the nominal's learning error, which is then not drawn again."""
-        return bool(self.spread_mean)
+        """Whether the healthy joint is drawn in its nominal's learned units (a scalar's spread law is given): the
+        drift and spread measured there already hold the nominal's learning error, which is then not drawn again."""
+        return len(self.spread_mean) == 1
+
+    @property
+    def learned_axes(self) -> tuple[int, ...]:
+        """A vector's axes drawn in learned units, as a scalar's (their spread law's mean > 0); its other axes keep
+        their learning error and drift."""
+        return tuple(i for i, s in enumerate(self.spread_mean) if s > 0) if len(self.spread_mean) > 1 else ()
 
 
 @dataclass(frozen=True)
@@ -264,6 +275,11 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
             spread, weight = spread_draws(settings.spread_mean[0], settings.spread_sd[0], index)
             scale = np.repeat(spread, budget.streams)[:, None]
             learned = None
+        elif settings.learned_axes:         # a vector with axes in learned units
+            means, covs, weight, spread = partly_learned_fits(settings, np.arange(first, first + g), r, rng,
+                                                              budget.drift_tilts)
+            scale = np.repeat(spread, budget.streams, axis=0)
+            learned = None
         elif not settings.wander:           # independent learning values: the fit's exact law
             index = np.arange(first, first + g)
             means, covs, weight = scalar_fits(settings.n0, index, rng) if r.shape[0] == 1 else \
@@ -292,6 +308,32 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     used = int(np.flatnonzero(ev.sum(axis=0) > 0)[-1]) + 2 if ev.any() else 1
     return Simulation(ev[:, :used], ex[:, :used], grid[:used], time.process_time() - started,
                       np.concatenate(weights))
+
+
+def partly_learned_fits(settings: GaussianSettings, index: NDArray[np.int64], r: NDArray[np.float64],
+                        rng: np.random.Generator, drift_tilts: tuple[float, ...]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A vector's nominals whose :attr:`GaussianSettings.learned_axes` are in learned units: those axes fitted
+    exactly (mean 0, sd 1, uncorrelated), the others' fit drawn from its exact law (:func:`vector_fits` on
+    their block of R); each nominal's stream spread per axis (G, d) (1 on the other axes, the spread law's
+    draw on the learned ones, from a proposal slot the learning error's and the drift's leave free: the k-th
+    learned axis of nominal g takes ⌊g / (pairing·4ᵏ)⌋ mod 4) and the product of the importance weights."""
+    d = r.shape[0]
+    if len(settings.spread_mean) != d:
+        raise ValueError(f"a vector's spread law needs one spread per axis ({d}), got {settings.spread_mean!r}")
+    free = np.array([i for i in range(d) if i not in settings.learned_axes])
+    means, covs, spread = np.zeros((index.size, d)), np.zeros((index.size, d, d)), np.ones((index.size, d))
+    weight = np.ones(index.size)
+    if free.size:
+        sub = np.linalg.cholesky(r[np.ix_(free, free)])
+        means[:, free], block, weight = vector_fits(settings.n0, index, sub, rng)
+        covs[:, free[:, None], free[None, :]] = block
+    for k, axis in enumerate(settings.learned_axes):     # each axis its own slot: every pair drawn equally often
+        covs[:, axis, axis] = 1.0
+        slot = index // (pairing(drift_tilts) * len(FIT_TILTS) ** k)
+        spread[:, axis], w = spread_draws(settings.spread_mean[axis], settings.spread_sd[axis], slot)
+        weight = weight * w
+    return means, covs, weight, spread
 
 
 def nominal_rates(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int) -> NDArray[np.float64]:

@@ -113,20 +113,22 @@ def spread_draws(mean: float, sd: float, index: NDArray[np.int64]) -> tuple[NDAr
     return np.maximum(mean + sd * z, MIN_SPREAD), np.exp(norm.logpdf(z) - log_mixture)
 
 
-def skew_normal_standard(alpha: float, normals: NDArray[np.float64], halves: NDArray[np.float64]
-                         ) -> NDArray[np.float64]:
-    """Skew-normal values of shape ``alpha`` (Azzalini) standardised to mean 0 and variance 1, from two arrays of
-    standard normal draws of one shape: δ·|h| + √(1 − δ²)·n, δ = α/√(1 + α²), less its mean δ·√(2/π), over
-    its sd √(1 − 2δ²/π). α < 0 skews to the left: a lighter upper tail than the Gaussian's."""
-    delta = alpha / math.sqrt(1.0 + alpha * alpha)
+def skew_normal_standard(alpha: float | NDArray[np.float64], normals: NDArray[np.float64],
+                         halves: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Skew-normal values of shape ``alpha`` (Azzalini; one shape, or one per axis of the last dimension)
+    standardised to mean 0 and variance 1, from two arrays of standard normal draws of one shape: δ·|h| +
+    √(1 − δ²)·n, δ = α/√(1 + α²), less its mean δ·√(2/π), over its sd √(1 − 2δ²/π). α < 0 skews to the left: a
+    lighter upper tail than the Gaussian's; α = 0 gives ``normals`` back."""
+    a = np.asarray(alpha, dtype=float)
+    delta = a / np.sqrt(1.0 + a * a)
     mean = delta * math.sqrt(2.0 / math.pi)
-    return (delta * np.abs(halves) + math.sqrt(1.0 - delta * delta) * normals - mean) / math.sqrt(1.0 - mean * mean)
+    return (delta * np.abs(halves) + np.sqrt(1.0 - delta * delta) * normals - mean) / np.sqrt(1.0 - mean * mean)
 
 
 class StreamNoise:
     """Values in standard units with correlation R across axes: iid, or with a slow AR(1) wander
-    carrying ``wander`` of each axis's variance (step 2 of the gaussian_calibration module docstring); a scalar's
-    iid part skew-normal of shape ``skew`` if given (the wander stays Gaussian)."""
+    carrying ``wander`` of each axis's variance (step 2 of the gaussian_calibration module docstring); the iid
+    part skew-normal of shape ``skew`` if given, one per axis (0: Gaussian; the wander stays Gaussian)."""
 
     def __init__(self, lower_chol: NDArray[np.float64], wander: tuple[float, ...], rng: np.random.Generator,
                  skew: tuple[float, ...] = ()) -> None:
@@ -137,16 +139,16 @@ class StreamNoise:
         self.wanders = bool(np.any(f > 0))
         self.phi = WANDER_COEFFICIENT
         self.state: NDArray[np.float64] | None = None
-        self.skew = float(skew[0]) if skew and skew[0] != 0.0 else 0.0
-        if self.skew and d != 1:
-            raise ValueError("a skewed stream is simulated for scalar detectors only")
+        if skew and len(skew) != d:
+            raise ValueError(f"a skewed stream needs one shape per axis ({d}); a scalar takes one, got {skew!r}")
+        self.skew = np.asarray(skew, dtype=float) if any(skew) else None
 
     def _draw(self, shape: tuple[int, ...]) -> NDArray[np.float64]:
         return self.rng.standard_normal((*shape, self.chol.shape[0])) @ self.chol.T
 
     def _draw_iid(self, shape: tuple[int, ...]) -> NDArray[np.float64]:
         """The iid part: Gaussian, or skew-normal of shape ``skew`` (unit variance either way)."""
-        if not self.skew:
+        if self.skew is None:
             return self._draw(shape)
         return skew_normal_standard(self.skew, self._draw(shape), self._draw(shape))
 
