@@ -20,8 +20,9 @@ from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTO
 
 def test_the_law_without_motor_temperature_reaches_the_wear_detector_alone_and_is_validated() -> None:
     """The shipped law, stated for the wear score, reaches its warm-up calibration (skew included) on a joint without
-    motor temperature only; the KL detectors and the joint vector stay as on a joint with one. ``[]`` gives the input
-    back to ``warm_up_law``; another input may be listed; a bad law names its key."""
+    motor temperature only, and there the joint vector's wear axis; the KL detectors stay as on a joint with one.
+    ``[]`` gives the input back to ``warm_up_law`` (and the joint vector to its learning error); another input may be
+    listed; a bad law names its key."""
     law = WARM_UP_LAW_FRICTION["wear_score"]
     decision = config_from_mapping({}).decision
     motor, friction = decision.detector_config("wear"), decision.detector_config("wear", friction_temperature=True)
@@ -29,10 +30,14 @@ def test_the_law_without_motor_temperature_reaches_the_wear_detector_alone_and_i
     assert (friction.drift_mean, friction.drift_sd, friction.spread_mean, friction.spread_sd, friction.warm_up_skew) \
         == ((law[0],), (law[1],), (law[2],), (law[3],), (law[5],))
     assert friction.calibration("steady") == motor.calibration("steady")
-    for quantity in ("kl_raw", "kl_weighted", "joint"):
+    for quantity in ("kl_raw", "kl_weighted"):
         assert decision.detector_config(quantity, friction_temperature=True) == decision.detector_config(quantity)
+    joint = decision.detector_config("joint", friction_temperature=True)
+    assert joint.spread_mean == (law[2], 0.0, 0.0) and joint.warm_up_skew == (law[5], 0.0, 0.0)
+    assert joint.calibration("steady") == decision.detector_config("joint").calibration("steady")
     given_back = config_from_mapping({"decision": {"warm_up_law_friction": {"wear_score": []}}}).decision
-    assert given_back.detector_config("wear", friction_temperature=True) == given_back.detector_config("wear")
+    for quantity in ("wear", "joint"):
+        assert given_back.detector_config(quantity, friction_temperature=True) == given_back.detector_config(quantity)
     listed = config_from_mapping({"decision": {"warm_up_law_friction": {"kl_raw": [-0.1, 0.1, 1.1, 0.1]}}}).decision
     assert listed.detector_config("kl_raw", friction_temperature=True).spread_mean == (1.1,)
     assert listed.detector_config("wear", friction_temperature=True) == friction      # the shipped wear law kept

@@ -81,7 +81,8 @@ class DecisionConfig:
     learning error; a scalar detector of an input ``warm_up_law`` lists (input → (mean, sd, spread, spread sd)
     [learned σ]) is drawn from that law in its nominal's learned units instead, learning error included — on a
     joint whose controller sends no motor temperature (its detectors follow the friction's lubricant temperature)
-    from ``warm_up_law_friction`` where that lists the input;
+    from ``warm_up_law_friction`` where that lists the input, and there the joint vector's axes it lists too (their
+    law without its wander; the other axes keep their learning error and ``healthy_drift``);
     ``"boundary"``: every joint at the drift allowance, a bound; ``"nominal"``: no drift).
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector

@@ -1,0 +1,64 @@
+"""docs/DETECTION.md's table of thresholds says what the shipped table gives the shipped settings: every number of
+every row, read as the agent reads it (so the docs cannot go stale when an entry is recomputed)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from edge_monitor.pipeline.decision_config import DecisionConfig
+from edge_monitor.stats.gaussian_calibration import GaussianSettings
+from edge_monitor.stats.threshold_table import lookup, tabulated_correlation
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "DETECTION.md"
+#: The table's targets: 10⁴, one per robot-week and the default budget [cycles].
+TARGETS = (1e4, 50_400.0)
+#: Row label → (quantity, stage, without motor temperature).
+ROWS = {"wear score, warm-up": ("wear", "warm-up", False),
+        "wear score, warm-up, a joint without motor temperature": ("wear", "warm-up", True),
+        "kl_raw, warm-up": ("kl_raw", "warm-up", False), "kl_weighted, warm-up": ("kl_weighted", "warm-up", False),
+        "joint vector, warm-up": ("joint", "warm-up", False),
+        "joint vector, warm-up, a joint without motor temperature": ("joint", "warm-up", True),
+        "wear score, steady": ("wear", "steady", False), "kl_raw, steady": ("kl_raw", "steady", False),
+        "kl_weighted, steady": ("kl_weighted", "steady", False), "joint vector, steady": ("joint", "steady", False)}
+
+
+def _documented() -> dict[str, list[list[float]]]:
+    """Row label → per column (10⁴, week, default) the numbers before its ± (one per ρ for the joint vector)."""
+    text = DOC.read_text(encoding="utf-8")
+    table = text[text.index("| detector, stage | ARL0 10⁴"):]
+    rows = {}
+    for line in table.splitlines()[2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip().strip("*") for c in line.strip("|").split("|")]
+        label = re.sub(r" \(.*?\)", "", cells[0]).replace("`warm_up_law_friction`", "").strip(" ,")
+        rows[label] = [[float(x) for x in cell.split("±")[0].split("/")] for cell in cells[1:4]]
+    return rows
+
+
+def _tabulated(quantity: str, stage: str, friction: bool, arl0: float) -> list[float]:
+    c = DecisionConfig()
+    d = c.detector_config(quantity, friction_temperature=friction)
+    at = d.calibration(stage)
+    settings = GaussianSettings(d.n_nominal if stage == "warm-up" else d.steady_nominal, d.window, d.gamma0, d.rho,
+                                d.direction, float(d.allowance), float(d.clip_sigma), at["at"], at["drift_mean"],
+                                at["drift_sd"], at["wander"], at["transform"], at["spread_mean"], at["spread_sd"],
+                                at["skew"])
+    out = []
+    for rho in ((0.0, 0.5, 0.9) if d.dim > 1 else (0.0,)):
+        found = lookup(settings, arl0, tabulated_correlation(rho, d.dim))
+        assert found is not None, (quantity, stage, friction, rho)
+        out.append(found.threshold)
+    return out
+
+
+@pytest.mark.parametrize("label", sorted(ROWS))
+def test_each_documented_threshold_is_the_shipped_tables(label: str) -> None:
+    documented = _documented()
+    assert label in documented, f"docs/DETECTION.md lost its row {label!r}"
+    for column, arl0 in enumerate((*TARGETS, DecisionConfig().arl0)):
+        tabulated = _tabulated(*ROWS[label], arl0)
+        assert documented[label][column] == pytest.approx(tabulated, abs=0.0051), (label, arl0)
