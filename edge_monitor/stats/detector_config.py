@@ -23,6 +23,7 @@ from edge_monitor.stats.densities import DENSITY_KINDS, min_points
 from edge_monitor.stats.glr import MAX_WINDOW, GLRError, check_pf
 from edge_monitor.stats.glr_batch import DIRECTIONS
 from edge_monitor.stats.normalising_transform import TRANSFORMS
+from protocol.numbers import is_finite_number
 
 #: Candidate change times kept by the agent's detectors [cycles].
 DEFAULT_WINDOW = 100
@@ -149,20 +150,25 @@ class DetectorConfig:
             require(self.steady_wander == () or (len(self.steady_wander) == self.dim and all(
                 isinstance(v, (int, float)) and 0.0 <= v < 1.0 for v in self.steady_wander)), "steady_wander",
                 f"needs none or {self.dim} variance fraction(s) in 0 … <1, got {self.steady_wander!r}")
+            for name in ("spread_mean", "spread_sd", "warm_up_skew", "warm_up_wander"):
+                require(isinstance(getattr(self, name), tuple), name, f"a tuple, got {getattr(self, name)!r}")
+            law = (*self.spread_mean, *self.spread_sd, *self.warm_up_skew)
             require(self.spread_mean == self.spread_sd == () or (
                 self.calibrate_at == "healthy_drift" and len(self.spread_mean) == len(self.spread_sd) == self.dim
-                and all(0.05 <= m <= 5 or (m == 0 and self.dim > 1) for m in self.spread_mean)
+                and all(is_finite_number(v) for v in law)
+                and all(0.05 <= m <= 5 or (m == 0 and self.dim > 1 and sd == 0)
+                        for m, sd in zip(self.spread_mean, self.spread_sd))
                 and any(self.spread_mean) and all(0 <= sd <= MAX_DRIFT for sd in self.spread_sd)), "spread_mean",
-                f"a spread law is one per axis (mean 0.05 … 5, a vector's axis 0 where it keeps its learning error; "
-                f"sd 0 … {MAX_DRIFT:g}) for a detector calibrated at the healthy drift, got {self.spread_mean!r}, "
-                f"{self.spread_sd!r}")
+                f"a spread law is one per axis (mean 0.05 … 5, a vector's axis 0 with sd 0 where it keeps its learning "
+                f"error; sd 0 … {MAX_DRIFT:g}) for a detector calibrated at the healthy drift, got "
+                f"{self.spread_mean!r}, {self.spread_sd!r}")
             require(self.warm_up_wander == () or (self.dim == len(self.spread_mean) == len(self.warm_up_wander) == 1
                                                   and 0.0 <= self.warm_up_wander[0] < 1.0), "warm_up_wander",
                     f"one variance fraction in 0 … <1, with a scalar's spread law only, got {self.warm_up_wander!r}")
-            require(self.warm_up_skew == () or (len(self.spread_mean) == len(self.warm_up_skew)
-                                                and all(abs(a) <= MAX_SKEW for a in self.warm_up_skew)),
+            require(self.warm_up_skew == () or (len(self.spread_mean) == len(self.warm_up_skew) and all(
+                abs(a) <= MAX_SKEW and (m or not a) for a, m in zip(self.warm_up_skew, self.spread_mean))),
                     "warm_up_skew", f"one skew-normal shape per axis in −{MAX_SKEW:g} … {MAX_SKEW:g}, with a spread "
-                    f"law only, got {self.warm_up_skew!r}")
+                    f"law only (0 on an axis without one), got {self.warm_up_skew!r}")
             if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT

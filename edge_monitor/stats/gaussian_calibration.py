@@ -67,7 +67,7 @@ from edge_monitor.stats.gaussian_fleet import (  # noqa: F401  (WANDER_COEFFICIE
     spread_draws,
     stream_shifts,
 )
-from edge_monitor.stats.learning_error import TILTS as FIT_TILTS
+from edge_monitor.stats.learned_axes import independent_learned_axes, partly_learned_fits, proposal_sets
 from edge_monitor.stats.learning_error import scalar_fits, vector_fits
 
 log = logging.getLogger(__name__)
@@ -126,13 +126,18 @@ class GaussianSettings:
             raise ValueError(f"transform = {self.transform!r}; choose 'none' or 'yeo-johnson'")
         law = self.spread_mean or self.spread_sd
         if law and (self.at != "healthy_drift" or len(self.spread_mean) != len(self.spread_sd)
-                    or self.transform != "none" or (len(self.spread_mean) > 1 and any(self.wander))):
+                    or self.transform != "none" or (len(self.spread_mean) > 1 and any(self.wander))
+                    or not all(m == 0 or 0.05 <= m <= 5 for m in self.spread_mean) or not any(self.spread_mean)
+                    or not all(0 <= sd < math.inf for sd in self.spread_sd)
+                    or any(sd and not m for m, sd in zip(self.spread_mean, self.spread_sd))):
             raise ValueError("a spread law (the healthy drift in learned units) is for a warm-up detector calibrated "
-                             "at the healthy drift, without a transform: one spread mean and sd per axis (a vector: "
-                             "without wander)")
-        if self.skew and len(self.skew) != len(self.spread_mean):
-            raise ValueError("a skew (one skew-normal shape per axis of the spread law) is simulated with a spread "
-                             "law only")
+                             "at the healthy drift, without a transform: one spread mean (0.05 … 5; a vector's axis "
+                             "0 where it keeps its learning error) and sd (≥ 0, 0 with mean 0) per axis (a vector: "
+                             f"without wander), got {self.spread_mean!r}, {self.spread_sd!r}")
+        if self.skew and (len(self.skew) != len(self.spread_mean)
+                          or any(a and not m for a, m in zip(self.skew, self.spread_mean))):
+            raise ValueError("a skew (one skew-normal shape per axis of the spread law, 0 where an axis has none) is "
+                             "simulated with a spread law only")
 
     @property
     def in_learned_units(self) -> bool:
@@ -215,6 +220,7 @@ def thresholds(settings: GaussianSettings, corr: Correlation, targets: tuple[flo
     """:func:`threshold` for several targets from one simulation and one bootstrap (``progress``: a
     status line per chunk of the simulation)."""
     started = time.process_time()
+    budget = balanced(settings, budget)
     sim = simulate(settings, corr, budget, progress)
     found = [read_threshold(sim.events, sim.exposure, sim.grid, float(t), budget.streams, sim.weights)
              for t in targets]
@@ -259,7 +265,14 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
     r = np.asarray(corr, dtype=float)
     if settings.transform != "none" and r.shape[0] > 1:
         raise ValueError("a learned transform is simulated for scalar detectors only")
-    lower_chol = np.linalg.cholesky(r)
+    if settings.spread_mean and len(settings.spread_mean) != r.shape[0]:
+        raise ValueError(f"a spread law needs one spread per axis ({r.shape[0]}), got {settings.spread_mean!r}")
+    if settings.learned_axes and budget.nominals % proposal_sets(settings, budget.drift_tilts):
+        raise ValueError(f"the nominals ({budget.nominals}) must be a multiple of "
+                         f"{proposal_sets(settings, budget.drift_tilts)} (every combination of proposals drawn "
+                         "equally often); see balanced()")
+    r = independent_learned_axes(r, settings.learned_axes)
+    lower_chol = np.asarray(np.linalg.cholesky(r), dtype=float)
     rng = np.random.default_rng(SEED)
     grid = np.arange(H_STEP, H_MAX, H_STEP)
     per_chunk = max(1, CHUNK // budget.streams)
@@ -310,30 +323,13 @@ def simulate(settings: GaussianSettings, corr: Correlation, budget: GaussianBudg
                       np.concatenate(weights))
 
 
-def partly_learned_fits(settings: GaussianSettings, index: NDArray[np.int64], r: NDArray[np.float64],
-                        rng: np.random.Generator, drift_tilts: tuple[float, ...]
-                        ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """A vector's nominals whose :attr:`GaussianSettings.learned_axes` are in learned units: those axes fitted
-    exactly (mean 0, sd 1, uncorrelated), the others' fit drawn from its exact law (:func:`vector_fits` on
-    their block of R); each nominal's stream spread per axis (G, d) (1 on the other axes, the spread law's
-    draw on the learned ones, from a proposal slot the learning error's and the drift's leave free: the k-th
-    learned axis of nominal g takes ⌊g / (pairing·4ᵏ)⌋ mod 4) and the product of the importance weights."""
-    d = r.shape[0]
-    if len(settings.spread_mean) != d:
-        raise ValueError(f"a vector's spread law needs one spread per axis ({d}), got {settings.spread_mean!r}")
-    free = np.array([i for i in range(d) if i not in settings.learned_axes])
-    means, covs, spread = np.zeros((index.size, d)), np.zeros((index.size, d, d)), np.ones((index.size, d))
-    weight = np.ones(index.size)
-    if free.size:
-        sub = np.linalg.cholesky(r[np.ix_(free, free)])
-        means[:, free], block, weight = vector_fits(settings.n0, index, sub, rng)
-        covs[:, free[:, None], free[None, :]] = block
-    for k, axis in enumerate(settings.learned_axes):     # each axis its own slot: every pair drawn equally often
-        covs[:, axis, axis] = 1.0
-        slot = index // (pairing(drift_tilts) * len(FIT_TILTS) ** k)
-        spread[:, axis], w = spread_draws(settings.spread_mean[axis], settings.spread_sd[axis], slot)
-        weight = weight * w
-    return means, covs, weight, spread
+def balanced(settings: GaussianSettings, budget: GaussianBudget) -> GaussianBudget:
+    """``budget`` with its nominals rounded up to whole :func:`proposal_sets` where ``settings`` have learned axes
+    (their spread's weights are unbiased only so; other settings' budgets are checked by :class:`GaussianBudget`)."""
+    if not settings.learned_axes:
+        return budget
+    sets = proposal_sets(settings, budget.drift_tilts)
+    return replace(budget, nominals=-(-budget.nominals // sets) * sets)
 
 
 def nominal_rates(events: NDArray[np.floating], exposure: NDArray[np.floating], streams: int) -> NDArray[np.float64]:

@@ -100,13 +100,14 @@ def drift_draws(nominals: int, tilts: tuple[float, ...] = (0.0,)) -> tuple[NDArr
 MIN_SPREAD = 0.05
 
 
-def spread_draws(mean: float, sd: float, index: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def spread_draws(mean: float, sd: float, index: NDArray[np.int64], key: tuple[int, ...] = ()
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Each nominal's stream spread under a spread law N(``mean``, ``sd``) [learned standard deviations] and its
     importance weight: nominal ``index[g]`` draws z' from proposal N(t_k, 1), k = index mod len(TILTS) of the
     learning error's :data:`~edge_monitor.stats.learning_error.TILTS` (the slot a law in learned units leaves
     free: the widest joints decide a deep threshold), spread max(mean + sd·z', :data:`MIN_SPREAD`), weight
-    φ(z')/mean_k φ(z' − t_k)."""
-    rng = np.random.default_rng([SEED, 4, int(index[0]) if index.size else 0])
+    φ(z')/mean_k φ(z' − t_k). The draws' seed: ``index[0]`` and ``key`` (one per chunk and stream of draws)."""
+    rng = np.random.default_rng([SEED, 4, int(index[0]) if index.size else 0, *key])
     t = np.asarray(FIT_TILTS, dtype=float)
     z = rng.standard_normal(index.size) + t[index % t.size]
     log_mixture = np.logaddexp.reduce(norm.logpdf(z[:, None] - t[None, :]), axis=1) - math.log(t.size)

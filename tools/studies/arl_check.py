@@ -44,6 +44,7 @@ from threshold_table import in_stage  # noqa: E402  (tools/studies/threshold_tab
 from edge_monitor.stats import gaussian_calibration as gc  # noqa: E402
 from edge_monitor.stats import gaussian_fleet as gf  # noqa: E402
 from edge_monitor.stats.gaussian_calibration import GaussianSettings  # noqa: E402
+from edge_monitor.stats.learned_axes import independent_learned_axes  # noqa: E402
 from edge_monitor.stats.threshold_table import entries_by_key, entry_correlation, entry_settings, lookup  # noqa: E402
 
 log = logging.getLogger("arl_check")
@@ -58,17 +59,19 @@ def delivered(settings: GaussianSettings, corr: gc.Correlation, h: float, detect
               seed: int) -> tuple[float, float, float, int]:
     """(delivered ARL0, its 95 % interval low and high, alarms) of ``detectors`` learned detectors
     with threshold ``h`` over ``cycles`` cycles each, every alarm acknowledged."""
-    r = np.asarray(corr, dtype=float)
+    r = independent_learned_axes(np.asarray(corr, dtype=float), settings.learned_axes)
     rng = np.random.default_rng(seed)
-    noise = gf.StreamNoise(np.linalg.cholesky(r), settings.wander, rng, settings.skew)
+    noise = gf.StreamNoise(np.asarray(np.linalg.cholesky(r), dtype=float), settings.wander, rng, settings.skew)
     samples = noise.sequence(detectors, settings.n0)                                  # plain learning sets
     learned = None if settings.transform == "none" else gf.LearnedTransforms.fit(samples[:, :, 0])
     nominal = gf.fit_nominals(samples) if learned is None else (learned.z_mean[:, None], learned.z_var[:, None, None])
-    scale = np.ones((detectors, 1))
-    if settings.in_learned_units:                  # the law is in learned units: an exact nominal, a spread drawn
-        nominal = (np.zeros((detectors, 1)), np.ones((detectors, 1, 1)))
-        scale = np.maximum(settings.spread_mean[0] + settings.spread_sd[0] * rng.standard_normal((detectors, 1)),
-                           gf.MIN_SPREAD)
+    scale = np.ones((detectors, r.shape[0]))
+    for axis in (0,) if settings.in_learned_units else settings.learned_axes:
+        means, covs = nominal                      # the law is in learned units there: an exact fit, a spread drawn
+        means[:, axis], covs[:, axis, :], covs[:, :, axis] = 0.0, 0.0, 0.0
+        covs[:, axis, axis] = 1.0
+        scale[:, axis] = np.maximum(settings.spread_mean[axis] + settings.spread_sd[axis]
+                                    * rng.standard_normal(detectors), gf.MIN_SPREAD)
     glr = gf.fleet_detectors(settings, *nominal, 1)
     shift = gf.stream_shifts(settings, detectors, r.shape[0])[0]       # plain draws: every weight 1
     if settings.at == "healthy_drift":             # the check's own fleet drift, not the calibration's order
