@@ -161,10 +161,7 @@ def test_the_steady_scalars_are_tabulated_with_their_transforms_learning_error_a
         d = config.detector_config(quantity)
         at = d.calibration("steady")
         assert at["transform"] == "yeo-johnson" and d.calibration("warm-up")["transform"] == "none"
-        settings = GaussianSettings(d.steady_nominal, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
-                                    float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
-                                    tuple(at["wander"]), at["transform"])
-        assert lookup(settings, 1e6) is not None, quantity
+        assert lookup(d.gaussian_settings("steady"), 1e6) is not None, quantity
     # The exponent's learning error makes a detector louder, so its threshold is higher than the same setting's
     # without a transform, for every tabulated steady scalar setting that has both.
     pairs = 0

@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from edge_monitor.pipeline.decision_config import DecisionConfig
-from edge_monitor.stats.gaussian_calibration import GaussianSettings
 from edge_monitor.stats.threshold_table import lookup, tabulated_correlation
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "DETECTION.md"
@@ -40,13 +39,8 @@ def _documented() -> dict[str, list[list[float]]]:
 
 
 def _tabulated(quantity: str, stage: str, friction: bool, arl0: float) -> list[float]:
-    c = DecisionConfig()
-    d = c.detector_config(quantity, friction_temperature=friction)
-    at = d.calibration(stage)
-    settings = GaussianSettings(d.n_nominal if stage == "warm-up" else d.steady_nominal, d.window, d.gamma0, d.rho,
-                                d.direction, float(d.allowance), float(d.clip_sigma), at["at"], at["drift_mean"],
-                                at["drift_sd"], at["wander"], at["transform"], at["spread_mean"], at["spread_sd"],
-                                at["skew"])
+    d = DecisionConfig().detector_config(quantity, friction_temperature=friction)
+    settings = d.gaussian_settings(stage)
     out = []
     for rho in ((0.0, 0.5, 0.9) if d.dim > 1 else (0.0,)):
         found = lookup(settings, arl0, tabulated_correlation(rho, d.dim))

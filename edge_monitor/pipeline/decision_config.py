@@ -235,7 +235,7 @@ class DecisionConfig:
         laws = {**self.warm_up_law, **self.warm_up_law_friction} if friction_temperature else self.warm_up_law
         law = laws.get(spec.inputs[0], ()) if drifting and not vector else ()
         drift = [law[:2] if law else self.healthy_drift[q] for q in spec.inputs] if drifting else []
-        spread_mean, spread_sd, skew = tuple(law[2:3]), tuple(law[3:4]), tuple(law[5:6]) if law and law[5] else ()
+        spread_mean, spread_sd, skew = tuple(law[2:3]), tuple(law[3:4]), tuple(law[5:6])
         axis_laws = [self.warm_up_law_friction.get(q, ()) if drifting and vector and friction_temperature else ()
                      for q in spec.inputs]      # a vector's axes with their own law: drawn from it (without wander)
         if any(axis_laws):

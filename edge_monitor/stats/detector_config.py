@@ -20,6 +20,7 @@ from edge_monitor.stats.calibration import (
     CalibrationBudget,
 )
 from edge_monitor.stats.densities import DENSITY_KINDS, min_points
+from edge_monitor.stats.gaussian_calibration import GaussianSettings
 from edge_monitor.stats.glr import MAX_WINDOW, GLRError, check_pf
 from edge_monitor.stats.glr_batch import DIRECTIONS
 from edge_monitor.stats.normalising_transform import TRANSFORMS
@@ -203,6 +204,15 @@ class DetectorConfig:
         return {"at": self.calibrate_at, "drift_mean": tuple(self.drift_mean), "drift_sd": tuple(self.drift_sd),
                 "wander": tuple(self.warm_up_wander), "transform": "none", "spread_mean": tuple(self.spread_mean),
                 "spread_sd": tuple(self.spread_sd), "skew": tuple(self.warm_up_skew)}
+
+    def gaussian_settings(self, stage: str) -> GaussianSettings:
+        """What a Gaussian calibration of ``stage`` ("warm-up" | "steady") simulates (:meth:`calibration`, the
+        nominal's size and the detector's test; the shipped threshold table's key)."""
+        at = self.calibration(stage)
+        return GaussianSettings(self.n_nominal if stage == "warm-up" else self.steady_nominal, self.window,
+                                self.gamma0, self.rho, self.direction, float(self.allowance), float(self.clip_sigma),
+                                at["at"], at["drift_mean"], at["drift_sd"], at["wander"], at["transform"],
+                                at["spread_mean"], at["spread_sd"], at["skew"])
 
     @property
     def steady_learned_transform(self) -> str:

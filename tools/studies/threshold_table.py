@@ -65,12 +65,8 @@ def shipped_settings(config: DecisionConfig | None = None, quantities: tuple[str
     out: list[GaussianSettings] = []
     for quantity, friction in ((q, f) for q in quantities for f in (False, True)):
         d = c.detector_config(quantity, friction_temperature=friction)
-        for stage, n0 in (("warm-up", d.n_nominal), ("steady", d.steady_nominal)):
-            at = d.calibration(stage)
-            settings = GaussianSettings(n0, d.window, d.gamma0, d.rho, d.direction, float(d.allowance),
-                                        float(d.clip_sigma), at["at"], tuple(at["drift_mean"]), tuple(at["drift_sd"]),
-                                        tuple(at["wander"]), at["transform"], tuple(at["spread_mean"]),
-                                        tuple(at["spread_sd"]), tuple(at["skew"]))
+        for stage in ("warm-up", "steady"):
+            settings = d.gaussian_settings(stage)
             if settings not in out:
                 out.append(settings)
     return out
