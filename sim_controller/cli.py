@@ -3,9 +3,9 @@
 Options given on the command line override a ``--scenario`` file; see docs/SIMULATOR.md.
 Invalid input is refused with the subcommand's usage and a message naming the field (exit code 2);
 a link or file that cannot be opened says which and why (exit code 1); Ctrl-C exits with 130.
-SIGTERM ends ``run`` after the frame block being sent, with the ground truth and summary complete
-(exit code 0): a controller shut down in order. ``-v``/``-vv``/``-q`` work before and after the
-subcommand (``protocol.console``).
+SIGTERM ends ``run`` after the frame block being sent (the rest of it back to back), with the ground
+truth and summary complete (exit code 0): a controller shut down in order. ``-v``/``-vv``/``-q`` work
+before and after the subcommand (``protocol.console``).
 """
 
 from __future__ import annotations

@@ -208,10 +208,15 @@ class Controller:
                 block, per_tick = self.encoder.encode(sc, self._frame_spacing)
                 yield from self._emit(block, sc.ticks, per_tick)
             self.cycles_done += 1
-        tail = self.injector.flush()
+        tail = self.flush_link()
         if len(tail):
-            self.frames_emitted += len(tail)
             yield tail
+
+    def flush_link(self) -> FrameBlock:
+        """Frames the fault injector still holds back (delayed ones), for the end of a run or a stop."""
+        tail = self.injector.flush()
+        self.frames_emitted += len(tail)
+        return tail
 
     def truth_records(self) -> list[dict[str, Any]]:
         """Ground truth so far: one record per joint per completed cycle."""

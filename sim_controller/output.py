@@ -155,9 +155,11 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
 
     ``link`` is a link string (``slcan:…``, ``socketcan:…``, ``virtual:…``) or ``None`` for
     python-can's configuration; ``bus_kwargs`` go to ``open_bus``. ``stop()`` returning True ends
-    the run early (checked per frame block and during pauses). A sender more than ``MAX_LAG_S`` behind
-    its schedule goes on at its pace from there (no burst; frames are never dropped). A gap in the
-    controller's timestamps (a plant stop) pauses at most ``max_pause`` seconds of wall time.
+    the run after the block being sent (checked per frame and during pauses): the rest of the block and
+    the frames the fault injector holds back go out back to back, so every counted fault is on the link.
+    A sender more than ``MAX_LAG_S`` behind its schedule goes on at its pace from there (no burst; frames
+    are never dropped). A gap in the controller's timestamps (a plant stop) pauses at most ``max_pause``
+    seconds of wall time.
     """
     bus = open_bus(link, **(bus_kwargs or {}))
     controller = Controller(config, encoder)
@@ -175,23 +177,25 @@ def run(config: SimConfig, link: str | None, *, speedup: float | None = 1.0, tru
             first = float(block.timestamps[0])
             if t0 is None:
                 t0 = first
-            if speedup is not None and last_t is not None:
+            paced = speedup is not None and not stopped()
+            if paced and speedup is not None and last_t is not None:
                 shift -= _cut_pause(first - last_t, speedup, max_pause, controller.cycles_done)
-                if not _wait_until(start + shift + (first - t0) / speedup, stopped):
-                    break
+                paced = _wait_until(start + shift + (first - t0) / speedup, stopped)
             last_t = float(block.timestamps[-1])
+            # after a stop, the rest of the block goes out back to back: its faults are counted already
             for message, t in zip(block_messages(block), block.timestamps.tolist()):
-                if speedup is not None:
+                if paced and speedup is not None:
                     delay = start + shift + (t - t0) / speedup - time.perf_counter()
                     if delay < -MAX_LAG_S:
                         shift -= delay
-                    elif delay > PACING_SLACK_S and not _wait_until(time.perf_counter() + delay, stopped):
-                        break                      # ≥ 1 ms steps; frames between go out back to back
+                    elif delay > PACING_SLACK_S:     # ≥ 1 ms steps; frames between go out back to back
+                        paced = _wait_until(time.perf_counter() + delay, stopped)
                 message.timestamp = wall0 + (time.perf_counter() - start)
                 sender.send(message)
             truth.drain()
             progress.tick()
             if stopped():
+                _send_held_back(controller, sender, wall0 + (time.perf_counter() - start))
                 break
     finally:
         truth.close(sender.sent, sender.errors)
@@ -220,6 +224,14 @@ class _Sender:
                                 f"({exc}); is the other end still there?") from None
             return
         self.sent, self.in_row = self.sent + 1, 0
+
+
+def _send_held_back(controller: Controller, sender: _Sender, timestamp: float) -> None:
+    """At a stop: the frames the fault injector still holds back (delayed ones) go out now, so every
+    counted fault is on the link."""
+    for message in block_messages(controller.flush_link()):
+        message.timestamp = timestamp
+        sender.send(message)
 
 
 def _shut_down(bus: can.BusABC, link: str) -> None:
