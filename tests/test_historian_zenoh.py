@@ -148,3 +148,50 @@ def test_hostile_puts_are_counted_never_stored(router, tmp_path):
         historian.close()
         session.close()
         forger.close()
+
+
+def test_a_robot_cannot_close_another_robots_fault_and_unusable_records_are_counted(router, tmp_path):
+    """The attack pass's puts: r8 "clearing" r9's fault, records without their schema's fields, a wall time
+    that is no time or in the year 9999, a string where a flag belongs, the reserved robot name "history";
+    each refused and counted by reason, while r9's own alarm and symptom are stored."""
+    from historian_support import alarm
+
+    target = parse_db(str(tmp_path / "plant.db"))
+    session, historian = start_historian(router, target)
+    forger = client(router)
+    try:
+        good = symptom("r9", 0, 3)
+        hijack = {**alarm("r8", 0, 99, "cleared", 99, open_=False), "fault": "r9/0/1"}
+        puts = [("edge/r9/0/alarm", alarm("r9", 0, 1, "raised", 1)), ("edge/r8/0/alarm", hijack),
+                ("edge/r9/0/symptom", {"cycle": 7}), ("edge/r9/0/symptom", {**good, "utc": "yesterday at noon"}),
+                ("edge/r9/0/symptom", {**good, "utc": "9999-12-31T23:59:59.999Z"}),
+                ("edge/r9/0/alarm", {**alarm("r9", 0, 2, "updated", 1), "open": "yes"}),
+                ("edge/history/0/symptom", symptom("history", 0, 3)), ("edge/r9/0/symptom", good)]
+        for key, record in puts:
+            forger.put(key, json.dumps(record))
+        assert wait_until(lambda: stored(target) == 1 and stored(target, "alarm") == 1, WAIT_S)
+        assert wait_until(lambda: sum(historian.status()["rejected"].values()) == 6, WAIT_S), historian.status()
+        assert historian.status()["rejected"] == {"fault_mismatch": 1, "missing_field": 1, "utc": 1, "utc_ahead": 1,
+                                                  "bad_field": 1, "robot": 1}
+        conn = connect(target)
+        try:
+            assert conn.rows("SELECT robot, state, is_open FROM faults") == [("r9", "raised", 1)]
+        finally:
+            conn.close()
+    finally:
+        historian.close()
+        session.close()
+        forger.close()
+
+
+def test_historian_json_prints_only_the_status_on_stdout(router, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    done = subprocess.run([str(Path(sys.executable).parent / "edge-monitor"), "historian", "--db",
+                           str(tmp_path / "plant.db"), "--zenoh-mode", "client", "--zenoh-connect", router,
+                           "--duration", "1", "--json"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    status = json.loads(done.stdout)
+    assert status["received"] == 0 and "historian ready: storing into" in done.stderr

@@ -109,7 +109,7 @@ class _Acknowledged:
     def _on_sample(self, sample: Any) -> None:
         try:
             record = json.loads(sample.payload.to_bytes())
-        except ValueError:
+        except (ValueError, RecursionError):          # not JSON, or nested too deep: not a record
             return
         if isinstance(record, dict) and record.get("state") == "acknowledged":
             with self._changed:
@@ -141,6 +141,7 @@ def _named(record: dict[str, Any]) -> list[str]:
 def _joint_state(session: Any, robot: str, joint: int, deadline: float) -> dict[str, Any] | None:
     """The agent's answer to ``edge/<robot>/<joint>/state``, asked again until ``deadline``; None if none came."""
     key = joint_key(robot, joint, STATE)
+    warned = False
     while True:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
@@ -148,8 +149,11 @@ def _joint_state(session: Any, robot: str, joint: int, deadline: float) -> dict[
         for reply in session.get(key, timeout=min(QUERY_S, remaining)):
             try:
                 state = json.loads(reply.ok.payload.to_bytes()) if reply.ok is not None else None
-            except ValueError:
-                state = None
+            except (ValueError, RecursionError):      # not JSON, or nested too deep: an invalid reply
+                if not warned:
+                    print(f"edge-monitor acknowledge: ignored an invalid state reply on {key} (not a JSON object)",
+                          file=sys.stderr)
+                warned, state = True, None
             if isinstance(state, dict):
                 return state
         time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))

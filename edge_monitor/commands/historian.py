@@ -9,7 +9,8 @@ or PostgreSQL, and answers history questions on edge/history/** (edge-monitor hi
 
 --db takes a file path or postgresql://user@host/dbname; the password never goes on the command line:
 PGPASSWORD, PGPASSFILE (~/.pgpass) or --db-url-file FILE (mode 600). The service prints "historian
-ready" once it listens, runs until Ctrl-C or SIGTERM (or --duration), then stores what it holds.
+ready" on standard error once it listens, runs until Ctrl-C or SIGTERM (or --duration), then stores what
+it holds (with --json, standard output is the final status as one JSON object, nothing else).
 """
 
 from __future__ import annotations
@@ -180,7 +181,7 @@ def _serve(args: argparse.Namespace, target: DbTarget, retention: Retention, sam
         session.close()
         raise
     print(f"historian ready: storing into {target.describe()}, subscribed to edge/** ({options.describe()}), "
-          "answering edge/history/**", flush=True)
+          "answering edge/history/**", file=sys.stderr, flush=True)       # stdout: only the --json summary
     deadline = None if args.duration is None else time.monotonic() + args.duration
     next_status = time.monotonic() + STATUS_EVERY_S
     try:

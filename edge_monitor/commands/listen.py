@@ -3,7 +3,9 @@
 Subscribes to edge/<robot>/<joint>/<kind> and prints one JSON object per record on standard output:
 the record as published, with "kind" (the key's last segment: symptom, alarm, advisory, friction,
 health, or a kind added later) and "key" in front; each line validates against `edge-monitor schema
-KIND`, which declares both. It first recovers what the agents' publishers still cache (off
+KIND`, which declares both; they are always those of the key, and a record whose own "robot" or
+"joint" is not that of its key is not printed (counted as refused in the summary on standard error,
+the first one logged). It first recovers what the agents' publishers still cache (off
 with --no-history), then follows live until Ctrl-C or SIGTERM, --duration or --count. With both
 --count and --duration it exits 1 when fewer than --count records came within --duration; with
 --require-data-flowing also when a health record says the agent has no data (data_flowing false: no
@@ -76,9 +78,24 @@ def selected(received: ReceivedRecord, joints: list[int], kinds: list[str]) -> b
 
 
 def line_of(received: ReceivedRecord) -> str:
+    """The printed line: "kind" and "key" of the key the record came on (never the record's own fields of
+    those names), then the record."""
     record: dict[str, Any] = {"kind": received.kind, "key": received.key}
-    record.update(received.record)
+    record.update((name, value) for name, value in received.record.items() if name not in record)
     return to_json(record)
+
+
+def mismatch(received: ReceivedRecord) -> str | None:
+    """Why a record does not belong to the key it came on (its "robot" or "joint" is another's), or None.
+    Such a record is not printed: any peer that may put on one robot's keys could otherwise speak for
+    another (counted as "refused" in the summary on standard error)."""
+    record = received.record
+    if record.get("robot", received.robot) != received.robot:
+        return f"robot {str(record.get('robot'))[:80]!r} on {received.key}"
+    joint = record.get("joint", received.joint)
+    if isinstance(joint, bool) or joint != received.joint:
+        return f"joint {str(joint)[:20]} on {received.key}"
+    return None
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -108,11 +125,17 @@ def run(args: argparse.Namespace) -> int:
         return setup_failure("listen", exc)
     key = key_expression(args.robot, args.joint, args.kind)
     inbox: queue.Queue[ReceivedRecord] = queue.Queue(maxsize=QUEUE_SIZE)
-    dropped = 0
+    dropped = refused = 0
 
     def enqueue(received: ReceivedRecord) -> None:
-        nonlocal dropped
+        nonlocal dropped, refused
         if selected(received, args.joint, args.kind):
+            wrong = mismatch(received)
+            if wrong is not None:
+                refused += 1
+                if refused == 1 or refused % 1000 == 0:
+                    log.warning("record not printed: %s (%d refused so far)", wrong, refused)
+                return
             try:
                 inbox.put_nowait(received)
             except queue.Full:
@@ -145,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
         session.close()
     if verbosity(args) >= 0 and not sys.stderr.closed:
         print(f"edge-monitor listen: {printed} records printed; missed {subscriber.misses}, "
-              f"undecodable {subscriber.decode_errors}, dropped {dropped}", file=sys.stderr)
+              f"undecodable {subscriber.decode_errors}, dropped {dropped}, refused {refused} (robot or joint "
+              "not that of the key)", file=sys.stderr)
     if args.count is not None and args.duration is not None and printed < args.count and not stop.is_set() \
             and not sys.stderr.closed:
         print(f"edge-monitor listen: {printed} of --count {args.count} records within --duration "

@@ -149,9 +149,11 @@ def _one_line(exc: BaseException) -> str:
 
 def connect(target: DbTarget, migrate: bool = True, create: bool = True) -> Connection:
     """A new connection to ``target`` with its schema at the latest version (``migrate``); ``create``: a
-    SQLite file that does not exist is made (else: DatabaseUnavailable, for commands that only read)."""
-    if target.dialect == SQLITE and not create:
-        _check_history_file(Path(str(target.path)))
+    SQLite file that does not exist is made (else: DatabaseUnavailable, for commands that only read). An
+    existing SQLite file must be a history database (or hold no table yet): another program's database
+    is refused, never given the historian's tables."""
+    if target.dialect == SQLITE and (not create or Path(str(target.path)).exists()):
+        _check_history_file(Path(str(target.path)), empty_ok=create)
     conn = Connection(_open_sqlite(target) if target.dialect == SQLITE else _open_postgres(target), target)
     if migrate:
         try:
@@ -162,19 +164,19 @@ def connect(target: DbTarget, migrate: bool = True, create: bool = True) -> Conn
     return conn
 
 
-def _check_history_file(path: Path) -> None:
-    """DatabaseUnavailable unless ``path`` is a SQLite file the historian made (checked read-only: a command
-    that only reads must not turn another SQLite file into a history database)."""
+def _check_history_file(path: Path, empty_ok: bool = False) -> None:
+    """DatabaseUnavailable unless ``path`` is a SQLite file the historian made, or (``empty_ok``) one without
+    any table yet; checked read-only, so that no command turns another program's SQLite file into a
+    history database."""
     if not path.is_file():
         raise DatabaseUnavailable(f"no history database at {path}: fix --db, or start `edge-monitor historian "
                                   f"--db {path}` first")
     try:
         with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as raw:
-            found = raw.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'schema_version'")
-            is_history = found.fetchone() is not None
+            tables = {name for (name,) in raw.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
     except sqlite3.Error as exc:
         raise DatabaseUnavailable(f"cannot read SQLite {path}: {exc}; is it a history database?") from exc
-    if not is_history:
+    if "schema_version" not in tables and not (empty_ok and not tables):
         raise DatabaseUnavailable(f"{path} is a SQLite database but not a history database (no schema_version "
                                   "table): fix --db")
 

@@ -17,8 +17,11 @@ tells two real records apart and nothing else:
 * maintenance (a request put on ``edge/<robot>/<joint>/maintenance``, seen by the historian):
   ``<joint>/<zenoh timestamp or arrival ms>/<digest of the payload>``.
 
-Anything that cannot be one of these (wrong types, a robot or joint that disagrees with its key, no
-cycle) is a :class:`Rejection` with a reason the historian counts; nothing raises.
+Anything that cannot be one of these (a field its schema requires missing or of the wrong type, a ``utc``
+that is not ISO 8601 UTC or is more than a day ahead of its arrival (:mod:`.record_checks`), a robot or
+joint that disagrees with its key, an alarm whose fault id is not one of that key's joint
+(``<robot>/<joint>/…``), no cycle) is a :class:`Rejection` with a reason the historian counts; nothing
+raises.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from edge_monitor.historian.record_checks import field_problem, utc_problem
 from edge_monitor.historian.times import day_of, seconds_of_utc, utc_of_seconds
 from edge_monitor.records import to_json
 from edge_monitor.sinks.keys import ADVISORY, ALARM, FRICTION, HEALTH, MAINTENANCE, SYMPTOM, check_robot_name
@@ -127,6 +131,8 @@ def row_of(kind: str, robot: str, joint: int | None, record: Any, received: floa
         record_joint = _int(record.get("joint", joint))
         if joint is None or record_joint != joint:
             return Rejection("joint_mismatch", f"key {joint}, record {str(record.get('joint'))[:20]}")
+    if kind == ALARM and not _fault_of_key(robot, joint, record.get("fault")):
+        return Rejection("fault_mismatch", f"key {robot}/{joint}, fault {str(record.get('fault'))[:80]}")
     body = to_json(record)
     if len(body) > MAX_RECORD_BYTES:
         return Rejection("too_large", f"{len(body)} bytes")
@@ -137,6 +143,9 @@ def row_of(kind: str, robot: str, joint: int | None, record: Any, received: floa
     cycle = _int(record.get("cycle"))
     if kind in (SYMPTOM, FRICTION, ALARM, ADVISORY) and cycle is None:
         return Rejection("cycle", str(record.get("cycle"))[:20])
+    problem = utc_problem(record.get("utc"), received) or field_problem(kind, record)
+    if problem is not None:
+        return Rejection(*problem)
     ident = _identity(kind, joint, cycle, record, utc, at, sampling)
     return Row(kind, robot, None if kind == HEALTH else joint, ident, cycle, utc, at, received, body, record,
                wear=finite_or_none(_nested(record, "wear", "estimate")) if kind == SYMPTOM else None,
@@ -160,6 +169,14 @@ def _identity(kind: str, joint: int | None, cycle: int | None, record: dict[str,
         return str(int(at // sampling.every_s))
     digest = hashlib.sha256(json.dumps(record.get("request"), sort_keys=True).encode()).hexdigest()[:16]
     return f"{joint}/{record.get('stamp') or utc}/{digest}"
+
+
+def _fault_of_key(robot: str, joint: int | None, fault: Any) -> bool:
+    """Whether an alarm's ``fault`` id may come on ``edge/<robot>/<joint>/alarm``: none (a record written
+    before faults existed) or one of that joint, ``<robot>/<joint>/…`` (a fault belongs to its joint; another
+    robot's record must never close or change it)."""
+    return fault is None or (isinstance(fault, str) and fault.startswith(f"{robot}/{joint}/")
+                             and len(fault) <= _TEXT_CAP and "\x00" not in fault)
 
 
 def _fault(kind: str, robot: str, joint: int | None, cycle: int | None, record: dict[str, Any]) -> str | None:

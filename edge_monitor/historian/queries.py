@@ -59,6 +59,13 @@ def _filters(query: HistoryQuery, time_column: str = "at") -> tuple[list[str], l
     return where, params
 
 
+def as_published(kind: str, body: str) -> dict[str, Any]:
+    """A stored record with ``kind`` in front: the kind it was stored as (from its key), never a "kind"
+    field of the record's own."""
+    record = stored_record(body)
+    return {"kind": kind, **{name: value for name, value in record.items() if name != "kind"}}
+
+
 def _records(conn: Connection, query: HistoryQuery) -> dict[str, Any]:
     where, params = _filters(query)
     if query.kinds:
@@ -71,7 +78,7 @@ def _records(conn: Connection, query: HistoryQuery) -> dict[str, Any]:
                      (*params, query.limit + 1))
     page = rows[:query.limit]
     truncated = len(rows) > query.limit
-    items = [{"kind": kind, **stored_record(body)} for _id, kind, _at, body in page]
+    items = [as_published(kind, body) for _id, kind, _at, body in page]
     return {"records": items, "count": len(items), "truncated": truncated,
             "next": Cursor(page[-1][2], page[-1][0]).text() if truncated else None}
 
@@ -82,7 +89,7 @@ def _open_alarms(conn: Connection, query: HistoryQuery) -> dict[str, Any]:
     where.append("is_open = 1")
     rows = conn.rows(f"SELECT fault, body FROM faults WHERE {' AND '.join(where)} "
                      "ORDER BY robot, joint, fault LIMIT ?", (*params, query.limit + 1))
-    items = [{"kind": "alarm", **stored_record(body)} for _fault, body in rows[:query.limit]]
+    items = [as_published("alarm", body) for _fault, body in rows[:query.limit]]
     return {"records": items, "count": len(items), "truncated": len(rows) > query.limit, "next": None}
 
 

@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 from edge_monitor.historian.identity import STORED_KINDS
 from edge_monitor.historian.times import TimeFormatError, parse_age, parse_time, utc_of_seconds
-from edge_monitor.sinks.keys import check_robot_name
+from edge_monitor.sinks.keys import RESERVED_ROBOTS, check_robot_name
 
 DEFAULT_LIMIT = 100
 MAX_LIMIT = 1000
@@ -24,6 +24,8 @@ DAILY = "daily"
 ANSWERS = ("records", "alarms", "fleet", "gaps", "daily", "status")
 RANKS = ("wear", "forecast", "robot")
 PARAMETERS = ("robot", "joint", "kind", "since", "until", "limit", "cursor", "rank", "stale")
+#: Largest record id a cursor may name (the databases' 64-bit signed integer).
+MAX_RECORD_ID = 2 ** 63 - 1
 _CURSOR = re.compile(r"^(?P<at>-?\d+(?:\.\d+)?(?:e[+-]?\d+)?):(?P<id>\d{1,19})$")
 
 
@@ -44,7 +46,7 @@ class Cursor:
     @classmethod
     def parse(cls, text: str) -> "Cursor":
         match = _CURSOR.match(str(text).strip())
-        if not match or not math.isfinite(float(match["at"])):
+        if not match or not math.isfinite(float(match["at"])) or int(match["id"]) > MAX_RECORD_ID:
             raise QueryError(f"cursor {str(text)[:40]!r} is not one this historian gave (TIME:ID)")
         return cls(float(match["at"]), int(match["id"]))
 
@@ -71,7 +73,9 @@ class HistoryQuery:
             try:
                 check_robot_name(self.robot)
             except ValueError:
-                raise QueryError(f"robot {self.robot[:80]!r}: 1 … 64 letters, digits, '_', '-' or '.'") from None
+                what = ("a reserved name, no robot has it" if self.robot in RESERVED_ROBOTS
+                        else "1 … 64 letters, digits, '_', '-' or '.'")
+                raise QueryError(f"robot {self.robot[:80]!r}: {what}") from None
         if self.joint is not None and not (isinstance(self.joint, int) and 0 <= self.joint <= 999):
             raise QueryError(f"joint {self.joint!r}: a joint number is 0 … 999")
         unknown = [k for k in self.kinds if k not in STORED_KINDS]

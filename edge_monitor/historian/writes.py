@@ -5,7 +5,8 @@ transaction.
 nothing and is counted as a duplicate — apart from a friction curve (each comes twice: in its symptom and
 as the friction sample; ``friction_present``) and a health record of a sampling period already stored
 (``health_sampled_out``). Only rows stored now update
-``joints`` (a joint's newest symptom), ``faults`` (a fault's newest alarm record) and ``agents`` (when
+``joints`` (a joint's newest symptom), ``faults`` (a fault's newest alarm record, only ever from the
+robot and joint the fault belongs to) and ``agents`` (when
 each robot was last heard, its newest health record); each of those upserts keeps the newer of the two
 by the record's time, then cycle, so the order in which records arrive (live, from the publishers'
 caches, from a JSONL import, from two historians at once) never matters. Per-cycle rows of a day that
@@ -36,7 +37,7 @@ _JOINT = ("INSERT INTO joints (robot, joint, cycle, at, utc, wear, days_median, 
 _FAULT = ("INSERT INTO faults (fault, robot, joint, quantity, state, is_open, cycle, at, body) "
           "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (fault) DO UPDATE SET state = excluded.state, "
           "is_open = excluded.is_open, cycle = excluded.cycle, at = excluded.at, body = excluded.body WHERE "
-          + _NEWER.format(t="faults"))
+          "faults.robot = excluded.robot AND faults.joint = excluded.joint AND " + _NEWER.format(t="faults"))
 _AGENT = ("INSERT INTO agents (robot, first_heard, last_heard) VALUES (?, ?, ?) ON CONFLICT (robot) DO UPDATE SET "
           "first_heard = CASE WHEN excluded.first_heard < agents.first_heard THEN excluded.first_heard "
           "ELSE agents.first_heard END, last_heard = CASE WHEN excluded.last_heard > agents.last_heard "

@@ -25,6 +25,9 @@ MAX_PAYLOAD_BYTES = 4096                           # a request is a few names an
 MAX_BY_CHARS = 64                                  # who acknowledged
 MAX_NOTE_CHARS = 500                               # why
 FIELDS = ("quantities", "by", "note")
+#: Unicode categories refused in ``by`` and ``note``: control (Cc), surrogate (Cs), format (Cf: bidi
+#: overrides, zero-width characters) and line/paragraph separators (Zl, Zp): none may forge or hide a log line.
+_UNPRINTABLE = frozenset(("Cc", "Cs", "Cf", "Zl", "Zp"))
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,7 @@ def _text(data: dict[str, Any], name: str, limit: int) -> str | None:
         return None
     if not isinstance(value, str) or not 0 < len(value) <= limit:
         raise ValueError(f"{name}: expected a string of 1 … {limit} characters")
-    if any(unicodedata.category(c) in ("Cc", "Cs") for c in value):
-        raise ValueError(f"{name}: control characters are not allowed")
+    if any(unicodedata.category(c) in _UNPRINTABLE for c in value):
+        raise ValueError(f"{name}: control characters are not allowed (nor line or paragraph separators such as "
+                         "U+2028, U+2029, nor invisible format characters)")
     return value

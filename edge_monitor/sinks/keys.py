@@ -22,13 +22,18 @@ AGENT = "agent"
 PREFIX = "edge"
 #: A robot name is one key segment: no key-expression syntax (``/ * $ ? #``), no spaces.
 _ROBOT = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+#: Names no robot may have: ``edge/history/**`` is the historian's queryable.
+RESERVED_ROBOTS = ("history",)
 
 
 def check_robot_name(robot: str) -> str:
-    """``robot`` if it can be one key segment, else ``ValueError`` saying how to fix it."""
+    """``robot`` if it can be one key segment and is not reserved, else ``ValueError`` saying how to fix it."""
     if not isinstance(robot, str) or not _ROBOT.match(robot):
         raise ValueError(f"robot name {robot!r} must be 1 … 64 letters, digits, '_', '-' or '.'; "
                          "fix the robot name in the config")
+    if robot in RESERVED_ROBOTS:
+        raise ValueError(f"robot name {robot!r} is reserved (edge/{robot}/** is the historian's queryable); "
+                         "choose another robot name in the config")
     return robot
 
 

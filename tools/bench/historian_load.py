@@ -58,6 +58,13 @@ def template_records(path: str | None, folder: Path) -> list[dict[str, Any]]:
     return [r for r in records if "kind" not in r][-2:]
 
 
+def health_record(robot: str, cycles: int, wall_s: float) -> dict[str, Any]:
+    """A health record with every field its schema requires (the historian refuses one without them)."""
+    return {"schema": 1, "robot": robot, "utc": utc_text(time.time()), "frames_total": 0, "frames_ok": 0,
+            "crc_errors": 0, "counter_lost": 0, "cycles": cycles, "symptoms": cycles * JOINTS, "alarms": 0,
+            "frames_per_second": 0.0, "wall_s": round(wall_s, 3)}
+
+
 # -- a publisher process ----------------------------------------------------------------------------
 
 
@@ -94,7 +101,7 @@ def publish(args: argparse.Namespace) -> None:
                 cycle_of[robot] += 1
             if now >= next_health[robot]:
                 next_health[robot] += args.health_every
-                publisher.publish_health({"utc": utc_text(time.time()), "frames_total": 0})
+                publisher.publish_health(health_record(robot, cycle_of[robot], now - start))
                 counts["health"] += 1
         time.sleep(0.005)
     time.sleep(1.0)
