@@ -206,6 +206,10 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
     ratio = t.get("gear_ratio", 1.0)
     if not (within(ratio, GEAR_RATIO) and ratio > 0):
         raise MappingError(f"{where}: gear_ratio: must be > 0, {GEAR_RATIO[0]:g} … {GEAR_RATIO[1]:g}, got {ratio!r}")
+    if ("gear_ratio" in t) != (side == "joint"):         # the ratio converts joint-side signals only
+        raise MappingError(f"{where}: " + ("gear_ratio: applies to joint-side signals only: add side = \"joint\" (or "
+                                           "remove it)" if "gear_ratio" in t else "side = \"joint\": needs gear_ratio"
+                                           " (motor turns per joint turn; 1 for a direct drive)"))
     ref, rated = t.get("reference_torque_nm"), t.get("rated_torque_nm")
     for name, value in (("reference_torque_nm", ref), ("rated_torque_nm", rated)):
         if value is not None and not (within(value, TORQUE_NM) and value > 0):
@@ -260,7 +264,7 @@ def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> S
         raise MappingError(f"{where}: scale: a non-zero number applied before the unit ({SCALE[0]:g} … "
                            f"{SCALE[1]:g} in size), got {scale!r}")
     ref = SignalRef(message=t.get("message"), signal=t.get("signal"), column=t.get("column"),
-                    index=None if t.get("index") is None else _int(t["index"], f"{where}.index"),
+                    index=None if t.get("index") is None else _int(t["index"], f"{where}.index", hex_text=True),
                     subindex=_int(t.get("subindex", 0), f"{where}.subindex"), unit=unit,
                     factor=factor * float(scale), offset=offset)
     needed = {"dbc": ("message", "signal"), "trace": ("column",), "cia402": ("index",)}[kind]
@@ -393,10 +397,11 @@ def _bool(value: Any, where: str) -> bool:
     return value
 
 
-def _int(value: Any, where: str) -> int:
+def _int(value: Any, where: str, hex_text: bool = False) -> int:
+    """An integer; text as Python reads it, or (``hex_text``: a CANopen index) as hex, "2010", "2010h", "0x2010"."""
     if isinstance(value, str):
         try:
-            return int(value, 0)
+            return int(value.strip().removesuffix("h").removesuffix("H"), 16) if hex_text else int(value, 0)
         except ValueError:
             pass
     if isinstance(value, int) and not isinstance(value, bool):

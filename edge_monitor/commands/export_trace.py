@@ -9,20 +9,23 @@ written."""
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import tomllib
 from pathlib import Path
 from typing import Any
 
 from edge_monitor.commands.common import load_agent_config, open_mapped_source
-from edge_monitor.commands.output_paths import check_output, same_file
+from edge_monitor.commands.output_paths import check_output, name_too_long, same_file, short_path
 from edge_monitor.sources.ingest import Ingest
-from edge_monitor.sources.log_source import LogReadError, log_blocks
+from edge_monitor.sources.log_source import LogReadError, LogReport, log_blocks_with_position
 from edge_monitor.sources.samples import IngestBlock
 from edge_monitor.sources.trace_export import TraceWriter
 from edge_monitor.sources.trace_table import TRACE_SUFFIXES, is_trace_file
 from protocol.console import EXIT_FAILURE, UsageError, verbosity
 from protocol.signal_mapping import MappingError, mapping_from_dict
+
+log = logging.getLogger(__name__)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -52,6 +55,11 @@ def check_outputs(args: argparse.Namespace) -> Path:
             if given and same_file(path, Path(given)):
                 raise UsageError(f"--out {out}: its {what} {path} is {name}: choose another --out")
         check_output(path, f"--out ({what})", overwrite=args.force)
+    partial = TraceWriter(out, [0], 500.0).partial
+    if (too_long := name_too_long(partial)) is not None:
+        raise UsageError(f"--out {short_path(out)}: its name is too long: the table is written first under the "
+                         f"hidden name {short_path(Path(partial.name))} of {too_long[0]} bytes, its file system takes "
+                         f"{too_long[1]}: choose a name {too_long[0] - too_long[1]} bytes shorter")
     try:
         mapping_from_dict(tomllib.loads(TraceWriter(out, [0], 500.0, args.separator, args.time_unit).mapping_text()))
     except (MappingError, tomllib.TOMLDecodeError) as exc:
@@ -99,8 +107,9 @@ def _export(args: argparse.Namespace, rate_hz: float, block_size: int, source: A
     export (a read error, a full disk, Ctrl-C, SIGTERM) leaves no half table under ``--out``."""
     blocks: list[IngestBlock] = []         # held until the first samples tell which joints there are
     writer: TraceWriter | None = None
+    report = LogReport()
     try:
-        for ids, data, dlc, ts in log_blocks(args.file, block_size):
+        for (ids, data, dlc, ts), _ in log_blocks_with_position(args.file, block_size, report):
             blocks.append(source.update(ids, data, dlc, ts))
             writer = writer or _writer(args, rate_hz, blocks)
             if writer is not None:
@@ -113,7 +122,10 @@ def _export(args: argparse.Namespace, rate_hz: float, block_size: int, source: A
         if writer is not None:
             for block in blocks:
                 writer.write(block)
-            writer.close()
+            writer.close(drop_open=report.truncated is not None)
+            if writer.dropped_rows:
+                log.warning("%s is truncated: its last cycle (%d rows) is left out of %s, as a replay of the log "
+                            "leaves it unpublished", args.file, writer.dropped_rows, args.out)
         return writer
     except BaseException:
         if writer is not None:

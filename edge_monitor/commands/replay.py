@@ -10,11 +10,17 @@ cores and no state file is kept) reads and ingests the log in this process and m
 (:mod:`edge_monitor.monitor_process`): the same records, in about two thirds of the time.
 Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device), the
 ``--jsonl`` file cannot be opened, or records or the state could not be written (a full disk:
-``sink_errors``, ``state_save_errors``; the statistics are printed first)."""
+``sink_errors``, ``state_save_errors``; the statistics are printed first), or when a mapped input was read but
+no cycle was found (the reason and the check-mapping command to run are printed).
+With ``--state-dir`` the replay notes its input's last frame time there (``replayed_input.json``); an input that
+begins before the one replayed last ended (the same log again, an older one) gets a warning: its cycles would be
+learned again as new ones, so replay it with a fresh ``--state-dir`` (a warning, not a refusal: an agent restarted
+on its state keeps going whatever the controller's numbering does; logs timed from their start are not checked)."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
@@ -23,6 +29,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.app import Outputs, build_app
@@ -37,6 +44,7 @@ from edge_monitor.commands.common import (
 )
 from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
 from edge_monitor.pipeline.agent import Agent
+from edge_monitor.records import utc_text
 from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
@@ -52,6 +60,10 @@ log = logging.getLogger(__name__)
 #: ``--jobs auto`` splits a replay of a CAN log this large or larger [bytes]: below it, starting the
 #: second process (≈ 2 s of imports) costs more than it saves.
 AUTO_SPLIT_BYTES = 64 * 2 ** 20
+#: Where a replay notes the last frame time of its input in ``--state-dir``.
+REPLAYED_FILE = "replayed_input.json"
+#: Frame times from this on are times since 1970 (2001-09-09) [s]; earlier ones count from the recording's start.
+ABSOLUTE_TIME_S = 1e9
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -101,6 +113,50 @@ def replay(path: str, block_size: int, feed: Callable[[NDArray, NDArray, NDArray
                 log.info("replay: %s", status())
                 next_report = time.monotonic() + progress_s
     return report
+
+
+class InputTimes:
+    """First and last frame (or row) time of the input [s since 1970], checked against the last input replayed
+    onto the same ``--state-dir`` (:data:`REPLAYED_FILE` there): an input that begins before it ended (the same
+    log again, an older one) would be learned again as new cycles, so a warning says so once."""
+
+    def __init__(self, state_dir: Path | None, file: str) -> None:
+        self.first: float | None = None
+        self.last: float | None = None
+        self.file = file
+        self.path = None if state_dir is None else state_dir / REPLAYED_FILE
+        self.before = self._read()
+
+    def _read(self) -> dict[str, Any]:
+        try:
+            saved = json.loads(self.path.read_text(encoding="utf-8")) if self.path and self.path.is_file() else {}
+        except (OSError, ValueError):
+            return {}
+        return saved if isinstance(saved, dict) and isinstance(saved.get("last_time"), (int, float)) else {}
+
+    def see(self, times: NDArray) -> None:
+        if not len(times):
+            return
+        if self.first is None:
+            self.first = float(times[0])
+            if self.first >= ABSOLUTE_TIME_S and self.before and self.first < float(self.before["last_time"]):
+                log.warning("%s begins at %s, before the end (%s) of %s replayed onto this --state-dir: its cycles "
+                            "are learned again as new ones; replay it with a fresh --state-dir", self.file,
+                            utc_text(self.first), utc_text(float(self.before["last_time"])),
+                            self.before.get("input", "the input"))
+        self.last = max(float(times[-1]), self.last if self.last is not None else -np.inf)
+
+    def save(self) -> None:
+        """Remember this input's end for the next replay onto the state directory (absolute times only)."""
+        if self.path is None or self.last is None or self.last < ABSOLUTE_TIME_S:
+            return
+        try:
+            partial = self.path.with_name(f".{self.path.name}.partial")
+            partial.write_text(json.dumps({"input": os.path.basename(self.file), "last_time": self.last}),
+                               encoding="utf-8")
+            partial.replace(self.path)
+        except OSError as exc:
+            log.debug("cannot write %s: %s", self.path, exc)
 
 
 def _agent_status(agent: Agent) -> str:
@@ -174,7 +230,7 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
             print(f"log: {report.skipped} unreadable record(s) skipped"
                   + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
                      else ""))
-    notes, nothing = input_notes(args.file, stats, report)
+    notes, nothing = input_notes(args.file, stats, report, getattr(args, "mapping", None))
     for note in notes:
         log.warning("%s", note)
     for problem in result.failures + ([nothing] if nothing else []):
@@ -182,9 +238,12 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
     return EXIT_FAILURE if result.failures or nothing else 0
 
 
-def input_notes(file: str, stats: dict[str, Any], report: Any) -> tuple[list[str], str | None]:
+def input_notes(file: str, stats: dict[str, Any], report: Any,
+                mapping: str | None = None) -> tuple[list[str], str | None]:
     """What the input lost (lines for the log: samples dropped and frames not used, by reason), and why
-    nothing was monitored when a log held nothing the agent could use (None when something was)."""
+    nothing was monitored when a log held nothing the agent could use or a mapped input gave no cycle
+    (None when something was)."""
+    finding = stats.get("details", {}).get("cycle_finding") or {}
     dropped = {k: v for k, v in (stats.get("details", {}).get("samples_dropped") or {}).items() if v}
     unused = {k: stats[k] for k in ("unknown_id", "malformed") if stats.get(k)}
     notes = [f"{file}: {what}: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items())
@@ -195,7 +254,22 @@ def input_notes(file: str, stats: dict[str, Any], report: Any) -> tuple[list[str
                    "controller's log? replay it with --mapping (docs/CONNECTING.md)")
     elif stats["cycles"] == 0 and not stats["frames_total"] and getattr(report, "skipped", 0):
         nothing = f"nothing in {file} is readable ({report.skipped} unreadable record(s)): is it a CAN log?"
+    elif stats["cycles"] == 0 and finding and (stats["frames_total"] or getattr(report, "frames", 0)):
+        nothing = no_cycle_note(file, finding, mapping, getattr(report, "truncated", None))
     return notes, nothing
+
+
+def no_cycle_note(file: str, finding: dict[str, Any], mapping: str | None, truncated: str | None) -> str | None:
+    """Why a mapped input that was read found no cycle (the cycle finding's counters), pointing to
+    check-mapping; None when the log was cut short (its only cycle is left open, not lost)."""
+    if truncated:
+        return None
+    why = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in finding.items()
+                    if k in ("before_first_cycle", "bad_marks", "cycle_jumps", "plateaus_ignored") and v)
+    check = f"edge-monitor check-mapping {file}" + (f" --mapping {mapping}" if mapping else "")
+    return (f"no cycle found in {file} ({finding.get('method', 'cycle finding')}"
+            + (f": {why.replace('before first cycle', 'samples before the first cycle')}" if why else "")
+            + f"): does the mapping's [cycles] fit the input? run {check} (docs/CONNECTING.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -217,11 +291,16 @@ def run(args: argparse.Namespace) -> int:
         except (ValueError, JsonlOpenError) as exc:   # a bad --rerun, an unwritable recording or JSONL file
             return setup_failure("replay", exc)
         agent.sinks.append(last)
+        times = InputTimes(None if store is None else Path(store.dir), args.file)
+
+        def feed(ids: NDArray, data: NDArray, dlc: NDArray, ts: NDArray) -> Any:
+            times.see(ts)
+            return agent.update(ids, data, dlc, ts)
         try:
             if is_trace_file(args.file):
-                report = replay_trace(agent, args.file, args.mapping)
+                report = replay_trace(agent, args.file, args.mapping, times.see)
             else:
-                report = replay(args.file, cfg.block_size, agent.update, lambda: _agent_status(agent),
+                report = replay(args.file, cfg.block_size, feed, lambda: _agent_status(agent),
                                 bar=verbosity(args) >= 0)
         except (FileNotFoundError, LogReadError, TraceUnreadable) as exc:
             print(f"edge-monitor replay: {exc}", file=sys.stderr)
@@ -233,6 +312,7 @@ def run(args: argparse.Namespace) -> int:
             agent.flush_source()
         agent.finish(close_open_cycle=not args.no_close and report.truncated is None)
         stats = {**agent.run_statistics(), "log": report.to_dict()}
+        times.save()
     # output failures after the exit stack: the final state save included
     return _report(args, cfg, stats, report, MonitorResult(stats, last.last, output_failures(agent, store)),
                    last.raised)

@@ -78,9 +78,10 @@ class ControllerLabels:
     our own status frames are (:mod:`~edge_monitor.sources.cycle_numbering`): a cycle mark changes the
     cycle in force only where it is plausible progress or a confirmed controller restart, and only after
     ``MIN_CYCLE_S`` without a mark that jumped or was no number, so a signal that is no cycle counter (a row
-    number, a speed) finds no cycles but counts ``cycle_jumps``. A mark that is no cycle or segment number
-    (not an integer, negative, beyond :data:`MAX_CYCLE_MARK` or :data:`MAX_SEGMENT_MARK`) is dropped and
-    counted (``bad_marks``)."""
+    number, a speed) finds no cycles but counts ``cycle_jumps`` (dropping stale marks from before a gap for the
+    one after it is no such jump: the resumption is confirmed as on our frames). A mark that is no cycle or
+    segment number (not an integer, negative, beyond :data:`MAX_CYCLE_MARK` or :data:`MAX_SEGMENT_MARK`) is
+    dropped and counted (``bad_marks``)."""
 
     method = "controller marks"
 
@@ -144,8 +145,8 @@ class ControllerLabels:
         self._waiting.append(tick)
         jumps = self.numbering.jumps
         taken = self.numbering.update(cycle, segment, tick % STATUS_TICK_MODULUS, {})
-        if self.numbering.jumps != jumps:
-            self._noisy_jump = tick
+        if self.numbering.jumps != jumps and not self.numbering.unconfirmed:
+            self._noisy_jump = tick       # not when stale frames before a gap were dropped for this one
         if taken is None:
             keep = self.numbering.unconfirmed
             self._waiting = self._waiting[len(self._waiting) - keep:] if keep else []

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -65,8 +65,52 @@ def bind(db: Any, ref: SignalRef, where: str) -> BoundSignal:
         found = resolve(db, ref.message, ref.signal)
     except BitFieldError as exc:
         raise MappingError(f"{where}: {exc}") from None
-    return BoundSignal(f"{found.message}.{found.bits.name}", frame_key(db.get_message_by_name(found.message)),
+    message = db.get_message_by_name(found.message)
+    check_place(message, message.get_signal_by_name(found.bits.name), where)
+    return BoundSignal(f"{found.message}.{found.bits.name}", frame_key(message),
                        found.bits, ref.factor, ref.offset, found.mux, found.mux_value)
+
+
+def signal_bits(signal: Any) -> set[int]:
+    """Bits of a cantools signal in the frame, numbered byte · 8 + bit (bit 0 the least significant)."""
+    if signal.byte_order == "little_endian":
+        return set(range(signal.start, signal.start + signal.length))
+    bits, pos = set(), signal.start                # Motorola: from the most significant bit, sawtooth order
+    for _ in range(signal.length):
+        bits.add(pos)
+        pos = pos + 15 if pos % 8 == 0 else pos - 1
+    return bits
+
+
+def check_place(message: Any, signal: Any, where: str) -> None:
+    """MappingError when a mapped signal does not fit in its message's length or shares bits with another
+    signal present in the same frames (cantools reads the DBC with ``strict=False``, so that signals the
+    mapping does not use may be sloppy; the mapped ones must not be)."""
+    bits = signal_bits(signal)
+    if max(bits) >= 8 * int(message.length) or min(bits) < 0:
+        raise MappingError(f"{where}: signal {message.name}.{signal.name} (start bit {signal.start}, {signal.length} "
+                           f"bits) does not fit in the message's {message.length} bytes: fix the DBC")
+    mine = set(signal.multiplexer_ids or ())
+    for other in message.signals:
+        theirs = set(other.multiplexer_ids or ())
+        if other is signal or (mine and theirs and not mine & theirs):     # never in the same frame
+            continue
+        if bits & signal_bits(other):
+            raise MappingError(f"{where}: signals {message.name}.{signal.name} and {other.name} overlap (bits "
+                               f"{sorted(bits & signal_bits(other))[:8]}): fix the DBC")
+
+
+def check_shared_ids(bound: list[tuple[str, BoundSignal]], where: Callable[[str], str]) -> None:
+    """MappingError when two mapped signals of different messages would be decoded from the same frames
+    (one frame id and multiplexer value: a DBC with two messages on one id; cantools only warns)."""
+    for i, (where_a, a) in enumerate(bound):
+        for where_b, b in bound[i + 1:]:
+            msg_a, msg_b = a.name.split(".")[0], b.name.split(".")[0]
+            if a.frame_id == b.frame_id and msg_a != msg_b and (a.mux is None or b.mux is None
+                                                                or a.mux_value == b.mux_value):
+                raise MappingError(f"{where(where_a)} ({a.name}) and {where_b} ({b.name}): messages {msg_a} and "
+                                   f"{msg_b} have one frame id 0x{a.frame_id & ~CAN_EFF_FLAG:X}: both would decode the "
+                                   "same frames; fix the DBC")
 
 
 def frame_key(message: Any) -> int:
@@ -109,6 +153,9 @@ class DbcDecoder:
         self.known = np.array(sorted({frame_key(m) for m in db.messages}), dtype=np.int64)
         self.bounds = [b for j, (s, t) in self.joints.items() for b in (s, t, *self.status[j].values())]
         self.bounds += list(self.marks.values())
+        check_shared_ids([(f"joint.{j}", b) for j, (s, t) in self.joints.items()
+                          for b in (s, t, *self.status[j].values())]
+                         + [(f"cycles.{name}", b) for name, b in self.marks.items()], mapping.where)
         self.protected: dict[int, _Protection] = {}
         for spec in mapping.e2e:
             try:

@@ -52,6 +52,8 @@ _LINE_READERS = (ASCReader, CanutilsLogReader)
 MAX_CONSECUTIVE_SKIPS = 1000
 #: Longest line of a text log read [bytes]; a longer one is skipped in pieces (a frame line is < 200).
 MAX_LINE_BYTES = 4096
+#: Size of a BLF file header [bytes] (python-can reads it whole); a shorter file is cut before any frame.
+BLF_FILE_HEADER_BYTES = 72
 
 
 class LogReadError(ValueError):
@@ -140,6 +142,9 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
         raise LogReadError(f"cannot read {p}: {exc.reason}; give a log file") from None
     if p.stat().st_size == 0:
         raise LogReadError(f"{p} is empty (0 bytes): was its recording stopped before it wrote anything?")
+    if p.suffix.lower() == ".blf" and p.stat().st_size < BLF_FILE_HEADER_BYTES and _blf_start(p):
+        raise LogReadError(f"{p} is truncated: {p.stat().st_size} bytes, less than a BLF file header "
+                           f"({BLF_FILE_HEADER_BYTES}): was its recording stopped before it wrote anything?")
     report = report if report is not None else LogReport()
     try:
         reader = can.LogReader(str(p))
@@ -235,6 +240,13 @@ def _resume(reader: Any) -> Iterator[can.Message]:
     if isinstance(reader, ASCReader):
         reader._extract_header = lambda: None  # type: ignore[method-assign]  # keep base, start time, …
     return iter(reader)
+
+
+def _blf_start(path: Path) -> bool:
+    """The file begins as a BLF file does (its signature, or a cut piece of it)."""
+    with open(path, "rb") as f:
+        head = f.read(4)
+    return b"LOGG".startswith(head) if len(head) < 4 else head == b"LOGG"
 
 
 def _cut_short(path: Path, reader: Any) -> str | None:

@@ -5,11 +5,16 @@ one row, ``time [s|ms]``, then per joint ``J<j> speed [rad/s]``, ``J<j> torque [
 the source has them, ``J<j> load [fraction]`` and ``J<j> temperature [degC]`` (in the rows of the status
 frames, empty elsewhere), and the ``cycle`` and ``segment`` labels in force. Replayed with the written
 mapping (cycles from those columns) it gives the symptoms of the recording (tests/test_trace_source.py).
+The rows of the cycle in progress are held until the next cycle starts: a recording cut short leaves its cut
+last cycle out of the table (``close(drop_open=True)``), as its replay leaves it unpublished. A cycle longer
+than :data:`HOLD_VALUES` values is written as it goes (then it cannot be left out).
 """
+
 
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +22,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge_monitor.sources.samples import IngestBlock
+
+log = logging.getLogger(__name__)
+#: Values (rows × columns) of the cycle in progress held back before they are written anyway (≈ 64 MiB).
+HOLD_VALUES = 8 << 20
 
 
 class TraceWriter:
@@ -33,6 +42,10 @@ class TraceWriter:
         self.partial = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
         self._writer: Any = None
         self.rows = 0
+        self.dropped_rows = 0               # rows of a cut last cycle left out (close(drop_open=True))
+        self._held: list[dict[str, NDArray[np.float64]]] = []   # rows of the cycle in progress
+        self._held_cycle: int | None = None
+        self._held_values = 0
 
     def columns(self) -> list[str]:
         names = [f"time [{self.time_unit}]"]
@@ -67,7 +80,25 @@ class TraceWriter:
             scale = 1e3 if self.time_unit == "ms" else 1.0
             cols[f"time [{self.time_unit}]"] = ticks / self.rate_hz * scale
             cols["cycle"], cols["segment"] = np.full(ticks.size, float(run.cycle)), segment
+            self._hold(run.cycle, cols)
+
+    def _hold(self, cycle: int, cols: dict[str, NDArray[np.float64]]) -> None:
+        """Hold the rows of the cycle in progress; write the held rows once another cycle starts (or they
+        pass :data:`HOLD_VALUES`)."""
+        if cycle != self._held_cycle:
+            self._release()
+            self._held_cycle = cycle
+        self._held.append(cols)
+        self._held_values += len(cols) * len(cols["cycle"])
+        if self._held_values > HOLD_VALUES:
+            log.warning("cycle %d passes %d values: written before it ends (a cut log could not leave it out)",
+                        cycle, HOLD_VALUES)
+            self._release()
+
+    def _release(self) -> None:
+        for cols in self._held:
             self._append(cols)
+        self._held, self._held_values = [], 0
 
     def _append(self, cols: dict[str, NDArray[np.float64]]) -> None:
         import pyarrow as pa
@@ -83,8 +114,13 @@ class TraceWriter:
         self._writer.write_table(table)
         self.rows += table.num_rows
 
-    def close(self) -> None:
-        """Finish the table and give it its name (nothing is written without rows)."""
+    def close(self, drop_open: bool = False) -> None:
+        """Finish the table and give it its name (nothing is written without rows); ``drop_open``: the
+        recording was cut short, leave the rows of its last cycle (held back) out."""
+        if drop_open:
+            self.dropped_rows = sum(len(cols["cycle"]) for cols in self._held)
+            self._held, self._held_values = [], 0
+        self._release()
         if self._writer is not None:
             self._writer.close()
             self._writer = None
@@ -97,7 +133,7 @@ class TraceWriter:
                 self._writer.close()
         except Exception:     # noqa: BLE001 — the file goes anyway; the error that stopped the export is reported
             pass
-        self._writer = None
+        self._writer, self._held = None, []
         self.partial.unlink(missing_ok=True)
 
     def mapping_text(self) -> str:

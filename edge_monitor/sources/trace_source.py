@@ -8,14 +8,15 @@ ms (``[trace] time_unit``), any one-character separator (``;`` is common), ``,``
 stated. Empty cells are missing values: a row without speed or torque is no sample; load and temperature
 may be sparse. Cycle marks come from mapped ``cycle``/``segment`` or ``trigger`` columns, or from the
 motion. Read in batches of the mapped columns only, in bounded memory, by :mod:`trace_table` (pyarrow:
-``pip install 'joint-wear-monitor[traces]'``).
+``pip install 'joint-wear-monitor[traces]'``). A Parquet time column of timestamp or duration type is read in
+its own unit (``time_unit`` applies to numbers).
 """
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -95,6 +96,31 @@ def _numbers_of_text(cells: NDArray[Any], decimal: str) -> tuple[NDArray[np.floa
     return values, text
 
 
+#: Seconds per unit of a timestamp or duration column.
+_UNIT_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+
+
+def _seconds(batch: Any, name: str) -> NDArray[np.float64] | None:
+    """Column ``name`` in seconds if it is a timestamp (since 1970, UTC) or a duration column, else None."""
+    import pyarrow as pa
+    names = batch.schema.names
+    if name not in names:
+        return None
+    kind = batch.schema.field(name).type
+    if not (pa.types.is_timestamp(kind) or pa.types.is_duration(kind)):
+        return None
+    counts = batch.column(names.index(name)).cast(pa.int64()).to_numpy(zero_copy_only=False)
+    return np.asarray(counts, dtype=np.float64) * _UNIT_S[kind.unit]
+
+
+def _time(batch: Any, fmt: TraceFormat, where: str) -> NDArray[np.float64]:
+    """The time column [s]: numbers in ``fmt.time_unit``, or a timestamp or duration column (its own unit)."""
+    seconds = _seconds(batch, fmt.time_column)
+    if seconds is not None:
+        return seconds
+    return _column(batch, fmt.time_column, where, fmt.decimal) * (1e-3 if fmt.time_unit == "ms" else 1.0)
+
+
 def _values(batch: Any, ref: SignalRef, where: str, decimal: str = ".") -> NDArray[np.float64]:
     return _column(batch, str(ref.column), where, decimal) * ref.factor + ref.offset
 
@@ -152,12 +178,12 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
     are skipped and counted in ``report``; empty and non-finite cells are left as NaN: the sample stream
     counts what it drops)."""
     fmt = mapping.trace or TraceFormat()
-    scale = 1e-3 if fmt.time_unit == "ms" else 1.0
     skipped = SkippedRows()
-    first = True
+    first, read = True, 0
     for batch in table_batches(Path(path), fmt, mapped_columns(mapping), skipped):
         skipped.report_to(report)
-        time = _column(batch, fmt.time_column, mapping.where("trace.time_column"), fmt.decimal) * scale
+        read += batch.num_rows
+        time = _time(batch, fmt, mapping.where("trace.time_column"))
         if first:
             _check_time_step(time, fmt, mapping.where("trace.time_column"))
             first = False
@@ -186,10 +212,14 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
                 out.marks[name] = (time[ok], values[ok])
         yield out
     skipped.report_to(report)
+    if read == 0 and not (report is not None and report.skipped):
+        raise TraceError(f"{path} is empty (a header, no rows): was its recording stopped before it wrote anything?")
 
 
-def replay_trace(agent: Any, path: str, mapping_path: str | None) -> LogReport:
-    """Feed a trace table to ``agent`` (whose source was opened from the same mapping)."""
+def replay_trace(agent: Any, path: str, mapping_path: str | None,
+                 see_times: Callable[[NDArray[np.float64]], None] | None = None) -> LogReport:
+    """Feed a trace table to ``agent`` (whose source was opened from the same mapping); ``see_times`` gets the
+    sample times [s] of each batch in order."""
     if not mapping_path:
         raise TraceError(f"{path}: a trace table needs --mapping (a kind = \"trace\" mapping naming its columns)")
     mapping = load_mapping(mapping_path)
@@ -199,5 +229,8 @@ def replay_trace(agent: Any, path: str, mapping_path: str | None) -> LogReport:
     report = LogReport()
     for decoded in decoded_batches(path, mapping, report):
         report.frames += sum(int(c.time.size) for c in decoded.joints.values())
+        if see_times is not None:
+            times = np.concatenate([c.time for c in decoded.joints.values()] or [np.zeros(0)])
+            see_times(np.sort(times[np.isfinite(times)]))
         agent.update_ingested(agent.ingest.update_samples(decoded))
     return report

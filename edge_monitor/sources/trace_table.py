@@ -15,6 +15,7 @@ from __future__ import annotations
 import codecs
 import csv
 import os
+import re
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -182,8 +183,10 @@ def _parquet_batches(path: Path, columns: list[str]) -> Iterator[Any]:
         import pyarrow.parquet as pq
     except ImportError:
         raise TraceError("reading Parquet needs pyarrow: pip install 'joint-wear-monitor[traces]'") from None
-    names = pq.ParquetFile(str(path)).schema_arrow.names
+    schema = pq.ParquetFile(str(path)).schema_arrow
+    names = schema.names
     _missing(path, names, columns)
+    _check_types(path, schema, columns)
     table = pq.ParquetFile(str(path), read_dictionary=columns)     # text columns stay dictionaries
     meta = table.metadata
     wanted = [names.index(c) for c in columns]
@@ -194,6 +197,17 @@ def _parquet_batches(path: Path, columns: list[str]) -> Iterator[Any]:
             raise TraceError(f"{path}: row group {g} holds {size / 2**20:.0f} MiB of the mapped columns, more than "
                              f"{MAX_ROW_GROUP_BYTES >> 20} MiB: write the table with smaller row groups")
     yield from table.iter_batches(batch_size=BATCH_ROWS, columns=columns)
+
+
+def _check_types(path: Path, schema: Any, columns: list[str]) -> None:
+    """TraceError for a mapped Parquet column that holds no one value per row (a list, a struct, a map)."""
+    import pyarrow as pa
+    for name in columns:
+        kind = schema.field(name).type
+        if pa.types.is_nested(kind):
+            shown = re.sub(r"\b(element|item): ", "", str(kind))
+            raise TraceError(f"{path}: column {name!r} is {shown}, not a number: a trace table has one value per "
+                             "row and column (write each element as its own column)")
 
 
 def table_batches(path: Path, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
