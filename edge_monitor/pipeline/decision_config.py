@@ -13,6 +13,7 @@ from edge_monitor.errors import ConfigError, require
 from edge_monitor.features.registry import LOG_SCALE, QUANTITIES
 from edge_monitor.pipeline.healthy_drift import (
     HEALTHY_DRIFT,
+    LEARNED_SD_PRIOR_FRICTION,
     STEADY_DRIFT,
     STEADY_DRIFT_JOINT,
     STEADY_WANDER,
@@ -20,6 +21,7 @@ from edge_monitor.pipeline.healthy_drift import (
     WARM_UP_LAW,
     WARM_UP_LAW_FRICTION,
     healthy_drift,
+    learned_sd_prior,
     steady_wander,
     temperature_slack,
     warm_up_law,
@@ -47,6 +49,10 @@ SCHEDULE_KEYS = ("steady_relearn", "settling_window", "settling_max_rate", "warm
 #: current ones (``SequentialDetector.from_state``), and "keep" keeps the current ones.
 CALIBRATION_KEYS = ("calibrate_at", "healthy_drift", "warm_up_law", "warm_up_law_friction", "steady_calibrate_at",
                     "steady_drift", "steady_drift_joint", "steady_wander")
+
+#: Learned settings each detector's own fingerprint carries where they apply (a joint without motor temperature's
+#: sd prior): not in the decision fingerprint, so that the states of other joints stay valid when they change.
+PER_DETECTOR_KEYS = ("learned_sd_prior_friction",)
 
 #: The periods a false-alarm budget may be stated per [days].
 BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
@@ -82,7 +88,9 @@ class DecisionConfig:
     [learned σ]) is drawn from that law in its nominal's learned units instead, learning error included — on a
     joint whose controller sends no motor temperature (its detectors follow the friction's lubricant temperature)
     from ``warm_up_law_friction`` where that lists the input, and there the joint vector's axes it lists too (their
-    law without its wander; the other axes keep their learning error and ``healthy_drift``);
+    law without its wander; the other axes keep their learning error and ``healthy_drift``; there too the warm-up
+    nominal's learned sd of each input ``learned_sd_prior_friction`` lists (input → (k, sd)) is shrunk towards sd
+    by k pseudo-values);
     ``"boundary"``: every joint at the drift allowance, a bound; ``"nominal"``: no drift).
     ``steady_relearn``: once the joint's motor temperature has settled (``settling_window`` [cycles],
     ``settling_max_rate`` [°C per cycle]: :mod:`~edge_monitor.pipeline.thermal_settling`) every detector
@@ -118,6 +126,8 @@ class DecisionConfig:
     healthy_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(HEALTHY_DRIFT))
     warm_up_law: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(WARM_UP_LAW))
     warm_up_law_friction: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(WARM_UP_LAW_FRICTION))
+    learned_sd_prior_friction: Mapping[str, tuple[float, float]] = field(
+        default_factory=lambda: dict(LEARNED_SD_PRIOR_FRICTION))
     steady_relearn: bool = True
     steady_calibrate_at: str = "healthy_drift"
     steady_drift: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(STEADY_DRIFT))
@@ -170,6 +180,7 @@ class DecisionConfig:
         object.__setattr__(self, "warm_up_law", warm_up_law(self.warm_up_law))
         object.__setattr__(self, "warm_up_law_friction", warm_up_law(self.warm_up_law_friction, "warm_up_law_friction",
                                                                      WARM_UP_LAW_FRICTION))
+        object.__setattr__(self, "learned_sd_prior_friction", learned_sd_prior(self.learned_sd_prior_friction))
         object.__setattr__(self, "steady_drift", healthy_drift(self.steady_drift, "steady_drift", STEADY_DRIFT))
         object.__setattr__(self, "steady_drift_joint", healthy_drift(self.steady_drift_joint, "steady_drift_joint",
                                                                      STEADY_DRIFT_JOINT))
@@ -241,6 +252,10 @@ class DecisionConfig:
         if any(axis_laws):
             drift = [a[:2] if a else d for a, d in zip(axis_laws, drift)]
             spread_mean, spread_sd, skew = (tuple(a[k] if a else 0.0 for a in axis_laws) for k in (2, 3, 5))
+        priors = [self.learned_sd_prior_friction.get(q, (0.0, 1.0)) if friction_temperature else (0.0, 1.0)
+                  for q in spec.inputs]      # the warm-up nominal's learned sd, shrunk towards the input's own
+        if not any(k for k, _ in priors):
+            priors = []
         return DetectorConfig(dim=spec.dim, n_nominal=self.n_nominal,
                               density=self.density_joint if vector else self.density,
                               pf=self.pf_joint if vector else self.pf, window=self.window,
@@ -259,7 +274,8 @@ class DecisionConfig:
                               warm_up_skew=skew if any(skew) else (),
                               steady_drift_mean=tuple(steady_drift[q][0] for q in spec.inputs if steady_drifting),
                               steady_drift_sd=tuple(steady_drift[q][1] for q in spec.inputs if steady_drifting),
-                              steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting))
+                              steady_wander=tuple(self.steady_wander[q] for q in spec.inputs if steady_drifting),
+                              sd_prior_count=tuple(k for k, _ in priors), sd_prior_sd=tuple(sd for _, sd in priors))
 
     def fingerprint(self) -> dict[str, Any]:
         return learned_settings({**asdict(self), "quantities": list(self.quantities)})
@@ -269,6 +285,6 @@ def learned_settings(fingerprint: dict[str, Any]) -> dict[str, Any]:
     """A decision fingerprint, current or saved, without what is not learned (:data:`SCHEDULE_KEYS`,
     :data:`CALIBRATION_KEYS`) and without the steady settings where they are the defaults (states saved
     before these settings existed still match)."""
-    return without_default_steady({k: v for k, v in fingerprint.items()
-                                   if k not in SCHEDULE_KEYS and k not in CALIBRATION_KEYS})
+    skipped = (*SCHEDULE_KEYS, *CALIBRATION_KEYS, *PER_DETECTOR_KEYS)
+    return without_default_steady({k: v for k, v in fingerprint.items() if k not in skipped})
 

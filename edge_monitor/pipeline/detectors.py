@@ -125,14 +125,16 @@ class DetectorBank:
     def _calibrate_for(self, source: str) -> None:
         """Calibrations for the temperature the detectors follow: a joint without motor temperature has its own
         warm-up law (``decision.warm_up_law_friction``). On a change, a detector whose settings differ re-derives its
-        threshold on the same nominal (a detector not yet learned just takes them)."""
+        threshold on the same nominal, learned with the other ``decision.learned_sd_prior_friction`` or not (a detector
+        not yet learned just takes them, and fits its nominal with the new prior)."""
         if source == self.calibrated_for:
             return
         self.calibrated_for = source
         for quantity, detector in self.detectors.items():
             config = self._detector_config(quantity)
-            if config != detector.config:
-                self.detectors[quantity] = SequentialDetector.from_state(config, detector.state_dict(), self.calibrator)
+            if config != detector.config:      # a nominal learned with the other sd prior is kept as learned
+                carried = {**detector.state_dict(), "config": config.fingerprint()}
+                self.detectors[quantity] = SequentialDetector.from_state(config, carried, self.calibrator)
 
     def keep_settling(self, previous: "DetectorBank") -> None:
         """Carry ``previous``'s temperature history over (the joint was rebuilt, not cooled), and its count of

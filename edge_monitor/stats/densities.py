@@ -221,6 +221,22 @@ def fit_gaussian(y0: ArrayLike) -> GaussianMixture:
     return GaussianMixture([1.0], arr.mean(axis=0, keepdims=True), cov, kind="gauss")
 
 
+def with_sd_prior(values: ArrayLike, counts: tuple[float, ...], sds: tuple[float, ...]) -> NDArray[np.float64]:
+    """Learning values (N0 × d) widened about their mean, per axis with ``counts[i]`` > 0, to the standard deviation
+    √(((N0 − 1)·s₀² + k·s²)/(N0 − 1 + k)): the posterior of their variance under a prior of k pseudo-values of
+    variance s² (``sds[i]``). A learning window calmer than the quantity's own spread is not taken at its word
+    (docs/WITHOUT_MOTOR_TEMPERATURE.md); correlations are kept."""
+    arr = np.array(values, dtype=float)
+    if not any(counts):
+        return arr
+    n = arr.shape[0]
+    centre, s0 = arr.mean(axis=0), arr.std(axis=0, ddof=1)
+    k, prior = np.asarray(counts, dtype=float), np.asarray(sds, dtype=float)
+    widened = np.sqrt(((n - 1) * s0 ** 2 + k * prior ** 2) / (n - 1 + k))
+    scale = np.where((k > 0) & (s0 > 0), widened / np.where(s0 > 0, s0, 1.0), 1.0)
+    return centre + (arr - centre) * scale
+
+
 def silverman_bandwidth(arr: NDArray[np.float64]) -> NDArray[np.float64]:
     """hi = (4/(d+2))^(1/(d+4))·N0^(−1/(d+4))·σ̂i, (d,), in data units."""
     n, d = arr.shape

@@ -6,6 +6,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from edge_monitor.errors import ConfigError, require
 from edge_monitor.stats.bias_em import BiasEMError, check_gain
 from edge_monitor.stats.calibration import (
@@ -19,7 +22,7 @@ from edge_monitor.stats.calibration import (
     SIMULATE_FROM,
     CalibrationBudget,
 )
-from edge_monitor.stats.densities import DENSITY_KINDS, min_points
+from edge_monitor.stats.densities import DENSITY_KINDS, min_points, with_sd_prior
 from edge_monitor.stats.gaussian_calibration import GaussianSettings
 from edge_monitor.stats.glr import MAX_WINDOW, GLRError, check_pf
 from edge_monitor.stats.glr_batch import DIRECTIONS
@@ -44,6 +47,8 @@ STEADY_LEARNED = ("steady_nominal", "steady_density", "steady_transform", "stead
 #: fingerprint, so that states saved before the steady stage existed still match (a saved steady
 #: nominal without a transform is watched untransformed, as it was learned).
 STEADY_DEFAULTS = ("healthy_drift", DEFAULT_STEADY_NOMINAL, "gauss", "yeo-johnson", "model")
+#: The warm-up sd prior's settings: left out of a fingerprint where empty.
+SD_PRIOR_KEYS = ("sd_prior_count", "sd_prior_sd")
 #: Longest learning phase [cycles]: the nominal values are kept until the density is fitted.
 MAX_NOMINAL = 10_000
 #: GLR numerator mode. "recursive" is the O(W·K) variant (≈ 0.2 ms per update at W = 100);
@@ -103,6 +108,8 @@ class DetectorConfig:
     steady_transform: str = "yeo-johnson"
     transform_axes: tuple[bool, ...] = ()
     steady_simulate_from: str = "model"
+    sd_prior_count: tuple[float, ...] = ()  # warm-up: per axis k pseudo-values of sd sd_prior_sd that the learned
+    sd_prior_sd: tuple[float, ...] = ()     # sd is shrunk towards (densities.with_sd_prior; 0 none; empty: none)
 
     def __post_init__(self) -> None:
         try:
@@ -170,6 +177,11 @@ class DetectorConfig:
                 abs(a) <= MAX_SKEW and (m or not a) for a, m in zip(self.warm_up_skew, self.spread_mean))),
                     "warm_up_skew", f"one skew-normal shape per axis in −{MAX_SKEW:g} … {MAX_SKEW:g}, with a spread "
                     f"law only (0 on an axis without one), got {self.warm_up_skew!r}")
+            require(len(self.sd_prior_count) == len(self.sd_prior_sd) in (0, self.dim) and all(
+                is_finite_number(k) and 0 <= k <= MAX_NOMINAL and (k == 0 or (is_finite_number(sd) and 0 < sd < 1e6))
+                for k, sd in zip(self.sd_prior_count, self.sd_prior_sd)), "sd_prior_count",
+                f"per axis k pseudo-values (0 … {MAX_NOMINAL}) with their sd (> 0), or none, got "
+                f"{self.sd_prior_count!r}, {self.sd_prior_sd!r}")
             if bounds:
                 for name, values, low in bounds:
                     require(len(values) == self.dim and all(isinstance(v, (int, float)) and low <= v <= MAX_DRIFT
@@ -190,7 +202,12 @@ class DetectorConfig:
                 raise DetectorConfigError(f"pf: {exc}") from None
 
     def fingerprint(self) -> dict[str, Any]:
-        return learned_part({**asdict(self), "transform_axes": list(self.transform_axes)})
+        return learned_part({**asdict(self), "transform_axes": list(self.transform_axes),
+                             "sd_prior_count": list(self.sd_prior_count), "sd_prior_sd": list(self.sd_prior_sd)})
+
+    def learning_values(self, stage: str, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The values ``stage``'s nominal is fitted to: the warm-up's with the sd prior (:func:`with_sd_prior`)."""
+        return with_sd_prior(values, self.sd_prior_count, self.sd_prior_sd) if stage == "warm-up" else values
 
     def calibration(self, stage: str) -> dict[str, Any]:
         """Where the calibration of ``stage`` ("warm-up" | "steady") simulates the detector, as the
@@ -231,8 +248,9 @@ def learned_part(fingerprint: dict[str, Any]) -> dict[str, Any]:
     """A detector fingerprint, current or saved, without what is re-derived rather than learned (the target
     and :data:`CALIBRATION_KEYS`) and without the steady settings where they are the defaults (with
     ``transform_axes``: states saved before these settings existed still match)."""
-    return without_default_steady({k: v for k, v in fingerprint.items() if k != "arl0" and k not in CALIBRATION_KEYS},
-                                  ("transform_axes",))
+    learned = {k: v for k, v in fingerprint.items() if k != "arl0" and k not in CALIBRATION_KEYS
+               and not (k in SD_PRIOR_KEYS and not v)}       # none: states saved before the prior existed match
+    return without_default_steady(learned, ("transform_axes",))
 
 
 def without_default_steady(fingerprint: dict[str, Any], also: tuple[str, ...] = ()) -> dict[str, Any]:

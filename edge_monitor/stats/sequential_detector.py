@@ -249,7 +249,7 @@ class SequentialDetector:
     def _fit(self, cycle: int) -> Decision:
         """Fit the nominal density of ``self._nominal``, start the GLR and its calibration."""
         try:
-            nominal = np.asarray(self._nominal)
+            nominal = self.config.learning_values(self.stage, np.asarray(self._nominal))
             if self.stage == "steady" and self.config.steady_transform == "yeo-johnson" and any(
                     self.config.transform_axes or (True,)):
                 self.transform = YeoJohnson.fit(nominal, self.config.transform_axes)
