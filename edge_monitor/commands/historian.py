@@ -189,6 +189,10 @@ def _serve(args: argparse.Namespace, target: DbTarget, retention: Retention, sam
             historian.tick()
             if deadline is not None and time.monotonic() >= deadline:
                 break
+            if historian.unusable is not None:         # logged by the writer; no retry mends it
+                print(f"{NAME}: stopping: the database can store nothing more (logged above with what to do)",
+                      file=sys.stderr, flush=True)
+                break
             if time.monotonic() >= next_status:
                 next_status += STATUS_EVERY_S
                 _log_status(historian.status())
@@ -200,8 +204,16 @@ def _serve(args: argparse.Namespace, target: DbTarget, retention: Retention, sam
     elif verbosity(args) >= 0:
         print(f"historian stopped: received {status['received']}, stored {status.get('stored', 0)}, duplicates "
               f"{status.get('duplicates', 0)}, rejected {sum(status['rejected'].values())}, lost "
-              f"{status.get('lost_queue_full', 0)}", file=sys.stderr, flush=True)
-    return EXIT_FAILURE if status.get("lost_queue_full") or status.get("queue_depth") else 0
+              f"{status['lost']}{_lost_why(status)}", file=sys.stderr, flush=True)
+    return EXIT_FAILURE if status["lost"] or status.get("queue_depth") or status.get("database_unusable") else 0
+
+
+def _lost_why(status: dict) -> str:
+    """`` (queue full 3, database unusable 86)``: the reasons of the summary's lost records."""
+    reasons = {"lost_queue_full": "queue full", "lost_database": "database unusable",
+               "lost_at_stop": "not stored at the stop"}
+    parts = [f"{text} {status[name]}" for name, text in reasons.items() if status.get(name)]
+    return f" ({', '.join(parts)})" if parts else ""
 
 
 def _log_status(status: dict) -> None:

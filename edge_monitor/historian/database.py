@@ -2,11 +2,12 @@
 
 :func:`connect` opens one :class:`Connection` (each thread of the historian has its own) and brings the
 schema to the latest version (:mod:`edge_monitor.historian.migrations`). SQL is written once with ``?``
-placeholders; a PostgreSQL connection turns them into psycopg's ``%s``. Errors are sorted into two
+placeholders; a PostgreSQL connection turns them into psycopg's ``%s``. Errors are sorted into three
 kinds the writer acts on: :class:`DatabaseUnavailable` (the server went away, the disk is full, the
-file is locked: keep the records, try again later) and :class:`RecordRefused` (this data cannot be
-stored: count it, go on). SQLite runs in WAL mode with ``synchronous=FULL``: a committed batch survives
-a kill -9 of the historian and a power cut.
+file is locked: keep the records, try again later), :class:`DatabaseUnusable` (the file is damaged or
+read-only: no retry mends that, someone must; the records not stored are lost and counted) and
+:class:`RecordRefused` (this data cannot be stored: count it, go on). SQLite runs in WAL mode with
+``synchronous=FULL``: a committed batch survives a kill -9 of the historian and a power cut.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from edge_monitor.records import utc_now
 
 log = logging.getLogger(__name__)
 
+_SQLITE_READONLY, _SQLITE_CORRUPT, _SQLITE_NOTADB = 8, 11, 26     # SQLite's primary result codes
+_SQLITE_READONLY_DBMOVED = 8 | 4 << 8   # the file was moved or deleted while open: a new connection mends it
 BUSY_TIMEOUT_MS = 10_000              # how long SQLite waits for another writer (a second historian)
 CONNECT_TIMEOUT_S = 5                 # PostgreSQL connection timeout
 _MIGRATION_LOCK = 0x6A776D48          # PostgreSQL advisory lock id of the migrations ("jwmH")
@@ -35,6 +38,18 @@ class DatabaseError(RuntimeError):
 
 class DatabaseUnavailable(DatabaseError):
     """The database cannot take writes now (server down, disk full, locked): retry later, keep the data."""
+
+
+class DatabaseUnusable(DatabaseError):
+    """The database cannot take writes until someone repairs it: never retried as an outage."""
+
+
+class DatabaseDamaged(DatabaseUnusable):
+    """The database file is corrupt ("database disk image is malformed", "file is not a database")."""
+
+
+class DatabaseReadOnly(DatabaseUnusable):
+    """The database file (or its folder, its -wal/-shm files) cannot be written by this user."""
 
 
 class RecordRefused(DatabaseError):
@@ -114,24 +129,31 @@ class Connection:
 
     @contextmanager
     def _errors(self) -> Iterator[None]:
-        """Database errors as :class:`DatabaseUnavailable` / :class:`RecordRefused`, in one line."""
+        """Database errors as :class:`DatabaseUnavailable` / :class:`DatabaseUnusable` /
+        :class:`RecordRefused`, in one line."""
         try:
             yield
         except sqlite3.IntegrityError as exc:
             raise RecordRefused(f"SQLite refused a value: {exc}") from exc
-        except sqlite3.OperationalError as exc:
+        except sqlite3.DatabaseError as exc:
+            path = Path(str(self.target.path))
+            unusable = sqlite_unusable(exc, path)
+            if unusable is not None:
+                raise unusable from exc
             text = str(exc)
             hint = ("; free space on the disk (records wait in memory)" if "full" in text
                     else "; another program holds the file" if "locked" in text else "")
-            raise DatabaseUnavailable(f"SQLite {self.target.path}: {text}{hint}") from exc
-        except sqlite3.DatabaseError as exc:
-            raise DatabaseUnavailable(f"SQLite {self.target.path}: {exc}") from exc
+            raise DatabaseUnavailable(f"SQLite {path}: {text}{hint}") from exc
         except Exception as exc:
             if self.dialect != POSTGRESQL:
                 raise
             errors = _psycopg()
             if isinstance(exc, (errors.errors.DataError, errors.errors.IntegrityError)):
                 raise RecordRefused(f"PostgreSQL refused a value: {_one_line(exc)}") from exc
+            if isinstance(exc, (errors.errors.DataCorrupted, errors.errors.IndexCorrupted)):
+                raise DatabaseDamaged(f"{self.target.describe()} is damaged ({_one_line(exc)}): the historian "
+                                      "stopped writing into it; repair it (REINDEX, or restore from a backup), "
+                                      "then start the historian again") from exc
             if isinstance(exc, (errors.OperationalError, errors.InterfaceError)):
                 raise DatabaseUnavailable(f"{self.target.describe()}: {_one_line(exc)}") from exc
             raise
@@ -141,6 +163,23 @@ class Connection:
             self.raw.close()
         except Exception as exc:
             log.debug("closing the database connection: %s", exc)
+
+
+def sqlite_unusable(exc: sqlite3.Error, path: Path) -> DatabaseUnusable | None:
+    """``exc`` as :class:`DatabaseDamaged` / :class:`DatabaseReadOnly` with what to do, or None when it is
+    none of these (a locked file, a full disk: an outage, retried)."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    primary = code & 0xFF if isinstance(code, int) else None
+    text = _one_line(exc)
+    if primary in (_SQLITE_CORRUPT, _SQLITE_NOTADB) or "malformed" in text or "not a database" in text:
+        return DatabaseDamaged(f"SQLite {path} is damaged ({text}): restore it from a backup, or recover what it "
+                               f"holds with `sqlite3 {path} \".recover\" | sqlite3 recovered.db` and use that file; "
+                               "`edge-monitor historian import` of the agents' JSONL files fills what is missing")
+    if (primary == _SQLITE_READONLY and code != _SQLITE_READONLY_DBMOVED) or "readonly database" in text:
+        return DatabaseReadOnly(f"SQLite {path} is read-only for this user ({text}): let the historian's user "
+                                "write the file, its folder and its -wal/-shm files (check owner and mode), then "
+                                "start the historian again")
+    return None
 
 
 def _one_line(exc: BaseException) -> str:
@@ -175,6 +214,9 @@ def _check_history_file(path: Path, empty_ok: bool = False) -> None:
         with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as raw:
             tables = {name for (name,) in raw.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
     except sqlite3.Error as exc:
+        unusable = sqlite_unusable(exc, path)
+        if unusable is not None:
+            raise unusable from exc
         raise DatabaseUnavailable(f"cannot read SQLite {path}: {exc}; is it a history database?") from exc
     if "schema_version" not in tables and not (empty_ok and not tables):
         raise DatabaseUnavailable(f"{path} is a SQLite database but not a history database (no schema_version "
@@ -183,6 +225,7 @@ def _check_history_file(path: Path, empty_ok: bool = False) -> None:
 
 def _open_sqlite(target: DbTarget) -> sqlite3.Connection:
     path = Path(str(target.path))
+    raw = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         raw = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False,
@@ -193,8 +236,21 @@ def _open_sqlite(target: DbTarget) -> sqlite3.Connection:
         if target.max_page_count:
             raw.execute(f"PRAGMA max_page_count={int(target.max_page_count)}")
     except (OSError, sqlite3.Error) as exc:
+        if raw is not None:
+            raw.close()
+        unusable = sqlite_unusable(exc, path) if isinstance(exc, sqlite3.Error) else None
+        if unusable is not None:
+            raise unusable from exc
         raise DatabaseUnavailable(f"cannot open SQLite {path}: {exc}; check the path and its permissions") from exc
     return raw
+
+
+def check_writable(conn: Connection) -> None:
+    """SQLite: :class:`DatabaseReadOnly` now, not at the first batch (a write that changes nothing; opening
+    and reading a read-only file succeed)."""
+    if conn.dialect == SQLITE:
+        with conn.transaction():
+            conn.run("DELETE FROM schema_version WHERE version < 0")
 
 
 def _open_postgres(target: DbTarget) -> Any:

@@ -143,6 +143,11 @@ class Historian:
                 self._reads = None
                 raise
 
+    @property
+    def unusable(self) -> str | None:
+        """Why the database takes no more records (damaged, read-only), or None: the service should stop."""
+        return self.writer.unusable
+
     def online(self) -> set[str]:
         return set(self._subscriber.agents) if self._subscriber is not None else set()
 
@@ -198,11 +203,7 @@ class Historian:
                 entity.close() if hasattr(entity, "close") else entity.undeclare()
             except Exception as exc:
                 log.debug("undeclare failed: %s", exc)
-        self.writer.stop()
-        left = self.writer.depth()
-        if left:
-            log.error("%d record(s) still queued were not stored (the database stayed unavailable); import the "
-                      "agents' JSONL files to fill them", left)
+        self.writer.stop()                  # what it could not store is counted lost (and logged) there
         self._pool.shutdown(wait=True, cancel_futures=True)
         if self._reads is not None:
             self._reads.close()

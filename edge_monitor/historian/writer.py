@@ -5,9 +5,12 @@ Zenoh's threads only hand rows over (:meth:`Writer.offer` never blocks them). Th
 (:func:`~edge_monitor.historian.writes.insert_rows`) and goes on. When the database cannot take them
 (the server is down, the disk is full) the batch is kept and tried again with a growing pause (0.5 s …
 30 s) on a new connection, while the queue holds what keeps arriving; the outage is logged when it
-starts and when it ends. A row the database refuses is found by halving the batch and counted
-(``rejected_database``); the others are stored. Only a full queue loses rows: each is counted and its
-range (robot, joint, kind, first … last cycle) kept for the report (:class:`LossLedger`).
+starts and when it ends. A damaged or read-only SQLite file is no outage (no retry mends it): the writer
+says so once, stores nothing more and counts every row it does not store (``lost_database``; ``unusable``
+says why). A row the database refuses is found by halving the batch and counted (``rejected_database``);
+the others are stored. Rows are lost only by a full queue (``lost_queue_full``), an unusable database, or a
+stop whose wait for the database ran out (``lost_at_stop``): each is counted, ``lost`` is their sum, and
+its range (robot, joint, kind, first … last cycle) kept for the report (:class:`LossLedger`).
 """
 
 from __future__ import annotations
@@ -20,7 +23,14 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from edge_monitor.historian.database import Connection, DatabaseUnavailable, RecordRefused, connect
+from edge_monitor.historian.database import (
+    Connection,
+    DatabaseUnavailable,
+    DatabaseUnusable,
+    RecordRefused,
+    check_writable,
+    connect,
+)
 from edge_monitor.historian.db_url import DbTarget
 from edge_monitor.historian.identity import Row
 from edge_monitor.historian.writes import WriteResult, insert_rows
@@ -31,11 +41,12 @@ DEFAULT_QUEUE = 200_000          # rows waiting (≈ 2.6 h of 1 000 robots' symp
 DEFAULT_BATCH = 500
 DEFAULT_BATCH_S = 0.1
 RETRY_S = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
+LOST = ("lost_queue_full", "lost_database", "lost_at_stop")     # the ways a row is never stored
 
 
 @dataclass
 class LossLedger:
-    """Rows lost before the database (queue full), by (robot, joint, kind): count and cycle range."""
+    """Rows never stored (:data:`LOST`), by (robot, joint, kind): count and cycle range."""
 
     ranges: dict[tuple[str, Any, str], list[Any]] = field(default_factory=dict)
     total: int = 0
@@ -69,6 +80,10 @@ class Writer:
         self.outages = 0
         self.down_since: float | None = None
         self.last_error: str | None = None
+        self.unusable: str | None = None         # why the database takes no more rows (damaged, read-only)
+        self._in_hand: list[Row] = []             # the batch being stored
+        self._abandoned = False                   # stop() stopped waiting: what is left is counted lost
+        self._refused: DatabaseUnusable | None = None    # a reconnection found the database unusable
         self._queue: queue.Queue[Row] = queue.Queue(maxsize=int(queue_size))
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -77,6 +92,12 @@ class Writer:
 
     def start(self) -> "Writer":
         self._conn = connect(self.target)      # the schema is checked before anything is received
+        try:
+            check_writable(self._conn)          # a read-only file is refused now, not at the first batch
+        except BaseException:
+            self._conn.close()
+            self._conn = None
+            raise
         self._thread.start()
         return self
 
@@ -98,10 +119,24 @@ class Writer:
         return self._queue.qsize()
 
     def stop(self, timeout: float = 30.0) -> None:
-        """Store what is queued (up to ``timeout`` seconds), then close the connection."""
+        """Store what is queued (up to ``timeout`` seconds), then close the connection; what is still not
+        stored then is counted lost (``lost_at_stop``)."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout)
+        with self._lock:
+            self._abandoned = True
+            left = list(self._in_hand) if self._thread.is_alive() else []
+            self._in_hand = []
+        while True:
+            try:
+                left.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        if left:
+            self._lose(left, "lost_at_stop")
+            log.error("%d record(s) were not stored (%s); import the agents' JSONL files to fill them", len(left),
+                      self.unusable or "the database stayed unavailable")
         if self._conn is not None:
             self._conn.close()
             self._conn = None
@@ -109,7 +144,9 @@ class Writer:
     def stats(self) -> dict[str, Any]:
         with self._lock:
             out: dict[str, Any] = dict(self.counts)
-        out.update(queue_depth=self._queue.qsize(), outages=self.outages, lost_ranges=self.lost.report(),
+            out["lost"] = sum(self.counts[name] for name in LOST)
+            out["lost_ranges"] = self.lost.report()
+        out.update(queue_depth=self._queue.qsize(), outages=self.outages, database_unusable=self.unusable,
                    database_down_s=None if self.down_since is None else round(time.time() - self.down_since, 1),
                    last_database_error=self.last_error)
         return out
@@ -117,10 +154,14 @@ class Writer:
     # -- the thread --------------------------------------------------------------------------------
 
     def _run(self) -> None:
-        while True:
+        while not self._abandoned:              # stop() gave up waiting: it counted what is left
             batch = self._take()
             if batch:
-                self._store(batch)
+                try:
+                    self._store(batch)
+                except Exception as exc:       # a fault of the writer's own: counted like an unusable database
+                    log.exception("the historian's writer failed")
+                    self._give_up(f"the historian's writer failed: {exc}", batch)
             elif self._stop.is_set():
                 return
 
@@ -140,22 +181,40 @@ class Writer:
 
     def _store(self, batch: list[Row]) -> None:
         """Store ``batch``; retried while the database is unavailable (also while stopping: nothing queued
-        is given up on a stop unless the thread's join times out)."""
+        is given up on a stop unless the thread's join times out); counted lost, never tried, once the
+        database is unusable."""
+        with self._lock:
+            abandoned = self._abandoned
+            self._in_hand = [] if abandoned else batch
+        if abandoned or self.unusable is not None:      # stop() gave up waiting / the database is unusable
+            self._lose(batch, "lost_at_stop" if abandoned else "lost_database")
+            return
         attempt = 0
-        while True:
-            try:
-                self._write(batch)
-                self._recovered()
-                return
-            except DatabaseUnavailable as exc:
-                self._outage(exc)
-                pause = RETRY_S[min(attempt, len(RETRY_S) - 1)]
-                attempt += 1
-                time.sleep(pause)
-                self._reconnect()
+        try:
+            while True:
+                try:
+                    self._write(batch)
+                    self._recovered()
+                    return
+                except DatabaseUnusable as exc:
+                    self._give_up(str(exc), batch)
+                    return
+                except DatabaseUnavailable as exc:
+                    self._outage(exc)
+                    pause = RETRY_S[min(attempt, len(RETRY_S) - 1)]
+                    attempt += 1
+                    time.sleep(pause)
+                    if self._abandoned:
+                        return
+                    self._reconnect()
+        finally:
+            with self._lock:
+                self._in_hand = []
 
     def _write(self, batch: list[Row]) -> None:
         if self._conn is None:
+            if self._refused is not None:
+                raise self._refused
             raise DatabaseUnavailable(f"{self.target.describe()}: not connected")
         try:
             result = insert_rows(self._conn, batch)
@@ -185,6 +244,22 @@ class Writer:
         with self._lock:
             self.counts[name] += n
 
+    def _lose(self, rows: list[Row], reason: str) -> None:
+        with self._lock:
+            for row in rows:
+                self.lost.add(row)
+            self.counts[reason] += len(rows)
+
+    def _give_up(self, why: str, batch: list[Row]) -> None:
+        """The database is unusable: no more retries; ``batch`` and every later row are counted lost."""
+        self.last_error = why
+        if self.unusable is None:
+            self.unusable = why
+            self.down_since = None
+            log.error("database unusable, nothing more is stored (each record is counted lost, with its range in "
+                      "the status): %s", why)
+        self._lose(batch, "lost_database")
+
     def _outage(self, exc: Exception) -> None:
         self.last_error = str(exc)
         if self.down_since is None:
@@ -205,5 +280,7 @@ class Writer:
             self._conn = None
         try:
             self._conn = connect(self.target)
+        except DatabaseUnusable as exc:
+            self._refused = exc                   # the next write says so: given up, not retried
         except DatabaseUnavailable as exc:
             self.last_error = str(exc)
