@@ -139,7 +139,7 @@ def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, s
     waited to hand blocks to a child that was gone (found 2026-11-30)."""
     log = tmp_path / "long.blf"
     subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(log), "--joints", "2",
-                    "--cycles", "60"], check=True, capture_output=True, timeout=600)
+                    "--cycles", "200"], check=True, capture_output=True, timeout=600)
     jsonl = tmp_path / "s.jsonl"
     proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "-v", "replay", str(log), "--jobs", "2",
                              "--rerun", "off", "--jsonl", str(jsonl)], stdout=subprocess.PIPE,
@@ -151,11 +151,15 @@ def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, s
             seen.append(line)
             if "monitoring started" in line:
                 break
-        time.sleep(1.0)
+        # held while the signal is sent, so that it lands mid-log however slow this test process is (a loaded
+        # machine once read the line so late that the replay had finished: exit 0); it is delivered on SIGCONT
+        os.killpg(proc.pid, signal.SIGSTOP)
+        assert proc.poll() is None, "the replay ended before it could be interrupted"
         if to_group:
             os.killpg(proc.pid, signum)
         else:
             proc.send_signal(signum)
+        os.killpg(proc.pid, signal.SIGCONT)
         _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
