@@ -130,6 +130,13 @@ def test_demo_stopped_by_sigterm_stops_the_simulator_and_still_summarises(tmp_pa
     assert '"simulator_exit_code"' in summary
 
 
+def _interruptible() -> None:
+    """Ctrl-C reaches the replay even when this suite runs in a background job: a non-interactive shell starts
+    those with SIGINT ignored, Python then keeps it ignored, and the replay rightly ran on (exit 0; a clean-clone
+    CI started in the background, 2026-11-30)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("signum, to_group, code", [(signal.SIGINT, True, 130), (signal.SIGTERM, False, 143)])
 def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, signum, to_group, code):
@@ -143,7 +150,7 @@ def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, s
     jsonl = tmp_path / "s.jsonl"
     proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "-v", "replay", str(log), "--jobs", "2",
                              "--rerun", "off", "--jsonl", str(jsonl)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=_interruptible)
     try:
         seen = []
         assert proc.stderr is not None
