@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import random
 import sqlite3
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 import pytest
 from historian_support import START, symptom
 
 import edge_monitor.cli
-from edge_monitor.commands.historian import _lost_why
+from edge_monitor.commands.historian import lost_reasons
 from edge_monitor.historian import database, writer
 from edge_monitor.historian.database import DatabaseDamaged, DatabaseReadOnly, connect
 from edge_monitor.historian.db_url import parse_db
@@ -89,7 +91,7 @@ def test_damage_found_by_a_write_is_not_retried_and_every_record_not_stored_is_l
     assert "damaged" in stats["database_unusable"] and ".recover" in stats["database_unusable"]
     assert sum(r["lost"] for r in stats["lost_ranges"]) == len(offered)
     assert {(r["robot"], r["first_cycle"], r["last_cycle"]) for r in stats["lost_ranges"]} == {("r2", 1, 20)}
-    assert _lost_why(stats) == f" (database unusable {len(offered)})"
+    assert lost_reasons(stats) == f" (database unusable {len(offered)})"
 
 
 def test_a_read_only_database_is_refused_at_start(tmp_path, monkeypatch):
@@ -121,7 +123,10 @@ def test_a_database_turning_read_only_while_running_counts_the_records_lost(tmp_
     assert stats["lost"] == stats["lost_database"] == len(offered) and stats.get("stored", 0) == 0
 
 
-def test_a_locked_file_is_an_outage_retried_until_it_is_released(tmp_path, monkeypatch):
+@contextmanager
+def locked_writer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Writer, list[Row]]]:
+    """A writer offered 60 rows while another program holds the file's write lock (released on leaving), once the
+    writer has seen the outage; retries every 10 ms."""
     monkeypatch.setattr(writer, "RETRY_S", (0.01,))
     monkeypatch.setattr(database, "BUSY_TIMEOUT_MS", 20)
     path = history_file(tmp_path / "plant.db", cycles=5)
@@ -133,33 +138,25 @@ def test_a_locked_file_is_an_outage_retried_until_it_is_released(tmp_path, monke
         for row in offered:
             w.offer(row)
         assert wait_until(lambda: w.down_since is not None, WAIT_S)
-        assert "locked" in (w.last_error or "") and w.unusable is None
+        yield w, offered
     finally:
         other.execute("ROLLBACK")
         other.close()
+
+
+def test_a_locked_file_is_an_outage_retried_until_it_is_released(tmp_path, monkeypatch):
+    with locked_writer(tmp_path, monkeypatch) as (w, offered):
+        assert "locked" in (w.last_error or "") and w.unusable is None
     assert wait_until(lambda: w.stats().get("stored", 0) == len(offered), WAIT_S)
     stats = stop_and_stats(w)
     assert stats["lost"] == 0 and stats["outages"] == 1 and stats["database_unusable"] is None
-    assert stats["database_down_s"] is None and _lost_why(stats) == ""
+    assert stats["database_down_s"] is None and lost_reasons(stats) == ""
 
 
 def test_records_still_waiting_when_a_stop_gives_up_are_counted_lost(tmp_path, monkeypatch):
-    monkeypatch.setattr(writer, "RETRY_S", (0.01,))
-    monkeypatch.setattr(database, "BUSY_TIMEOUT_MS", 20)
-    path = history_file(tmp_path / "plant.db", cycles=5)
-    w = Writer(parse_db(str(path)), batch_size=10, batch_s=0.01).start()
-    other = sqlite3.connect(path, isolation_level=None)
-    other.execute("BEGIN IMMEDIATE")
-    try:
-        offered = rows("r2", range(1, 11))
-        for row in offered:
-            w.offer(row)
-        assert wait_until(lambda: w.down_since is not None, WAIT_S)
+    with locked_writer(tmp_path, monkeypatch) as (w, offered):
         w.stop(timeout=0)                                  # the database stays locked past the stop
         stats = w.stats()
-    finally:
-        other.execute("ROLLBACK")
-        other.close()
-    w._thread.join(WAIT_S)                                 # the abandoned thread ends by itself
+    assert wait_until(lambda: not w.running, WAIT_S)       # the abandoned thread ends by itself
     assert stats["lost"] == stats["lost_at_stop"] == len(offered) and stats["queue_depth"] == 0
-    assert _lost_why(stats) == f" (not stored at the stop {len(offered)})"
+    assert lost_reasons(stats) == f" (not stored at the stop {len(offered)})"

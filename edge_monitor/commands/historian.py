@@ -33,7 +33,7 @@ from edge_monitor.historian.identity import HealthSampling
 from edge_monitor.historian.migrations import SchemaTooNew
 from edge_monitor.historian.retention import Retention, thin
 from edge_monitor.historian.times import TimeFormatError, parse_time
-from edge_monitor.historian.writer import DEFAULT_QUEUE
+from edge_monitor.historian.writer import DEFAULT_QUEUE, LOST
 from edge_monitor.run_failures import setup_failure
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals, verbosity
 
@@ -204,15 +204,13 @@ def _serve(args: argparse.Namespace, target: DbTarget, retention: Retention, sam
     elif verbosity(args) >= 0:
         print(f"historian stopped: received {status['received']}, stored {status.get('stored', 0)}, duplicates "
               f"{status.get('duplicates', 0)}, rejected {sum(status['rejected'].values())}, lost "
-              f"{status['lost']}{_lost_why(status)}", file=sys.stderr, flush=True)
+              f"{status['lost']}{lost_reasons(status)}", file=sys.stderr, flush=True)
     return EXIT_FAILURE if status["lost"] or status.get("queue_depth") or status.get("database_unusable") else 0
 
 
-def _lost_why(status: dict) -> str:
+def lost_reasons(status: dict) -> str:
     """`` (queue full 3, database unusable 86)``: the reasons of the summary's lost records."""
-    reasons = {"lost_queue_full": "queue full", "lost_database": "database unusable",
-               "lost_at_stop": "not stored at the stop"}
-    parts = [f"{text} {status[name]}" for name, text in reasons.items() if status.get(name)]
+    parts = [f"{text} {status[name]}" for name, text in LOST.items() if status.get(name)]
     return f" ({', '.join(parts)})" if parts else ""
 
 

@@ -41,7 +41,8 @@ DEFAULT_QUEUE = 200_000          # rows waiting (≈ 2.6 h of 1 000 robots' symp
 DEFAULT_BATCH = 500
 DEFAULT_BATCH_S = 0.1
 RETRY_S = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
-LOST = ("lost_queue_full", "lost_database", "lost_at_stop")     # the ways a row is never stored
+#: The ways a row is never stored: counter → how the summary says it.
+LOST = {"lost_queue_full": "queue full", "lost_database": "database unusable", "lost_at_stop": "not stored at the stop"}
 
 
 @dataclass
@@ -117,6 +118,11 @@ class Writer:
 
     def depth(self) -> int:
         return self._queue.qsize()
+
+    @property
+    def running(self) -> bool:
+        """Whether the writer's thread still runs (after a stop that gave up waiting, until its write returns)."""
+        return self._thread.is_alive()
 
     def stop(self, timeout: float = 30.0) -> None:
         """Store what is queued (up to ``timeout`` seconds), then close the connection; what is still not
