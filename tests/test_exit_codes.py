@@ -121,6 +121,7 @@ CASES = [
     ("edge", ["router", "--port", "70000"], 2),
     ("edge", ["slcan-hub", "--port", "70000"], 2),
     ("edge", ["slcan-hub", "--port", "{taken}"], 1),
+    ("edge", ["slcan-hub", "--max-buffer", "100"], 2),          # less than one slcan line
     # sim-controller
     ("sim", ["run", "--link", "can0", *FAST], 2),
     ("sim", ["run", "--link", f"slcan:{MISSING}/tty", *FAST], 1),

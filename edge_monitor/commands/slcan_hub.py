@@ -3,8 +3,10 @@
 Every byte one client sends goes to all the others, so slcan:socket://127.0.0.1:PORT is a shared
 CAN "bus" between processes on a machine without SocketCAN: e.g. the simulator, the agent and
 cantools monitor. It listens on 127.0.0.1 only, prints "listening 127.0.0.1:PORT" once ready and
-runs until Ctrl-C or SIGTERM. A client that stops reading gets at most --max-buffer bytes queued;
-beyond that its bytes are dropped and counted (reported at the end).
+runs until Ctrl-C or SIGTERM. It relays whole slcan lines only. A client that stops reading gets at
+most --max-buffer bytes queued; the frames beyond that are dropped for it and counted, as are frames still
+queued when a client leaves and malformed input (a warning when a client's drops start; the totals in
+one log line at the end).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import threading
 
 from edge_monitor.sinks.loopback import MAX_PORT, is_port
 from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, UsageError, stop_on_signals
+from protocol.slcan_fast import MAX_LINE_LENGTH
 from protocol.slcan_hub import SlcanHub
 
 
@@ -32,8 +35,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run(args: argparse.Namespace) -> int:
     if not is_port(args.port):
         raise UsageError(f"--port {args.port}: must be 0 … {MAX_PORT}")
-    if args.max_buffer < 1:
-        raise UsageError(f"--max-buffer {args.max_buffer}: must be ≥ 1")
+    if args.max_buffer < MAX_LINE_LENGTH:
+        raise UsageError(f"--max-buffer {args.max_buffer}: must be ≥ {MAX_LINE_LENGTH} (the longest slcan line)")
     try:
         hub = SlcanHub(args.port, args.max_buffer)
     except OSError as exc:
@@ -49,8 +52,5 @@ def run(args: argparse.Namespace) -> int:
     finally:
         hub.stop()
         server.join(timeout=5)
-        hub.close()
-    if hub.dropped_bytes:
-        print(f"edge-monitor slcan-hub: dropped {hub.dropped_bytes} bytes for clients that did not read",
-              file=sys.stderr)
+        hub.close()                     # logs the totals: a warning if anything was dropped
     return 0
