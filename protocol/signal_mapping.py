@@ -26,7 +26,7 @@ from protocol.mapping_limits import (
     within,
 )
 from protocol.numbers import is_finite_number
-from protocol.units import UnitError, speed_factor, temperature_conversion, torque_factor
+from protocol.units import UnitError, conversion
 
 KINDS = ("dbc", "cia402", "trace")
 #: Text encodings of trace tables (pyarrow transcodes the others to UTF-8).
@@ -61,6 +61,8 @@ class SignalRef:
     unit: str = ""
     factor: float = 1.0
     offset: float = 0.0
+    unit_stated: bool = False        # the mapping names the unit (else a default or a table header's)
+    scale: float | None = None       # the mapping's scale (part of factor), None if it states none
 
     def describe(self) -> str:
         if self.column is not None:
@@ -248,15 +250,8 @@ def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> S
         raise MappingError(f"{where}: an inline table, e.g. {{ message = \"…\", signal = \"…\", unit = \"…\" }}")
     _only(t, {"message", "signal", "column", "index", "subindex", "unit", "scale"}, where)
     unit = str(t.get("unit", _header_unit(t.get("column")) or _DEFAULT_UNIT[quantity]))
-    joint_side = jm.side == "joint"
     try:
-        if quantity == "speed":
-            factor, offset = speed_factor(unit, where, jm.gear_ratio, joint_side), 0.0
-        elif quantity in ("torque", "load"):
-            factor, offset = torque_factor(unit, where, jm.reference_torque_nm, jm.rated_torque_nm,
-                                           jm.gear_ratio, joint_side), 0.0
-        else:
-            factor, offset = temperature_conversion(unit, where)
+        factor, offset = joint_conversion(jm, quantity, unit, where)
     except UnitError as exc:
         raise MappingError(str(exc)) from None
     scale = t.get("scale", 1.0)
@@ -266,7 +261,8 @@ def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> S
     ref = SignalRef(message=t.get("message"), signal=t.get("signal"), column=t.get("column"),
                     index=None if t.get("index") is None else _int(t["index"], f"{where}.index", hex_text=True),
                     subindex=_int(t.get("subindex", 0), f"{where}.subindex"), unit=unit,
-                    factor=factor * float(scale), offset=offset)
+                    factor=factor * float(scale), offset=offset, unit_stated="unit" in t,
+                    scale=None if "scale" not in t else float(scale))
     needed = {"dbc": ("message", "signal"), "trace": ("column",), "cia402": ("index",)}[kind]
     if quantity in ("speed", "torque") and kind == "cia402":
         needed = ()
@@ -274,6 +270,12 @@ def _signal(t: Any, quantity: str, kind: str, jm: JointMapping, where: str) -> S
     if missing:
         raise MappingError(f"{where}: needs {' and '.join(missing)} for a {kind} mapping")
     return ref
+
+
+def joint_conversion(jm: JointMapping, quantity: str, unit: str, where: str) -> tuple[float, float]:
+    """(factor, offset) from ``unit`` to the agent's unit of ``quantity`` for joint ``jm`` (UnitError)."""
+    return conversion(quantity, unit, where, reference_torque_nm=jm.reference_torque_nm,
+                      rated_torque_nm=jm.rated_torque_nm, gear_ratio=jm.gear_ratio, joint_side=jm.side == "joint")
 
 
 def _header_unit(column: Any) -> str | None:

@@ -25,6 +25,44 @@ TEMPERATURE_UNITS: dict[str, tuple[float, float]] = {"degC": (1.0, 0.0), "°C": 
                                                      "K": (1.0, -273.15)}
 
 
+#: Other spellings of those units, as DBCs write them.
+UNIT_ALIASES: dict[str, str] = {
+    "RPM": "rpm", "Rpm": "rpm", "U/min": "rpm", "rev/min": "rpm", "r/min": "rpm",
+    "rad/sec": "rad/s", "°/s": "deg/s", "deg/sec": "deg/s",
+    "N*m": "Nm", "NM": "Nm", "mN*m": "mNm", "mN.m": "mNm", "mN·m": "mNm", "Nmm": "mNm", "N*mm": "mNm", "N.mm": "mNm",
+    "kN*m": "kNm", "kN.m": "kNm", "percent": "%", "deg C": "degC", "degreeC": "degC", "Cel": "degC",
+}
+
+
+def canonical_unit(unit: str) -> str:
+    """``unit`` as the tables above spell it (``"U/min"`` → ``"rpm"``); unknown units unchanged."""
+    unit = unit.strip()
+    return UNIT_ALIASES.get(unit, unit)
+
+
+def units_of(quantity: str) -> dict[str, float | tuple[float, float]]:
+    """The units of ``quantity`` ("speed", "torque", "load", "temperature") the agent converts."""
+    if quantity == "speed":
+        return dict(SPEED_UNITS)
+    if quantity in ("torque", "load"):
+        return {**TORQUE_UNITS_NM, **RELATIVE_TORQUE_UNITS}
+    return dict(TEMPERATURE_UNITS)
+
+
+def _tables(quantity: str) -> list[dict]:
+    if quantity == "speed":
+        return [SPEED_UNITS]
+    if quantity in ("torque", "load"):
+        return [TORQUE_UNITS_NM, RELATIVE_TORQUE_UNITS]
+    return [TEMPERATURE_UNITS]
+
+
+def same_unit(a: str, b: str, quantity: str) -> bool:
+    """Whether ``a`` and ``b`` are one unit of ``quantity`` (``"N.m"`` and ``"Nm"``, ``"1/min"`` and ``"RPM"``)."""
+    a, b = canonical_unit(a), canonical_unit(b)
+    return a == b or any(a in table and b in table and table[a] == table[b] for table in _tables(quantity))
+
+
 class UnitError(ValueError):
     """A unit that does not convert; the message names the field and the units that do."""
 
@@ -66,3 +104,14 @@ def temperature_conversion(unit: str, where: str) -> tuple[float, float]:
         raise UnitError(f"{where}: temperature unit {unit!r} does not convert to °C; "
                         f"use one of {sorted(TEMPERATURE_UNITS)}")
     return TEMPERATURE_UNITS[unit]
+
+
+def conversion(quantity: str, unit: str, where: str, *, reference_torque_nm: float | None = None,
+               rated_torque_nm: float | None = None, gear_ratio: float = 1.0,
+               joint_side: bool = False) -> tuple[float, float]:
+    """(factor, offset) from ``unit`` to the agent's unit of ``quantity`` (speed, torque, load, temperature)."""
+    if quantity == "speed":
+        return speed_factor(unit, where, gear_ratio, joint_side), 0.0
+    if quantity in ("torque", "load"):
+        return torque_factor(unit, where, reference_torque_nm, rated_torque_nm, gear_ratio, joint_side), 0.0
+    return temperature_conversion(unit, where)

@@ -32,7 +32,8 @@ from numpy.typing import NDArray
 from protocol import frames as pf
 from protocol.bitfields import BitField, resolve
 from protocol.cia402 import POSITION, STATUSWORD, SYNC_ID, TORQUE, VELOCITY, drive_layout
-from protocol.signal_mapping import SignalMapping, SignalRef, load_mapping
+from protocol.dbc_units import checked_ref
+from protocol.signal_mapping import JointMapping, SignalMapping, SignalRef, load_mapping
 from sim_controller.faults import FrameBlock
 
 STATUS_EVERY = 10
@@ -138,12 +139,16 @@ def dbc_layout(mapping: SignalMapping, joints: int) -> _Layout:
     import cantools
     if mapping.kind != "dbc" or mapping.dbc is None:
         raise ProfileError(f"--profile dbc: {mapping.path} is a {mapping.kind} mapping, not a dbc one")
-    db = cantools.database.load_file(str(mapping.dbc), strict=False)
+    db: Any = cantools.database.load_file(str(mapping.dbc), strict=False)
     fast: list[_Slot] = []
     slow: dict[tuple[int, int], _Slot] = {}
 
-    def put(where: dict[tuple[int, int], _Slot] | list[_Slot], ref: SignalRef, source: Any) -> None:
+    def put(where: dict[tuple[int, int], _Slot] | list[_Slot], ref: SignalRef, source: Any,
+            joint: tuple[JointMapping, str] | None = None) -> None:
         found = resolve(db, ref.message, ref.signal)
+        if joint is not None:      # the DBC's unit, as the agent reads it (protocol.dbc_units)
+            signal = db.get_message_by_name(found.message).get_signal_by_name(found.bits.name)
+            ref = checked_ref(signal, ref, joint[0], joint[1], mapping.where(f"joint.{joint[0].joint}.{joint[1]}"))
         key = (found.frame_id, found.mux_value)
         if isinstance(where, list):
             slot = next((s for s in where if s.frame_id == found.frame_id), None)
@@ -162,12 +167,12 @@ def dbc_layout(mapping: SignalMapping, joints: int) -> _Layout:
         if jm is None or jm.speed is None or jm.torque is None:
             raise ProfileError(f"--profile dbc: the mapping has no speed and torque for joint {j} "
                                f"(it maps joints {sorted(mapping.joints)}); use --joints {len(mapping.joints)}")
-        put(fast, jm.speed, _joint("speed", j))
-        put(fast, jm.torque, _joint("torque", j))
+        put(fast, jm.speed, _joint("speed", j), (jm, "speed"))
+        put(fast, jm.torque, _joint("torque", j), (jm, "torque"))
         if jm.load is not None:
-            put(slow, jm.load, _joint("load_estimate", j))
+            put(slow, jm.load, _joint("load_estimate", j), (jm, "load"))
         if jm.temperature is not None:
-            put(slow, jm.temperature, _temperature(j, 1.0))
+            put(slow, jm.temperature, _temperature(j, 1.0), (jm, "temperature"))
     marks = {"cycle": lambda sc, rows: np.full(rows.size, float(sc.cycle % 65536)),
              "segment": lambda sc, rows: sc.ref.segment[rows].astype(float)}
     for name, source in marks.items():

@@ -17,7 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.config import load_config
+from edge_monitor.sources import trace_table
 from edge_monitor.sources.foreign_source import open_source
+from edge_monitor.sources.log_source import LogReport
 from edge_monitor.sources.samples import DecodedSamples, JointColumns
 from edge_monitor.sources.trace_source import decoded_batches
 from edge_monitor.sources.trace_table import TraceError, TraceUnreadable
@@ -72,12 +74,18 @@ TABLES: dict[str, bytes] = {
     "text_column.csv": HEADER + b"".join(_cells(ROWS, 1, b"abc", 2)),
     "time_in_ms.csv": HEADER + b"".join(b"%d;" % round(float(r.split(b";")[0]) * 1e3) + r.split(b";", 1)[1]
                                         for r in _rows(3000)[::3]),
+    # a 5 MiB line (line 1002: the header, 1000 rows, then it) of one cell, and of five cells (once read as a
+    # number, inf); before, the first was skipped as a row of the wrong length, the second read as a sample
+    "long_line.csv": HEADER + b"".join(ROWS[:1000]) + b"\0" * (5 << 20) + b"\n" + b"".join(ROWS[1000:]),
+    "long_row.csv": HEADER + b"".join(ROWS[:1000]) + b"2.001;" + b"9" * (5 << 20) + b";0.1;0;1\n"
+                    + b"".join(ROWS[1000:]),
 }
 # name: (exit code, what stderr says / the counted drop in the summary)
 EXPECTED = {
     "empty.csv": (2, "Empty CSV file"),
     "truncated.csv": (0, lambda s: s["log"]["skipped_records"] == 1),
-    "short_rows.csv": (0, lambda s: s["log"]["skipped_records"] == 60),
+    "short_rows.csv": (0, lambda s: s["log"]["skipped_records"] == 60
+                       and s["log"]["skip_examples"][0] == "line 2: a row with 2 cells, 5 expected: '0.5;1'"),
     "nan_inf.csv": (0, lambda s: s["details"]["samples_dropped"]["not_finite"] == 429),
     "absurd_values.csv": (0, lambda s: s["details"]["samples_dropped"]["out_of_range"] == 600),
     "time_backwards.csv": (0, lambda s: s["details"]["samples_dropped"]["time_backwards"] == 1499),
@@ -87,6 +95,8 @@ EXPECTED = {
     "text_cell.csv": (0, lambda s: s["details"]["samples_dropped"]["not_finite"] == 3),
     "text_column.csv": (2, "is not numeric"),
     "time_in_ms.csv": (2, 'time_unit = "ms"'),
+    "long_line.csv": (2, "line 1002 is longer than 4 MiB, the longest line a trace table may have"),
+    "long_row.csv": (2, "line 1002 is longer than 4 MiB, the longest line a trace table may have"),
 }
 
 
@@ -264,6 +274,39 @@ def test_any_bytes_as_a_csv_trace_decode_to_samples_or_a_clear_error(tmp_path, d
         source.flush()
     except (TraceError, TraceUnreadable):
         pass
+
+
+@pytest.mark.parametrize(("lines", "refused"), [
+    ([b"x" * 64], None),                          # the longest line allowed (the limit is 64 bytes here)
+    ([b"x" * 65], 2),
+    ([b"x" * 10, b"x" * 200], 3),                 # runs over three blocks
+    ([b"x" * 60, b"x" * 64, b"x" * 64], None),
+    ([b"x" * 60, b"x" * 64, b"x" * 30 + b"\0" * 40], 4),
+], ids=["at_limit", "over_limit", "three_blocks", "lines_at_limit_across_blocks", "last_line_without_end"])
+def test_a_line_longer_than_the_limit_is_refused_naming_it(tmp_path, monkeypatch, lines, refused):
+    monkeypatch.setattr(trace_table, "BLOCK_BYTES", 64)
+    path = tmp_path / "t.csv"
+    path.write_bytes(b"t;v0\n" + b"\n".join(lines) + (b"" if refused == 4 else b"\n"))
+    if refused is None:
+        trace_table.check_lines(path, "utf-8")
+    else:
+        with pytest.raises(TraceError, match=f"line {refused} is longer than 64 bytes, the longest line .*"
+                                             f"remove line {refused}"):
+            trace_table.check_lines(path, "utf-8")
+
+
+def test_a_5_mib_line_refuses_the_table_and_short_rows_stay_counted_drops(tmp_path, caplog):
+    mapping = _trace_mapping(tmp_path)
+    path = tmp_path / "table.csv"
+    path.write_bytes(TABLES["long_row.csv"])
+    with pytest.raises(TraceError, match=r"table.csv: line 1002 is longer than 4 MiB"):
+        list(decoded_batches(path, mapping))
+    path.write_bytes(TABLES["short_rows.csv"])
+    report = LogReport()
+    samples = sum(c.time.size for d in decoded_batches(path, mapping, report) for c in d.joints.values())
+    assert (samples, report.skipped) == (len(ROWS) - 60, 60)
+    assert report.examples[1] == "line 52: a row with 2 cells, 5 expected: '0.5;1'"
+    assert "60 row(s) with the wrong number of cells skipped (first: line 2:" in caplog.text
 
 
 def test_samples_whose_time_does_not_advance_are_bounded_and_counted():

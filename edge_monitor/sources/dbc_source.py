@@ -3,7 +3,9 @@
 Each mapped quantity is resolved once against the DBC (message, signal, multiplexer) and decoded
 vectorised with :class:`~protocol.bitfields.BitField` (the same values as ``Message.decode``,
 tests/test_bitfields.py). Speed and torque of a joint must come in one message: each such frame is one
-sample. A frame shorter than a mapped signal in it needs is dropped and counted (``malformed``); a
+sample. Each mapped joint signal's unit in the DBC is checked against the mapping's
+(:mod:`protocol.dbc_units`: converted, or refused naming the key to fix). A frame shorter than a mapped
+signal in it needs is dropped and counted (``malformed``); a
 message with an extended (29-bit) identifier matches extended frames only. Load estimate, motor
 temperature and cycle marks may come in any message, at any rate.
 E2E (optional, per message): AUTOSAR profile 2 or 5, the CRC checked with ``cantools.autosar.end_to_end``
@@ -14,7 +16,7 @@ a frame with a wrong CRC or a repeated counter is dropped and counted.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -24,9 +26,10 @@ from numpy.typing import NDArray
 from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, short_frames, status_columns, take
 from edge_monitor.sources.samples import DecodedSamples, JointColumns
 from protocol.bitfields import BitFieldError, resolve
+from protocol.dbc_units import checked_ref, dbc_unit
 from protocol.files import NotARegularFile, read_regular
 from protocol.frame_blocks import CAN_EFF_FLAG
-from protocol.signal_mapping import E2EMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
+from protocol.signal_mapping import E2EMapping, JointMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +72,19 @@ def bind(db: Any, ref: SignalRef, where: str) -> BoundSignal:
     check_place(message, message.get_signal_by_name(found.bits.name), where)
     return BoundSignal(f"{found.message}.{found.bits.name}", frame_key(message),
                        found.bits, ref.factor, ref.offset, found.mux, found.mux_value)
+
+
+def bind_quantity(db: Any, jm: JointMapping, quantity: str, where: str, unitless: list[str]) -> BoundSignal:
+    """:func:`bind` for a joint's ``quantity``, its unit checked against the DBC's
+    (:func:`protocol.dbc_units.checked_ref`; a signal without unit in the DBC is added to ``unitless``)."""
+    ref = getattr(jm, quantity)
+    bound = bind(db, ref, where)
+    message, name = bound.name.split(".", 1)
+    signal = db.get_message_by_name(message).get_signal_by_name(name)
+    if not dbc_unit(signal):
+        unitless.append(bound.name)
+    checked = checked_ref(signal, ref, jm, quantity, where)
+    return bound if checked is ref else replace(bound, factor=checked.factor, offset=checked.offset)
 
 
 def signal_bits(signal: Any) -> set[int]:
@@ -137,16 +153,21 @@ class DbcDecoder:
         self.c = ForeignCounters()
         self.joints: dict[int, tuple[BoundSignal, BoundSignal]] = {}
         self.status: dict[int, dict[str, BoundSignal]] = {}
+        unitless: list[str] = []
         for j, jm in mapping.joints.items():
             where = mapping.where(f"joint.{j}")
             assert jm.speed is not None and jm.torque is not None
-            speed, torque = bind(db, jm.speed, f"{where}.speed"), bind(db, jm.torque, f"{where}.torque")
+            speed = bind_quantity(db, jm, "speed", f"{where}.speed", unitless)
+            torque = bind_quantity(db, jm, "torque", f"{where}.torque", unitless)
             if (speed.frame_id, speed.mux_value) != (torque.frame_id, torque.mux_value):
                 raise MappingError(f"{where}: speed ({speed.name}) and torque ({torque.name}) must come in one "
                                    "message: each frame is one sample")
             self.joints[j] = (speed, torque)
-            self.status[j] = {q: bind(db, ref, f"{where}.{q}") for q in ("load", "temperature")
-                              if (ref := getattr(jm, q)) is not None}
+            self.status[j] = {q: bind_quantity(db, jm, q, f"{where}.{q}", unitless) for q in ("load", "temperature")
+                              if getattr(jm, q) is not None}
+        if unitless:
+            log.info("%s: the DBC gives no unit for %s: read in the units the mapping states (or its defaults)",
+                     mapping.where("dbc"), ", ".join(sorted(set(unitless))))
         c = mapping.cycles
         self.marks = {name: bind(db, ref, mapping.where(f"cycles.{name}")) for name in ("cycle", "segment", "trigger")
                       if (ref := getattr(c, name)) is not None}

@@ -2,11 +2,14 @@
 memory (docs/CONNECTING.md).
 
 CSV: the header is read here (Python's ``csv``, so quoted names work) and checked before pyarrow sees the
-file: at most :data:`MAX_COLUMNS` columns, a header line of at most :data:`BLOCK_BYTES`. pyarrow then reads
-the rows without quoting (a stray ``"`` damages its one cell, not the rest of the file) and converts only
-the mapped columns. Parquet: only the mapped columns are read, text columns as dictionaries (a column of
-one long string repeated a million times stays one string), and a row group whose mapped columns would
-unpack to more than :data:`MAX_ROW_GROUP_BYTES` is refused. A table that does not fit raises
+file: at most :data:`MAX_COLUMNS` columns, a header line of at most :data:`BLOCK_BYTES`; one pass over the
+file then refuses a line longer than :data:`BLOCK_BYTES`, naming it (no trace table has one: it is damage,
+e.g. a run of NUL bytes a crash left), and checks the text of another encoding than UTF-8. pyarrow then
+reads the rows without quoting (a stray ``"`` damages its one cell, not the rest of the file) and converts
+only the mapped columns; a row with the wrong number of cells is skipped and counted (:class:`SkippedRows`).
+Parquet: only the mapped columns are read, text columns as dictionaries (a column of one long string
+repeated a million times stays one string), and a row group whose mapped columns would unpack to more
+than :data:`MAX_ROW_GROUP_BYTES` is refused. A table that does not fit raises
 :class:`TraceError` (exit code 2), one that cannot be read :class:`TraceUnreadable` (exit code 1).
 """
 
@@ -26,7 +29,7 @@ from protocol.files import NotARegularFile, open_regular
 from protocol.signal_mapping import TraceFormat
 
 TRACE_SUFFIXES = (".csv", ".parquet", ".pq")
-#: pyarrow reads a CSV in blocks of this size; a longer line is an error (no trace table has one).
+#: pyarrow reads a CSV in blocks of this size; a longer line is refused (no trace table has one).
 BLOCK_BYTES = 4 << 20
 #: Most columns a trace table may have (a vendor's trace of 8 axes × 100 signals has 800).
 MAX_COLUMNS = 10_000
@@ -139,7 +142,8 @@ class SkippedRows:
         self.count += 1
         if len(self.examples) < 5:
             text = (row.text or "")[:80]
-            self.examples.append(f"a row with {row.actual_columns} cells, {row.expected_columns} expected: "
+            where = f"line {row.number}: " if row.number is not None else ""
+            self.examples.append(f"{where}a row with {row.actual_columns} cells, {row.expected_columns} expected: "
                                  f"{text!r}")
         return "skip"
 
@@ -151,23 +155,42 @@ class SkippedRows:
         self.count, self.examples = 0, []
 
 
-def _decode_through(file: str, encoding: str) -> None:
-    """Decode the whole file in blocks (UnicodeError where it is not ``encoding`` text) before pyarrow
-    transcodes it: a decode error inside pyarrow's transcoder leaves one of its threads running, and the
-    process may then abort at exit ("terminate called without an active exception")."""
-    decoder = codecs.getincrementaldecoder(encoding)()
-    with open(file, "rb") as f:
+def _size(n: int) -> str:
+    return f"{n >> 20} MiB" if n % (1 << 20) == 0 else f"{n} bytes"
+
+
+def check_lines(path: Path, encoding: str) -> None:
+    """One pass over the file in blocks: TraceError for the first line longer than :data:`BLOCK_BYTES`
+    (naming it and the limit), UnicodeError where it is not ``encoding`` text. Other encodings than UTF-8
+    (which pyarrow checks itself) are decoded here before pyarrow transcodes them: a decode error inside
+    pyarrow's transcoder leaves one of its threads running, and the process may then abort at exit
+    ("terminate called without an active exception")."""
+    decoder = None if _codec(encoding) == "utf8" else codecs.getincrementaldecoder(encoding)()
+    ended = 0            # lines ended before the current one
+    length = 0           # bytes of the current line so far
+    with open(path, "rb") as f:
         while block := f.read(BLOCK_BYTES):
-            decoder.decode(block)
-    decoder.decode(b"", final=True)
+            first = block.find(b"\n")
+            if length + (len(block) if first < 0 else first) > BLOCK_BYTES:
+                raise TraceError(f"{path}: line {ended + 1} is longer than {_size(BLOCK_BYTES)}, the longest "
+                                 "line a trace table may have: not a row of a table (damage, e.g. bytes a crash "
+                                 f"left); remove line {ended + 1} or export the table again")
+            if first < 0:
+                length += len(block)
+            else:
+                ended += block.count(b"\n")
+                length = len(block) - block.rfind(b"\n") - 1
+            if decoder is not None:
+                decoder.decode(block)
+    if decoder is not None:
+        decoder.decode(b"", final=True)
 
 
 def _csv_batches(path: Path, head: bytes, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
     import pyarrow.csv as pcsv
     names = csv_header(path, head, fmt)
     _missing(path, names, columns)
-    if _codec(fmt.encoding) != "utf8":
-        _decode_through(str(path), fmt.encoding)
+    check_lines(path, fmt.encoding)
     with _quiet_undecodable_rows():
         reader = pcsv.open_csv(
             str(path), parse_options=pcsv.ParseOptions(delimiter=fmt.separator, quote_char=False,
