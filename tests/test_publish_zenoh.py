@@ -126,7 +126,11 @@ def test_queryable_answers_with_provided_state(peers):
         assert replies == {"edge/r1/2/state": {"joint": 2, "detectors": {"wear": {"mean": 3.0, "nan": None}}}}
         everything = _query(sub_session, "edge/r1/*/state")
         assert sorted(everything) == [f"edge/r1/{j}/state" for j in (0, 2, 5)]
-        assert _query(sub_session, "edge/r1/3/state") == {}   # unknown joint: no reply, no error
+        # a joint not monitored, asked by name: an error reply naming the joints that are
+        [unknown] = list(sub_session.get("edge/r1/3/state", timeout=5.0))
+        assert unknown.ok is None and json.loads(unknown.err.payload.to_string()) == {
+            "error": "robot r1 does not monitor joint 3 (it monitors joint(s) 0, 2, 5)", "unknown_joint": 3,
+            "joints": [0, 2, 5]}
         assert publisher.queries_answered >= 3
 
 

@@ -28,7 +28,8 @@ from protocol.console import EXIT_CODES_HELP, EXIT_FAILURE, EXIT_OK, UsageError
 from protocol.frames import MAX_JOINTS
 
 QUERY_S = 2.0          # one state query waits at most this long; it is repeated until --timeout
-EXIT_HELP = (f"{EXIT_CODES_HELP}. Here 0: acknowledged, or no alarm was latched (nothing to do); 1: no agent "
+EXIT_HELP = (f"{EXIT_CODES_HELP}. Here 0: acknowledged, or no alarm was latched (nothing to do); 2 also: the "
+             "agent does not monitor that joint (it says which it does) or does not watch that quantity; 1: no agent "
              "answered, or no acknowledgement came within --timeout (remote acknowledgement off on the agent, "
              "refused by the router's access control or by the agent's gate: see the agent's log and its "
              "health counters acknowledge_refused_*)")
@@ -139,16 +140,21 @@ def _named(record: dict[str, Any]) -> list[str]:
 
 
 def _joint_state(session: Any, robot: str, joint: int, deadline: float) -> dict[str, Any] | None:
-    """The agent's answer to ``edge/<robot>/<joint>/state``, asked again until ``deadline``; None if none came."""
+    """The agent's answer to ``edge/<robot>/<joint>/state``, asked again until ``deadline``; None if none came.
+    :class:`UsageError` when the agent answers that it does not monitor the joint."""
     key = joint_key(robot, joint, STATE)
     warned = False
     while True:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
             return None
+        unknown = None
         for reply in session.get(key, timeout=min(QUERY_S, remaining)):
+            if reply.ok is None:
+                unknown = unknown or _not_monitored(reply)
+                continue
             try:
-                state = json.loads(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+                state = json.loads(reply.ok.payload.to_bytes())
             except (ValueError, RecursionError):      # not JSON, or nested too deep: an invalid reply
                 if not warned:
                     print(f"edge-monitor acknowledge: ignored an invalid state reply on {key} (not a JSON object)",
@@ -156,7 +162,22 @@ def _joint_state(session: Any, robot: str, joint: int, deadline: float) -> dict[
                 warned, state = True, None
             if isinstance(state, dict):
                 return state
+        if unknown is not None:
+            raise UsageError(f"--joint {joint}: {unknown}; acknowledge one of those joints, or, if joint {joint} "
+                             "should be monitored, add it to the agent's joints (its config's joints / joint "
+                             "mapping, edge-monitor check-mapping) and restart it")
         time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))
+
+
+def _not_monitored(reply: Any) -> str | None:
+    """The agent's "does not monitor joint J (it monitors …)" of an error reply, or None for another error."""
+    try:
+        body = json.loads(reply.err.payload.to_bytes()) if reply.err is not None else None
+    except (ValueError, RecursionError):
+        return None
+    if isinstance(body, dict) and isinstance(body.get("unknown_joint"), int) and isinstance(body.get("error"), str):
+        return " ".join(body["error"].split())[:300]
+    return None
 
 
 def _latched(state: dict[str, Any], request: AcknowledgeRequest) -> list[str] | None:
@@ -185,6 +206,10 @@ def _acknowledge(session: Any, robot: str, joint: int, request: AcknowledgeReque
             print(f"edge-monitor acknowledge: no agent answered for {where} within {timeout:g} s (is it running "
                   "and reachable, and may this identity query it?)", file=sys.stderr)
             return EXIT_FAILURE
+        if state.get("known") is False:
+            print(f"{where}: the agent monitors this joint but has learned nothing for it yet (not seen on the "
+                  "bus, no saved state): no alarm latched, nothing to acknowledge")
+            return EXIT_OK
         latched = _latched(state, request)
         if latched == []:
             print(f"{where}: no latched alarm on {', '.join(request.quantities or ['any quantity'])}: "

@@ -4,8 +4,9 @@
 schema to the latest version (:mod:`edge_monitor.historian.migrations`). SQL is written once with ``?``
 placeholders; a PostgreSQL connection turns them into psycopg's ``%s``. Errors are sorted into three
 kinds the writer acts on: :class:`DatabaseUnavailable` (the server went away, the disk is full, the
-file is locked: keep the records, try again later), :class:`DatabaseUnusable` (the file is damaged or
-read-only: no retry mends that, someone must; the records not stored are lost and counted) and
+file is locked, a PostgreSQL server is a read-only hot standby: keep the records, try again later),
+:class:`DatabaseUnusable` (the SQLite file is damaged or read-only, the PostgreSQL data corrupt: no retry
+mends that, someone must; the records not stored are lost and counted) and
 :class:`RecordRefused` (this data cannot be stored: count it, go on). SQLite runs in WAL mode with
 ``synchronous=FULL``: a committed batch survives a kill -9 of the historian and a power cut.
 """
@@ -38,6 +39,11 @@ class DatabaseError(RuntimeError):
 
 class DatabaseUnavailable(DatabaseError):
     """The database cannot take writes now (server down, disk full, locked): retry later, keep the data."""
+
+
+class DatabaseStandby(DatabaseUnavailable):
+    """A PostgreSQL server that takes no writes now (SQLSTATE 25006: a hot standby in recovery, as during a
+    failover, or ``default_transaction_read_only``): an outage, retried; not a read-only SQLite file."""
 
 
 class DatabaseUnusable(DatabaseError):
@@ -154,6 +160,11 @@ class Connection:
                 raise DatabaseDamaged(f"{self.target.describe()} is damaged ({_one_line(exc)}): the historian "
                                       "stopped writing into it; repair it (REINDEX, or restore from a backup), "
                                       "then start the historian again") from exc
+            if isinstance(exc, errors.errors.ReadOnlySqlTransaction):
+                raise DatabaseStandby(f"{self.target.describe()} takes no writes ({_one_line(exc)}): the server "
+                                      "is a hot standby in recovery (as during a failover) or has "
+                                      "default_transaction_read_only on; if that lasts, point --db at the primary "
+                                      "or turn default_transaction_read_only off") from exc
             if isinstance(exc, (errors.OperationalError, errors.InterfaceError)):
                 raise DatabaseUnavailable(f"{self.target.describe()}: {_one_line(exc)}") from exc
             raise

@@ -10,8 +10,10 @@ Subscriptions (read only: the historian puts nothing on any agent's keys):
 * ``edge/*/*/maintenance``: maintenance requests operators put (text payloads), stored as requests.
 * liveliness ``edge/*/agent``: which agents are up now (the fleet answer's ``online``).
 
-The queryable ``edge/history/<records|alarms|fleet|gaps|daily|status>`` answers on a thread pool of
-one (a slow question never holds Zenoh's threads long), each answer bounded (docs/HISTORIAN.md).
+The queryable ``edge/history/<records|alarms|fleet|gaps|daily|status>`` answers from a database thread
+of its own, never on Zenoh's (a burst of questions holds neither the records nor the status question): at
+most ``MAX_WAITING`` questions wait, more get a counted "busy, retry" reply, each answer bounded
+(docs/HISTORIAN.md).
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class Historian:
         self._read_lock = threading.Lock()
         self._entities: list[Any] = []
         self._subscriber: SymptomSubscriber | None = None
+        self._queryable: HistoryQueryable | None = None
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="historian-query")
         self._next_thin = time.monotonic()
         self._gap_check_at: float | None = time.monotonic() + GAP_CHECK_DELAY_S
@@ -194,17 +197,23 @@ class Historian:
                 "received": self.received, "rejected": dict(self.rejected), "ignored": self.ignored,
                 "zenoh_missed": subscriber.misses if subscriber else 0,
                 "zenoh_undecodable": subscriber.decode_errors if subscriber else 0,
-                "agents_online": sorted(self.online()), "gaps_at_start": self.gaps_reported, **self.writer.stats()}
+                "agents_online": sorted(self.online()), "gaps_at_start": self.gaps_reported,
+                "questions": self._queryable.counters() if self._queryable is not None else None,
+                **self.writer.stats()}
 
     def close(self) -> dict[str, Any]:
         """Stop receiving, store what is queued, close; the final status."""
         for entity in [self._queryable, self._subscriber, *self._entities]:
+            if entity is None:
+                continue
             try:
                 entity.close() if hasattr(entity, "close") else entity.undeclare()
             except Exception as exc:
                 log.debug("undeclare failed: %s", exc)
         self.writer.stop()                  # what it could not store is counted lost (and logged) there
         self._pool.shutdown(wait=True, cancel_futures=True)
+        if self._queryable is not None:
+            self._queryable.drain()         # the questions still waiting are told the historian stops
         if self._reads is not None:
             self._reads.close()
         return self.status()

@@ -3,9 +3,9 @@
 Zenoh's threads only hand rows over (:meth:`Writer.offer` never blocks them). The writer thread takes up to
 ``batch_size`` rows or what came within ``batch_s``, stores them in one transaction
 (:func:`~edge_monitor.historian.writes.insert_rows`) and goes on. When the database cannot take them
-(the server is down, the disk is full) the batch is kept and tried again with a growing pause (0.5 s …
-30 s) on a new connection, while the queue holds what keeps arriving; the outage is logged when it
-starts and when it ends. A damaged or read-only SQLite file is no outage (no retry mends it): the writer
+(the server is down or a read-only hot standby, the disk is full) the batch is kept and tried again with a
+growing pause (0.5 s … 30 s) on a new connection, while the queue holds what keeps arriving; the outage is
+logged when it starts and when it ends. A damaged or read-only SQLite file is no outage (no retry mends it): the writer
 says so once, stores nothing more and counts every row it does not store (``lost_database``; ``unusable``
 says why). A row the database refuses is found by halving the batch and counted (``rejected_database``);
 the others are stored. Rows are lost only by a full queue (``lost_queue_full``), an unusable database, or a
@@ -85,6 +85,7 @@ class Writer:
         self._in_hand: list[Row] = []             # the batch being stored
         self._abandoned = False                   # stop() stopped waiting: what is left is counted lost
         self._refused: DatabaseUnusable | None = None    # a reconnection found the database unusable
+        self._unreached: DatabaseUnavailable | None = None    # why the last reconnection failed (an outage)
         self._queue: queue.Queue[Row] = queue.Queue(maxsize=int(queue_size))
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -221,7 +222,7 @@ class Writer:
         if self._conn is None:
             if self._refused is not None:
                 raise self._refused
-            raise DatabaseUnavailable(f"{self.target.describe()}: not connected")
+            raise self._unreached or DatabaseUnavailable(f"{self.target.describe()}: not connected")
         try:
             result = insert_rows(self._conn, batch)
         except RecordRefused as exc:
@@ -286,7 +287,9 @@ class Writer:
             self._conn = None
         try:
             self._conn = connect(self.target)
+            self._unreached = None
         except DatabaseUnusable as exc:
             self._refused = exc                   # the next write says so: given up, not retried
-        except DatabaseUnavailable as exc:
+        except DatabaseUnavailable as exc:       # e.g. the server still down, or still a read-only standby
+            self._unreached = exc
             self.last_error = str(exc)

@@ -8,7 +8,8 @@ Keys (JSON payloads, encoding ``application/json``):
 * ``edge/<robot>/<joint>/friction`` and ``edge/<robot>/agent/health``: plain publishers, DROP
   (telemetry: the newest value matters, old ones may go).
 * ``edge/<robot>/agent``: liveliness token while the agent runs.
-* ``edge/<robot>/<joint>/state``: queryable answering with ``state_provider(joint)`` (read-only).
+* ``edge/<robot>/<joint>/state``: queryable answering with ``state_provider(joint)`` (read-only); a
+  joint the agent does not monitor, asked by name, gets ``reply_err`` listing the joints it monitors.
 
 Publishing never raises: a failure is logged once per kind and counted as undelivered.
 """
@@ -47,6 +48,14 @@ _STAT_NAMES = {SYMPTOM: "symptoms", ALARM: "alarms", ADVISORY: "advisories", FRI
 
 DEFAULT_CACHE_SIZE = 256          # samples per advanced publisher (≈ 2 h of 30 s cycles)
 HEARTBEAT_S = 0.5                 # sample-miss heartbeat period (sent only after new samples), s
+
+
+def not_monitored(robot: str, joint: int, monitored: list[int]) -> dict[str, Any]:
+    """The error body of a state query for a joint the agent does not monitor: which ones it does."""
+    shown = ", ".join(map(str, monitored[:32])) + (", …" if len(monitored) > 32 else "")
+    return {"error": f"robot {robot} does not monitor joint {joint} "
+                     f"({f'it monitors joint(s) {shown}' if monitored else 'it has no joint yet'})",
+            "unknown_joint": joint, "joints": monitored}
 
 
 class SymptomPublisher:
@@ -199,15 +208,21 @@ class SymptomPublisher:
     # -- queryable ---------------------------------------------------------------------------------
 
     def _answer_state(self, query: zenoh.Query) -> None:
-        """Reply with the state of every joint whose state key the query selects."""
+        """Reply with the state of every joint whose state key the query selects; a query for exactly one
+        joint this agent does not monitor gets ``reply_err`` saying which joints it monitors."""
         try:
             selector = zenoh.KeyExpr(str(query.key_expr))
             known = set(self.joints_provider()) if self.joints_provider is not None else set()
-            for joint in sorted(known | set(self.joints)):
+            monitored = sorted(known | set(self.joints))
+            for joint in monitored:
                 key = zenoh.KeyExpr(joint_key(self.robot, joint, STATE))
                 if key.intersects(selector):
                     state = self.state_provider(joint) if self.state_provider else {}
                     query.reply(key, to_json(state), encoding=zenoh.Encoding.APPLICATION_JSON)
+            parts = parse_key(str(query.key_expr))       # wildcards never parse: one joint asked by name
+            if parts is not None and parts.joint is not None and parts.joint not in monitored:
+                query.reply_err(to_json(not_monitored(self.robot, parts.joint, monitored)),
+                                encoding=zenoh.Encoding.APPLICATION_JSON)
             self.queries_answered += 1
         except Exception as exc:  # a queryable callback must not raise into zenoh
             log.warning("state query %s failed: %s", query.key_expr, exc)
