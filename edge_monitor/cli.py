@@ -21,8 +21,10 @@ from protocol import package_version
 from protocol.console import (
     UsageError,
     configure_logging,
+    guarded_stdout,
     install_conventions,
     interrupted_exit,
+    stdout_failure_exit,
     subcommands,
     terminate_like_interrupt,
     usage_error,
@@ -64,12 +66,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     configure_logging(verbosity(args))
     try:
-        with terminate_like_interrupt():
+        with terminate_like_interrupt(), guarded_stdout():
             return int(args.func(args) or 0)
     except UsageError as exc:       # a bad value found after parsing: the subcommand's usage, exit 2
         return usage_error(subcommands(parser)[args.command], str(exc))
     except KeyboardInterrupt as exc:
         return interrupted_exit(f"edge-monitor {args.command}", exc)
+    except OSError as exc:          # standard output could not be written (> /dev/full, a full disk): one line
+        code = stdout_failure_exit(f"edge-monitor {args.command}", exc)
+        if code is None:
+            raise
+        return code
 
 
 if __name__ == "__main__":

@@ -25,12 +25,16 @@ SCHEMA_VERSION = 1
 #: Frame timestamps before 2000-01-01T00:00:00Z are not wall-clock time (a log with relative time, a
 #: simulated clock starting at 0): records then carry ``"utc": null``.
 EARLIEST_WALL_TIME = 946684800.0
+#: Frame timestamps from 10000-01-01T00:00:00Z on cannot be written as ISO 8601 (nor by Python's datetime): a
+#: log whose clock jumped there (a corrupted or hostile timestamp) gives ``"utc": null`` too.
+LATEST_WALL_TIME = 253402300800.0
 
 
 def utc_text(timestamp: float | None) -> str | None:
     """ISO 8601 UTC text of a Unix timestamp [s], to the millisecond (``2026-11-26T13:09:00.250Z``);
-    None when ``timestamp`` is missing, not finite or before :data:`EARLIEST_WALL_TIME`."""
-    if timestamp is None or not math.isfinite(timestamp) or timestamp < EARLIEST_WALL_TIME:
+    None when ``timestamp`` is missing, not finite, before :data:`EARLIEST_WALL_TIME` or from
+    :data:`LATEST_WALL_TIME` on."""
+    if timestamp is None or not math.isfinite(timestamp) or not EARLIEST_WALL_TIME <= timestamp < LATEST_WALL_TIME:
         return None
     text = datetime.fromtimestamp(timestamp, tz=timezone.utc).isoformat(timespec="milliseconds")
     return text.replace("+00:00", "Z")

@@ -166,6 +166,67 @@ def interrupted_exit(command: str, exc: KeyboardInterrupt) -> int:
     return EXIT_INTERRUPTED
 
 
+class _StdoutGuard:
+    """``sys.stdout`` while a command runs (:func:`guarded_stdout`): a write or flush that fails is marked
+    (``on_stdout``) so that :func:`stdout_failure_exit` tells it from the command's other I/O errors."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except OSError as exc:
+            exc.on_stdout = True  # type: ignore[attr-defined]
+            raise
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            exc.on_stdout = True  # type: ignore[attr-defined]
+            raise
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
+@contextmanager
+def guarded_stdout() -> Iterator[None]:
+    """Within the block a failed write to standard output (``> /dev/full``, a full disk, ``| head`` gone) raises
+    an ``OSError`` marked for :func:`stdout_failure_exit`; the output is flushed at the block's end, inside it."""
+    original = sys.stdout
+    if original is None:
+        yield
+        return
+    sys.stdout = _StdoutGuard(original)
+    try:
+        yield
+        if not original.closed:
+            sys.stdout.flush()
+    finally:
+        sys.stdout = original
+
+
+def stdout_failure_exit(command: str, exc: OSError) -> int | None:
+    """The exit code for a failed write to standard output, None for any other ``OSError``. A reader that went
+    away (``| head``) is a normal end (0, quiet); any other failure (``ENOSPC``, ``EIO``) says that the output is
+    incomplete (exit 1). What could not be written is dropped, so that Python's exit does not fail on it again."""
+    if not getattr(exc, "on_stdout", False):
+        return None
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass                                  # no file descriptor (a test's capture): nothing left to fail
+    if isinstance(exc, BrokenPipeError):
+        return EXIT_OK
+    print(f"{command}: cannot write to standard output ({exc.strerror or exc}): the output is incomplete; "
+          "redirect it to a file on a disk with space, or to a pipe that reads it", file=sys.stderr)
+    return EXIT_FAILURE
+
+
 class DeferredInterrupt:
     """Ctrl-C or SIGTERM noted, not raised (:func:`deferred_interrupts`): ``pending`` is what to raise."""
 

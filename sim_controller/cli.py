@@ -31,9 +31,11 @@ from protocol.console import (
     add_can_arguments,
     can_options,
     configure_logging,
+    guarded_stdout,
     install_conventions,
     interrupted_exit,
     same_file,
+    stdout_failure_exit,
     stop_on_signals,
     subcommands,
     verbosity,
@@ -266,7 +268,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         return interrupted_exit(f"sim-controller {args.command}", exc)
     if args.summary_json:
-        print(json.dumps(summary.to_dict()))
+        try:
+            with guarded_stdout():
+                print(json.dumps(summary.to_dict()))
+        except OSError as exc:           # > /dev/full, a full disk: one line, exit 1 (the log itself is written)
+            code = stdout_failure_exit(f"sim-controller {args.command}", exc)
+            if code is None:
+                raise
+            return code
     elif verbosity(args) >= 0:
         print(f"sim-controller {args.command}: {summary.frames_sent} frames, {summary.cycles} cycles, "
               f"{summary.simulated_s:.1f} s simulated in {summary.wall_s:.2f} s "

@@ -20,10 +20,12 @@ on its state keeps going whatever the controller's numbering does; logs timed fr
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
 import sys
+import tempfile
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -44,7 +46,7 @@ from edge_monitor.commands.common import (
 )
 from edge_monitor.monitor_process import MonitorProcess, MonitorProcessError, MonitorResult
 from edge_monitor.pipeline.agent import Agent
-from edge_monitor.records import utc_text
+from edge_monitor.records import LATEST_WALL_TIME, utc_text
 from edge_monitor.run_failures import output_failures, setup_failure
 from edge_monitor.sinks.base import LastSymptomSink
 from edge_monitor.sinks.jsonl import JsonlOpenError
@@ -54,6 +56,7 @@ from edge_monitor.sources.log_source import LogReadError, LogReport, log_blocks_
 from edge_monitor.sources.trace_source import replay_trace
 from edge_monitor.sources.trace_table import TraceError, TraceUnreadable, is_trace_file
 from protocol.console import EXIT_FAILURE, EXIT_USAGE, LOG_FORMAT, progress_bar, verbosity
+from protocol.files import read_regular
 
 log = logging.getLogger(__name__)
 
@@ -129,10 +132,14 @@ class InputTimes:
 
     def _read(self) -> dict[str, Any]:
         try:
-            saved = json.loads(self.path.read_text(encoding="utf-8")) if self.path and self.path.is_file() else {}
-        except (OSError, ValueError):
+            saved = json.loads(read_regular(self.path, 1 << 16)) if self.path and os.path.lexists(self.path) else {}
+        except (OSError, ValueError, RecursionError):       # NotARegularFile is a ValueError
             return {}
-        return saved if isinstance(saved, dict) and isinstance(saved.get("last_time"), (int, float)) else {}
+        last = saved.get("last_time") if isinstance(saved, dict) else None
+        if isinstance(last, bool) or not isinstance(last, (int, float)) \
+                or not ABSOLUTE_TIME_S <= last < LATEST_WALL_TIME:
+            return {}                 # not written by us (or edited by hand): nothing to compare with
+        return {"input": str(saved.get("input", "the input"))[:200], "last_time": float(last)}
 
     def see(self, times: NDArray) -> None:
         if not len(times):
@@ -150,13 +157,19 @@ class InputTimes:
         """Remember this input's end for the next replay onto the state directory (absolute times only)."""
         if self.path is None or self.last is None or self.last < ABSOLUTE_TIME_S:
             return
-        try:
-            partial = self.path.with_name(f".{self.path.name}.partial")
-            partial.write_text(json.dumps({"input": os.path.basename(self.file), "last_time": self.last}),
-                               encoding="utf-8")
-            partial.replace(self.path)
+        partial = None
+        try:            # a new file of our own (not a FIFO or a symlink someone left at a fixed name: no hang)
+            fd, partial = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".partial", dir=self.path.parent)
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(json.dumps({"input": os.path.basename(self.file), "last_time": self.last}))
+            os.replace(partial, self.path)
+            partial = None
         except OSError as exc:
             log.debug("cannot write %s: %s", self.path, exc)
+        finally:
+            if partial is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(partial)
 
 
 def _agent_status(agent: Agent) -> str:

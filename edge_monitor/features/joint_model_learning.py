@@ -41,6 +41,8 @@ from joint_model import FrictionParams, nominal_friction
 from joint_model.identification import CommissioningData, IdentificationDataError, identify_linear
 
 log = logging.getLogger(__name__)
+#: Whole cycles in a row without a friction curve after which a learning joint says so (then every 1000).
+STARVED_WARN_AT = (5, 50, 500)
 
 ALWAYS_FREE: tuple[str, ...] = ("fc0", "fs0", "fv0")
 TEMPERATURE_TERMS: tuple[str, ...] = ("fsxi", "fvxi")
@@ -90,10 +92,13 @@ class _Cycle:
 class JointModelLearner:
     """Collects the first cycles of a joint and identifies its model (see the module docstring)."""
 
-    def __init__(self, config: ModelConfig, base: FrictionParams, default_load: float = 0.5) -> None:
+    def __init__(self, config: ModelConfig, base: FrictionParams, default_load: float = 0.5,
+                 label: str = "joint model") -> None:
         self.config = config
         self.base = base
         self.default_load = default_load
+        self.label = label                   # the log's name for it ("joint 3 model")
+        self._starved = 0                    # whole cycles in a row without a friction curve (not saved)
         self.reset()
 
     def reset(self) -> None:
@@ -116,7 +121,15 @@ class JointModelLearner:
         self._motor = cycle.motor_temperature if ok else None
         curve = cycle.friction
         if len(curve.speeds) < 2 or cycle.partial:
+            self._starved += not cycle.partial
+            if not cycle.partial and (self._starved in STARVED_WARN_AT or self._starved % 1000 == 0):
+                skipped = ", ".join(f"{why} {n}" for why, n in sorted(curve.skipped.items())) or "none"
+                log.warning("%s: %d whole cycles in a row gave no friction curve (fewer than 2 speed levels; skipped: "
+                            "%s), so it learns nothing: check that the plateaus last longer than [segmentation] "
+                            "settle_s + min_steady_s and that the speeds are those configured", self.label,
+                            self._starved, skipped)
             return False
+        self._starved = 0
         load, measured = self._load(cycle)
         self._cycles.append(_Cycle(list(curve.speeds), list(curve.torque), load, self._motor, measured))
         if len(self._cycles) < self.config.learning_cycles:

@@ -78,8 +78,8 @@ class JointMonitor:
         self.assembler = CycleAssembler(joint, config.segmentation, config.rate_hz)
         self._pending: list[tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]] = []
         self._pending_samples = 0
-        self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean) \
-            if config.model.enabled else None
+        self.model = JointModelLearner(config.model, config.friction_for(joint), config.wear.default_load_mean,
+                                       f"joint {joint} model") if config.model.enabled else None
         self.operating = OperatingRange()
         self.coverage = Coverage(self.detectors_watched)   # how much of the time each detector tests
         self.faults = FaultTracker(config.alarms, config.robot, joint)   # one alarm record per fault
@@ -306,8 +306,9 @@ class JointMonitor:
             self.assembler = CycleAssembler(self.joint, config.segmentation, config.rate_hz)
             self.assembler.load_state(counters)
         self.faults.config = self.config.alarms
-        self.model = JointModelLearner(self.config.model, self.config.friction_for(self.joint),
-                                       self.config.wear.default_load_mean) if self.config.model.enabled else None
+        cfg = self.config
+        self.model = JointModelLearner(cfg.model, cfg.friction_for(self.joint), cfg.wear.default_load_mean,
+                                       f"joint {self.joint} model") if cfg.model.enabled else None
         self._build()
         self.operating.reset()
         self.prognosis = self._new_prognosis()        # a new gearbox: its wear history starts again

@@ -14,6 +14,7 @@ one is moved aside unread), at most :data:`MAX_STATE_BYTES`, and integers of mor
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -24,7 +25,7 @@ from typing import Any
 
 from edge_monitor.errors import StateError
 from edge_monitor.records import to_json
-from protocol.files import read_regular
+from protocol.files import file_kind, read_regular
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,13 @@ class StateStore:
         except FileNotFoundError:
             raise StateError(f"state directory {self.dir}: its folder {self.dir.parent} does not exist; create it "
                              "or pass another --state-dir") from None
+        except FileExistsError:         # a file, a device, a dangling symlink or a loop of them
+            try:
+                what = file_kind(os.stat(self.dir).st_mode)
+            except OSError as exc:
+                what = "a symlink loop" if exc.errno == errno.ELOOP else "a symlink to nothing"
+            raise StateError(f"state directory {self.dir} is {what}, not a directory; pass a directory (or a path "
+                             "to create one in) as --state-dir") from None
         except OSError as exc:
             raise StateError(f"state directory {self.dir}: cannot create it ({exc.strerror}); "
                              f"pass a writable --state-dir") from None
@@ -97,6 +105,19 @@ class StateStore:
         except OSError:
             pass
         self._lock_fd = fd
+        self._remove_leftovers()
+
+    def _remove_leftovers(self) -> None:
+        """Temporary files of saves a kill -9 cut (``.agent_state.*.tmp``, ``.replayed_input.json.*.partial``): only
+        the holder of the lock writes them, so with it held every one left is garbage (up to a state's size each)."""
+        for pattern in (".agent_state.*.tmp", ".replayed_input.json.*.partial"):
+            for leftover in self.dir.glob(pattern):
+                try:
+                    if leftover.is_file() and not leftover.is_symlink():
+                        leftover.unlink()
+                        log.info("removed %s, left by a save that was cut short", leftover)
+                except OSError:
+                    pass
 
     def load(self) -> dict[str, Any] | None:
         """The saved state, or None when there is none or it is unusable (then it is moved aside by

@@ -218,12 +218,26 @@ class JsonlSink:
             if self._reopen_requested:
                 self._reopen_requested = False
                 self._reopen_file()
+            elif self._fd is not None and self._path_lost():
+                log.warning("JSONL output %s was deleted or replaced while open; writing on in a new %s (records "
+                            "would otherwise go to a file no one can read)", self.path, self.path)
+                self._reopen_file()
             if self._fd is None and not self._retry_open():
                 self.failures += 1
                 return
             if self.rotation.max_bytes:
                 self._rotate_if_full(len(line))
             self._append(line)
+
+    def _path_lost(self) -> bool:
+        """PATH no longer names the open file: deleted, or renamed (logrotate without the SIGHUP)."""
+        try:
+            ours, now = os.fstat(self._fd), os.stat(self.path)     # type: ignore[arg-type]
+        except FileNotFoundError:
+            return True
+        except OSError:
+            return False
+        return (ours.st_dev, ours.st_ino) != (now.st_dev, now.st_ino)
 
     def _append(self, line: bytes) -> None:
         """Write one whole line; on failure cut back to the file's size before it (its last good version)."""
