@@ -511,3 +511,35 @@ def test_the_agent_measures_its_cycle_rate_and_rederives_the_thresholds(hours):
         assert health["threshold_rederivations"] >= 1 and abs(measured / basis - 1.0) <= 0.25
         assert detector.calibration.arl0 == pytest.approx(config.decision.arl0_for(basis))
         assert health["arl0_cycles"] == pytest.approx(config.decision.arl0_for(basis))
+
+
+def test_a_cycle_whose_close_fails_is_not_closed_again_on_every_later_block(frames, monkeypatch):
+    """An unexpected error while a cycle is closed (the live loop counts it in processing_errors) must not leave
+    that cycle open: every later block would try to close it again, fail again, and publish nothing until a
+    restart (found by an attack pass). The later cycles are published as without the error."""
+    from edge_monitor.pipeline.joint_monitor import JointMonitor
+
+    clean = Agent(small_config())
+    expected = sorted((s.joint, s.cycle) for s in feed(clean, frames) + clean.finish())
+    failing_cycle = expected[0][1]
+    real_end_cycle = JointMonitor.end_cycle
+
+    def end_cycle(self, cycle, *args, **kwargs):
+        if cycle == failing_cycle:
+            raise RuntimeError("a bug while closing the cycle")
+        return real_end_cycle(self, cycle, *args, **kwargs)
+
+    monkeypatch.setattr(JointMonitor, "end_cycle", end_cycle)
+    agent, outs, errors = Agent(small_config()), [], 0
+    ids, data, dlc, ts = frames
+    for s in range(0, len(ids), 1000):          # as the live loop does: a block that raises is counted, not fatal
+        try:
+            outs += agent.update(ids[s:s + 1000], data[s:s + 1000], dlc[s:s + 1000], ts[s:s + 1000])
+        except RuntimeError:
+            errors += 1
+    outs += agent.finish()
+    published = sorted((s.joint, s.cycle) for s in outs)
+    assert errors == 1
+    later = [key for key in expected if key[1] > failing_cycle + 1]    # the next cycle lost part of its block
+    assert later and set(later) <= set(published)
+    assert not any(cycle == failing_cycle for _, cycle in published)

@@ -126,11 +126,12 @@ class Agent:
             if run.cycle is not None and run.cycle != self._open_cycle:
                 first = self._open_cycle is None
                 if self._open_cycle is not None:
+                    closing, self._open_cycle = self._open_cycle, None    # a close that raises is not retried
                     if run.previous_cut:       # a controller restart cut it: published, kept from the detectors
-                        self._partial_cycle = self._open_cycle
+                        self._partial_cycle = closing
                     else:
                         self._complete_last_segment = self._open_last_segment
-                    outputs += self._close_cycle(self._open_cycle)
+                    outputs += self._close_cycle(closing)
                 self._open_last_segment = -1
                 if run.starts_at_boundary is False or (first and run.starts_at_boundary is not True):
                     self._partial_cycle = run.cycle     # its start was not seen by this instance
