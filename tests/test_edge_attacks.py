@@ -231,3 +231,26 @@ def test_temporary_files_of_saves_a_kill_cut_are_removed_by_the_next_agent(tmp_p
     store = StateStore(tmp_path)
     store.claim()
     assert sorted(p.name for p in tmp_path.iterdir()) == [".agent_state.fifo.tmp", "agent_state.lock"]
+
+
+def test_a_log_missing_a_run_of_frames_says_so_in_the_replay_summary(tmp_path, capsys):
+    """A recording (or a link) that lost a run of frames longer than the alive counter can count (here 3 000
+    frames: every joint's 8-bit counter jumps beyond max_delta) said "lost 0": the summary now names the frames
+    out of sequence, and says zero of them on a whole log."""
+    import can
+
+    from edge_monitor.cli import main as edge_monitor
+    from sim_controller.cli import main as sim_controller
+
+    whole, cut = tmp_path / "whole.blf", tmp_path / "cut.blf"
+    assert sim_controller(["record", "-o", str(whole), "--joints", "1", "--cycles", "3", "-q"]) == 0
+    frames = list(can.LogReader(str(whole)))
+    with can.Logger(str(cut)) as writer:
+        for message in frames[: len(frames) // 2] + frames[len(frames) // 2 + 3000:]:
+            writer.on_message_received(message)
+    capsys.readouterr()
+    assert edge_monitor(["replay", str(whole), "--state-dir", str(tmp_path / "a")]) == 0
+    assert "out of sequence" not in capsys.readouterr().out
+    assert edge_monitor(["replay", str(cut), "--state-dir", str(tmp_path / "b")]) == 0
+    line = [text for text in capsys.readouterr().out.splitlines() if text.startswith("frames ")][0]
+    assert "lost 0, out of sequence " in line and "cannot count" in line, line

@@ -229,6 +229,13 @@ def _run_split(args: argparse.Namespace, cfg: Any, source: Any) -> int:
     return _report(args, cfg, stats, report, result)
 
 
+def _out_of_sequence(stats: dict[str, Any]) -> str:
+    """", out of sequence N (…)" when frames came with an alive counter that jumped beyond ``max_delta``: lost
+    frames whose number the counter cannot tell (a recording or a link that dropped runs of frames)."""
+    n = stats.get("details", {}).get("wrong_sequence", 0)
+    return f", out of sequence {n}: frames lost in runs the alive counter cannot count" if n else ""
+
+
 def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: LogReport,
             result: MonitorResult, raised: dict[int, dict] | None = None) -> int:
     """The summary (table or ``--json``) and the exit code (1 when an output or the state failed)."""
@@ -237,7 +244,8 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
     elif verbosity(args) >= 0:              # -q: no summary
         print(summary_table(result.last, stats, cfg.decision, raised))
         print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
-              f"lost {stats['counter_lost']}), cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
+              f"lost {stats['counter_lost']}{_out_of_sequence(stats)}), cycles {stats['cycles']}, "
+              f"symptoms {stats['symptoms']}, "
               f"{stats['frames_per_second']:.0f} frames/s")
         if report.skipped or report.truncated:
             print(f"log: {report.skipped} unreadable record(s) skipped"

@@ -73,10 +73,11 @@ class LiveRunner:
                             h["data_flow"]["frames"], h["data_flow"]["interval_s"])
             else:
                 log.warning("data flowing again")
-        status_log.info("status: %d frames (%.0f/s), ok %d, crc %d, lost %d, queue %d (dropped %d), "
-                        "cycles %d, symptoms %d, alarms %d", h["frames_total"], h["frames_per_second"],
-                        h["frames_ok"], h["crc_errors"], h["counter_lost"], h["queue_depth"], h["queue_dropped"],
-                        h["cycles"], h["symptoms"], h["alarms"])
+        # out of sequence: a counter jump beyond max_delta, frames lost in a number the alive counter cannot tell
+        status_log.info("status: %d frames (%.0f/s), ok %d, crc %d, lost %d, out of sequence %d, queue %d "
+                        "(dropped %d), cycles %d, symptoms %d, alarms %d", h["frames_total"], h["frames_per_second"],
+                        h["frames_ok"], h["crc_errors"], h["counter_lost"], h["wrong_sequence"], h["queue_depth"],
+                        h["queue_dropped"], h["cycles"], h["symptoms"], h["alarms"])
 
     def run(self, duration_s: float | None = None, max_cycles: int | None = None,
             idle_stop_s: float | None = None) -> None:
