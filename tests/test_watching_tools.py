@@ -12,6 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools" / "studies"))
 
+import ramp_trace  # noqa: E402
 import temperature_law_study  # noqa: E402
 import watching_study  # noqa: E402
 
@@ -135,3 +136,28 @@ def test_the_shape_of_the_tested_values_tells_a_gaussian_from_a_skewed_or_wander
     wandering = temperature_law_study.shape(ar)
     assert wandering["ratio_10"] > 3.5 and wandering["ratio_30"] > 4.5
     assert math.isnan(temperature_law_study.shape(np.zeros(50))["skewness"])
+
+
+@pytest.mark.parametrize("step", [0.0, 3.0])
+def test_the_ramp_trace_finds_a_wear_score_step_and_stays_quiet_without_it(step):
+    """tools/studies/ramp_trace.py's replay: a joint at a constant 40 °C whose wear score is N(0, 1) and, from cycle
+    150 of 250, ``step`` above it. Without the step no detector may alarm (the shipped budget's run length is 2.6·10⁶
+    cycles; 170 monitored cycles); with a 3 σ step the wear score's GLR passes its ≈ 15-nat threshold within
+    ≈ 2·15/3² ≈ 4 cycles, so its first alarm falls in 150–170. Its standardised values are those of the nominal:
+    the mean of 50 before the step is 0 within 4 standard errors (the nominal's mean from 60 values, 1/√60, and the
+    50 values' own, 1/√50: combined 0.19, so ±0.77)."""
+
+    rng = np.random.default_rng(5)
+    rows = [{"cycle": c, "motor_temperature": 40.0, "temperature": 40.0, "wear": 0.0,
+             "wear_score": float(rng.normal() + (step if c >= 150 else 0.0)),
+             "kl_raw": math.exp(rng.normal(-3.0, 0.3)), "kl_weighted": math.exp(rng.normal(-4.0, 0.3))}
+            for c in range(250)]
+    traced, first = ramp_trace.trace(rows, 1)
+    assert len(traced) == 250
+    if step == 0.0:
+        assert first is None
+    else:
+        assert first is not None and 150 <= first <= 170, first
+    before = [r["z"] for r in traced if 100 <= r["cycle"] < 150]
+    assert abs(float(np.mean(before))) < 0.77
+    assert "wear" in ramp_trace.block_line(traced[100:110])
