@@ -33,7 +33,13 @@ MAX_EDS_BYTES = 4 << 20
 #: Standard objects for a TPDO mapping written in the mapping file: (bits, signed).
 STANDARD_OBJECTS: dict[int, tuple[int, bool]] = {STATUSWORD: (16, False), POSITION: (32, True),
                                                  VELOCITY: (32, True), TORQUE: (16, True)}
-_SIGNED_TYPES = {0x2, 0x3, 0x4, 0x15}      # INTEGER8/16/32/64
+#: CiA 301 integer data types and their bits (INTEGER8 … 64, UNSIGNED8 … 64): the only ones decoded.
+INTEGER_BITS = {0x2: 8, 0x3: 16, 0x4: 32, 0x10: 24, 0x12: 40, 0x13: 48, 0x14: 56, 0x15: 64,
+                0x5: 8, 0x6: 16, 0x7: 32, 0x16: 24, 0x18: 40, 0x19: 48, 0x1A: 56, 0x1B: 64}
+_SIGNED_TYPES = {0x2, 0x3, 0x4, 0x10, 0x12, 0x13, 0x14, 0x15}
+_OTHER_TYPES = {0x1: "BOOLEAN", 0x8: "REAL32", 0x9: "VISIBLE_STRING", 0xA: "OCTET_STRING", 0xB: "UNICODE_STRING",
+                0xC: "TIME_OF_DAY", 0xD: "TIME_DIFFERENCE", 0xF: "DOMAIN", 0x11: "REAL64"}
+PDO_NOT_VALID = 1 << 31
 
 
 class Cia402Error(ValueError):
@@ -50,6 +56,7 @@ class PdoField:
     index: int
     subindex: int
     bits: BitField
+    problem: str | None = None      # why its values cannot be decoded (a data type or mapped length), None: fine
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,8 @@ class DriveLayout:
     fields: dict[tuple[int, int], PdoField] = field(default_factory=dict)
     rated_torque_nm: float | None = None
     increments_per_revolution: float | None = None
+    encoder: tuple[float | None, float | None] = (None, None)    # 608Fh sub 1, 2 as the EDS gives them
+    unused: tuple[str, ...] = ()    # TPDOs that carry nothing (not valid, no objects), for messages
 
     def find(self, index: int, subindex: int = 0) -> PdoField | None:
         return self.fields.get((index, subindex))
@@ -78,11 +87,77 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     try:
         node = (canopen.LocalNode if local else canopen.RemoteNode)(node_id, canopen.import_od(text, node_id))
         network.add_node(node)
-        node.tpdo.read(from_od=True)
+        for number, pdo in (node.tpdo.map or {}).items():
+            _read_tpdo(node_id, number, pdo)
+    except Cia402Error:
+        raise
     except Exception as exc:  # noqa: BLE001 — canopen's EDS parser raises configparser/KeyError/ValueError
         first = (str(exc).strip().splitlines() or [""])[0][:300]
         raise Cia402Error(f"node {node_id}: cannot read EDS {eds}: {type(exc).__name__}: {first}") from None
     return node
+
+
+def _raw(entry: Any) -> Any:
+    return entry.value if getattr(entry, "value", None) is not None else getattr(entry, "default", None)
+
+
+def _read_tpdo(node_id: int, number: int, pdo: Any) -> None:
+    """``pdo.read(from_od=True)`` where the EDS describes a TPDO canopen can place, else Cia402Error naming the
+    entry: canopen only logs a mapped object the EDS lacks and places the objects after it too early
+    (values read from the wrong bits), and only logs a mapping of more than 64 bits. A TPDO not valid
+    (COB-ID bit 31) is not read: it is never sent."""
+    where = f"node {node_id}: TPDO{number} (mapping {0x1A00 + number - 1:04X}h)"
+    if isinstance(cob := _raw(pdo.com_record.od[1]), int) and cob & PDO_NOT_VALID:
+        return
+    array = pdo.map_array.od
+    count = _raw(array[0])
+    bits = 0
+    for sub in range(1, (count if isinstance(count, int) else 0) + 1):
+        try:
+            array[sub]
+        except KeyError:
+            raise Cia402Error(f"{where}: sub-index 0 says {count} mapped objects, entry {sub} is not in the EDS: "
+                              f"fix {0x1A00 + number - 1:04X}sub0 or add the entries") from None
+        value = int(_raw(array[sub]) or 0)
+        index, subindex, size = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+        if not (index and size):
+            continue
+        bits += size
+        if not _describes(pdo.pdo_node.node.object_dictionary, index, subindex):
+            dummy = (f" (a dummy entry: declare it in [DummyUsage] as Dummy{index:04d}=1)"
+                     if 1 <= index <= 7 else "")
+            raise Cia402Error(f"{where}: entry {sub} (0x{value:08X}) maps object {index:04X}sub{subindex}, which "
+                              f"the EDS does not describe{dummy}: the objects after it cannot be placed; "
+                              "give the drive's complete EDS/DCF") from None
+    if bits > 64:
+        raise Cia402Error(f"{where}: maps {bits} bits, more than a CAN frame's 64: fix its entries (each entry's "
+                          "last byte is the object's length in bits)")
+    pdo.read(from_od=True)
+
+
+def _describes(od: Any, index: int, subindex: int) -> bool:
+    """Whether the object dictionary ``od`` has object ``index`` (sub ``subindex`` of a record or array)."""
+    from canopen import objectdictionary
+
+    try:
+        obj = od[index]
+        if isinstance(obj, (objectdictionary.ODRecord, objectdictionary.ODArray)):
+            obj[subindex]
+    except KeyError:
+        return False
+    return True
+
+
+def _problem(od: Any, size: int) -> str | None:
+    """Why an object mapped with ``size`` bits cannot be decoded as an integer, or None."""
+    data_type = getattr(od, "data_type", None)
+    if data_type not in INTEGER_BITS:
+        name = (_OTHER_TYPES.get(data_type, f"0x{data_type:04X}") if isinstance(data_type, int)
+                else repr(data_type))
+        return f"has data type {name}: only integers (INTEGER8 … 64, UNSIGNED8 … 64) are decoded"
+    if size != INTEGER_BITS[data_type]:
+        return f"is mapped with {size} bits, its data type has {INTEGER_BITS[data_type]}"
+    return None
 
 
 def read_eds(node_id: int, eds: Path) -> io.StringIO:
@@ -105,21 +180,24 @@ def drive_layout(node_id: int, eds: Path | None = None,
         return _layout_from_config(node_id, tpdo)
     node = open_node(node_id, eds)
     fields: dict[tuple[int, int], PdoField] = {}
-    for pdo in node.tpdo.map.values():
+    unused = []
+    for number, pdo in node.tpdo.map.items():
         if not pdo.enabled or not pdo.map or pdo.cob_id is None:
+            unused.append(f"TPDO{number} " + ("maps no object" if pdo.enabled else "is not valid (COB-ID bit 31)"))
             continue
         length = sum(v.length for v in pdo.map) // 8
         for v in pdo.map:
             signed = getattr(v.od, "data_type", None) in _SIGNED_TYPES
             bits = BitField(v.name, int(v.offset), int(v.length), signed=signed)
             fields[(v.index, v.subindex)] = PdoField(int(pdo.cob_id), length, int(pdo.trans_type or 0),
-                                                     v.index, v.subindex, bits)
+                                                     v.index, v.subindex, bits, _problem(v.od, int(v.length)))
     od = node.object_dictionary
     rated = _default(od, RATED_TORQUE, None)
     increments = _default(od, ENCODER, 1)
     revolutions = _default(od, ENCODER, 2)
-    return DriveLayout(node_id, fields, None if rated is None else rated / 1000.0,
-                       None if not increments or not revolutions else increments / revolutions)
+    per_rev = increments / revolutions if increments and revolutions and increments > 0 < revolutions else None
+    return DriveLayout(node_id, fields, None if rated is None else rated / 1000.0, per_rev,
+                       (increments, revolutions), tuple(unused))
 
 
 def _default(od: Any, index: int, subindex: int | None) -> float | None:

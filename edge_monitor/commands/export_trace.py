@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import shlex
 import sys
 import tomllib
 from pathlib import Path
@@ -55,7 +57,8 @@ def check_outputs(args: argparse.Namespace) -> Path:
             if given and same_file(path, Path(given)):
                 raise UsageError(f"--out {out}: its {what} {path} is {name}: choose another --out")
         check_output(path, f"--out ({what})", overwrite=args.force)
-    partial = TraceWriter(out, [0], 500.0).partial
+    partial = max((TraceWriter(out, [0], 500.0).partial, TraceWriter(out, [0], 500.0).mapping_partial),
+                  key=lambda p: len(os.fsencode(p.name)))
     if (too_long := name_too_long(partial)) is not None:
         raise UsageError(f"--out {short_path(out)}: its name is too long: the table is written first under the "
                          f"hidden name {short_path(Path(partial.name))} of {too_long[0]} bytes, its file system takes "
@@ -88,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
         if writer is None:
             print(f"edge-monitor export-trace: no joint samples in {args.file}", file=sys.stderr)
             return EXIT_FAILURE
-        mapping.write_text(writer.mapping_text(), encoding="utf-8")
     except (FileNotFoundError, LogReadError) as exc:
         print(f"edge-monitor export-trace: {exc}", file=sys.stderr)
         return EXIT_FAILURE
@@ -98,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     if verbosity(args) >= 0:                # -q: errors only
         print(f"edge-monitor export-trace: {writer.rows} rows to {args.out}; replay it with "
-              f"`edge-monitor replay {args.out} --mapping {mapping}`", file=sys.stderr)
+              f"`edge-monitor replay {shlex.quote(args.out)} --mapping {shlex.quote(str(mapping))}`", file=sys.stderr)
     return 0
 
 

@@ -24,6 +24,7 @@ import contextlib
 import json
 import logging
 import os
+import shlex
 import sys
 import tempfile
 import time
@@ -266,6 +267,8 @@ def input_notes(file: str, stats: dict[str, Any], report: Any,
     (None when something was)."""
     finding = stats.get("details", {}).get("cycle_finding") or {}
     dropped = {k: v for k, v in (stats.get("details", {}).get("samples_dropped") or {}).items() if v}
+    if not_enabled := stats.get("details", {}).get("not_enabled"):       # CiA 402: the statusword gate
+        dropped["drive not in operation enabled (statusword 6041h)"] = not_enabled
     unused = {k: stats[k] for k in ("unknown_id", "malformed") if stats.get(k)}
     notes = [f"{file}: {what}: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items())
              for what, counts in (("samples dropped", dropped), ("frames not used", unused)) if counts]
@@ -277,6 +280,9 @@ def input_notes(file: str, stats: dict[str, Any], report: Any,
         nothing = f"nothing in {file} is readable ({report.skipped} unreadable record(s)): is it a CAN log?"
     elif stats["cycles"] == 0 and finding and (stats["frames_total"] or getattr(report, "frames", 0)):
         nothing = no_cycle_note(file, finding, mapping, getattr(report, "truncated", None))
+        if nothing and not_enabled:
+            nothing += (f"; {not_enabled} samples were dropped while the drive's statusword 6041h did not read "
+                        "operation enabled (a drive switched off, in fault or not yet enabled)")
     return notes, nothing
 
 
@@ -287,7 +293,8 @@ def no_cycle_note(file: str, finding: dict[str, Any], mapping: str | None, trunc
         return None
     why = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in finding.items()
                     if k in ("before_first_cycle", "bad_marks", "cycle_jumps", "plateaus_ignored") and v)
-    check = f"edge-monitor check-mapping {file}" + (f" --mapping {mapping}" if mapping else "")
+    check = (f"edge-monitor check-mapping {shlex.quote(file)}"
+             + (f" --mapping {shlex.quote(mapping)}" if mapping else ""))
     return (f"no cycle found in {file} ({finding.get('method', 'cycle finding')}"
             + (f": {why.replace('before first cycle', 'samples before the first cycle')}" if why else "")
             + f"): does the mapping's [cycles] fit the input? run {check} (docs/CONNECTING.md)")

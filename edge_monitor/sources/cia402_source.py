@@ -37,7 +37,7 @@ from protocol.cia402 import (
     DriveLayout,
     drive_layout,
 )
-from protocol.mapping_limits import TORQUE_NM, within
+from protocol.mapping_limits import TORQUE_NM, VELOCITY_FACTOR, within
 from protocol.signal_mapping import JointMapping, MappingError, SignalMapping
 from protocol.units import UnitError, torque_factor
 
@@ -80,16 +80,27 @@ class Cia402Decoder:
             raise MappingError(f"{exc} (rated torque: 6076h of the EDS, or rated_torque_nm)") from None
         v_factor = jm.velocity_factor
         if v_factor is None:
-            if not layout.increments_per_revolution:
+            increments, revolutions = layout.encoder
+            if increments is None or revolutions is None:
                 raise MappingError(f"{where}: velocity_factor: rad/s per unit of 606Ch is needed (the EDS has no "
                                    "608Fh encoder resolution to assume inc/s)")
-            v_factor = 2.0 * math.pi / layout.increments_per_revolution
+            v_factor = 2.0 * math.pi / layout.increments_per_revolution if layout.increments_per_revolution else 0.0
+            if not within(v_factor, VELOCITY_FACTOR):
+                raise MappingError(f"{where}: the EDS's encoder resolution 608Fh of node {layout.node} is "
+                                   f"{increments:g} increments per {revolutions:g} revolutions, no encoder's"
+                                   + (f" (606Ch in inc/s would be {v_factor:g} rad/s per unit, outside "
+                                      f"{VELOCITY_FACTOR[0]:g} … {VELOCITY_FACTOR[1]:g})" if v_factor else "")
+                                   + ": state velocity_factor "
+                                   "(rad/s per unit of 606Ch) in the mapping or fix the EDS")
         torque = self._bind_object(layout, TORQUE, 0, t_factor, 0.0, f"{where}: torque actual value")
         speed = self._bind_object(layout, VELOCITY, 0, v_factor, 0.0, f"{where}: velocity actual value")
         if torque.frame_id != speed.frame_id:
             raise MappingError(f"{where}: 6077h and 606Ch must travel in one TPDO (each frame is one sample); "
                                f"they are in 0x{torque.frame_id:X} and 0x{speed.frame_id:X}")
         status = layout.find(STATUSWORD)
+        if status is not None and status.problem is not None:
+            raise MappingError(f"{where}: statusword 6041h of node {layout.node} (TPDO 0x{status.cob_id:X}) "
+                               f"{status.problem}: fix the EDS (CiA 402: UNSIGNED16)")
         gate = None if status is None else BoundSignal("statusword", status.cob_id, status.bits, length=status.length)
         return speed, torque, gate
 
@@ -99,8 +110,14 @@ class Cia402Decoder:
         found = layout.find(index, subindex)
         if found is None:
             mapped = sorted(f"{i:04X}sub{s}" for i, s in layout.fields)
+            unused = f"; {', '.join(layout.unused)}" if layout.unused else ""
             raise MappingError(f"{where}: object {index:04X}sub{subindex} of node {layout.node} is in no TPDO "
-                               f"(mapped: {mapped})")
+                               f"(mapped: {mapped}{unused})")
+        if found.problem is not None:
+            raise MappingError(f"{where}: object {index:04X}sub{subindex} of node {layout.node} (TPDO "
+                               f"0x{found.cob_id:X}) {found.problem}: fix the EDS"
+                               + (" (CiA 402: 6077h INTEGER16, 606Ch INTEGER32)"
+                                  if index in (TORQUE, VELOCITY) else ""))
         return BoundSignal(found.bits.name, found.cob_id, found.bits, factor, offset, length=found.length)
 
     def describe(self) -> dict[int, dict[str, str]]:

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import secrets
 from pathlib import Path
 from typing import Any
 
@@ -30,16 +32,22 @@ HOLD_VALUES = 8 << 20
 
 class TraceWriter:
     """Writes the runs of :class:`IngestBlock` s as rows (see the module docstring). The rows go to a hidden
-    ``.<name>.partial<suffix>`` beside ``path``, which :meth:`close` renames to ``path`` and :meth:`discard`
-    deletes: an export cut short (Ctrl-C, SIGTERM, a full disk) leaves no half table under the final name
-    (a Parquet file without its footer cannot be read at all)."""
+    ``.<name>.<random>.partial<suffix>`` beside ``path``, which :meth:`close` renames to ``path`` (the mapping
+    likewise, written first) and :meth:`discard` deletes: an export cut short (Ctrl-C, SIGTERM, a full disk)
+    leaves no half table under the final name (a Parquet file without its footer cannot be read at all), and
+    a table never stands beside a mapping it did not come with."""
 
     def __init__(self, path: str | Path, joints: list[int], rate_hz: float, separator: str = ";",
                  time_unit: str = "s", status: bool = True) -> None:
         self.path, self.joints, self.rate_hz = Path(path), joints, rate_hz
         self.separator, self.time_unit, self.status = separator, time_unit, status
         self.parquet = self.path.suffix.lower() in (".parquet", ".pq")
-        self.partial = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
+        # the hidden names' shape (for a name-length check); the files are made fresh (_fresh): never a FIFO or
+        # another file already there under a fixed name
+        self.partial = self.path.with_name(f".{self.path.stem}.XXXXXXXX.partial{self.path.suffix}")
+        self.mapping_path = self.path.with_suffix(".toml")
+        self.mapping_partial = self.path.with_name(f".{self.path.stem}.XXXXXXXX.partial.toml")
+        self._made: list[Path] = []
         self._writer: Any = None
         self.rows = 0
         self.dropped_rows = 0               # rows of a cut last cycle left out (close(drop_open=True))
@@ -104,6 +112,7 @@ class TraceWriter:
         import pyarrow as pa
         table = pa.table({name: pa.array(cols[name], from_pandas=True) for name in self.columns()})
         if self._writer is None:
+            self.partial = self._fresh(self.path.suffix)
             if self.parquet:
                 import pyarrow.parquet as pq
                 self._writer = pq.ParquetWriter(str(self.partial), table.schema)
@@ -115,7 +124,8 @@ class TraceWriter:
         self.rows += table.num_rows
 
     def close(self, drop_open: bool = False) -> None:
-        """Finish the table and give it its name (nothing is written without rows); ``drop_open``: the
+        """Finish the table and its mapping and give both their names (nothing is written without rows; the
+        mapping is written first, so a table never stands beside another's mapping); ``drop_open``: the
         recording was cut short, leave the rows of its last cycle (held back) out."""
         if drop_open:
             self.dropped_rows = sum(len(cols["cycle"]) for cols in self._held)
@@ -124,7 +134,23 @@ class TraceWriter:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+            self.mapping_partial = self._fresh(".toml")
+            self.mapping_partial.write_text(self.mapping_text(), encoding="utf-8")
             self.partial.replace(self.path)
+            self.mapping_partial.replace(self.mapping_path)
+            self._made = []
+
+    def _fresh(self, suffix: str) -> Path:
+        """A new empty hidden file beside the table, made with O_EXCL (whatever lies there, a FIFO left under a
+        name, is never opened) and the umask's permissions (as the table would have)."""
+        while True:
+            path = self.path.with_name(f".{self.path.stem}.{secrets.token_hex(4)}.partial{suffix}")
+            try:
+                os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            except FileExistsError:
+                continue
+            self._made.append(path)
+            return path
 
     def discard(self) -> None:
         """Stop and delete what was written (an export that did not finish)."""
@@ -134,11 +160,14 @@ class TraceWriter:
         except Exception:     # noqa: BLE001 — the file goes anyway; the error that stopped the export is reported
             pass
         self._writer, self._held = None, []
-        self.partial.unlink(missing_ok=True)
+        for made in self._made:
+            made.unlink(missing_ok=True)
+        self._made = []
 
     def mapping_text(self) -> str:
         """The ``trace`` mapping of this table (cycles from its cycle/segment columns)."""
-        lines = [f"# trace mapping of {self.path.name} (edge-monitor export-trace)", 'kind = "trace"', "",
+        lines = [f"# trace mapping of {self.path.name} (edge-monitor export-trace)", 'kind = "trace"',
+                 f"rate_hz = {float(self.rate_hz)!r}   # the recording's tick rate (its rows' time step)", "",
                  "[trace]", 'layout = "wide"', f"separator = {json.dumps(self.separator)}",
                  f'time_column = "time [{self.time_unit}]"', f'time_unit = "{self.time_unit}"', "",
                  "[cycles]", 'from = "controller"', 'cycle = { column = "cycle" }', 'segment = { column = "segment" }',
