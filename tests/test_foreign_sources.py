@@ -177,3 +177,24 @@ def test_a_restarted_agent_numbers_found_cycles_on(runs, tmp_path):
         emitted += second.update(*block)
     emitted += second.flush_source() + second.finish()
     assert emitted and min(s.cycle for s in emitted) > max(first._last_emitted.values())
+
+
+def test_the_configs_joints_are_the_monitored_ones_with_a_mapping(runs):
+    """The config's ``joints`` splits the false-alarm budget over the joints it names, so a mapped source must
+    monitor those only (it monitored every mapped joint: with ``joints = [1]`` two joints each at one joint's share
+    of the budget). The other joint's samples are counted as filtered; a config naming no mapped joint is refused."""
+    import dataclasses
+
+    from protocol.signal_mapping import MappingError
+
+    _, _, log, m = runs["foreign"]
+    cfg = dataclasses.replace(load_config(None), joints=(1,))
+    agent = Agent(cfg, source=open_source(m, cfg))
+    symptoms = []
+    for block in log_blocks(log, 4096):
+        symptoms += agent.update(*block)
+    symptoms += agent.flush_source() + agent.finish()
+    assert {s.joint for s in symptoms} == {1} and agent.stats.cycles == CYCLES
+    assert agent.health().counters["joint_filtered"] > 0
+    with pytest.raises(MappingError, match=r"joints \[7\].*none in common"):
+        open_source(m, dataclasses.replace(cfg, joints=(7,)))

@@ -161,7 +161,7 @@ class AgentConfig:
 
 def config_for(config: AgentConfig, mapping: SignalMapping) -> AgentConfig:
     """The agent config a mapping file needs: its rate (the tick rate the samples' times are converted
-    to; a mapping that states ``rate_hz`` overrides the config's), its joints, and (cycles from a trigger)
+    to; a mapping that states ``rate_hz`` overrides the config's) and (cycles from a trigger)
     the designed speeds as the plateau levels (the trigger marks the cycle, not the levels)."""
     out = config
     if mapping.rate_hz is not None:

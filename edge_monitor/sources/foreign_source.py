@@ -26,7 +26,7 @@ from edge_monitor.sources.sample_stream import SampleStream
 from edge_monitor.sources.samples import DecodedSamples, IngestBlock, SourceConfig, StatusColumns
 from protocol.bitfields import BitField
 from protocol.e2e import E2EReceiver
-from protocol.signal_mapping import CycleMapping, SignalMapping, load_mapping
+from protocol.signal_mapping import CycleMapping, MappingError, SignalMapping, load_mapping
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +89,7 @@ class ForeignSource:
     decoder: FrameDecoder | None = None
     c: ForeignCounters = field(default_factory=ForeignCounters)
     e2e: E2EReceiver = field(default_factory=E2EReceiver)     # unused: keeps the agent's health shape
+    joints: frozenset[int] | None = None     # the config's joints (None: every mapped joint); others counted, dropped
 
     def __post_init__(self) -> None:
         if self.decoder is not None:
@@ -98,13 +99,24 @@ class ForeignSource:
     def update(self, ids: NDArray, data: NDArray, dlc: NDArray, timestamps: NDArray) -> IngestBlock:
         if self.decoder is None:
             raise TypeError("this source reads tables, not frames: use update_samples")
-        return self.stream.update(self.decoder.decode(ids, data, dlc, timestamps))
+        return self._kept(self.stream.update(self.decoder.decode(ids, data, dlc, timestamps)))
 
     def update_samples(self, decoded: DecodedSamples) -> IngestBlock:
-        return self.stream.update(decoded)
+        return self._kept(self.stream.update(decoded))
 
     def flush(self) -> IngestBlock:
-        return self.stream.flush()
+        return self._kept(self.stream.flush())
+
+    def _kept(self, block: IngestBlock) -> IngestBlock:
+        """``block`` without the joints the config does not monitor (their samples counted in ``joint_filtered``);
+        filtered after the cycles are found, which may follow a joint not monitored."""
+        if self.joints is not None:
+            for run in block.runs:
+                for joint in [j for j in run.samples if j not in self.joints]:
+                    self.c.joint_filtered += int(run.samples.pop(joint).tick.size)
+                for joint in [j for j in run.joint_status if j not in self.joints]:
+                    del run.joint_status[joint]
+        return block
 
     def counters(self) -> dict[str, Any]:
         return {**self.c.__dict__, "samples_dropped": dict(self.stream.dropped),
@@ -137,7 +149,24 @@ def open_source(mapping: SignalMapping | str | Path, config: SourceConfig) -> Fo
     m = mapping if isinstance(mapping, SignalMapping) else load_mapping(mapping)
     labeller = make_labeller(m.cycles, config.rate_hz, config.segmentation)
     stream = SampleStream(labeller, config.rate_hz, int(m.cycles.reference_joint or 0))
-    return ForeignSource(stream, decoder_for(m))
+    return ForeignSource(stream, decoder_for(m), joints=monitored_joints(m, config.joints))
+
+
+def monitored_joints(mapping: SignalMapping, configured: tuple[int, ...] | None) -> frozenset[int] | None:
+    """The mapped joints the config's ``joints`` keeps (None: every mapped joint); MappingError when it keeps none,
+    a warning for configured joints the mapping does not map (the false-alarm budget is split over the config's)."""
+    if configured is None:
+        return None
+    mapped = set(mapping.joints)
+    kept = frozenset(configured) & mapped
+    if not kept:
+        raise MappingError(f"{mapping.where('joint')}: the agent's config monitors joints {sorted(configured)}, the "
+                           f"mapping maps joints {sorted(mapped)}: none in common; fix the config's joints "
+                           "(or omit it to monitor every mapped joint) or the mapping")
+    if missing := sorted(set(configured) - mapped):
+        log.warning("%s: the agent's config monitors joints %s, which the mapping does not map: they are not "
+                    "monitored", mapping.where("joint"), missing)
+    return kept
 
 
 def short_frames(bounds: list[BoundSignal], ids: NDArray[np.int64], dlc: NDArray[np.int64]) -> NDArray[np.bool_]:
