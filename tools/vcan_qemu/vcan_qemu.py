@@ -49,7 +49,8 @@ MODULE_DIRS = ("drivers/virtio/", "net/9p/", "fs/9p/", "fs/netfs/", "fs/fscache/
 GUEST_MODULES = ("virtio_pci", "9pnet_virtio", "9p", "can_raw", "vcan")
 CONSOLE_TAIL_LINES = 40
 STATUS_LINE = re.compile(r"status: (?P<frames_total>\d+) frames \([^)]*\), ok (?P<frames_ok>\d+), crc (?P<crc_errors>\d+), "
-                         r"lost (?P<counter_lost>\d+), queue (?P<queue_depth>\d+) \(dropped (?P<queue_dropped>\d+)\), "
+                         r"lost (?P<counter_lost>\d+), out of sequence (?P<wrong_sequence>\d+), "
+                         r"queue (?P<queue_depth>\d+) \(dropped (?P<queue_dropped>\d+)\), "
                          r"cycles (?P<cycles>\d+), symptoms (?P<symptoms>\d+), alarms (?P<alarms>\d+)")
 
 
