@@ -130,13 +130,15 @@ def _words(data: NDArray[np.uint8], byte_order: str) -> NDArray[np.uint64]:
 
 @dataclass(frozen=True)
 class ResolvedSignal:
-    """A DBC signal found by name: its frame, bit field and, if multiplexed, the multiplexer and its value."""
+    """A DBC signal found by name: its frame, bit field, if multiplexed the multiplexer and its value, and the
+    unit the DBC gives it ("" when none)."""
 
     message: str
     frame_id: int
     bits: BitField
     mux: BitField | None = None
     mux_value: int = 0
+    unit: str = ""
 
 
 def resolve(db: Any, message_name: str | None, signal_name: str | None) -> ResolvedSignal:
@@ -157,4 +159,5 @@ def resolve(db: Any, message_name: str | None, signal_name: str | None) -> Resol
     if signal.multiplexer_ids:
         mux_signal = next(s for s in message.signals if s.name == signal.multiplexer_signal)
         mux, value = BitField.from_cantools(mux_signal), int(signal.multiplexer_ids[0])
-    return ResolvedSignal(message.name, int(message.frame_id), BitField.from_cantools(signal), mux, value)
+    return ResolvedSignal(message.name, int(message.frame_id), BitField.from_cantools(signal), mux, value,
+                          str(signal.unit or "").strip())

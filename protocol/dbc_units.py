@@ -19,26 +19,21 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import replace
-from typing import Any
 
+from protocol.bitfields import ResolvedSignal
 from protocol.signal_mapping import JointMapping, MappingError, SignalRef, joint_conversion
-from protocol.units import UnitError, canonical_unit, same_unit, units_of
+from protocol.units import RELATIVE_TORQUE_UNITS, UnitError, canonical_unit, same_unit, units_of
 
 log = logging.getLogger(__name__)
 
 
-def dbc_unit(signal: Any) -> str:
-    """A cantools signal's unit ("" when the DBC gives none)."""
-    return str(getattr(signal, "unit", None) or "").strip()
-
-
-def checked_ref(signal: Any, ref: SignalRef, jm: JointMapping, quantity: str, where: str) -> SignalRef:
-    """``ref`` for the cantools ``signal`` it names: unchanged, or converting the DBC's unit (see the module
+def checked_ref(found: ResolvedSignal, ref: SignalRef, jm: JointMapping, quantity: str, where: str) -> SignalRef:
+    """``ref`` for the DBC signal ``found`` it names: unchanged, or converting the DBC's unit (see the module
     docstring); MappingError when the units disagree."""
-    unit = dbc_unit(signal)
+    unit = found.unit
     if not unit or same_unit(unit, ref.unit, quantity):
         return ref
-    name = f"{ref.message}.{signal.name}"
+    name = f"{found.message}.{found.bits.name}"
     known = canonical_unit(unit) in units_of(quantity)
     if ref.unit_stated:
         if _scale_converts(unit, ref, quantity) if known else ref.scale is not None:
@@ -71,7 +66,7 @@ def _factors(unit: str, quantity: str) -> tuple[float, float, bool]:
     """(factor, offset, relative) of a known unit of ``quantity`` (relative: a torque of a rating)."""
     value = units_of(quantity)[canonical_unit(unit)]
     factor, offset = value if isinstance(value, tuple) else (value, 0.0)
-    relative = quantity in ("torque", "load") and canonical_unit(unit) in ("fraction", "%", "permille", "‰")
+    relative = quantity in ("torque", "load") and canonical_unit(unit) in RELATIVE_TORQUE_UNITS
     return factor, offset, relative
 
 

@@ -42,14 +42,11 @@ def canonical_unit(unit: str) -> str:
 
 def units_of(quantity: str) -> dict[str, float | tuple[float, float]]:
     """The units of ``quantity`` ("speed", "torque", "load", "temperature") the agent converts."""
-    if quantity == "speed":
-        return dict(SPEED_UNITS)
-    if quantity in ("torque", "load"):
-        return {**TORQUE_UNITS_NM, **RELATIVE_TORQUE_UNITS}
-    return dict(TEMPERATURE_UNITS)
+    return {unit: value for table in _tables(quantity) for unit, value in table.items()}
 
 
 def _tables(quantity: str) -> list[dict]:
+    """The unit tables of ``quantity``: torque's absolute and relative units apart (1 Nm is no fraction)."""
     if quantity == "speed":
         return [SPEED_UNITS]
     if quantity in ("torque", "load"):

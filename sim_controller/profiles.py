@@ -139,7 +139,7 @@ def dbc_layout(mapping: SignalMapping, joints: int) -> _Layout:
     import cantools
     if mapping.kind != "dbc" or mapping.dbc is None:
         raise ProfileError(f"--profile dbc: {mapping.path} is a {mapping.kind} mapping, not a dbc one")
-    db: Any = cantools.database.load_file(str(mapping.dbc), strict=False)
+    db = cantools.database.load_file(str(mapping.dbc), strict=False)
     fast: list[_Slot] = []
     slow: dict[tuple[int, int], _Slot] = {}
 
@@ -147,8 +147,7 @@ def dbc_layout(mapping: SignalMapping, joints: int) -> _Layout:
             joint: tuple[JointMapping, str] | None = None) -> None:
         found = resolve(db, ref.message, ref.signal)
         if joint is not None:      # the DBC's unit, as the agent reads it (protocol.dbc_units)
-            signal = db.get_message_by_name(found.message).get_signal_by_name(found.bits.name)
-            ref = checked_ref(signal, ref, joint[0], joint[1], mapping.where(f"joint.{joint[0].joint}.{joint[1]}"))
+            ref = checked_ref(found, ref, joint[0], joint[1], mapping.where(f"joint.{joint[0].joint}.{joint[1]}"))
         key = (found.frame_id, found.mux_value)
         if isinstance(where, list):
             slot = next((s for s in where if s.frame_id == found.frame_id), None)

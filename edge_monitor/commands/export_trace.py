@@ -57,14 +57,14 @@ def check_outputs(args: argparse.Namespace) -> Path:
             if given and same_file(path, Path(given)):
                 raise UsageError(f"--out {out}: its {what} {path} is {name}: choose another --out")
         check_output(path, f"--out ({what})", overwrite=args.force)
-    partial = max((TraceWriter(out, [0], 500.0).partial, TraceWriter(out, [0], 500.0).mapping_partial),
-                  key=lambda p: len(os.fsencode(p.name)))
+    probe = TraceWriter(out, [0], 500.0, args.separator, args.time_unit)    # its names and its mapping's text
+    partial = max((probe.partial, probe.mapping_partial), key=lambda p: len(os.fsencode(p.name)))
     if (too_long := name_too_long(partial)) is not None:
         raise UsageError(f"--out {short_path(out)}: its name is too long: the table is written first under the "
                          f"hidden name {short_path(Path(partial.name))} of {too_long[0]} bytes, its file system takes "
                          f"{too_long[1]}: choose a name {too_long[0] - too_long[1]} bytes shorter")
     try:
-        mapping_from_dict(tomllib.loads(TraceWriter(out, [0], 500.0, args.separator, args.time_unit).mapping_text()))
+        mapping_from_dict(tomllib.loads(probe.mapping_text()))
     except (MappingError, tomllib.TOMLDecodeError) as exc:
         raise UsageError(f"--separator {args.separator!r}: {str(exc).split(': ', 2)[-1]}") from None
     return mapping

@@ -16,7 +16,7 @@ a frame with a wrong CRC or a repeated counter is dropped and counted.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 
 from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, short_frames, status_columns, take
 from edge_monitor.sources.samples import DecodedSamples, JointColumns
-from protocol.bitfields import BitFieldError, resolve
-from protocol.dbc_units import checked_ref, dbc_unit
+from protocol.bitfields import BitFieldError, ResolvedSignal, resolve
+from protocol.dbc_units import checked_ref
 from protocol.files import NotARegularFile, read_regular
 from protocol.frame_blocks import CAN_EFF_FLAG
 from protocol.signal_mapping import E2EMapping, JointMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
@@ -62,29 +62,31 @@ def load_dbc(mapping: SignalMapping) -> Any:
         raise MappingError(f"{where}: cannot load {path}: {type(exc).__name__}: {first}") from None
 
 
-def bind(db: Any, ref: SignalRef, where: str) -> BoundSignal:
-    """``ref`` resolved against the DBC ``db``; a missing message or signal names the nearest ones."""
-    try:
-        found = resolve(db, ref.message, ref.signal)
-    except BitFieldError as exc:
-        raise MappingError(f"{where}: {exc}") from None
+def bind(db: Any, ref: SignalRef, where: str, found: ResolvedSignal | None = None) -> BoundSignal:
+    """``ref`` resolved against the DBC ``db`` (or as already ``found`` there); a missing message or signal names
+    the nearest ones."""
+    found = found or _resolve(db, ref, where)
     message = db.get_message_by_name(found.message)
     check_place(message, message.get_signal_by_name(found.bits.name), where)
     return BoundSignal(f"{found.message}.{found.bits.name}", frame_key(message),
                        found.bits, ref.factor, ref.offset, found.mux, found.mux_value)
 
 
+def _resolve(db: Any, ref: SignalRef, where: str) -> ResolvedSignal:
+    try:
+        return resolve(db, ref.message, ref.signal)
+    except BitFieldError as exc:
+        raise MappingError(f"{where}: {exc}") from None
+
+
 def bind_quantity(db: Any, jm: JointMapping, quantity: str, where: str, unitless: list[str]) -> BoundSignal:
     """:func:`bind` for a joint's ``quantity``, its unit checked against the DBC's
     (:func:`protocol.dbc_units.checked_ref`; a signal without unit in the DBC is added to ``unitless``)."""
     ref = getattr(jm, quantity)
-    bound = bind(db, ref, where)
-    message, name = bound.name.split(".", 1)
-    signal = db.get_message_by_name(message).get_signal_by_name(name)
-    if not dbc_unit(signal):
-        unitless.append(bound.name)
-    checked = checked_ref(signal, ref, jm, quantity, where)
-    return bound if checked is ref else replace(bound, factor=checked.factor, offset=checked.offset)
+    found = _resolve(db, ref, where)
+    if not found.unit:
+        unitless.append(f"{found.message}.{found.bits.name}")
+    return bind(db, checked_ref(found, ref, jm, quantity, where), where, found)
 
 
 def signal_bits(signal: Any) -> set[int]:
