@@ -5,13 +5,14 @@ docs/DETECTION.md, "The false-alarm budget")."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge_monitor.config import config_from_mapping
+from edge_monitor.config import AgentConfig, config_from_mapping
 from edge_monitor.errors import ConfigError
 from edge_monitor.pipeline.cycle_rate import HOUR_S, RATE_TOLERANCE, BudgetRate, CycleRate
 from edge_monitor.pipeline.detectors import DecisionConfig
@@ -19,12 +20,14 @@ from edge_monitor.stats.detector_config import DetectorConfig
 from edge_monitor.stats.sequential_detector import SequentialDetector
 
 DAY_S = 24 * HOUR_S
+ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------- the budget and its split
 def test_default_budget_is_one_false_alarm_per_robot_year() -> None:
     d = DecisionConfig()
-    assert (d.false_alarms_per_robot, d.budget_period, d.joints_per_robot) == (1.0, "year", 6)
+    assert (d.false_alarms_per_robot, d.budget_period, d.budget_joints) == (1.0, "year", 6)
+    assert d.joints_per_robot is None                               # not stated: 6, or the listed/mapped joints
     assert d.detectors_per_robot == 6 * 4
     assert d.arl0 == pytest.approx(300 * 365.25 * 24)             # 2.63e6 cycles per detector
     assert "1 false alarm(s) per robot-year" in d.budget_text
@@ -47,6 +50,29 @@ def test_listed_joints_split_the_budget_unless_said_otherwise() -> None:
     assert config_from_mapping({"joints": [0, 1, 2]}).decision.joints_per_robot == 3
     said = config_from_mapping({"joints": [0, 1, 2], "decision": {"joints_per_robot": 6}})
     assert said.decision.joints_per_robot == 6
+
+
+def test_mapped_joints_split_the_budget_unless_said_otherwise() -> None:
+    """A 3-joint mapping: each detector gets a twelfth of the robot's budget (3 joints × 4), not a 24th; a config
+    that lists joints or states joints_per_robot keeps its own split."""
+    import tomllib
+
+    from edge_monitor.pipeline.agent_config import config_for
+    from protocol.signal_mapping import mapping_from_dict
+
+    path = ROOT / "protocol" / "mappings" / "foreign_robot.toml"
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    data["joint"] = {k: v for k, v in data["joint"].items() if int(k) < 3}      # a 3-axis robot's mapping
+    data.get("cycles", {}).pop("reference_joint", None)
+    mapping = mapping_from_dict(data, path)
+    assert len(mapping.joints) == 3
+    mapped = config_for(AgentConfig(), mapping).decision
+    assert (mapped.budget_joints, mapped.detectors_per_robot) == (3, 12)
+    assert mapped.arl0 == pytest.approx(DecisionConfig().arl0 / 2)      # half the run length of a 6-joint share
+    said = config_from_mapping({"decision": {"joints_per_robot": 6}})
+    assert config_for(said, mapping).decision.budget_joints == 6
+    listed = config_from_mapping({"joints": [0, 1]})
+    assert config_for(listed, mapping).decision.budget_joints == 2
 
 
 @pytest.mark.parametrize("table, field", [

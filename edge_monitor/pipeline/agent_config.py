@@ -162,8 +162,12 @@ class AgentConfig:
 def config_for(config: AgentConfig, mapping: SignalMapping) -> AgentConfig:
     """The agent config a mapping file needs: its rate (the tick rate the samples' times are converted
     to; a mapping that states ``rate_hz`` overrides the config's) and (cycles from a trigger)
-    the designed speeds as the plateau levels (the trigger marks the cycle, not the levels)."""
+    the designed speeds as the plateau levels (the trigger marks the cycle, not the levels); and, where neither
+    ``joints`` nor ``[decision] joints_per_robot`` is stated, the mapped joints as the ones the robot's false-alarm
+    budget is split over (a 3-joint robot's detectors get a third of the budget each, not a sixth)."""
     out = config
+    if out.joints is None and out.decision.joints_per_robot is None:
+        out = replace(out, decision=replace(out.decision, joints_per_robot=len(mapping.joints)))
     if mapping.rate_hz is not None:
         out = replace(out, rate_hz=mapping.rate_hz)
     if mapping.cycles.source == "trigger" and not out.segmentation.speeds:

@@ -58,7 +58,7 @@ PER_DETECTOR_KEYS = ("learned_sd_prior_friction",)
 BUDGET_PERIODS: dict[str, float] = {"day": 1.0, "week": 7.0, "month": 365.25 / 12, "year": 365.25}
 #: Test cycles a day the thresholds are derived for until the agent has measured its own rate.
 DEFAULT_CYCLES_PER_DAY = 300.0
-#: Joints the robot's budget is split over unless the config lists the joints (a six-axis arm).
+#: Joints the robot's budget is split over unless the config or its mapping file lists the joints (a six-axis arm).
 DEFAULT_JOINTS_PER_ROBOT = 6
 MAX_JOINTS_PER_ROBOT = 64
 
@@ -108,7 +108,7 @@ class DecisionConfig:
     false_alarms_per_robot: float = 1.0
     budget_period: str = "year"
     cycles_per_day: float = DEFAULT_CYCLES_PER_DAY
-    joints_per_robot: int = DEFAULT_JOINTS_PER_ROBOT
+    joints_per_robot: int | None = None     # None: not stated (the listed or mapped joints, else 6)
     arl0_cycles: float | None = None
     pf: float | None = None
     pf_joint: float | None = None
@@ -152,7 +152,12 @@ class DecisionConfig:
     @property
     def detectors_per_robot(self) -> int:
         """How many detectors the robot's false-alarm budget is split over."""
-        return self.joints_per_robot * len(self.quantities)
+        return self.budget_joints * len(self.quantities)
+
+    @property
+    def budget_joints(self) -> int:
+        """The joints the robot's budget is split over: ``joints_per_robot``, or 6 where it is not stated."""
+        return DEFAULT_JOINTS_PER_ROBOT if self.joints_per_robot is None else self.joints_per_robot
 
     @property
     def arl0(self) -> float:
@@ -176,6 +181,8 @@ class DecisionConfig:
                 f"{self.arl0:.3g} cycles per detector)")
 
     def __post_init__(self) -> None:
+        if isinstance(self.joints_per_robot, float) and self.joints_per_robot.is_integer():   # TOML's optional number
+            object.__setattr__(self, "joints_per_robot", int(self.joints_per_robot))
         object.__setattr__(self, "healthy_drift", healthy_drift(self.healthy_drift))
         object.__setattr__(self, "warm_up_law", warm_up_law(self.warm_up_law))
         object.__setattr__(self, "warm_up_law_friction", warm_up_law(self.warm_up_law_friction, "warm_up_law_friction",
@@ -227,7 +234,8 @@ class DecisionConfig:
             value = getattr(self, name)
             require(isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value <= 1e6,
                     f"decision.{name}", f"must be a number > 0 and ≤ 1e6, got {value!r}")
-        require(isinstance(self.joints_per_robot, int) and not isinstance(self.joints_per_robot, bool)
+        require(self.joints_per_robot is None or isinstance(self.joints_per_robot, int)
+                and not isinstance(self.joints_per_robot, bool)
                 and 1 <= self.joints_per_robot <= MAX_JOINTS_PER_ROBOT, "decision.joints_per_robot",
                 f"must be 1 … {MAX_JOINTS_PER_ROBOT}, got {self.joints_per_robot!r}")
         if self.arl0_cycles is None:
