@@ -163,3 +163,39 @@ def test_a_mapping_that_cannot_be_written_leaves_no_table(tmp_path, monkeypatch,
     assert edge_monitor.cli.main(["export-trace", str(log), "--out", str(out / "t.csv"), "--force", "-q"]) == 1
     assert "No space left on device" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["t.toml"] and (out / "t.toml").read_text() == "# an old mapping\n"
+
+
+KILLED_AT_CLOSE = """
+import os, signal, sys
+from edge_monitor.sources import trace_export
+trace_export.TraceWriter.close = lambda self, drop_open=False: os.kill(os.getpid(), signal.SIGKILL)
+from edge_monitor.cli import main
+main(sys.argv[1:])
+"""
+
+
+def test_hidden_files_a_killed_export_left_are_removed_and_only_those(tmp_path):
+    """Before, an export killed with SIGKILL (or a power cut) left its hidden ``.NAME.<random>.partial.csv``
+    for ever, one more per crash. Now the next export to the name removes those nobody holds the lock of,
+    says so, and leaves alone one another export is writing and anything not a regular file."""
+    import fcntl
+
+    log = record(tmp_path, "native", "native", cycles=2, joints=1)
+    out = tmp_path / "t.csv"
+    killed = subprocess.run([sys.executable, "-c", KILLED_AT_CLOSE, "export-trace", str(log), "--out", str(out),
+                             "-q"], capture_output=True, text=True, timeout=HANG_GUARD_S)
+    assert killed.returncode == -9, killed.stderr
+    left = sorted(p.name for p in tmp_path.glob(".t.*.partial.csv"))
+    assert len(left) == 1 and not out.exists()
+    os.mkfifo(tmp_path / ".t.0000fifo.partial.csv")
+    busy = tmp_path / ".t.0000busy.partial.csv"
+    busy.write_text("another export's rows\n")
+    with busy.open() as held:
+        fcntl.flock(held, fcntl.LOCK_EX)         # as a running export holds its own
+        done = subprocess.run([*EM, "export-trace", str(log), "--out", str(out)], capture_output=True, text=True,
+                              timeout=HANG_GUARD_S)
+    assert done.returncode == 0, done.stderr
+    assert "removed 1 hidden file(s) beside t.csv left by an export that did not finish" in done.stderr
+    assert left[0] in done.stderr
+    assert sorted(p.name for p in tmp_path.glob(".t.*")) == [".t.0000busy.partial.csv", ".t.0000fifo.partial.csv"]
+    assert out.exists() and out.with_suffix(".toml").exists()

@@ -67,7 +67,26 @@ def check_outputs(args: argparse.Namespace) -> Path:
         mapping_from_dict(tomllib.loads(probe.mapping_text()))
     except (MappingError, tomllib.TOMLDecodeError) as exc:
         raise UsageError(f"--separator {args.separator!r}: {str(exc).split(': ', 2)[-1]}") from None
+    remove_stale_partials(probe)
     return mapping
+
+
+def remove_stale_partials(probe: TraceWriter) -> None:
+    """Delete the hidden files of ``--out``'s name an export killed before it finished left (none is being
+    written: nobody holds their lock), with a warning that says how many."""
+    removed = []
+    for path in probe.stale_partials():
+        try:
+            path.unlink()
+            removed.append(path.name)
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            log.warning("cannot remove %s, left by an export that did not finish (%s): delete it by hand",
+                        path, exc.strerror or exc)
+    if removed:
+        log.warning("removed %d hidden file(s) beside %s left by an export that did not finish (killed, or the "
+                    "machine stopped): %s", len(removed), probe.path.name, ", ".join(removed[:4]))
 
 
 def run(args: argparse.Namespace) -> int:

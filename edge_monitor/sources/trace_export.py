@@ -13,10 +13,12 @@ than :data:`HOLD_VALUES` values is written as it goes (then it cannot be left ou
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
 import secrets
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +37,8 @@ class TraceWriter:
     ``.<name>.<random>.partial<suffix>`` beside ``path``, which :meth:`close` renames to ``path`` (the mapping
     likewise, written first) and :meth:`discard` deletes: an export cut short (Ctrl-C, SIGTERM, a full disk)
     leaves no half table under the final name (a Parquet file without its footer cannot be read at all), and
-    a table never stands beside a mapping it did not come with."""
+    a table never stands beside a mapping it did not come with. Each hidden file is locked (``flock``) while it
+    is written, so those a killed export left are told apart and removed (:func:`remove_stale_partials`)."""
 
     def __init__(self, path: str | Path, joints: list[int], rate_hz: float, separator: str = ";",
                  time_unit: str = "s", status: bool = True) -> None:
@@ -48,6 +51,7 @@ class TraceWriter:
         self.mapping_path = self.path.with_suffix(".toml")
         self.mapping_partial = self.path.with_name(f".{self.path.stem}.XXXXXXXX.partial.toml")
         self._made: list[Path] = []
+        self._locks: list[int] = []         # a descriptor of each hidden file, holding its flock
         self._writer: Any = None
         self.rows = 0
         self.dropped_rows = 0               # rows of a cut last cycle left out (close(drop_open=True))
@@ -139,6 +143,7 @@ class TraceWriter:
             self.partial.replace(self.path)
             self.mapping_partial.replace(self.mapping_path)
             self._made = []
+        self._unlock()
 
     def _fresh(self, suffix: str) -> Path:
         """A new empty hidden file beside the table, made with O_EXCL (whatever lies there, a FIFO left under a
@@ -146,11 +151,18 @@ class TraceWriter:
         while True:
             path = self.path.with_name(f".{self.path.stem}.{secrets.token_hex(4)}.partial{suffix}")
             try:
-                os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             except FileExistsError:
                 continue
+            fcntl.flock(fd, fcntl.LOCK_EX)      # new and ours alone: granted at once; held until renamed or deleted
+            self._locks.append(fd)
             self._made.append(path)
             return path
+
+    def _unlock(self) -> None:
+        for fd in self._locks:
+            os.close(fd)
+        self._locks = []
 
     def discard(self) -> None:
         """Stop and delete what was written (an export that did not finish)."""
@@ -163,6 +175,15 @@ class TraceWriter:
         for made in self._made:
             made.unlink(missing_ok=True)
         self._made = []
+        self._unlock()
+
+    def stale_partials(self) -> list[Path]:
+        """Hidden files of this table's name that no export is writing (none holds their lock): what an export
+        killed with SIGKILL, or a machine that lost power, left behind."""
+        stem = self.path.stem
+        found = [p for pattern in (f".{stem}.*.partial{self.path.suffix}", f".{stem}.*.partial.toml")
+                 for p in self.path.parent.glob(pattern)]
+        return [p for p in found if p not in self._made and _unlocked_regular_file(p)]
 
     def mapping_text(self) -> str:
         """The ``trace`` mapping of this table (cycles from its cycle/segment columns)."""
@@ -180,3 +201,21 @@ class TraceWriter:
                           f'temperature = {{ column = "J{j} temperature [degC]" }}']
             lines.append("")
         return "\n".join(lines)
+
+
+def _unlocked_regular_file(path: Path) -> bool:
+    """Whether ``path`` is a regular file (not followed through a symlink, a FIFO never opened for reading) that
+    nobody holds a ``flock`` on."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
