@@ -16,10 +16,15 @@ settings.register_profile("ci", derandomize=True, deadline=None)
 # from the seed given with --hypothesis-seed (the ISO week there: other examples every week, the same
 # ones within a week, so a failure can be reproduced).
 settings.register_profile("explore", derandomize=False, deadline=None)
+# Local runs: new examples each run, and no per-example deadline either (no test depends on the machine's speed;
+# a busy CPU made Hypothesis's default 200 ms deadline fail a test here).
+settings.register_profile("local", deadline=None)
 if os.environ.get("HYPOTHESIS_ONLY"):
     settings.load_profile("explore")
 elif os.environ.get("CI"):
     settings.load_profile("ci")
+else:
+    settings.load_profile("local")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -16,12 +16,14 @@ is its first ``decision.n_nominal`` values, the span the smoothed motor temperat
 * the warm-up law (``[decision.warm_up_law]``): the same mean and spread per joint over every cycle its warm-up
   detector tests, and their mean and sd over joints; and the shape of those values per joint (skewness, the share
   above 2 and above 2.5 of their sd, the variance ratios of 10- and 30-cycle means), averaged over joints;
+* the correlation of the joints' warm-up means and spreads (the law draws them independently);
 * the law's skew (its sixth number): the skew-normal shape whose values, with the law's wander, put the measured
   share above 2 sd (:func:`tail_shape`), and the share above 2.5 sd that shape predicts, a check of the fit.
 
 Usage: ``python tools/studies/temperature_law_study.py --seeds 7001-7012 [--cycles 1000] [--scenario NAME] [--json OUT]``;
 several groups pooled: ``--group 7001-7002 --group 401-407,7101-7104@plant_week:4400 --until 1200`` (seeds, then
-``@scenario`` and ``:cycles`` if not the default's); ``--no-motor-temperature``: robots whose controller sends none.
+``@scenario`` and ``:cycles`` if not the default's); ``--no-motor-temperature``: robots whose controller sends none; ``--set TABLE.KEY=VALUE``: replayed with that
+agent setting.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from scipy.stats import norm, skewnorm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+from edge_monitor.config import config_from_mapping  # noqa: E402
 from edge_monitor.features.registry import QUANTITIES  # noqa: E402
 from edge_monitor.pipeline.decision_config import DecisionConfig  # noqa: E402
 from edge_monitor.pipeline.hold_temperature import HoldTemperature  # noqa: E402
@@ -47,7 +50,7 @@ from edge_monitor.stats.calibration import MAX_SKEW  # noqa: E402
 from studies.bank_replay import detectors_temperature, new_bank, replay_bank  # noqa: E402
 from studies.robots import kept_robot_pauses  # noqa: E402
 from studies.series import robot_series  # noqa: E402
-from studies.settings import parse_seeds  # noqa: E402
+from studies.settings import parse_seeds, parse_set, settings_from  # noqa: E402
 
 INPUTS = ("wear_score", "kl_raw", "kl_weighted")
 SCALARS = ("wear", "kl_raw", "kl_weighted")
@@ -160,6 +163,13 @@ def _summary(values: list[float]) -> dict[str, float]:
             "min": float(v.min())} if v.size > 1 else {"joints": int(v.size)}
 
 
+def _correlation(a: list[float], b: list[float]) -> float:
+    """Pearson correlation over the joints where both are measured (NaN below 3 joints)."""
+    x, y = np.asarray(a, float), np.asarray(b, float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    return float(np.corrcoef(x[ok], y[ok])[0, 1]) if ok.sum() >= 3 else math.nan
+
+
 def _group(text: str, cycles: int) -> tuple[str, str | None, int]:
     """``SEEDS[@SCENARIO][:CYCLES]`` → (seeds, scenario, cycles)."""
     seeds, _, rest = text.partition("@")
@@ -180,6 +190,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenario", default=None, help="simulator scenario of the kept series (e.g. plant_week)")
     parser.add_argument("--no-motor-temperature", action="store_true",
                         help="robots whose controller sends none (their detectors follow the friction's temperature)")
+    parser.add_argument("--set", action="append", default=[], type=parse_set, metavar="TABLE.KEY=VALUE",
+                        help="agent setting (TOML value) the detectors are replayed with, e.g. "
+                             "decision.learned_sd_prior_friction='{\"wear_score\": [60, 1.0]}'")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     groups = [_group(g, args.cycles) for g in args.group]
@@ -187,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         groups.insert(0, (args.seeds, args.scenario, args.cycles))
     if not groups:
         parser.error("give --seeds or --group")
-    decision = DecisionConfig()
+    decision = config_from_mapping(settings_from(tuple(args.set))).decision
     laws: dict[str, list[float]] = {name: [] for name in INPUTS}
     parts = ("left_by_slack", "spread", "warm_up_mean", "warm_up_spread", "skewness", "above_2sd", "above_2_5sd",
              "ratio_10", "ratio_30")
@@ -214,6 +227,10 @@ def main(argv: list[str] | None = None) -> int:
             if "mean" in s:
                 print(f"{part:>14} {name:>12}: {s['mean']:+.3f} ± {s['sd']:.3f} (min {s['min']:+.3f}, "
                       f"max {s['max']:+.3f}) over {s['joints']} joints")
+    out["mean_spread_correlation"] = {q: {"r": _correlation(found["warm_up_mean"][q], found["warm_up_spread"][q])}
+                                      for q in SCALARS}
+    for name, c in out["mean_spread_correlation"].items():
+        print(f"    mean–spread {name:>12}: correlation of the joints' warm-up means and spreads {c['r']:+.3f}")
     out["tail_shape"] = tail_fits(out["above_2sd"], decision)
     for name, fit in out["tail_shape"].items():
         print(f"    tail_shape {name:>12}: skew-normal shape {fit['alpha']:+.2f} (share above 2.5 sd predicted "
