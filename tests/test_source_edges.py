@@ -290,3 +290,19 @@ def test_a_blf_shorter_than_its_header_and_a_header_only_table_are_said_to_be_so
     header.write_text(rec["csv"].read_text().splitlines()[0] + "\n")
     for command in ("replay", "check-mapping"):
         _em(command, str(header), "--mapping", str(rec["toml"]), code=2, says="is empty (a header, no rows)")
+
+
+# ------------------------------------------------------------------------------------------ a trace at another rate
+def test_a_trace_read_at_a_rate_other_than_its_rows_says_which_rate_to_state(rec):
+    """Before, a mapping whose rate_hz was not the trace's rows' (here 250 Hz for a 500 Hz table) gave cycles
+    without a friction curve and said nothing; now one warning names both rates and the setting, and the
+    trace at its own rate gives none (test above: "steps by" is not in its stderr)."""
+    mapping = rec["dir"] / "run_250.toml"
+    text = rec["toml"].read_text()
+    assert "rate_hz = 500.0" in text
+    mapping.write_text(text.replace("rate_hz = 500.0", "rate_hz = 250.0"))
+    _, _, err = _replay(rec["csv"], "--mapping", str(mapping))
+    assert "steps by 0.002 s (500 Hz) in the median, but its samples are read at 250 Hz" in err
+    assert "state the trace's rate in the mapping: rate_hz = 500" in err
+    check = _em("check-mapping", "--mapping", str(mapping), str(rec["csv"]))
+    assert "but its samples are read at 250 Hz" in check.stdout + check.stderr

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"edge-monitor check-mapping: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     try:
-        for decoded in _decoded(args, decode, cfg):
+        for decoded in _decoded(args, decode, check.rate_hz):
             check.update(decoded)
     except (FileNotFoundError, LogReadError, OSError) as exc:
         print(f"edge-monitor check-mapping: cannot read the capture: {exc}", file=sys.stderr)
@@ -120,12 +120,12 @@ def _native(block: IngestBlock, rate_hz: float, cycles: set[int] | None) -> Deco
     return out
 
 
-def _decoded(args: argparse.Namespace, decode: Any, cfg: Any) -> Iterator[DecodedSamples]:
+def _decoded(args: argparse.Namespace, decode: Any, rate_hz: float) -> Iterator[DecodedSamples]:
     if not callable(decode):                  # a trace mapping: read the table
         from edge_monitor.sources.trace_source import decoded_batches
         if not args.capture:
             raise ValueError("a trace mapping checks a table: give the CSV/Parquet file")
-        for decoded in decoded_batches(args.capture, decode):
+        for decoded in decoded_batches(args.capture, decode, rate_hz=rate_hz):   # the mapping's rate
             yield decoded
         return
     for ids, data, dlc, ts in _frames(args):

@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 #: Median time steps [s] no trace of a robot joint has: slower than 10 Hz, faster than 100 kHz (the
 #: agent needs >= 100 Hz); a table outside states its time in the other unit (ms read as s or back).
 SLOWEST_STEP_S, FASTEST_STEP_S = 0.1, 1e-5
+#: How far the rows' median time step may be from 1/rate_hz before a warning (jitter and dropped rows stay inside).
+RATE_TOLERANCE = 0.1
 
 
 def _column(batch: Any, name: str, where: str, decimal: str = ".") -> NDArray[np.float64]:
@@ -125,9 +127,10 @@ def _values(batch: Any, ref: SignalRef, where: str, decimal: str = ".") -> NDArr
     return _column(batch, str(ref.column), where, decimal) * ref.factor + ref.offset
 
 
-def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str) -> None:
+def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str, rate_hz: float | None = None) -> None:
     """TraceError if the median step of the first batch's times is no robot trace's (a unit off by 1000),
-    or if its times do not advance at all (every row at one time)."""
+    or if its times do not advance at all (every row at one time); a warning if it is not the tick ``rate_hz``
+    [Hz] the samples' times are converted at (more than :data:`RATE_TOLERANCE` off)."""
     finite = time[np.isfinite(time)]
     ticks = np.unique(finite)
     if finite.size >= 10 and ticks.size < 2:
@@ -144,6 +147,11 @@ def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str) ->
         hint = ' (in s? [trace] time_unit = "s")' if fmt.time_unit == "ms" else ""
         raise TraceError(f"{where}: the time column steps by {step:.4g} s ({1 / step:.3g} Hz) in the median: "
                          f"no robot trace is that fast{hint}")
+    if rate_hz is not None and abs(step * rate_hz - 1.0) > RATE_TOLERANCE:
+        log.warning("%s: the time column steps by %.4g s (%.4g Hz) in the median, but its samples are read at "
+                    "%.4g Hz: the plateaus come out too short or too long and cycles may have no friction curve; "
+                    "state the trace's rate in the mapping: rate_hz = %.4g", where, step, 1 / step, rate_hz,
+                    1 / step)
 
 
 def mapped_columns(mapping: SignalMapping) -> list[str]:
@@ -172,11 +180,11 @@ def _joint_rows(batch: Any, fmt: TraceFormat, mapping: SignalMapping) -> dict[in
     return out
 
 
-def decoded_batches(path: str | Path, mapping: SignalMapping,
-                    report: LogReport | None = None) -> Iterator[DecodedSamples]:
+def decoded_batches(path: str | Path, mapping: SignalMapping, report: LogReport | None = None,
+                    rate_hz: float | None = None) -> Iterator[DecodedSamples]:
     """The table as :class:`DecodedSamples`, one per batch of rows (rows with the wrong number of cells
     are skipped and counted in ``report``; empty and non-finite cells are left as NaN: the sample stream
-    counts what it drops)."""
+    counts what it drops); ``rate_hz``: the tick rate its times are read at, checked against its rows' step."""
     fmt = mapping.trace or TraceFormat()
     skipped = SkippedRows()
     first, read = True, 0
@@ -185,7 +193,7 @@ def decoded_batches(path: str | Path, mapping: SignalMapping,
         read += batch.num_rows
         time = _time(batch, fmt, mapping.where("trace.time_column"))
         if first:
-            _check_time_step(time, fmt, mapping.where("trace.time_column"))
+            _check_time_step(time, fmt, mapping.where("trace.time_column"), rate_hz)
             first = False
         rows_of = _joint_rows(batch, fmt, mapping) if fmt.layout == "long" else {}
         out = DecodedSamples()
@@ -230,7 +238,7 @@ def replay_trace(agent: Any, path: str, mapping_path: str | None,
         raise TraceError(f"{path}: --mapping {mapping_path} is a {mapping.kind} mapping; "
                          "a table needs kind = \"trace\"")
     report = LogReport()
-    for decoded in decoded_batches(path, mapping, report):
+    for decoded in decoded_batches(path, mapping, report, agent.config.rate_hz):
         report.frames += sum(int(c.time.size) for c in decoded.joints.values())
         if see_times is not None:
             times = np.concatenate([c.time for c in decoded.joints.values()] or [np.zeros(0)])
