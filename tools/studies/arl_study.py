@@ -497,15 +497,16 @@ def learning_error_study(n0: int, target: float = 1e4, detectors: int = 16, hori
             "arl_estimate": exposure / alarms if alarms else None}
 
 
-def simulated_quantities(seed: int, cycles: int, joints: int = 6,
-                         scenario: str | None = None) -> dict[int, list[dict[str, float]]]:
+def simulated_quantities(seed: int, cycles: int, joints: int = 6, scenario: str | None = None,
+                         motor_temperature: bool = True) -> dict[int, list[dict[str, float]]]:
     """Per joint, the detector inputs of every cycle after model learning (healthy, simulator defaults or
     the simulator ``scenario``: a file or packaged name), with the cycle's motor temperature [°C] as the
-    controller reports it (``"motor_temperature"``; the detectors' thermal settling test watches it):
+    controller reports it (``"motor_temperature"``; the detectors' thermal settling test watches it; a robot
+    without one, ``motor_temperature=False``: the temperature read from the friction, which its detectors follow):
     studies.series, computed once per code version and kept in ``.cache/fleet_series``."""
     from studies.series import robot_series
 
-    return robot_series(seed, cycles, joints, scenario)
+    return robot_series(seed, cycles, joints, scenario, motor_temperature)
 
 
 class _BoundaryShift:
@@ -745,6 +746,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenario", metavar="FILE.toml|NAME", default=None,
                         help="--agent: simulator scenario of every robot (e.g. plant_week; seeds, joints and "
                              "cycles as above)")
+    parser.add_argument("--no-motor-temperature", action="store_true",
+                        help="--agent: robots whose controller sends no motor temperature (their detectors follow "
+                             "the temperature read from the friction, calibrated for their own warm-up law)")
     parser.add_argument("--allowance", type=float, default=None,
                         help="--agent: drift allowance [σ] instead of the shipped 0.75 (0: calibrated at Δ = 0)")
     parser.add_argument("--curves", action="store_true",
@@ -835,7 +839,7 @@ def _agent_main(args: argparse.Namespace) -> int:
         robots = len(seeds)
     if args.joints:
         joints = args.joints
-    series = _simulate_robots(robots, cycles, joints, workers, args.scenario, seeds)
+    series = _simulate_robots(robots, cycles, joints, workers, args.scenario, seeds, not args.no_motor_temperature)
     if args.curves:
         targets = tuple(float(t) for t in args.targets.split(","))
         return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "scenario": args.scenario,
@@ -852,6 +856,7 @@ def _agent_main(args: argparse.Namespace) -> int:
     log.info("detectors done, %.0f s", time.monotonic() - started)
     steady = [r for r in rows if r["stage"] == "steady" and not r["at_boundary"]]
     return _print_json({"robots": robots, "joints": joints, "cycles": cycles, "scenario": args.scenario,
+                        "motor_temperature": not args.no_motor_temperature,
                         "calibration_draws": draws, "allowance": args.allowance, "calibrate_at": args.calibrate_at,
                         "steady_at": args.steady_at, "steady_density": args.steady_density,
                         "steady_transform": args.steady_transform, "warm_up_alarm": args.warm_up_alarm,
@@ -860,17 +865,18 @@ def _agent_main(args: argparse.Namespace) -> int:
 
 
 def _simulate_robots(robots: int, cycles: int, joints: int, workers: int, scenario: str | None = None,
-                     seeds: list[int] | None = None) -> list[dict[int, list[dict[str, float]]]]:
+                     seeds: list[int] | None = None,
+                     motor_temperature: bool = True) -> list[dict[int, list[dict[str, float]]]]:
     """:func:`simulated_quantities` of ``seeds`` (default 1 … ``robots``), in up to ``workers`` processes."""
     seeds = seeds or list(range(1, robots + 1))
     robots = len(seeds)
     if workers < 2 or robots < 2:
-        return [simulated_quantities(seed, cycles, joints, scenario) for seed in seeds]
+        return [simulated_quantities(seed, cycles, joints, scenario, motor_temperature) for seed in seeds]
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(workers, robots)) as pool:
         return list(pool.map(simulated_quantities, seeds, [cycles] * robots, [joints] * robots,
-                             [scenario] * robots))
+                             [scenario] * robots, [motor_temperature] * robots))
 
 
 def _print_json(result: dict[str, object], path: Path | None) -> int:
