@@ -13,7 +13,7 @@ from learned_units import BUDGET
 from numpy.typing import NDArray
 
 from edge_monitor.pipeline.decision_config import DecisionConfig
-from edge_monitor.pipeline.healthy_drift import WARM_UP_LAW_FRICTION
+from edge_monitor.pipeline.healthy_drift import WARM_UP_LAW, WARM_UP_LAW_FRICTION
 from edge_monitor.stats.gaussian_calibration import GaussianBudget, GaussianSettings, balanced, simulate, threshold
 from edge_monitor.stats.gaussian_fleet import fleet_detectors, skew_normal_standard
 from edge_monitor.stats.learned_axes import independent_learned_axes, partly_learned_fits
@@ -129,16 +129,21 @@ def test_the_vector_calibrated_for_the_law_delivers_its_target_and_alarms_on_wea
 
 def test_only_a_joint_without_motor_temperature_draws_its_wear_axis_from_the_law_and_it_is_tabulated() -> None:
     """The shipped decision gives the joint vector the law on its wear axis where the joint sends no motor
-    temperature, and the learning error with the healthy drift where it does; both read their thresholds from the
+    temperature (and its KL axes their own laws), and the learning error with the healthy drift where it does; both read their thresholds from the
     shipped table at every target, the two apart at one per robot-week (the law, in units of the sd learned with its
     prior, against the learning error and a drift: lower since the prior, 2026-11-30 evening; higher before)."""
     c = DecisionConfig()
     without = c.detector_config("joint", friction_temperature=True).calibration("warm-up")
     with_motor = c.detector_config("joint").calibration("warm-up")
-    assert without["spread_mean"] == (LAW[2], 0.0, 0.0) and without["skew"] == (LAW[5], 0.0, 0.0)
-    assert without["drift_mean"][0] == LAW[0] and without["drift_sd"] == (LAW[1], 0.08, 0.08)
+    kl_raw, kl_weighted = WARM_UP_LAW["kl_raw"], WARM_UP_LAW["kl_weighted"]    # its KL axes from their laws (12-01)
+    assert without["spread_mean"] == (LAW[2], kl_raw[2], kl_weighted[2]) and without["skew"] == (LAW[5], 0.0, 0.0)
+    assert without["drift_mean"] == (LAW[0], kl_raw[0], kl_weighted[0])
+    assert without["drift_sd"] == (LAW[1], kl_raw[1], kl_weighted[1]) and without["wander"] == ()
     assert with_motor["spread_mean"] == () and with_motor["drift_mean"] == (0.05, 0.0, 0.0)
-    assert lookup(WITHOUT_MOTOR, c.arl0, CORR) is not None and lookup(WITH_MOTOR, c.arl0, CORR) is not None
-    found, before = lookup(WITHOUT_MOTOR, 50_400, CORR), lookup(WITH_MOTOR, 50_400, CORR)
+    shipped = dataclasses.replace(WITH_MOTOR, drift_mean=without["drift_mean"], drift_sd=without["drift_sd"],
+                                  spread_mean=without["spread_mean"], spread_sd=without["spread_sd"],
+                                  skew=without["skew"])
+    assert lookup(shipped, c.arl0, CORR) is not None and lookup(WITH_MOTOR, c.arl0, CORR) is not None
+    found, before = lookup(shipped, 50_400, CORR), lookup(WITH_MOTOR, 50_400, CORR)
     assert found is not None and before is not None
     assert abs(found.threshold - before.threshold) > 3 * math.hypot(found.h_se, before.h_se)

@@ -21,7 +21,8 @@ from edge_monitor.pipeline.nominal_temperature import FRICTION_TEMPERATURE, MOTO
 
 def test_the_law_without_motor_temperature_reaches_the_wear_detector_alone_and_is_validated() -> None:
     """The shipped law, stated for the wear score, reaches its warm-up calibration (skew included) on a joint without
-    motor temperature only, and there the joint vector's wear axis; the KL detectors stay as on a joint with one.
+    motor temperature only, and there the joint vector's wear axis (its KL axes from the KL distances' laws); the KL
+    detectors stay as on a joint with one.
     ``[]`` gives the input back to ``warm_up_law`` (and the joint vector to its learning error); another input may be
     listed; a bad law names its key."""
     law = WARM_UP_LAW_FRICTION["wear_score"]
@@ -33,8 +34,10 @@ def test_the_law_without_motor_temperature_reaches_the_wear_detector_alone_and_i
     assert friction.calibration("steady") == motor.calibration("steady")
     for quantity in ("kl_raw", "kl_weighted"):
         assert decision.detector_config(quantity, friction_temperature=True) == decision.detector_config(quantity)
-    joint = decision.detector_config("joint", friction_temperature=True)
-    assert joint.spread_mean == (law[2], 0.0, 0.0) and joint.warm_up_skew == (law[5], 0.0, 0.0)
+    joint = decision.detector_config("joint", friction_temperature=True)    # every axis from its law, none wander
+    assert joint.spread_mean == (law[2], WARM_UP_LAW["kl_raw"][2], WARM_UP_LAW["kl_weighted"][2])
+    assert joint.drift_mean == (law[0], WARM_UP_LAW["kl_raw"][0], WARM_UP_LAW["kl_weighted"][0])
+    assert joint.warm_up_skew == (law[5], 0.0, 0.0) and joint.warm_up_wander == ()
     assert joint.calibration("steady") == decision.detector_config("joint").calibration("steady")
     given_back = config_from_mapping({"decision": {"warm_up_law_friction": {"wear_score": []}}}).decision
     for quantity in ("wear", "joint"):      # the law given back; the learned sd's prior is its own setting

@@ -87,8 +87,9 @@ class DecisionConfig:
     learning error; a scalar detector of an input ``warm_up_law`` lists (input → (mean, sd, spread, spread sd)
     [learned σ]) is drawn from that law in its nominal's learned units instead, learning error included — on a
     joint whose controller sends no motor temperature (its detectors follow the friction's lubricant temperature)
-    from ``warm_up_law_friction`` where that lists the input, and there the joint vector's axes it lists too (their
-    law without its wander; the other axes keep their learning error and ``healthy_drift``; there too the warm-up
+    from ``warm_up_law_friction`` where that lists the input, and where it lists one of the joint vector's inputs
+    every axis of that vector from its law (``warm_up_law_friction``'s, else ``warm_up_law``'s; without the wander;
+    an axis neither lists keeps its learning error and ``healthy_drift``); there too the warm-up
     nominal's learned sd of each input ``learned_sd_prior_friction`` lists (input → (k, sd)) is shrunk towards sd
     by k pseudo-values);
     ``"boundary"``: every joint at the drift allowance, a bound; ``"nominal"``: no drift).
@@ -255,8 +256,9 @@ class DecisionConfig:
         law = laws.get(spec.inputs[0], ()) if drifting and not vector else ()
         drift = [law[:2] if law else self.healthy_drift[q] for q in spec.inputs] if drifting else []
         spread_mean, spread_sd, skew = tuple(law[2:3]), tuple(law[3:4]), tuple(law[5:6])
-        axis_laws = [self.warm_up_law_friction.get(q, ()) if drifting and vector and friction_temperature else ()
-                     for q in spec.inputs]      # a vector's axes with their own law: drawn from it (without wander)
+        own_law = drifting and vector and friction_temperature and any(self.warm_up_law_friction.get(q)
+                                                                       for q in spec.inputs)
+        axis_laws = [laws.get(q, ()) if own_law else () for q in spec.inputs]   # its axes from their laws, no wander
         if any(axis_laws):
             drift = [a[:2] if a else d for a, d in zip(axis_laws, drift)]
             spread_mean, spread_sd, skew = (tuple(a[k] if a else 0.0 for a in axis_laws) for k in (2, 3, 5))

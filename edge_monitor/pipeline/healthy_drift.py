@@ -61,8 +61,9 @@ WARM_UP_LAW: dict[str, tuple[float, float, float, float, float, float]] = {
 #: spreads 1.090 ± 0.183, 2.9 % of the values above 2 of a joint's own sd and 0.95 % above 2.5; the skew-normal shape
 #: +1.28 fits the first and predicts the second (1.01 %). Without the prior (2026-11-30): +0.001 ± 0.285, 1.244 ±
 #: 0.225, the same shape (docs/WITHOUT_MOTOR_TEMPERATURE.md). The joint vector of such a
-#: joint draws its wear axis from this law too (its KL axes keep their learning error). The KL distances' laws lie
-#: within their sds of WARM_UP_LAW's. An earlier measurement on 10 other robots (7001–7006, plant weeks 401–404;
+#: joint draws its wear axis from this law too and its KL axes from WARM_UP_LAW's (2026-12-01; with their learning
+#: error and healthy drift instead it ran 1.57–1.74× quiet at short targets). The KL distances' laws lie within
+#: their sds of WARM_UP_LAW's. An earlier measurement on 10 other robots (7001–7006, plant weeks 401–404;
 #: means −0.075 ± 0.238, spreads 1.184 ± 0.231, shape +1.41) put the joints' means closer together than these 120
 #: joints do, which lowered the long targets' thresholds: not shipped.
 WARM_UP_LAW_FRICTION: dict[str, tuple[float, float, float, float, float, float]] = {
