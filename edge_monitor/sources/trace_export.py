@@ -204,8 +204,8 @@ class TraceWriter:
 
 
 def _unlocked_regular_file(path: Path) -> bool:
-    """Whether ``path`` is a regular file (not followed through a symlink, a FIFO never opened for reading) that
-    nobody holds a ``flock`` on."""
+    """Whether ``path`` is a regular file (a symlink is not followed; a FIFO is opened without blocking and then
+    refused) that nobody holds a ``flock`` on."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
     except OSError:
