@@ -503,14 +503,44 @@ def test_the_agent_measures_its_cycle_rate_and_rederives_the_thresholds(hours):
     assert detector.state == "monitoring" and detector.calibration is not None
     if not hours:
         assert health["cycles_per_day_measured"] is None and health["threshold_rederivations"] == 0
-        assert detector.calibration.arl0 == config.decision.arl0
+        assert detector.calibration.arl0 == config.decision.arl0_for(300.0, 1)     # one joint seen: all of it
     else:
         measured = health["cycles_per_day_measured"]
         assert measured is not None and abs(measured / 300.0 - 1.0) > 0.25
         basis = health["cycles_per_day"]                  # the rate re-derived for: within ±25 % of now
         assert health["threshold_rederivations"] >= 1 and abs(measured / basis - 1.0) <= 0.25
-        assert detector.calibration.arl0 == pytest.approx(config.decision.arl0_for(basis))
-        assert health["arl0_cycles"] == pytest.approx(config.decision.arl0_for(basis))
+        assert detector.calibration.arl0 == pytest.approx(config.decision.arl0_for(basis, 1))
+        assert health["arl0_cycles"] == pytest.approx(config.decision.arl0_for(basis, 1))
+
+
+@pytest.mark.parametrize("stated", [None, 6])
+def test_a_native_robot_splits_its_budget_over_the_joints_it_sends(stated):
+    """Both sides: a 2-joint robot on our frames that states no joint count gets half of the budget per joint
+    (its detectors calibrated for a third of a 6-joint share's run length), and a third joint appearing after
+    every threshold was learned re-derives them all; stated, the split stays."""
+    from protocol.frames import JOINT_STATUS_BASE_ID, MOTOR_STATE_BASE_ID
+    ids, data, dlc, ts = make_frames(12, joints=(0, 1, 2), speeds=SPEEDS, wear=lambda j, c: 0.0, seed=7)
+    late = (ids == MOTOR_STATE_BASE_ID + 2) | (ids == JOINT_STATUS_BASE_ID + 2)
+    keep = ~late | (np.arange(ids.size) >= ids.size // 2)          # joint 2 on the bus from the middle on
+    config = small_config()
+    config = dataclasses.replace(config, decision=dataclasses.replace(config.decision, pf=None,
+                                                                      joints_per_robot=stated))
+    agent = Agent(config)
+    half = int(np.searchsorted(np.flatnonzero(keep), ids.size // 2))
+    frames = (ids[keep], data[keep], dlc[keep], ts[keep])
+    feed(agent, frames, stop=half)
+    first = agent.joints[0].detectors.detectors["wear"].calibration
+    assert first is not None and sorted(agent.joints) == [0, 1]
+    feed(agent, frames, start=half)
+    agent.finish()
+    health = agent.health().counters
+    detector = agent.joints[0].detectors.detectors["wear"]
+    if stated is None:
+        assert first.arl0 == pytest.approx(config.decision.arl0 * 2 / 6)
+        assert health["budget_joints"] == 3 and detector.calibration.arl0 == pytest.approx(config.decision.arl0 / 2)
+    else:
+        assert health["budget_joints"] == 6
+        assert first.arl0 == detector.calibration.arl0 == config.decision.arl0
 
 
 def test_a_cycle_whose_close_fails_is_not_closed_again_on_every_later_block(frames, monkeypatch):

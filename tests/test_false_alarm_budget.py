@@ -195,3 +195,20 @@ def test_a_state_saved_with_another_target_is_not_relearned() -> None:
     other = DetectorConfig(n_nominal=60, arl0=2.6e6, direction="increase", allowance=0.75, clip_sigma=3.0)
     restored = SequentialDetector.from_state(other, state)
     assert restored.state == "monitoring" and restored.threshold == det.threshold
+
+
+def test_unstated_joints_split_the_budget_over_the_joints_seen() -> None:
+    """Native frames state no joint count: the budget follows the joints seen (6 before any); a stated
+    ``joints_per_robot`` and a fixed ``arl0_cycles`` never move."""
+    decision = DecisionConfig()
+    budget = BudgetRate(decision)
+    assert budget.joints == 6 and budget.arl0 == decision.arl0
+    assert budget.count_joints(1) == pytest.approx(decision.arl0 / 6)
+    assert budget.count_joints(1) is None                                      # the same count: nothing to do
+    assert budget.count_joints(3) == pytest.approx(decision.arl0 / 2) and budget.joints == 3
+    assert budget.count_joints(7) == pytest.approx(decision.arl0 * 7 / 6)      # a 7-axis robot: a 28th each
+    assert budget.counters()["budget_joints"] == 7
+    stated = BudgetRate(DecisionConfig(joints_per_robot=6))
+    assert stated.count_joints(2) is None and stated.joints == 6
+    fixed = BudgetRate(DecisionConfig(arl0_cycles=1e4))
+    assert fixed.count_joints(2) is None and fixed.arl0 == 1e4

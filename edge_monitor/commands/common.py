@@ -201,8 +201,9 @@ def summary_table(last_symptoms: dict[int, dict], stats: dict[str, Any], decisio
                                           "temperature slack")
                + (f" (its {', '.join(held)} detectors holding while the joint is outside the temperatures "
                   f"they learned at)" if held else ""))
+    arl0 = stats.get("details", {}).get("arl0_cycles", decision.arl0)      # as the agent derived it last
     setting = (f"Pf {decision.pf:.2g} per test (expert setting)" if decision.pf is not None
-               else f"mean run length to a false alarm {decision.arl0:.3g} cycles per detector once steady, {warm_up}")
+               else f"mean run length to a false alarm {arl0:.3g} cycles per detector once steady, {warm_up}")
     lines = [f"{'joint':>5} {'cycles':>6} {'wear':>16} {'temp °C':>8} {'stage':>8} {'tested %':>8} "
              f"{'alarms':<44} {'Pm':>7} {'critical in':<18}"]
     alarms_by_joint: dict[int, list[str]] = {}

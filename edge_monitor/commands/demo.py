@@ -214,7 +214,8 @@ def run(args: argparse.Namespace) -> int:
     summary = {**frames, "prognosis": prognosis_summary(last.last), "demo": {
         "symptoms_published": published, "symptoms_received": received, "rrd": rrd, "rerun": spec,
         "frames_sent": _frames_sent(truth), "simulator_exit_code": sim_rc,
-        "wall_s": round(time.monotonic() - started, 1), "arl0_cycles": cfg.decision.arl0, "link": link_desc,
+        "wall_s": round(time.monotonic() - started, 1), "link": link_desc,
+        "arl0_cycles": frames["details"].get("arl0_cycles", cfg.decision.arl0),
         "jsonl": cfg.jsonl, "truth": str(truth)}}
     (out / "summary.json").write_text(to_json(summary, indent=2) + "\n")
     if args.json:

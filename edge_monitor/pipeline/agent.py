@@ -12,7 +12,7 @@ import dataclasses
 import logging
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, Callable, Iterable, Sequence
 
 from numpy.typing import NDArray
@@ -23,6 +23,7 @@ from edge_monitor.pipeline.cycle_rate import BudgetRate
 from edge_monitor.pipeline.detectors import Acknowledgement
 from edge_monitor.pipeline.fault_grouping import new_crossings
 from edge_monitor.pipeline.joint_monitor import JointMonitor
+from edge_monitor.pipeline.run_stats import RunStats
 from edge_monitor.pipeline.state_store import StateSaveError, StateStore
 from edge_monitor.pipeline.state_validation import validate_state
 from edge_monitor.records import Alarm, Health, Symptom, utc_now, utc_text
@@ -32,23 +33,6 @@ from edge_monitor.sources.samples import IngestBlock, SampleSource
 from edge_monitor.stats.sequential_detector import Calibrator
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class RunStats:
-    cycles: int = 0
-    symptoms: int = 0
-    alarms: list[dict[str, Any]] = field(default_factory=list)   # detector crossings, each with its fault
-    faults: int = 0                   # faults raised (one alarm per fault)
-    chattering: int = 0               # crossings soon after an acknowledgement (the same fault, again)
-    advisories: int = 0
-    duplicate_cycles_skipped: int = 0
-    partial_cycles: int = 0
-    sink_errors: int = 0
-    states_rejected: int = 0          # saved state files moved aside (unusable), relearned from scratch
-    joint_states_rejected: int = 0    # joints whose saved models did not load, relearned alone
-    acknowledged: int = 0             # alarms acknowledged by an operator (judged false)
-    started: float = field(default_factory=time.perf_counter)
 
 
 class Agent:
@@ -155,11 +139,25 @@ class Agent:
         monitor = self.joints.get(joint)
         if monitor is None:
             monitor = self._restored_monitor(joint) or JointMonitor(joint, self.config, self.calibrator)
-            monitor.retarget(self.budget.arl0)          # no-op unless the measured rate moved the target
             monitor.rate = self.budget                  # the prognosis counts days at the measured rate
             self.joints[joint] = monitor
             log.info("joint %d: monitoring started", joint)
+            if not self._count_joints():
+                monitor.retarget(self.budget.arl0)      # no-op unless the measured rate moved the target
         return monitor
+
+    def _count_joints(self) -> bool:
+        """Split the budget over the joints seen or restored where none are stated; whether every joint's
+        thresholds were retargeted for it."""
+        arl0 = self.budget.count_joints(len(set(self.joints) | set(self._restored_joint_states)))
+        if arl0 is None:
+            return False
+        started = sum(monitor.retarget(arl0) for monitor in self.joints.values())
+        (log.warning if started else log.debug)(
+            "false-alarm budget split over the %d joint(s) seen: %.3g cycles per detector%s (state [decision] "
+            "joints_per_robot to fix the split)", self.budget.joints, arl0,
+            f"; re-deriving {started} learned threshold(s)" if started else "")
+        return True
 
     def _restored_monitor(self, joint: int) -> JointMonitor | None:
         """The joint's monitor from the saved state, or None (nothing saved, or saved models that do
@@ -411,6 +409,8 @@ class Agent:
         if state.get("cycle_rate"):
             self.budget.load_state(state["cycle_rate"])
         self._restored_joint_states = {int(j): s for j, s in state.get("joints", {}).items()}
+        if self._restored_joint_states:
+            self._count_joints()
         log.info("restored state of joints %s (last cycles %s)", sorted(self._restored_joint_states),
                  self._last_emitted)
 

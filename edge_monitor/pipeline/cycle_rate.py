@@ -9,6 +9,8 @@ clock that jumps back by more than an hour (a log from another day, a reset cont
 the count again. :class:`BudgetRate` converts the budget at the configured ``cycles_per_day`` until a
 full day has been counted, then at the measured rate whenever it leaves ±25 % of the rate the
 thresholds were derived for; the agent then re-derives every threshold on the same learned nominals.
+Where neither the config nor a mapping states the robot's joints (``[decision] joints_per_robot`` unset:
+a robot on our native frames), the budget is split over the joints seen, counted as they appear.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import logging
 import math
 from typing import Any
 
-from edge_monitor.pipeline.decision_config import DecisionConfig
+from edge_monitor.pipeline.decision_config import MAX_JOINTS_PER_ROBOT, DecisionConfig
 from edge_monitor.stats.calibration import MAX_ARL0, MIN_ARL0
 
 log = logging.getLogger(__name__)
@@ -83,7 +85,8 @@ class BudgetRate:
 
     ``update(t)`` counts a cycle ending at ``t`` [s] and returns the new mean run length per detector
     [cycles] when the thresholds must be re-derived (the measured rate left ±``RATE_TOLERANCE`` of
-    :attr:`basis`), else None. A fixed ``arl0_cycles`` is never re-derived."""
+    :attr:`basis`), else None; ``count_joints(n)`` does the same when the budget is split over the joints
+    seen and their number changed. A fixed ``arl0_cycles`` is never re-derived."""
 
     def __init__(self, decision: DecisionConfig) -> None:
         self.decision = decision
@@ -91,11 +94,29 @@ class BudgetRate:
         self.basis = decision.cycles_per_day      # cycles a day the thresholds are derived for
         self.measured = False                     # whether the basis was measured (else configured)
         self.rederived = 0
+        self.joints_seen: int | None = None       # joints counted (only where joints_per_robot is unset)
+
+    @property
+    def joints(self) -> int:
+        """The joints the budget is split over: ``joints_per_robot`` if stated, else the joints seen (6 before
+        any is seen)."""
+        if self.decision.joints_per_robot is not None or self.joints_seen is None:
+            return self.decision.budget_joints
+        return self.joints_seen
 
     @property
     def arl0(self) -> float:
         """The mean run length per detector [cycles] the thresholds should be calibrated for now."""
-        return min(max(self.decision.arl0_for(self.basis), MIN_ARL0), MAX_ARL0)
+        return min(max(self.decision.arl0_for(self.basis, self.joints), MIN_ARL0), MAX_ARL0)
+
+    def count_joints(self, seen: int) -> float | None:
+        """The robot's joints seen so far (``seen`` ≥ 1): the new ARL0 [cycles] when it moved the split of
+        the budget, else None (the joints are stated, or fixed ``arl0_cycles``, or the count is the same)."""
+        seen = min(max(int(seen), 1), MAX_JOINTS_PER_ROBOT)
+        if self.decision.joints_per_robot is not None or seen == self.joints_seen:
+            return None
+        old, self.joints_seen = self.arl0, seen
+        return None if self.arl0 == old else self.arl0
 
     @property
     def fixed(self) -> bool:
@@ -124,7 +145,7 @@ class BudgetRate:
 
     def counters(self) -> dict[str, Any]:
         return {"cycles_per_day": self.basis, "cycles_per_day_measured": self.counter.rate,
-                "arl0_cycles": self.arl0, "threshold_rederivations": self.rederived}
+                "arl0_cycles": self.arl0, "threshold_rederivations": self.rederived, "budget_joints": self.joints}
 
     def state_dict(self) -> dict[str, Any]:
         return {"counter": self.counter.state_dict(), "basis": self.basis if self.measured else None,

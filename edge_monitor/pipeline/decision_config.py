@@ -165,12 +165,14 @@ class DecisionConfig:
         """The mean run length to false alarm per detector [cycles] the thresholds are calibrated for."""
         return self.arl0_for(self.cycles_per_day)
 
-    def arl0_for(self, cycles_per_day: float) -> float:
-        """:attr:`arl0` at ``cycles_per_day`` test cycles a day (``arl0_cycles`` if given: fixed)."""
+    def arl0_for(self, cycles_per_day: float, joints: int | None = None) -> float:
+        """:attr:`arl0` at ``cycles_per_day`` test cycles a day, the budget split over ``joints`` joints
+        (default :attr:`budget_joints`; ``arl0_cycles`` if given: fixed)."""
         if self.arl0_cycles is not None:
             return float(self.arl0_cycles)
         days = BUDGET_PERIODS[self.budget_period]
-        return cycles_per_day * days * self.detectors_per_robot / self.false_alarms_per_robot
+        detectors = (self.budget_joints if joints is None else joints) * len(self.quantities)
+        return cycles_per_day * days * detectors / self.false_alarms_per_robot
 
     @property
     def budget_text(self) -> str:
