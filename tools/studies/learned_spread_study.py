@@ -14,6 +14,14 @@ joints) and the warm-up's mean shift in units of s₀; then the same with s₀ r
 
 with the spread of log r over joints and the largest r and shifts, the joints that decide the tail.
 
+``--refit M[,M…]``: the law a warm-up calibration would draw its joints from (each joint's mean and spread over its
+warm-up, in the units of its nominal; mean ± sd and spread ± sd over joints) as shipped (the learned sd, with the
+prior where the robot has no motor temperature) and with the sd fitted again to the joint's next M values, the law
+then over the values after those. ``--thresholds``: the Gaussian thresholds [nats] of each such law, and of the
+shipped one with the spread known exactly (sd 0) and with the mean's spread cut to the learning error
+(``--nominals`` × 4 detectors, 4 000 cycles; ≈ 4 min a law); ``--shipped-law``: those of the shipped law alone,
+without series (``--seeds`` is then ignored).
+
 Usage: ``python tools/studies/learned_spread_study.py --seeds 7341-7380 --no-motor-temperature``
 (``--seeds 8201-8213,8401-8413`` with one); reads the per-cycle series studies.series keeps (computed if missing,
 ≈ 4 min a robot).
@@ -92,20 +100,111 @@ def report(joints: list[JointSpread], n_nominal: int, worst: int) -> None:
               f"r {j.warm_sd / j.learned_sd:.2f}, shift {(j.warm_mean - j.learned_mean) / j.learned_sd:+.2f}")
 
 
+@dataclass(frozen=True)
+class Law:
+    """Over joints: the warm-up's mean and spread in the units a nominal scales by, each as mean ± sd."""
+
+    label: str
+    mean: float
+    mean_sd: float
+    spread: float
+    spread_sd: float
+
+    def text(self) -> str:
+        return (f"{self.label:<28} mean {self.mean:+.3f} ± {self.mean_sd:.3f}, spread {self.spread:.3f} ± "
+                f"{self.spread_sd:.3f}")
+
+
+def warm_up_laws(series: list[np.ndarray], n_nominal: int, prior: tuple[float, float],
+                 refits: tuple[int, ...]) -> list[Law]:
+    """The shipped law (each joint's values over its warm-up in units of its learned sd, widened by ``prior`` =
+    (k, sd): k pseudo-values of that sd) and, per M in ``refits``, the law with the sd fitted again to the next M
+    values."""
+    def law(label: str, scaled: list[np.ndarray]) -> Law:
+        m = np.array([z.mean() for z in scaled])
+        sd = np.array([z.std() for z in scaled])
+        return Law(label, float(m.mean()), float(m.std()), float(sd.mean()), float(sd.std()))
+
+    usable = [x for x in series if x.size > n_nominal + max(refits, default=0) + 30]
+    shipped = []
+    for x in usable:
+        s0 = x[:n_nominal].std(ddof=1)
+        k, sd = prior
+        s = np.sqrt(((n_nominal - 1) * s0 ** 2 + k * sd ** 2) / (n_nominal - 1 + k))
+        shipped.append((x[n_nominal:len(x)] - x[:n_nominal].mean()) / s)
+    out = [law(f"as shipped (prior k={prior[0]:g})", shipped)]
+    for m in refits:
+        out.append(law(f"sd refitted to next {m}", [(x[n_nominal + m:] - x[:n_nominal].mean())
+                                                     / x[n_nominal:n_nominal + m].std(ddof=1) for x in usable]))
+    return out
+
+
+def law_thresholds(laws: list[Law], motor_temperature: bool, nominals: int) -> None:
+    """The warm-up wear-score thresholds of each law (the shipped detector settings otherwise), and of the shipped
+    law with its spread known (sd 0) and with the mean's spread cut to the learning error, 1/√n."""
+    from dataclasses import replace
+
+    from edge_monitor.stats.gaussian_calibration import GaussianBudget, thresholds
+
+    base = DecisionConfig().detector_config("wear", friction_temperature=not motor_temperature).gaussian_settings(
+        "warm-up")
+    n = DecisionConfig().n_nominal
+    variants = [(law.label, replace(base, drift_mean=(law.mean,), drift_sd=(law.mean_sd,), spread_mean=(law.spread,),
+                                    spread_sd=(law.spread_sd,))) for law in laws]
+    first = variants[0][1]
+    variants += [("as shipped, spread known", replace(first, spread_sd=(0.0,))),
+                 ("as shipped, mean's sd 1/√n", replace(first, drift_sd=(1 / np.sqrt(n),)))]
+    targets = (50.0, 200.0, 1e3, 1e4, DecisionConfig(budget_period="week").arl0, DecisionConfig().arl0)
+    budget = GaussianBudget(nominals=nominals, streams=4, steps=4000)
+    print(f"thresholds [nats] at ARL0 {', '.join(f'{t:.3g}' for t in targets)} (± bootstrap se; "
+          f"{nominals} × 4 detectors × 4000 cycles; e: extrapolated):")
+    for label, settings in variants:
+        found = thresholds(settings, ((1.0,),), targets, budget)
+        print(f"  {label:<28} " + "  ".join(f"{t.threshold:.2f}±{t.h_se:.2f}{'e' if t.method != 'simulated' else ''}"
+                                            for t in found), flush=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", required=True, help="e.g. 7341-7380 or 8201-8213,8401-8413")
+    ap.add_argument("--seeds", default="", help="e.g. 7341-7380 or 8201-8213,8401-8413")
     ap.add_argument("--cycles", type=int, default=1000)
     ap.add_argument("--until", type=int, default=800, help="last cycle counted as the warm-up (default 800)")
     ap.add_argument("--no-motor-temperature", action="store_true", help="robots whose controller sends none")
     ap.add_argument("--worst", type=int, default=5, help="joints of largest r listed (default 5)")
+    ap.add_argument("--refit", default="", help="M[,M…]: the warm-up law with the sd fitted again to the next M values")
+    ap.add_argument("--thresholds", action="store_true", help="the Gaussian thresholds of those laws (≈ 4 min each)")
+    ap.add_argument("--nominals", type=int, default=1024, help="simulated nominals per law (default 1024)")
+    ap.add_argument("--shipped-law", action="store_true",
+                    help="no series: the thresholds of the shipped warm-up law of the wear score and its two variants")
     args = ap.parse_args(argv)
+    if args.shipped_law:
+        c = DecisionConfig().detector_config("wear", friction_temperature=args.no_motor_temperature).gaussian_settings(
+            "warm-up")
+        shipped = Law("shipped law", c.drift_mean[0], c.drift_sd[0], c.spread_mean[0], c.spread_sd[0])
+        print(shipped.text())
+        law_thresholds([shipped], not args.no_motor_temperature, args.nominals)
+        return
+    if not args.seeds:
+        ap.error("--seeds: the robots whose series to read (or --shipped-law without series)")
     n_nominal = DecisionConfig().n_nominal
     joints = [j for seed in parse_seeds(args.seeds)
               for j in joint_spreads(seed, args.cycles, not args.no_motor_temperature, n_nominal, args.until)]
     if not joints:
         sys.exit("learned_spread_study: no joint has enough rows; more --cycles or a later --until")
     report(joints, n_nominal, args.worst)
+    if args.refit or args.thresholds:
+        series = [np.array([r["wear_score"] for r in rows if r["cycle"] <= args.until], dtype=float)
+                  for seed in parse_seeds(args.seeds)
+                  for rows in robot_series(seed, args.cycles, motor_temperature=not args.no_motor_temperature).values()]
+        series = [x[np.isfinite(x)] for x in series]
+        prior = DecisionConfig().learned_sd_prior_friction.get("wear_score", (0.0, 1.0)) \
+            if args.no_motor_temperature else (0.0, 1.0)
+        laws = warm_up_laws(series, n_nominal, prior,
+                            tuple(int(m) for m in args.refit.split(",") if m.strip()))
+        for law in laws:
+            print(law.text())
+        if args.thresholds:
+            law_thresholds(laws, not args.no_motor_temperature, args.nominals)
 
 
 if __name__ == "__main__":
