@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from edge_monitor.sources.log_source import LogReport
 from edge_monitor.sources.samples import DecodedSamples, JointColumns, StatusColumns
-from edge_monitor.sources.trace_table import SkippedRows, TraceError, table_batches
+from edge_monitor.sources.trace_table import SkippedRows, TraceError, not_a_number, table_batches
 from protocol.signal_mapping import SignalMapping, SignalRef, TraceFormat, load_mapping
 
 log = logging.getLogger(__name__)
@@ -38,12 +38,14 @@ RATE_TOLERANCE = 0.1
 def _column(batch: Any, name: str, where: str, decimal: str = ".") -> NDArray[np.float64]:
     """Column ``name`` as floats; empty cells NaN. pyarrow reads a column as text when one cell of the
     batch is no number: those cells become NaN (the sample stream counts them as dropped) unless half or
-    more of the cells are text, which is a column that is not numeric (TraceError). A dictionary column
-    (Parquet text) is converted once per distinct value."""
+    more of the cells are text, which is a column that is not numeric (TraceError), as is a column of
+    booleans, dates or times. A dictionary column (Parquet text) is converted once per distinct value."""
     names = batch.schema.names
     if name not in names:
         raise TraceError(f"{where}: column {name!r} is not in the table; its columns are {names[:20]}")
     array = batch.column(names.index(name))
+    if why := not_a_number(array.type):          # a bool or a date read as a number would be wrong data
+        raise TraceError(f"{where}: column {name!r} is {array.type}, not a number: {why}")
     if hasattr(array, "dictionary"):
         values = _floats(array.dictionary, name, where, decimal, array.indices.null_count)
         index = array.indices.to_numpy(zero_copy_only=False)

@@ -9,7 +9,8 @@ reads the rows without quoting (a stray ``"`` damages its one cell, not the rest
 only the mapped columns; a row with the wrong number of cells is skipped and counted (:class:`SkippedRows`).
 Parquet: only the mapped columns are read, text columns as dictionaries (a column of one long string
 repeated a million times stays one string), and a row group whose mapped columns would unpack to more
-than :data:`MAX_ROW_GROUP_BYTES` is refused. A table that does not fit raises
+than :data:`MAX_ROW_GROUP_BYTES` is refused, as is a mapped column of no number per row (:func:`not_a_number`).
+Either: a mapped column the header has twice is refused (which is meant is unknown). A table that does not fit raises
 :class:`TraceError` (exit code 2), one that cannot be read :class:`TraceUnreadable` (exit code 1).
 """
 
@@ -17,9 +18,11 @@ from __future__ import annotations
 
 import codecs
 import csv
+import logging
 import os
 import re
 import sys
+from collections import Counter
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -27,6 +30,8 @@ from typing import Any, Iterator
 from edge_monitor.sources.log_source import LogReport
 from protocol.files import NotARegularFile, open_regular
 from protocol.signal_mapping import TraceFormat
+
+log = logging.getLogger(__name__)
 
 TRACE_SUFFIXES = (".csv", ".parquet", ".pq")
 #: pyarrow reads a CSV in blocks of this size; a longer line is refused (no trace table has one).
@@ -106,12 +111,24 @@ def _not_text(path: Path, fmt: TraceFormat, exc: UnicodeError) -> TraceError:
                       "[trace] encoding = \"cp1252\" (or \"utf-16\")")
 
 
-def _missing(path: Path, names: list[str], wanted: list[str]) -> None:
-    """TraceError naming the first mapped column that is not in the table (and some that are)."""
+def _check_names(path: Path, names: list[str], wanted: list[str]) -> None:
+    """TraceError naming the first mapped column that is not in the table (and some that are), or that the
+    table has twice (which of the two is meant is unknown); a warning for columns it does not map twice."""
     for name in wanted:
         if name not in names:
             shown = names[:20] + (["…"] if len(names) > 20 else [])
             raise TraceError(f"{path}: column {name!r} is not in the table; its columns are {shown}")
+    counts = Counter(names)
+    for name in wanted:
+        if counts[name] > 1:
+            places = [i + 1 for i, n in enumerate(names) if n == name]
+            times = "twice" if len(places) == 2 else f"{len(places)} times"
+            raise TraceError(f"{path}: column {name!r} appears {times} in the table (columns "
+                             f"{', '.join(map(str, places))}); rename one: which the mapping means is unknown")
+    unused = [n for n, k in counts.items() if k > 1 and n not in wanted]
+    if unused:
+        log.warning("%s: column(s) %s appear more than once in the table; the mapping does not read them",
+                    path, ", ".join(map(repr, unused[:5])) + (", …" if len(unused) > 5 else ""))
 
 
 @contextmanager
@@ -189,7 +206,7 @@ def check_lines(path: Path, encoding: str) -> None:
 def _csv_batches(path: Path, head: bytes, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
     import pyarrow.csv as pcsv
     names = csv_header(path, head, fmt)
-    _missing(path, names, columns)
+    _check_names(path, names, columns)
     check_lines(path, fmt.encoding)
     with _quiet_undecodable_rows():
         reader = pcsv.open_csv(
@@ -201,15 +218,15 @@ def _csv_batches(path: Path, head: bytes, fmt: TraceFormat, columns: list[str], 
         yield from reader
 
 
-def _parquet_batches(path: Path, columns: list[str]) -> Iterator[Any]:
+def _parquet_batches(path: Path, columns: list[str], time_column: str) -> Iterator[Any]:
     try:
         import pyarrow.parquet as pq
     except ImportError:
         raise TraceError("reading Parquet needs pyarrow: pip install 'joint-wear-monitor[traces]'") from None
     schema = pq.ParquetFile(str(path)).schema_arrow
     names = schema.names
-    _missing(path, names, columns)
-    _check_types(path, schema, columns)
+    _check_names(path, names, columns)
+    _check_types(path, schema, columns, time_column)
     table = pq.ParquetFile(str(path), read_dictionary=columns)     # text columns stay dictionaries
     meta = table.metadata
     wanted = [names.index(c) for c in columns]
@@ -222,8 +239,9 @@ def _parquet_batches(path: Path, columns: list[str]) -> Iterator[Any]:
     yield from table.iter_batches(batch_size=BATCH_ROWS, columns=columns)
 
 
-def _check_types(path: Path, schema: Any, columns: list[str]) -> None:
-    """TraceError for a mapped Parquet column that holds no one value per row (a list, a struct, a map)."""
+def _check_types(path: Path, schema: Any, columns: list[str], time_column: str) -> None:
+    """TraceError for a mapped Parquet column that holds no one number per row: a list, a struct, a map, or a
+    value column of :func:`not_a_number` type (the time column may be a timestamp or a duration)."""
     import pyarrow as pa
     for name in columns:
         kind = schema.field(name).type
@@ -231,6 +249,23 @@ def _check_types(path: Path, schema: Any, columns: list[str]) -> None:
             shown = re.sub(r"\b(element|item): ", "", str(kind))
             raise TraceError(f"{path}: column {name!r} is {shown}, not a number: a trace table has one value per "
                              "row and column (write each element as its own column)")
+        timed = name == time_column and (pa.types.is_timestamp(kind) or pa.types.is_duration(kind))
+        if not timed and not_a_number(kind):
+            raise TraceError(f"{path}: column {name!r} is {kind}, not a number: "
+                             f"{not_a_number(kind)}")
+
+
+def not_a_number(kind: Any) -> str:
+    """Why a column of pyarrow type ``kind`` holds no numbers of ours (a bool, a date or time), else ""."""
+    import pyarrow as pa
+    if pa.types.is_dictionary(kind):
+        kind = kind.value_type
+    if pa.types.is_boolean(kind):
+        return "true/false read as 1/0 would be wrong data; map the column of the quantity itself"
+    if pa.types.is_temporal(kind):
+        return ("a date, time or duration is no speed, torque, load, temperature or mark; map the column of the "
+                "quantity itself (only the time column may be a timestamp or a duration)")
+    return ""
 
 
 def table_batches(path: Path, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
@@ -245,7 +280,7 @@ def table_batches(path: Path, fmt: TraceFormat, columns: list[str], skipped: Ski
         if path.suffix.lower() == ".csv":
             yield from _csv_batches(path, head, fmt, columns, skipped)
         else:
-            yield from _parquet_batches(path, columns)
+            yield from _parquet_batches(path, columns, fmt.time_column)
     except OSError as exc:                   # pyarrow's I/O errors are OSErrors
         raise TraceUnreadable(f"cannot read {path}: {exc}") from None
     except UnicodeError as exc:              # a decode error, or UTF-16 without its byte-order mark
