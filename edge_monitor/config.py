@@ -109,11 +109,30 @@ def config_from_mapping(data: Mapping[str, Any]) -> AgentConfig:
         if not isinstance(data["zenoh"], Mapping):
             raise ConfigError("zenoh: expected a table")
         kwargs["zenoh"] = dict(data.pop("zenoh"))
+    for key in _PATH_KEYS & data.keys():
+        _check_path(f"config.{key}", data[key])
     kwargs.update(_coerce_fields(AgentConfig, data, "config", _TOP_LEVEL_KEYS))
     try:
         return AgentConfig(**kwargs)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+
+
+#: Top-level keys whose value is a path (a number or a list there would reach the file system as one),
+#: with an example of each.
+_PATH_KEYS = {"state_dir": "/var/lib/edge-monitor", "jsonl": "symptoms.jsonl"}
+
+
+def _check_path(where: str, value: Any) -> None:
+    """ConfigError unless ``value`` is a non-empty path without a NUL character."""
+    key = where.rsplit(".", 1)[-1]
+    example = f'{key} = "{_PATH_KEYS[key]}"'
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{where}: expected a path (text), got {shown(value)}; write it quoted ({example}) "
+                          "or omit the key")
+    if "\0" in value:
+        raise ConfigError(f"{where}: {shown(value)} holds a NUL character, which no path can; write the path "
+                          f"without it ({example})")
 
 
 def _joint_tables(tables: Any) -> tuple[dict[int, FrictionParams], dict[int, float]]:

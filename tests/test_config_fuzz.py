@@ -5,10 +5,12 @@ exception, and no accepted size beyond its bound."""
 from __future__ import annotations
 
 import copy
+import re
 import tomllib
 from importlib import resources
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -29,7 +31,8 @@ def _paths(table: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[st
     return out
 
 
-PATHS = _paths(DEFAULTS) + [("joints",), ("robot",), ("status_interval_s",), ("no_such_key",)]
+PATHS = _paths(DEFAULTS) + [("joints",), ("robot",), ("status_interval_s",), ("no_such_key",), ("state_dir",),
+                            ("jsonl",)]
 VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30), st.sampled_from([10 ** 400, -10 ** 400]),
                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
                    st.lists(st.integers(-5, 100), max_size=5), st.dictionaries(st.text(max_size=3), st.integers(),
@@ -59,6 +62,20 @@ def test_any_value_for_any_key_is_accepted_within_bounds_or_refused_by_name(path
     assert 1 <= cfg.decision.window <= MAX_WINDOW
     assert 64 <= cfg.kl.n_grid <= MAX_GRID
     assert cfg.joints is None or 0 < len(cfg.joints) <= 64
+    assert all(p is None or (isinstance(p, str) and p.strip() and "\0" not in p) for p in (cfg.state_dir, cfg.jsonl))
+
+
+@pytest.mark.parametrize("key", ["state_dir", "jsonl"])
+@pytest.mark.parametrize(("value", "says"), [
+    (5, "expected a path (text), got 5"), (["a"], "expected a path (text), got ['a']"), (True, "got True"),
+    ("", "expected a path (text), got ''"), ({"a": 1}, "got {'a': 1}"), ("a\0b", "holds a NUL character"),
+])
+def test_a_path_valued_key_that_is_no_path_is_refused_by_name(key, value, says):
+    """``state_dir = 5`` was a TypeError traceback (``["a"]`` too), ``jsonl = 5`` wrote to a file named 5.0."""
+    with pytest.raises(ConfigError, match=re.escape(f"config.{key}: ") + ".*" + re.escape(says)):
+        config_from_mapping({key: value})
+    assert getattr(config_from_mapping({key: "out/x"}), key) == "out/x"
+    assert getattr(config_from_mapping({}), key) is None
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
