@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from protocol import frames as pf
 from protocol.bitfields import BitField, resolve
 from protocol.cia402 import POSITION, STATUSWORD, SYNC_ID, TORQUE, VELOCITY, drive_layout
+from protocol.dbc_files import load_dbc
 from protocol.dbc_units import checked_ref
 from protocol.signal_mapping import JointMapping, SignalMapping, SignalRef, load_mapping
 from sim_controller.faults import FrameBlock
@@ -136,10 +137,9 @@ def cia402_layout(joints: int, eds: Path | None = None) -> _Layout:
 
 def dbc_layout(mapping: SignalMapping, joints: int) -> _Layout:
     """The frames of a DBC mapping (see the module docstring)."""
-    import cantools
     if mapping.kind != "dbc" or mapping.dbc is None:
         raise ProfileError(f"--profile dbc: {mapping.path} is a {mapping.kind} mapping, not a dbc one")
-    db = cantools.database.load_file(str(mapping.dbc), strict=False)
+    db = load_dbc(mapping)                     # MappingError as the agent's: missing, a directory, not a DBC
     fast: list[_Slot] = []
     slow: dict[tuple[int, int], _Slot] = {}
 

@@ -123,3 +123,36 @@ def test_spellings_of_one_unit():
     assert same_unit("N.m", "Nm", "torque") and same_unit("U/min", "1/min", "speed") and same_unit("°C", "degC", "x")
     assert not same_unit("fraction", "Nm", "torque") and not same_unit("mNm", "Nm", "torque")
     assert same_unit("permille", "‰", "load") and not same_unit("K", "degC", "temperature")
+
+
+@pytest.mark.parametrize("dbc", ["garbage", "missing", "directory"])
+def test_the_simulators_dbc_profile_refuses_a_bad_dbc_as_the_agent_does(tmp_path, dbc):
+    """A DBC that is garbage, missing or a directory was a cantools / FileNotFoundError / IsADirectoryError
+    traceback from ``sim-controller record --profile dbc:MAPPING.toml``; now the agent's one line, exit 2."""
+    import subprocess
+    import sys
+
+    from protocol.signal_mapping import load_mapping
+    from sim_controller.profiles import dbc_layout
+    (tmp_path / "axis.toml").write_text(
+        'kind = "dbc"\ndbc = "axis.dbc"\n[cycles]\nfrom = "motion"\nspeeds = [10.0]\n[joint.0]\n'
+        'reference_torque_nm = 10.0\nspeed = { message = "Axis0", signal = "Speed", unit = "rpm" }\n'
+        'torque = { message = "Axis0", signal = "Torque", unit = "mNm" }\n')
+    (tmp_path / "axis.dbc").write_text(_dbc("rpm", "mNm"))
+    assert len(dbc_layout(load_mapping(str(tmp_path / "axis.toml")), 1).fast) == 1      # the good one
+    (tmp_path / "axis.dbc").unlink()
+    if dbc == "garbage":
+        (tmp_path / "axis.dbc").write_text("not a dbc\n")
+    elif dbc == "directory":
+        (tmp_path / "axis.dbc").mkdir()
+    mapping = load_mapping(str(tmp_path / "axis.toml"))
+    with pytest.raises(MappingError) as agent:
+        DbcDecoder(mapping)
+    with pytest.raises(MappingError) as simulator:
+        dbc_layout(mapping, 1)
+    assert str(simulator.value) == str(agent.value)
+    done = subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "-o", str(tmp_path / "x.blf"),
+                           "--joints", "1", "--cycles", "1", "--profile", f"dbc:{tmp_path / 'axis.toml'}", "-q"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert str(agent.value) in done.stderr and not (tmp_path / "x.blf").exists()

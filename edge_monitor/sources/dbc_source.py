@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -26,41 +25,12 @@ from numpy.typing import NDArray
 from edge_monitor.sources.foreign_source import BoundSignal, ForeignCounters, short_frames, status_columns, take
 from edge_monitor.sources.samples import DecodedSamples, JointColumns
 from protocol.bitfields import BitFieldError, ResolvedSignal, resolve
+from protocol.dbc_files import load_dbc
 from protocol.dbc_units import checked_ref
-from protocol.files import NotARegularFile, read_regular
 from protocol.frame_blocks import CAN_EFF_FLAG
-from protocol.signal_mapping import E2EMapping, JointMapping, MappingError, SignalMapping, SignalRef, UnreadableFile
+from protocol.signal_mapping import E2EMapping, JointMapping, MappingError, SignalMapping, SignalRef
 
 log = logging.getLogger(__name__)
-
-#: The largest database read (see :func:`load_dbc`); a robot controller's DBC is a few kB.
-MAX_DBC_BYTES = 2 << 20
-_FORMATS = {".dbc": "dbc", ".arxml": "arxml", ".kcd": "kcd", ".sym": "sym"}
-
-
-def load_dbc(mapping: SignalMapping) -> Any:
-    """The mapping's database, read whole (a regular file of at most :data:`MAX_DBC_BYTES`: cantools
-    needs ≈ 200 bytes of memory per byte of text) and parsed by cantools; MappingError otherwise."""
-    import cantools
-    path = mapping.dbc
-    where = mapping.where("dbc")
-    try:
-        raw = read_regular(path or Path(), MAX_DBC_BYTES)
-    except FileNotFoundError:
-        raise MappingError(f"{where}: file {path} not found") from None
-    except NotARegularFile as exc:
-        raise MappingError(f"{where}: {path}: {exc.reason} (a DBC of a robot controller is a few kB; keep the "
-                           "messages the mapping names)") from None
-    except OSError as exc:
-        raise UnreadableFile(f"{where}: cannot read {path}: {exc.strerror or exc}") from None
-    suffix = (path or Path()).suffix.lower()
-    text = raw.decode("cp1252" if suffix == ".dbc" else "utf-8", errors="replace")   # cantools' own default
-    try:
-        return cantools.database.load_string(text, database_format=_FORMATS.get(suffix), strict=False)
-    except Exception as exc:  # noqa: BLE001 — cantools raises its own ParseError, UnsupportedDatabaseFormatError …
-        first = (str(exc).strip().splitlines() or [""])[0][:300]
-        raise MappingError(f"{where}: cannot load {path}: {type(exc).__name__}: {first}") from None
-
 
 def bind(db: Any, ref: SignalRef, where: str, found: ResolvedSignal | None = None) -> BoundSignal:
     """``ref`` resolved against the DBC ``db`` (or as already ``found`` there); a missing message or signal names
