@@ -75,6 +75,10 @@ WHOLE_FILE_ATTACKS = {
     "a list of 10⁶ numbers": lambda s: json.dumps({**s, "extra": [0] * 1_000_000}),
     "a 5,000-digit integer": lambda s: json.dumps(s).replace('"last_emitted": {', '"last_emitted": {"9": '
                                                               + "9" * 5000 + ", ", 1),    # stopped the agent
+    "no ingest": lambda s: json.dumps({k: v for k, v in s.items() if k != "ingest"}),   # skipped every cycle
+    "ingest null": lambda s: json.dumps({**s, "ingest": None}),
+    "ingest without its cycle": lambda s: json.dumps({**s, "ingest": {**s["ingest"], "cycle": None}}),
+    "ingest behind last_emitted": lambda s: json.dumps({**s, "ingest": {**s["ingest"], "cycle": 1}}),
 }
 
 
@@ -89,6 +93,24 @@ def test_an_unusable_state_file_is_moved_aside_and_the_agent_relearns(attack, sa
     assert outs and all(o.decisions["wear"].state == "learning" for o in outs)     # relearning from scratch
     agent.close()
     assert validate_state(json.loads((tmp_path / STATE_FILE).read_text()), agent.config.robot)   # a fresh one
+
+
+@pytest.mark.parametrize("ingest", ["kept", "removed"])
+def test_the_same_frames_again_onto_a_state_without_its_numbering_are_not_all_skipped(saved, frames, tmp_path,
+                                                                                    ingest):
+    """A state with published cycles (last_emitted) but no "ingest" once numbered the same frames replayed
+    again from 0 and skipped every cycle as published: now it is moved aside (counted) and the frames are
+    learned afresh; the whole state numbers them after the ones published, as before."""
+    state = copy.deepcopy(saved)
+    if ingest == "removed":
+        del state["ingest"]
+    (tmp_path / STATE_FILE).write_text(json.dumps(state))
+    agent = Agent(small_config(), state_store=StateStore(tmp_path))
+    outs = feed(agent, frames) + agent.finish()
+    assert agent.stats.states_rejected == (ingest == "removed") and agent.stats.duplicate_cycles_skipped == 0
+    assert {o.joint for o in outs} == {0, 1}
+    first = min(o.cycle for o in outs)
+    assert first == 0 if ingest == "removed" else first > max(saved["last_emitted"].values())
 
 
 def _joint0(state: dict[str, Any], *path: str) -> dict[str, Any]:
@@ -152,6 +174,9 @@ def test_validate_state_names_the_problem(saved):
         validate_state({**saved, "robot": "robot-b"}, robot)
     with pytest.raises(StateError, match="not one of 0 … 63"):
         validate_state({**saved, "joints": {"64": {}}}, robot)
+    with pytest.raises(StateError, match=r"published cycles up to \d+ \(last_emitted\) but no cycle numbering"):
+        validate_state({k: v for k, v in saved.items() if k != "ingest"}, robot)
+    assert validate_state({**saved, "ingest": None, "last_emitted": {}}, robot)     # nothing published yet
     bad = copy.deepcopy(saved)
     _joint0(bad)["maintenances"] = math.nan
     with pytest.raises(StateError, match=r"state\.joints\.0\.maintenances: nan"):

@@ -1,8 +1,8 @@
 """Checks of a saved agent state before any of it is adopted (the state file is untrusted input).
 
 Two layers. :func:`validate_state` checks the whole file against a schema with bounds: the top-level
-sections and their types, the robot it belongs to, cycle numbers within :data:`MAX_CYCLE`, joint
-indices the agent may monitor, and — over every value in the tree — no NaN or infinity written as a
+sections and their types, the robot it belongs to, cycle numbers within :data:`MAX_CYCLE`, published
+cycles only with the cycle numbering they came from, joint indices the agent may monitor, and — over every value in the tree — no NaN or infinity written as a
 number, no number beyond :data:`MAX_MAGNITUDE`, no list longer than :data:`MAX_LIST`, no nesting
 deeper than :data:`MAX_DEPTH`. A failure there rejects the file (the agent moves it aside and
 relearns). The component layer is each model's own ``from_state``, which checks its sizes against
@@ -58,11 +58,29 @@ def validate_state(state: Any, robot: str, joints: tuple[int, ...] | None = None
     for key, value in (state.get("ingest") or {}).items():
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or abs(value) > MAX_CYCLE):
             raise StateError(f"ingest.{key} = {value!r} is not a counter within ±{MAX_CYCLE}")
+    _check_numbering(state)
     for joint, section in state.get("joints", {}).items():
         _check_joint(joint, "joints")
         if not isinstance(section, dict):
             raise StateError(f"joints[{joint}] is a {type(section).__name__}, not an object")
     return state
+
+
+def _check_numbering(state: dict[str, Any]) -> None:
+    """Published cycles (``last_emitted``) need the cycle numbering they were numbered by (``ingest.cycle``, at
+    or after the last of them): without it the next cycles are numbered from the start again and every one
+    is skipped as published before."""
+    published = [c for c in state.get("last_emitted", {}).values() if isinstance(c, int)]
+    if not published:
+        return
+    ingest = state.get("ingest")
+    cycle = ingest.get("cycle") if isinstance(ingest, dict) else None
+    if not isinstance(cycle, int):
+        raise StateError(f"it has published cycles up to {max(published)} (last_emitted) but no cycle numbering "
+                         "(ingest.cycle): the next cycles would all be skipped as published")
+    if cycle < max(published):
+        raise StateError(f"ingest.cycle = {cycle} is before the last published cycle {max(published)} "
+                         "(last_emitted): the cycles up to it would be skipped as published")
 
 
 def _drop_unconfigured(state: dict[str, Any], joints: tuple[int, ...] | None) -> None:
