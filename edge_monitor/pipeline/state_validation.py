@@ -2,12 +2,12 @@
 
 Two layers. :func:`validate_state` checks the whole file against a schema with bounds: the top-level
 sections and their types, the robot it belongs to, cycle numbers within :data:`MAX_CYCLE`, published
-cycles only with the cycle numbering they came from, joint indices the agent may monitor, and — over every value in the tree — no NaN or infinity written as a
-number, no number beyond :data:`MAX_MAGNITUDE`, no list longer than :data:`MAX_LIST`, no nesting
-deeper than :data:`MAX_DEPTH`. A failure there rejects the file (the agent moves it aside and
-relearns). The component layer is each model's own ``from_state``, which checks its sizes against
-the same bounds as the config (KDE grid, GLR window) and its array shapes; a joint whose models
-fail there is relearned alone (:meth:`edge_monitor.pipeline.agent.Agent`).
+cycles only with the cycle numbering they came from, joint indices the agent may monitor, and — over
+every value in the tree — no NaN or infinity written as a number, no number beyond :data:`MAX_MAGNITUDE`,
+no list longer than :data:`MAX_LIST`, no nesting deeper than :data:`MAX_DEPTH`. A failure there rejects
+the file (the agent moves it aside and relearns). The component layer is each model's own
+``from_state``, which checks its sizes against the same bounds as the config (KDE grid, GLR window)
+and its array shapes; a joint whose models fail there is relearned alone (:meth:`edge_monitor.pipeline.agent.Agent`).
 """
 
 from __future__ import annotations
