@@ -1,23 +1,25 @@
-"""Frame blocks from a python-can log file (.blf, .asc, .log, …), robust to damaged files.
+"""Frame blocks from a python-can log file (.blf, .asc, .log, .trc, …), robust to damaged files.
 
 python-can's readers stop at the first record they cannot parse. A replay should not, and it reads
 the file as hostile (memory and time bounded by the file's size, whatever it holds):
 
 * only a regular file is read (a FIFO would block, a device never ends): :class:`LogReadError`;
-* a text log (.asc, .log) is read line by line as bytes, each line decoded alone: a line with an
-  undecodable byte, a line python-can cannot parse or a line longer than :data:`MAX_LINE_BYTES` is
-  skipped and counted, and reading goes on with the next line, so each costs at most its own frame;
+* a text log (.asc, .log, .trc, also gzip-compressed: .log.gz, …) is read line by line as bytes, each
+  line decoded alone (:mod:`edge_monitor.sources.text_logs`): a line with an undecodable byte, a line
+  python-can cannot parse or a line longer than :data:`MAX_LINE_BYTES` is skipped and counted, and
+  reading goes on with the next line, so each costs at most its own frame; a compressed stream that
+  ends early or is damaged ends the file there (truncation);
 * a BLF container that cannot be read (damaged zlib data, one inflating past its cap, a damaged
   object inside) is skipped, counted with an estimate of its frames, and the next one is read
   (:mod:`edge_monitor.sources.blf_blocks`); an object header or size the file cannot hold ends the
   walk there: truncation.
 
 A log cut short (a BLF smaller than its header says or never finalised, or whose walk ended on
-damage, an .asc without its closing ``End TriggerBlock``, a .log whose last line has no line end) is
-reported as truncated, so that its cut last cycle is not published as complete. A file whose first
-:data:`MAX_CONSECUTIVE_SKIPS` records are all unreadable is not a log (:class:`LogReadError`). What
-was skipped (records, and an upper bound of the frames in them) and why the file ended are in
-:class:`LogReport`.
+damage, an .asc without its closing ``End TriggerBlock``, a .log or .trc whose last line has no line
+end, a compressed stream that ends early) is reported as truncated, so that its cut last cycle is not
+published as complete. A file whose first :data:`MAX_CONSECUTIVE_SKIPS` records are all unreadable is
+not a log (:class:`LogReadError`). What was skipped (records, and an upper bound of the frames in
+them) and why the file ended are in :class:`LogReport`.
 """
 
 from __future__ import annotations
@@ -35,23 +37,24 @@ import numpy as np
 from can.io.asc import ASCReader
 from can.io.blf import BLFReader
 from can.io.canutils import CanutilsLogReader
+from can.io.trc import TRCReader
 
 from edge_monitor.sources import blf_blocks
 from edge_monitor.sources.frame_source import FrameArrays
+from edge_monitor.sources.text_logs import MAX_LINE_BYTES, TextLines, is_text_log, text_format, trc_messages
 from protocol.files import NotARegularFile, require_regular
 from protocol.frames import messages_to_arrays
 
+__all__ = ["LogReadError", "LogReport", "MAX_LINE_BYTES", "log_blocks", "log_blocks_with_position"]
 log = logging.getLogger(__name__)
 
 #: What python-can's readers raise on damaged content (BLFParseError is a plain Exception).
 _DAMAGE = (ValueError, IndexError, KeyError, struct.error, zlib.error, EOFError, UnicodeDecodeError,
            can.io.blf.BLFParseError)
-#: Text readers whose iteration can go on after a bad line (each line is one record).
+#: Text readers whose iteration can go on after a bad line (each line is one record; TRC: text_logs).
 _LINE_READERS = (ASCReader, CanutilsLogReader)
 #: This many unreadable records before the first frame: the file is not a log of this format.
 MAX_CONSECUTIVE_SKIPS = 1000
-#: Longest line of a text log read [bytes]; a longer one is skipped in pieces (a frame line is < 200).
-MAX_LINE_BYTES = 4096
 #: Size of a BLF file header [bytes] (python-can reads it whole); a shorter file is cut before any frame.
 BLF_FILE_HEADER_BYTES = 72
 
@@ -87,40 +90,6 @@ class LogReport:
                 "truncated": self.truncated, "skip_examples": list(self.examples)}
 
 
-class _TextLines:
-    """The lines of a text log for python-can's reader (its ``file``): read as bytes and decoded one
-    at a time, so an undecodable byte costs its own line only; a line longer than
-    :data:`MAX_LINE_BYTES` is skipped in pieces. Both are counted in ``report``."""
-
-    def __init__(self, path: Path, report: LogReport) -> None:
-        self._raw = open(path, "rb")
-        self.report = report
-
-    def __iter__(self) -> _TextLines:
-        return self
-
-    def __next__(self) -> str:
-        while True:
-            line = self._raw.readline(MAX_LINE_BYTES + 1)
-            if not line:
-                raise StopIteration
-            if len(line) > MAX_LINE_BYTES:
-                while line and not line.endswith(b"\n"):
-                    line = self._raw.readline(MAX_LINE_BYTES)
-                self.report.skip(f"line after frame {self.report.frames}: longer than {MAX_LINE_BYTES} bytes")
-                continue
-            try:
-                return line.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                self.report.skip(f"line after frame {self.report.frames}: undecodable byte ({exc.reason})")
-
-    def fileno(self) -> int:
-        return self._raw.fileno()
-
-    def close(self) -> None:
-        self._raw.close()
-
-
 def log_blocks(path: str | Path, block_size: int = 4096) -> Iterator[FrameArrays]:
     """Yield the frames of a python-can log file as array blocks, in file order."""
     for block, _ in log_blocks_with_position(path, block_size):
@@ -146,13 +115,7 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
         raise LogReadError(f"{p} is truncated: {p.stat().st_size} bytes, less than a BLF file header "
                            f"({BLF_FILE_HEADER_BYTES}): was its recording stopped before it wrote anything?")
     report = report if report is not None else LogReport()
-    try:
-        reader = can.LogReader(str(p))
-        if isinstance(reader, _LINE_READERS) and p.suffix.lower() in (".asc", ".log"):
-            reader.file.close()
-            reader.file = _TextLines(p, report)     # type: ignore[assignment]  # duck-typed line source
-    except (*_DAMAGE, OSError) as exc:
-        raise LogReadError(f"cannot read {p} as a {p.suffix or 'CAN'} log: {exc or type(exc).__name__}") from exc
+    reader = _open(p, report)
     with reader:
         if blf_blocks.supported(reader):
             yield from _blf_blocks(reader, block_size, report)
@@ -163,6 +126,18 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
         log.warning("%s: %d unreadable record(s) skipped (first: %s)", p, report.skipped, report.examples[0])
     if report.truncated:
         log.warning("%s is truncated: %s", p, report.truncated)
+
+
+def _open(p: Path, report: LogReport) -> Any:
+    """python-can's reader for the file; a text log's reads its lines from :class:`TextLines`."""
+    try:
+        reader: Any = can.LogReader(str(p))
+        if is_text_log(p):
+            reader.file.close()
+            reader.file = TextLines(p, report)     # duck-typed line source
+    except (*_DAMAGE, OSError) as exc:
+        raise LogReadError(f"cannot read {p} as a {p.suffix or 'CAN'} log: {exc or type(exc).__name__}") from exc
+    return reader
 
 
 def _message_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tuple[FrameArrays, int]]:
@@ -214,7 +189,7 @@ def _slice(arrays: FrameArrays, start: int, stop: int) -> FrameArrays:
 
 def _messages(reader: Any, report: LogReport) -> Iterator[can.Message]:
     """The reader's messages; a bad line of a text log is skipped, other damage ends the file."""
-    it = iter(reader)
+    it = trc_messages(reader, report) if isinstance(reader, TRCReader) else iter(reader)
     while True:
         try:
             msg = next(it)
@@ -251,25 +226,19 @@ def _blf_start(path: Path) -> bool:
 
 def _cut_short(path: Path, reader: Any) -> str | None:
     """Why the file looks cut short, or None. Only formats with a way to tell."""
+    lines = getattr(reader, "file", None)
+    if isinstance(lines, TextLines):
+        return lines.cut_short(asc=text_format(path) == ".asc")
+    if not isinstance(reader, BLFReader):
+        return None
     try:
-        if isinstance(reader, BLFReader):
-            size = path.stat().st_size
-            if not reader.file_size:
-                return "BLF header never finalised (the writer did not close the file)"
-            if size < reader.file_size:
-                return f"BLF file has {size} bytes, its header says {reader.file_size}"
-            return None
-        if path.suffix.lower() not in (".asc", ".log"):
-            return None
-        with open(path, "rb") as f:
-            f.seek(max(0, path.stat().st_size - 512))
-            tail = f.read()
+        size = path.stat().st_size
     except OSError as exc:
         return f"cannot check the end of the file: {exc}"
-    if path.suffix.lower() == ".asc" and b"End TriggerBlock" not in tail:
-        return "no 'End TriggerBlock' at the end of the ASC file"
-    if tail and not tail.endswith(b"\n"):
-        return "the last line has no line end"
+    if not reader.file_size:
+        return "BLF header never finalised (the writer did not close the file)"
+    if size < reader.file_size:
+        return f"BLF file has {size} bytes, its header says {reader.file_size}"
     return None
 
 
