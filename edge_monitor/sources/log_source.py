@@ -9,10 +9,11 @@ the file as hostile (memory and time bounded by the file's size, whatever it hol
   python-can cannot parse or a line longer than :data:`MAX_LINE_BYTES` is skipped and counted, and
   reading goes on with the next line, so each costs at most its own frame; a compressed stream that
   ends early or is damaged ends the file there (truncation);
-* a BLF container that cannot be read (damaged zlib data, one inflating past its cap, a damaged
-  object inside) is skipped, counted with an estimate of its frames, and the next one is read
-  (:mod:`edge_monitor.sources.blf_blocks`); an object header or size the file cannot hold ends the
-  walk there: truncation.
+* a BLF file whose header size is smaller than a header or larger than the file cannot be read
+  (:class:`LogReadError`); a BLF container that cannot be read (damaged zlib data, one inflating past
+  its cap, a damaged object inside) is skipped, counted with an estimate of its frames, and the next
+  one is read (:mod:`edge_monitor.sources.blf_blocks`); an object header or size the file cannot hold
+  ends the walk there: truncation.
 
 A log cut short (a BLF smaller than its header says or never finalised, or whose walk ended on
 damage, an .asc without its closing ``End TriggerBlock``, a .log or .trc whose last line has no line
@@ -111,9 +112,8 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
         raise LogReadError(f"cannot read {p}: {exc.reason}; give a log file") from None
     if p.stat().st_size == 0:
         raise LogReadError(f"{p} is empty (0 bytes): was its recording stopped before it wrote anything?")
-    if p.suffix.lower() == ".blf" and p.stat().st_size < BLF_FILE_HEADER_BYTES and _blf_start(p):
-        raise LogReadError(f"{p} is truncated: {p.stat().st_size} bytes, less than a BLF file header "
-                           f"({BLF_FILE_HEADER_BYTES}): was its recording stopped before it wrote anything?")
+    if p.suffix.lower() == ".blf":
+        _check_blf_header(p)
     report = report if report is not None else LogReport()
     reader = _open(p, report)
     with reader:
@@ -138,6 +138,24 @@ def _open(p: Path, report: LogReport) -> Any:
     except (*_DAMAGE, OSError) as exc:
         raise LogReadError(f"cannot read {p} as a {p.suffix or 'CAN'} log: {exc or type(exc).__name__}") from exc
     return reader
+
+
+def _check_blf_header(p: Path) -> None:
+    """:class:`LogReadError` if a BLF file's header cannot be read: the file is shorter than a header,
+    or its header size is smaller than one or larger than the file (python-can would read past it all)."""
+    size = p.stat().st_size
+    with open(p, "rb") as f:
+        head = f.read(8)
+    if not b"LOGG".startswith(head[:4]):
+        return                                   # not a BLF file at all: python-can says so
+    if size < BLF_FILE_HEADER_BYTES:
+        raise LogReadError(f"{p} is truncated: {size} bytes, less than a BLF file header "
+                           f"({BLF_FILE_HEADER_BYTES}): was its recording stopped before it wrote anything?")
+    header_size = struct.unpack_from("<L", head, 4)[0]
+    if not BLF_FILE_HEADER_BYTES <= header_size <= size:
+        raise LogReadError(f"{p} has a damaged BLF header: header size {header_size} "
+                           + (f"> file size {size}" if header_size > size else f"< {BLF_FILE_HEADER_BYTES}")
+                           + " bytes; the file cannot be read: is it a copy of the log that was damaged?")
 
 
 def _message_blocks(reader: Any, block_size: int, report: LogReport) -> Iterator[tuple[FrameArrays, int]]:
@@ -215,13 +233,6 @@ def _resume(reader: Any) -> Iterator[can.Message]:
     if isinstance(reader, ASCReader):
         reader._extract_header = lambda: None  # type: ignore[method-assign]  # keep base, start time, …
     return iter(reader)
-
-
-def _blf_start(path: Path) -> bool:
-    """The file begins as a BLF file does (its signature, or a cut piece of it)."""
-    with open(path, "rb") as f:
-        head = f.read(4)
-    return b"LOGG".startswith(head) if len(head) < 4 else head == b"LOGG"
 
 
 def _cut_short(path: Path, reader: Any) -> str | None:
