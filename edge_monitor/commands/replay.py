@@ -276,14 +276,21 @@ def input_notes(file: str, stats: dict[str, Any], report: Any,
     if stats["cycles"] == 0 and stats["frames_total"] and stats.get("unknown_id") == stats["frames_total"]:
         nothing = (f"no frame of {file} has an id this agent decodes ({stats['frames_total']} frames): a foreign "
                    "controller's log? replay it with --mapping (docs/CONNECTING.md)")
-    elif stats["cycles"] == 0 and not stats["frames_total"] and getattr(report, "skipped", 0):
-        nothing = f"nothing in {file} is readable ({report.skipped} unreadable record(s)): is it a CAN log?"
+    elif stats["cycles"] == 0 and not stats["frames_total"] and _nothing_read(report):
+        why = f"{report.skipped} unreadable record(s)" if report.skipped else "no CAN frame found"
+        ended = f"; it ends early: {report.truncated}" if report.truncated else ""
+        nothing = f"nothing in {file} is readable ({why}{ended}): is it a CAN log?"
     elif stats["cycles"] == 0 and finding and (stats["frames_total"] or getattr(report, "frames", 0)):
         nothing = no_cycle_note(file, finding, mapping, getattr(report, "truncated", None))
         if nothing and not_enabled:
             nothing += (f"; {not_enabled} samples were dropped while the drive's statusword 6041h did not read "
                         "operation enabled (a drive switched off, in fault or not yet enabled)")
     return notes, nothing
+
+
+def _nothing_read(report: Any) -> bool:
+    """The input gave nothing: records were all unreadable, or no frame was found in it at all."""
+    return isinstance(report, LogReport) and bool(report.skipped or not report.frames)
 
 
 def no_cycle_note(file: str, finding: dict[str, Any], mapping: str | None, truncated: str | None) -> str | None:
