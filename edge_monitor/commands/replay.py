@@ -8,10 +8,10 @@ Progress: a bar on stderr when it is a terminal (off with ``-q``), else an INFO 
 ``--jobs 2`` (the default ``auto`` for a CAN log over :data:`AUTO_SPLIT_BYTES` where there are two
 cores and no state file is kept) reads and ingests the log in this process and monitors the joints in a second one
 (:mod:`edge_monitor.monitor_process`): the same records, in about two thirds of the time.
-Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device), the
-``--jsonl`` file cannot be opened, or records or the state could not be written (a full disk:
-``sink_errors``, ``state_save_errors``; the statistics are printed first), or when a mapped input was read but
-no cycle was found (the reason and the check-mapping command to run are printed).
+Exit code 1 when the log cannot be found or read (or is not a regular file: a FIFO, a device; or no frame in
+it is readable: "is it a CAN log?"), the ``--jsonl`` file cannot be opened, or records or the state could not
+be written (a full disk: ``sink_errors``, ``state_save_errors``; the statistics are printed first), or when a
+mapped input was read but no cycle was found (the reason and the check-mapping command to run are printed).
 With ``--state-dir`` the replay notes its input's last frame time there (``replayed_input.json``); an input that
 begins before the one replayed last ended (the same log again, an older one) gets a warning: its cycles would be
 learned again as new ones, so replay it with a fresh ``--state-dir`` (a warning, not a refusal: an agent restarted

@@ -13,8 +13,9 @@ pipeline (tests/test_architecture.py).
 The sources:
 
 * our native frames: :mod:`frame_source` (live buses as frame blocks), :mod:`log_source` (log files,
-  resynchronising after damage; BLF read by :mod:`blf_blocks`), :mod:`ingest` (decode, CRC, E2E, counters,
-  per-joint runs; which status frames may change the cycle: :mod:`cycle_numbering`);
+  resynchronising after damage; BLF read by :mod:`blf_blocks`, text logs' lines by :mod:`text_logs`),
+  :mod:`ingest` (decode, CRC, E2E, counters, per-joint runs; which status frames may change the cycle:
+  :mod:`cycle_numbering`);
 * other controllers, through a mapping file (docs/CONNECTING.md): :mod:`dbc_source` (any DBC),
   :mod:`cia402_source` (CiA 402 drives), :mod:`trace_source` (CSV/Parquet trace tables), each giving
   :class:`~edge_monitor.sources.samples.DecodedSamples`; :mod:`sample_stream` labels them with cycles from
