@@ -200,3 +200,17 @@ def test_a_readable_compressed_log_is_no_failure(logs, tmp_path):
     code, summary, err, symptoms = replay(packed, tmp_path)
     assert code == 0 and summary["cycles"] == CYCLES and "is it a CAN log?" not in err
     assert summary["log"]["truncated"] is None and len(symptoms) == 2 * CYCLES
+
+
+def test_a_compressed_blf_reads_whole_and_a_cut_one_is_truncated(logs, tmp_path):
+    """A .blf.gz is judged by what it unpacks to, not by its size on disk (which is smaller than the BLF header's
+    file size: a complete one was reported truncated and its last frames dropped); cut short, it is truncated."""
+    whole_frames, _ = read_all(logs["blf"])
+    packed = tmp_path / "run.blf.gz"
+    packed.write_bytes(gzip.compress(logs["blf"].read_bytes()))
+    frames, report = read_all(packed)
+    assert (frames, report.truncated, report.skipped) == (whole_frames, None, 0)
+    cut = tmp_path / "cut.blf.gz"
+    cut.write_bytes(packed.read_bytes()[: packed.stat().st_size // 2])
+    frames, report = read_all(cut)
+    assert 0 < frames < whole_frames and report.truncated

@@ -25,6 +25,8 @@ python-can has the private parts used here (:func:`supported`); otherwise
 
 from __future__ import annotations
 
+import gzip
+import math
 import os
 import struct
 import zlib
@@ -195,6 +197,14 @@ def _read_objects(reader: Any, data: bytes, at: int, start: float, resync: bool,
     return b"", False
 
 
+def stream_size(file: Any) -> float:
+    """Bytes a BLF stream holds: the file's size on disk; unknown (infinite) for a gzip-compressed one, whose
+    size on disk is not what it unpacks to (a ``.blf.gz`` ends where its stream ends)."""
+    if isinstance(file, gzip.GzipFile):
+        return math.inf
+    return os.fstat(file.fileno()).st_size
+
+
 def container_arrays(reader: Any, on_skip: SkipCallback | None = None) -> Iterator[Arrays]:
     """Frame arrays of a BLF file, in file order, one or more per container (python-can's container
     walk; its parser for whatever is not a fixed-layout CAN_MESSAGE).
@@ -204,7 +214,8 @@ def container_arrays(reader: Any, on_skip: SkipCallback | None = None) -> Iterat
     ``on_skip`` is told, and reading goes on at the next object signature. Damage to the walk itself (an
     object header without its signature, an object size smaller than a header) raises
     :class:`BLFDamage` after the frames before it; an object larger than what is left of the file
-    (a file cut short, or a damaged size) is read as far as the file goes, then the same."""
+    (a file cut short, or a damaged size) is read as far as the file goes, then the same. The caller closes
+    the reader (``with reader:``): the position its file ends at tells a compressed stream's length."""
     base_size = blf.OBJ_HEADER_BASE_STRUCT.size
     unpack_base = blf.OBJ_HEADER_BASE_STRUCT.unpack
     unpack_container = blf.LOG_CONTAINER_STRUCT.unpack_from
@@ -219,7 +230,7 @@ def container_arrays(reader: Any, on_skip: SkipCallback | None = None) -> Iterat
 
     tail, resync = b"", False       # resync: a container was skipped, the next one may begin mid-object
     file = reader.file
-    file_size = os.fstat(file.fileno()).st_size
+    file_size = stream_size(file)
     while True:
         at = file.tell()
         header = file.read(base_size)
@@ -267,4 +278,3 @@ def container_arrays(reader: Any, on_skip: SkipCallback | None = None) -> Iterat
         pending.clear()
         if cut:
             raise BLFDamage(cut)
-    reader.stop()

@@ -25,6 +25,7 @@ them) and why the file ended are in :class:`LogReport`.
 
 from __future__ import annotations
 
+import gzip
 import logging
 import os
 import struct
@@ -121,7 +122,8 @@ def log_blocks_with_position(path: str | Path, block_size: int = 4096,
             yield from _blf_blocks(reader, block_size, report)
         else:
             yield from _message_blocks(reader, block_size, report)
-    report.truncated = _cut_short(p, reader) or report.truncated     # the file's own account first
+        unpacked = _unpacked_bytes(reader)
+    report.truncated = _cut_short(p, reader, unpacked) or report.truncated     # the file's own account first
     if report.skipped:
         log.warning("%s: %d unreadable record(s) skipped (first: %s)", p, report.skipped, report.examples[0])
     if report.truncated:
@@ -235,15 +237,22 @@ def _resume(reader: Any) -> Iterator[can.Message]:
     return iter(reader)
 
 
-def _cut_short(path: Path, reader: Any) -> str | None:
-    """Why the file looks cut short, or None. Only formats with a way to tell."""
+def _unpacked_bytes(reader: Any) -> int | None:
+    """Bytes a gzip-compressed log unpacked to, read to its end; None for a file read as it is on disk."""
+    file = getattr(reader, "file", None)
+    return file.tell() if isinstance(file, gzip.GzipFile) and not file.closed else None
+
+
+def _cut_short(path: Path, reader: Any, unpacked: int | None = None) -> str | None:
+    """Why the file looks cut short, or None. Only formats with a way to tell (a compressed BLF by the
+    bytes it ``unpacked`` to)."""
     lines = getattr(reader, "file", None)
     if isinstance(lines, TextLines):
         return lines.cut_short(asc=text_format(path) == ".asc")
     if not isinstance(reader, BLFReader):
         return None
     try:
-        size = path.stat().st_size
+        size = path.stat().st_size if unpacked is None else unpacked
     except OSError as exc:
         return f"cannot check the end of the file: {exc}"
     if not reader.file_size:
