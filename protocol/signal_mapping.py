@@ -226,13 +226,14 @@ def _joint(joint: int, t: Mapping[str, Any], kind: str, base: Path, where: str) 
             refs[q] = _signal(t[q], q, kind, jm, f"{where}.{q}")
     if kind == "cia402":
         node = t.get("node")
-        if not (isinstance(node, int) and 1 <= node <= 127):
+        if not (isinstance(node, int) and not isinstance(node, bool) and 1 <= node <= 127):
             raise MappingError(f"{where}: node: the drive's CANopen node id 1 … 127, got {node!r}")
         eds = base / t["eds"] if isinstance(t.get("eds"), str) else None
         tpdo = tuple(_tpdo(p, f"{where}.tpdo[{i}]") for i, p in enumerate(_list(t.get("tpdo", []), f"{where}.tpdo")))
-        if eds is None and not tpdo:
+        if (eds is None) == (not tpdo):
             raise MappingError(f"{where}: give eds = \"drive.eds\" or the TPDO mapping as "
-                               "tpdo = [{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}]")
+                               "tpdo = [{cob_id = 0x181, objects = [\"6041\", \"6077\", \"606C\"]}]"
+                               + (", not both (which of them the drive sends is unknown)" if tpdo else ""))
         vf = t.get("velocity_factor")
         if vf is not None and not (within(vf, VELOCITY_FACTOR) and vf > 0):
             raise MappingError(f"{where}: velocity_factor: rad/s per velocity unit, > 0, {VELOCITY_FACTOR[0]:g} … "
@@ -304,7 +305,7 @@ def _cycles(t: Any, kind: str, joints: dict[int, JointMapping], where: str, comm
                            "in order (rad/s, motor side); `edge-monitor check-mapping` lists the steady speeds "
                            "it finds")
     ref_joint = t.get("reference_joint", min(joints))
-    if not isinstance(ref_joint, int) or ref_joint not in joints:
+    if not isinstance(ref_joint, int) or isinstance(ref_joint, bool) or ref_joint not in joints:
         raise MappingError(f"{where}: reference_joint: {ref_joint!r} is not a mapped joint {sorted(joints)}")
     probe = JointMapping(joint=-1)
     cyc = CycleMapping(source=source, speeds=tuple(map(float, speeds)), reference_joint=int(ref_joint))

@@ -23,6 +23,8 @@ from protocol.signal_mapping import load_mapping
 
 from foreign_mappings import SPEEDS, mapping, record
 
+ROOT = Path(__file__).resolve().parents[1]
+
 pytestmark = pytest.mark.slow
 CYCLES = 4
 
@@ -198,3 +200,34 @@ def test_the_configs_joints_are_the_monitored_ones_with_a_mapping(runs):
     assert agent.health().counters["joint_filtered"] > 0
     with pytest.raises(MappingError, match=r"joints \[7\].*none in common"):
         open_source(m, dataclasses.replace(cfg, joints=(7,)))
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"tpdo": [{"cob_id": 0x181, "objects": ["zzzz"]}]}, "not both"),      # an EDS and a TPDO list: which is sent?
+    ({"node": True}, "node id"),                                           # a boolean is no node number
+])
+def test_a_cia402_joint_states_its_drive_one_way(change, message):
+    """A CiA 402 joint with both an EDS and a written TPDO mapping had its ``tpdo`` ignored (even an invalid one);
+    ``node = true`` was node 1. Both are refused naming the key; the shipped mapping still loads."""
+    import tomllib
+
+    from protocol.signal_mapping import MappingError, mapping_from_dict
+
+    path = ROOT / "protocol" / "mappings" / "cia402.toml"
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    assert mapping_from_dict(data, path).joints                    # as shipped: loads
+    data["joint"]["0"].update(change)
+    with pytest.raises(MappingError, match=message):
+        mapping_from_dict(data, path)
+
+
+def test_a_boolean_reference_joint_is_refused():
+    import tomllib
+
+    from protocol.signal_mapping import MappingError, mapping_from_dict
+
+    path = ROOT / "protocol" / "mappings" / "foreign_robot.toml"
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    data["cycles"]["reference_joint"] = True
+    with pytest.raises(MappingError, match="reference_joint"):
+        mapping_from_dict(data, path)
