@@ -148,7 +148,7 @@ def load_mapping(path: str | Path, commissioning: bool = False) -> SignalMapping
     p = Path(path)
     raw = read_regular_or(p, MAX_MAPPING_BYTES, "mapping file", MappingError, UnreadableFile)
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
+        data = tomllib.loads(raw.decode("utf-8-sig"))      # a byte-order mark (Windows editors) is no content
     except UnicodeDecodeError as exc:
         raise MappingError(f"mapping file {p} is not UTF-8 text: {exc}") from None
     except (tomllib.TOMLDecodeError, RecursionError) as exc:
@@ -183,7 +183,9 @@ def mapping_from_dict(data: Mapping[str, Any], path: Path | None = None, commiss
         raise MappingError(f"{where}: joint: add a [joint.N] table for each joint (N = 0, 1, …)")
     joints = {}
     for key, table in joints_table.items():
-        if not (str(key).isdigit() and len(str(key)) <= 3 and int(key) <= MAX_JOINT) or not isinstance(table, dict):
+        number = str(key)
+        if not (number.isascii() and number.isdigit() and len(number) <= 3 and int(number) <= MAX_JOINT) \
+                or not isinstance(table, dict):
             raise MappingError(f"{where}: joint.{str(key)[:24]}: tables are [joint.N] with N = 0 … {MAX_JOINT}")
         joints[int(key)] = _joint(int(key), table, kind, base, f"{where}: joint.{key}")
     duplicate = duplicate_joint(joints, kind, trace is not None and trace.layout == "long")

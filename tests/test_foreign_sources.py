@@ -231,3 +231,24 @@ def test_a_boolean_reference_joint_is_refused():
     data["cycles"]["reference_joint"] = True
     with pytest.raises(MappingError, match="reference_joint"):
         mapping_from_dict(data, path)
+
+
+def test_joint_numbers_are_ascii_digits_and_a_byte_order_mark_is_read(tmp_path):
+    """``[joint."٣"]`` (an Arabic-Indic three) was joint 3; a mapping saved with a byte-order mark (a Windows
+    editor) was "not valid TOML" at line 1, column 1."""
+    import shutil
+
+    from protocol.signal_mapping import MappingError, load_mapping
+
+    shipped = ROOT / "protocol" / "mappings" / "foreign_robot.toml"
+    (tmp_path / "mappings").mkdir()
+    shutil.copytree(ROOT / "protocol" / "dbc", tmp_path / "dbc")        # the mapping names its DBC relatively
+    text = shipped.read_text(encoding="utf-8")
+    marked = tmp_path / "mappings" / "bom.toml"
+    marked.write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    assert load_mapping(marked).joints.keys() == load_mapping(shipped).joints.keys()
+    arabic = tmp_path / "mappings" / "arabic.toml"
+    arabic.write_text(text.replace("[joint.3]", '[joint."\u0663"]'), encoding="utf-8")
+    assert '[joint."\u0663"]' in arabic.read_text(encoding="utf-8")
+    with pytest.raises(MappingError, match="joint"):
+        load_mapping(arabic)
