@@ -143,6 +143,8 @@ def validate(c: SimConfig) -> None:
     for v in c.speeds:
         _require(_finite(v) and 0.0 < v <= MAX_SPEED, "speeds",
                  f"each speed must be in (0, {MAX_SPEED}] rad/s, got {v!r}")
+    _require(len(set(c.speeds)) == len(c.speeds), "speeds",
+             f"each speed level once (the agent tells the test cycle's plateaus apart by speed), got {c.speeds!r}")
     _require(_finite(c.plateau_time) and 0.05 <= c.plateau_time <= 60.0, "plateau_time",
              f"must be 0.05 … 60 s, got {c.plateau_time!r}")
     _require(_finite(c.acceleration) and c.acceleration > 0, "acceleration",
@@ -232,9 +234,12 @@ def parse_speeds(text: str) -> tuple[float, ...]:
 def load_speeds_file(path: str | Path) -> tuple[float, ...]:
     """Speeds from the JSON of ``edge-monitor design`` (``{"speeds": [...]}``)."""
     try:
-        doc = json.loads(Path(path).read_text())
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise SimConfigError(f"speeds_from: cannot read {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise SimConfigError(f"speeds_from: {path} is not UTF-8 text ({exc.reason} at byte {exc.start}): is it "
+                             "the JSON of edge-monitor design?") from None
     except json.JSONDecodeError as exc:
         raise SimConfigError(f"speeds_from: {path} is not JSON: {exc}") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("speeds"), list):

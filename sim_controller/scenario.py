@@ -108,6 +108,9 @@ def load_scenario(path: str | Path, joints: int | None = None) -> dict[str, Any]
         doc = tomllib.loads(source.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ScenarioError(f"scenario: cannot read {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"scenario: {path} is not UTF-8 text ({exc.reason} at byte {exc.start}); save it "
+                            "as UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"scenario: {path} is not valid TOML: {exc}") from None
     return scenario_from_mapping(doc, joints)

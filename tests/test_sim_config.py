@@ -93,6 +93,7 @@ def test_wear_laws_from_the_command_line_take_every_kind_of_event_in_order():
     (dict(load_range=(-0.1, 0.5)), "load_range:"), (dict(variation=0.9), "vary:"),
     (dict(plateau_time=0.0), "plateau_time:"), (dict(p2p_delay=(0.05, 0.01)), "p2p_delay:"),
     (dict(time_acceleration=0.0), "time_acceleration:"), (dict(friction_model_error=-1e-3), "friction_model_error:"),
+    (dict(speeds=(2.1, 8.7, 2.1)), "speeds: each speed level once"),
 ])
 def test_config_validation_names_the_field(kwargs, message):
     with pytest.raises(SimConfigError, match=message):
@@ -114,3 +115,20 @@ def test_default_cycle_has_the_specified_shape():
     assert abs(ref.angle[-1]) < 1e-9                                   # every cycle returns to its start angle
     production = ref.segment == SEGMENT_PRODUCTION
     assert production.any() and abs(ref.speed[production]).max() <= config.production_speed + 1e-9
+
+
+def test_a_scenario_or_speeds_file_that_is_not_utf8_is_named(tmp_path):
+    """Non-UTF-8 bytes in --scenario or --speeds-from gave "'utf-8' codec can't decode …" without the file."""
+    from sim_controller.config import load_speeds_file
+    from sim_controller.scenario import ScenarioError, load_scenario
+
+    bad = tmp_path / "latin.toml"
+    bad.write_bytes("name = \"Halle W\xe4rme\"\n".encode("latin-1"))
+    with pytest.raises(ScenarioError, match="latin.toml is not UTF-8"):
+        load_scenario(bad)
+    speeds = tmp_path / "speeds.json"
+    speeds.write_bytes(b'{"speeds": [2.1, 8.7]}')
+    assert load_speeds_file(speeds) == (2.1, 8.7)
+    speeds.write_bytes(b'\xff{"speeds": [2.1]}')
+    with pytest.raises(SimConfigError, match="speeds.json is not UTF-8"):
+        load_speeds_file(speeds)
