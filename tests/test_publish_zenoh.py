@@ -314,8 +314,10 @@ def test_bad_options_name_the_flag(tmp_path):
         ZenohOptions(connect=["127.0.0.1:7447"])
     with pytest.raises(ZenohSetupError, match="--zenoh-mode"):
         ZenohOptions(mode="server")
-    with pytest.raises(ZenohSetupError, match="--zenoh-config"):
+    with pytest.raises(ZenohSetupError, match="does not exist; fix --zenoh-config"):
         ZenohOptions(config_file=str(tmp_path / "missing.json5"))
+    with pytest.raises(ZenohSetupError, match="is not a file; fix --zenoh-config"):
+        ZenohOptions(config_file=str(tmp_path))                       # a folder given for the file
     bad = tmp_path / "bad.json5"
     bad.write_text("{ not_a_zenoh_key: 1 }")
     with pytest.raises(ZenohSetupError, match="invalid"):

@@ -78,7 +78,8 @@ class ZenohOptions:
                     raise ZenohSetupError(f"zenoh {name} endpoint {endpoint!r}: port {port.group(1)} is not "
                                           f"0 … {MAX_PORT}; fix --zenoh-{name}")
         if self.config_file is not None and not Path(self.config_file).is_file():
-            raise ZenohSetupError(f"zenoh config file {self.config_file!r} does not exist; fix --zenoh-config")
+            what = "is not a file" if Path(self.config_file).exists() else "does not exist"
+            raise ZenohSetupError(f"zenoh config file {self.config_file!r} {what}; fix --zenoh-config")
         if self.tls is not None:
             try:
                 self.tls.check(need_ca=True)
