@@ -137,17 +137,14 @@ def _interruptible() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("signum, to_group, code", [(signal.SIGINT, True, 130), (signal.SIGTERM, False, 143)])
-def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, signum, to_group, code):
-    """``replay --jobs 2`` stopped mid-log: Ctrl-C in a terminal reaches the whole process group, SIGTERM
-    from a supervisor only the main process. Either way it exits with its code, the monitoring process is
-    gone and the symptoms written are whole lines. Before, the main process hung at exit for ever: its queue
-    waited to hand blocks to a child that was gone (found 2026-11-30)."""
-    log = tmp_path / "long.blf"
-    subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(log), "--joints", "2",
-                    "--cycles", "200"], check=True, capture_output=True, timeout=600)
-    jsonl = tmp_path / "s.jsonl"
+#: Attempts at landing the signal mid-log: a test process starved on a loaded machine can read the replay's
+#: first lines so late that it has already finished (exit 0, its summary printed); such an attempt says nothing.
+ATTEMPTS = 3
+
+
+def _interrupt(log: Path, jsonl: Path, signum: int, to_group: bool) -> tuple[int | None, str, str]:
+    """One ``replay --jobs 2`` of ``log`` sent ``signum`` once its monitoring process is at work: (exit code,
+    stdout, stderr)."""
     proc = subprocess.Popen([sys.executable, "-m", "edge_monitor.cli", "-v", "replay", str(log), "--jobs", "2",
                              "--rerun", "off", "--jsonl", str(jsonl)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=_interruptible)
@@ -158,21 +155,41 @@ def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, s
             seen.append(line)
             if "monitoring started" in line:
                 break
-        # held while the signal is sent, so that it lands mid-log however slow this test process is (a loaded
-        # machine once read the line so late that the replay had finished: exit 0); it is delivered on SIGCONT
+        # held while the signal is sent, so that it lands mid-log unless the replay is already done; it is
+        # delivered on SIGCONT
         os.killpg(proc.pid, signal.SIGSTOP)
-        assert proc.poll() is None, "the replay ended before it could be interrupted"
-        if to_group:
-            os.killpg(proc.pid, signum)
-        else:
-            proc.send_signal(signum)
-        os.killpg(proc.pid, signal.SIGCONT)
-        _, err = proc.communicate(timeout=60)
+        if proc.poll() is None:
+            if to_group:
+                os.killpg(proc.pid, signum)
+            else:
+                proc.send_signal(signum)
+            os.killpg(proc.pid, signal.SIGCONT)
+        out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-    err = "".join(seen) + err
-    assert proc.returncode == code, err[-3000:]
+    return proc.returncode, out, "".join(seen) + err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum, to_group, code", [(signal.SIGINT, True, 130), (signal.SIGTERM, False, 143)])
+def test_replay_with_two_processes_stops_on_ctrl_c_and_sigterm(tmp_path: Path, signum, to_group, code):
+    """``replay --jobs 2`` stopped mid-log: Ctrl-C in a terminal reaches the whole process group, SIGTERM
+    from a supervisor only the main process. Either way it exits with its code, the monitoring process is
+    gone and the symptoms written are whole lines. Before, the main process hung at exit for ever: its queue
+    waited to hand blocks to a child that was gone (found 2026-11-30). An attempt the replay finished before the
+    signal landed (exit 0; a clean-clone CI, 2026-12-01) is tried again, at most :data:`ATTEMPTS` times: a replay
+    that ignored the signal mid-log would finish every time."""
+    log = tmp_path / "long.blf"
+    subprocess.run([sys.executable, "-m", "sim_controller.cli", "record", "--out", str(log), "--joints", "2",
+                    "--cycles", "200"], check=True, capture_output=True, timeout=600)
+    jsonl = tmp_path / "s.jsonl"
+    for _ in range(ATTEMPTS):
+        jsonl.unlink(missing_ok=True)
+        returncode, _, err = _interrupt(log, jsonl, signum, to_group)
+        if returncode != 0:
+            break
+    assert returncode == code, err[-3000:]
     assert "Traceback" not in err
     for line in jsonl.read_text().splitlines():
         json.loads(line)
