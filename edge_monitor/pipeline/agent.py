@@ -51,8 +51,7 @@ class Agent:
         self.stats = RunStats()
         self._open_cycle: int | None = None
         self._last_emitted: dict[int, int] = {}
-        self._partial_cycle: int | None = None   # its beginning was not seen (first after a start) or
-                                                 # its end (cut by a controller restart)
+        self._partial_cycle: int | None = None   # its start (first after a start) or end (a restart) unseen
         self._restored_joint_states: dict[int, dict] = {}
         self._open_last_segment = -1              # highest segment seen in the open cycle
         self._complete_last_segment: int | None = None    # … in the last cycle that ended normally
@@ -152,12 +151,16 @@ class Agent:
         arl0 = self.budget.count_joints(len(set(self.joints) | set(self._restored_joint_states)))
         if arl0 is None:
             return False
-        started = sum(monitor.retarget(arl0) for monitor in self.joints.values())
+        started = self._retarget_all(arl0)
         (log.warning if started else log.debug)(
             "false-alarm budget split over the %d joint(s) seen: %.3g cycles per detector%s (state [decision] "
             "joints_per_robot to fix the split)", self.budget.joints, arl0,
             f"; re-deriving {started} learned threshold(s)" if started else "")
         return True
+
+    def _retarget_all(self, arl0: float | None) -> int:
+        """Every joint's thresholds re-derived for ``arl0`` [cycles per detector] (None: none); how many."""
+        return 0 if arl0 is None else sum(monitor.retarget(arl0) for monitor in self.joints.values())
 
     def _restored_monitor(self, joint: int) -> JointMonitor | None:
         """The joint's monitor from the saved state, or None (nothing saved, or saved models that do
@@ -189,10 +192,7 @@ class Agent:
             if partial:
                 self.stats.partial_cycles += 1
             outputs += self._emit(symptom)
-        arl0 = self.budget.update(self._last_frame_time)
-        if arl0 is not None:
-            for monitor in self.joints.values():
-                monitor.retarget(arl0)
+        self._retarget_all(self.budget.update(self._last_frame_time))   # None: the rate did not move
         return outputs
 
     def _emit(self, symptom: Symptom) -> list[Symptom]:

@@ -153,7 +153,11 @@ class DecisionConfig:
     @property
     def detectors_per_robot(self) -> int:
         """How many detectors the robot's false-alarm budget is split over."""
-        return self.budget_joints * len(self.quantities)
+        return self.detectors_for()
+
+    def detectors_for(self, joints: int | None = None) -> int:
+        """The detectors of a robot of ``joints`` joints (default :attr:`budget_joints`)."""
+        return (self.budget_joints if joints is None else joints) * len(self.quantities)
 
     @property
     def budget_joints(self) -> int:
@@ -171,8 +175,7 @@ class DecisionConfig:
         if self.arl0_cycles is not None:
             return float(self.arl0_cycles)
         days = BUDGET_PERIODS[self.budget_period]
-        detectors = (self.budget_joints if joints is None else joints) * len(self.quantities)
-        return cycles_per_day * days * detectors / self.false_alarms_per_robot
+        return cycles_per_day * days * self.detectors_for(joints) / self.false_alarms_per_robot
 
     @property
     def budget_text(self) -> str:
