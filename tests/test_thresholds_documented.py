@@ -61,26 +61,35 @@ def test_each_documented_threshold_is_the_shipped_tables(label: str) -> None:
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
-def _readme_demo_thresholds() -> tuple[dict[str, float], tuple[float, float], tuple[float, float]]:
-    """The README's demo paragraph: the warm-up thresholds of the default budget (kl_raw, kl_weighted, wear score),
-    the joint vector's range, and the steady stage's range [nats]."""
+#: The demo robot sends 2 joints: a year's budget split over their 8 detectors.
+DEMO_JOINTS = 2
+
+
+def _readme_demo_thresholds() -> tuple[list[tuple[dict[str, float], tuple[float, float]]], tuple[float, float]]:
+    """The README's demo paragraph: the warm-up thresholds (kl_raw, kl_weighted, wear score; the joint vector's
+    range) of the demo's robot, then of a 6-joint robot, and a 6-joint robot's steady range [nats]."""
     text = " ".join(README.read_text(encoding="utf-8").split())
-    found = re.search(r"are ([\d.]+) nats \(kl_raw\), ([\d.]+) \(kl_weighted\), ([\d.]+) \(the wear score\) and "
-                      r"([\d.]+)–([\d.]+) \(joint vector\)", text)
-    steady = re.search(r"in its steady stage, they are (\d+\.\d+)–(\d+\.\d+)", text)
-    assert found and steady, "README.md's demo paragraph no longer states the thresholds as this test reads them"
-    scalars = dict(zip(("kl_raw", "kl_weighted", "wear"), map(float, found.groups()[:3])))
-    return scalars, (float(found[4]), float(found[5])), (float(steady[1]), float(steady[2]))
+    found = re.findall(r"are ([\d.]+) nats \(kl_raw\), ([\d.]+) \(kl_weighted\), ([\d.]+) \(the wear score\) and "
+                       r"([\d.]+)(?:–([\d.]+))? \(joint vector\)", text)
+    steady = re.search(r"in its steady stage, a 6-joint robot's are (\d+\.\d+)–(\d+\.\d+)", text)
+    assert len(found) == 2 and steady, "README.md's demo paragraph no longer states the thresholds as this test reads them"
+    stages = [(dict(zip(("kl_raw", "kl_weighted", "wear"), map(float, row[:3]))),
+               (float(row[3]), float(row[4] or row[3]))) for row in found]
+    return stages, (float(steady[1]), float(steady[2]))
 
 
 def test_the_readme_states_the_shipped_thresholds_of_the_demo() -> None:
     """The demo's joints have a motor temperature; each number rounded to 0.1 nats, the joint vector's range
-    (its learned ρ per joint) within the table's ρ = 0 … 0.9 entries, the steady range the table's extremes."""
-    scalars, joint, steady = _readme_demo_thresholds()
-    arl0 = DecisionConfig().arl0
-    for quantity, stated in scalars.items():
-        assert stated == pytest.approx(_tabulated(quantity, "warm-up", False, arl0)[0], abs=0.051), quantity
-    by_rho = _tabulated("joint", "warm-up", False, arl0)
-    assert min(by_rho) - 0.051 <= joint[0] <= joint[1] <= max(by_rho) + 0.051, (joint, by_rho)
+    (its learned ρ per joint) within the table's ρ = 0 … 0.9 entries, the steady range the table's extremes:
+    first at the demo robot's share of the default budget, then at a 6-joint robot's."""
+    stages, steady = _readme_demo_thresholds()
+    decision = DecisionConfig()
+    for (scalars, joint), arl0 in zip(stages, (decision.arl0_for(decision.cycles_per_day, DEMO_JOINTS),
+                                               decision.arl0)):
+        for quantity, stated in scalars.items():
+            assert stated == pytest.approx(_tabulated(quantity, "warm-up", False, arl0)[0], abs=0.051), (quantity, arl0)
+        by_rho = _tabulated("joint", "warm-up", False, arl0)
+        assert min(by_rho) - 0.051 <= joint[0] <= joint[1] <= max(by_rho) + 0.051, (joint, by_rho, arl0)
+    arl0 = decision.arl0
     steady_all = [h for q in ("wear", "kl_raw", "kl_weighted", "joint") for h in _tabulated(q, "steady", False, arl0)]
     assert steady == pytest.approx((min(steady_all), max(steady_all)), abs=0.051), (steady, steady_all)
