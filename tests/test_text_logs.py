@@ -17,6 +17,8 @@ from pathlib import Path
 import can
 import hostile_files as hostile
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from edge_monitor.sources.log_source import LogReadError, LogReport, log_blocks_with_position
 from edge_monitor.sources.text_logs import MAX_LINE_BYTES, TextLines
@@ -214,3 +216,41 @@ def test_a_compressed_blf_reads_whole_and_a_cut_one_is_truncated(logs, tmp_path)
     cut.write_bytes(packed.read_bytes()[: packed.stat().st_size // 2])
     frames, report = read_all(cut)
     assert 0 < frames < whole_frames and report.truncated
+
+
+# ------------------------------------------------------------------------------------------ property
+class _Count:
+    """A report that counts skipped lines (:class:`edge_monitor.sources.text_logs.Report`)."""
+
+    def __init__(self) -> None:
+        self.frames, self.skipped = 0, 0
+
+    def skip(self, reason: str, frames: int = 1) -> None:
+        self.skipped += frames
+
+
+_LINE = st.one_of(
+    st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\r\n\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"),
+            max_size=60).map(lambda t: ("ok", t.encode("utf-8"))),
+    st.binary(min_size=1, max_size=8).map(lambda b: ("bad", b"x" + b"\xff" + b.replace(b"\n", b"."))),
+    st.integers(MAX_LINE_BYTES + 1, 3 * MAX_LINE_BYTES).map(lambda n: ("long", b"y" * n)),
+)
+
+
+@given(lines=st.lists(_LINE, max_size=12), gz=st.booleans())
+def test_every_line_is_either_read_as_written_or_counted(tmp_path_factory, lines, gz):
+    """Any mix of text lines, lines with an undecodable byte and overlong lines, plain or gzip-compressed:
+    each valid line comes out as written, in order; every other one is counted once; nothing else comes out."""
+    path = tmp_path_factory.mktemp("lines") / ("t.log.gz" if gz else "t.log")
+    content = b"".join(raw + b"\n" for _, raw in lines)
+    path.write_bytes(gzip.compress(content) if gz else content)
+    report = _Count()
+    reader = TextLines(path, report)
+    try:
+        read = list(reader)
+        cut = reader.cut_short(asc=False)
+    finally:
+        reader.close()
+    assert read == [raw.decode("utf-8") + "\n" for kind, raw in lines if kind == "ok"]
+    assert report.skipped == sum(kind != "ok" for kind, _ in lines)
+    assert cut is None
