@@ -66,7 +66,8 @@ def as_observations(y: ArrayLike, dim: int | None = None, name: str = "data") ->
 class GaussianMixture:
     """``p0(y) = Σk πk·N(y; μk, S)`` with weights (K,), means (K, d) and shared covariance S (d, d).
 
-    All evaluations are vectorised over observations and components (log-sum-exp).
+    All evaluations are vectorised over observations and components (log-sum-exp). ``whiten`` (L⁻¹, S = LLᵀ)
+    and ``log_coef`` (log πk − ½·log|2πS|, (K,)) are what an evaluation uses; a batch of mixtures reads them.
     """
 
     def __init__(self, weights: ArrayLike, means: ArrayLike, cov: ArrayLike, kind: str = "mixture",
@@ -90,13 +91,13 @@ class GaussianMixture:
         self.cov = s
         self.kind = kind
         self._chol = chol
-        self._whiten = linalg.solve_triangular(chol, np.eye(d), lower=True)  # L⁻¹
-        self.precision = self._whiten.T @ self._whiten                        # S⁻¹
-        self._means_w = mu @ self._whiten.T                                    # L⁻¹μk, (K, d)
+        self.whiten = linalg.solve_triangular(chol, np.eye(d), lower=True)   # L⁻¹ (whitening)
+        self.precision = self.whiten.T @ self.whiten                          # S⁻¹
+        self._means_w = mu @ self.whiten.T                                     # L⁻¹μk, (K, d)
         self._means_w_sq = np.einsum("kd,kd->k", self._means_w, self._means_w)
         logdet = 2.0 * np.sum(np.log(np.diag(chol)))
         with np.errstate(divide="ignore"):
-            self._log_coef = np.log(self.weights) - 0.5 * (logdet + d * math.log(2.0 * math.pi))
+            self.log_coef = np.log(self.weights) - 0.5 * (logdet + d * math.log(2.0 * math.pi))   # per component
         self._fisher = None if fisher is None else np.asarray(fisher, dtype=float).reshape(d, d)
 
     @property
@@ -120,10 +121,10 @@ class GaussianMixture:
 
     def component_logpdf(self, y: ArrayLike) -> NDArray[np.float64]:
         """log(πk·N(yn; μk, S)) for every observation and component, (n, K)."""
-        yw = as_observations(y, self.dim) @ self._whiten.T
+        yw = as_observations(y, self.dim) @ self.whiten.T
         quad = (np.einsum("nd,nd->n", yw, yw)[:, None] - 2.0 * (yw @ self._means_w.T)
                 + self._means_w_sq[None, :])
-        return self._log_coef[None, :] - 0.5 * np.maximum(quad, 0.0)
+        return self.log_coef[None, :] - 0.5 * np.maximum(quad, 0.0)
 
     def logpdf(self, y: ArrayLike) -> NDArray[np.float64]:
         """log p0(yn), (n,)."""

@@ -107,8 +107,8 @@ class MixtureBatch:
         for i, m in enumerate(mixtures):
             kk = m.n_components
             self.means[i, :kk] = m.means
-            self.log_coef[i, :kk] = m._log_coef
-            self.whiten[i] = m._whiten
+            self.log_coef[i, :kk] = m.log_coef
+            self.whiten[i] = m.whiten
             self.cov[i] = m.cov
             self.gain[i] = step_matrix(m, step)
         self.means_w = np.einsum("bkd,bed->bke", self.means, self.whiten)      # L⁻¹μk
