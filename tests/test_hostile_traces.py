@@ -5,6 +5,7 @@ hypothesis test of the CSV decoder and the sample stream's bounds, in process.""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -144,21 +145,46 @@ def test_a_table_that_is_no_regular_file_cannot_be_read(corpus, tmp_path, kind):
 
 
 def _parquet(path: Path, damage: str) -> None:
-    import pyarrow as pa
+    """The table of :data:`ROWS` as Parquet (row groups of 500 rows), then damaged: cut in half, 200 bytes in
+    its middle overwritten (a data page that does not decompress), a page header overwritten (it does not
+    deserialize), replaced by a CSV, or emptied; "none" leaves it whole."""
+    import pyarrow.csv as pcsv
     import pyarrow.parquet as pq
-    pq.write_table(pa.table({"t": [0.002, 0.004], "v0": [1.0, 2.0], "tau0": [0.1, 0.1], "cycle": [0, 0],
-                             "segment": [1, 1]}), path)
+    table = pcsv.read_csv(io.BytesIO(HEADER + b"".join(ROWS)), parse_options=pcsv.ParseOptions(delimiter=";"))
+    pq.write_table(table, path, row_group_size=500)
     raw = path.read_bytes()
-    path.write_bytes({"truncated": raw[: len(raw) // 2], "csv": HEADER + ROWS[0], "empty": b""}[damage])
+    middle, page = len(raw) // 3, pq.ParquetFile(path).metadata.row_group(3).column(1).data_page_offset
+    path.write_bytes({"none": raw, "truncated": raw[: len(raw) // 2], "csv": HEADER + ROWS[0], "empty": b"",
+                      "middle": raw[:middle] + b"\xab" * 200 + raw[middle + 200:],
+                      "page_header": raw[:page] + b"\0" * 64 + raw[page + 64:]}[damage])
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("damage", ["truncated", "csv", "empty"])
-def test_a_parquet_that_is_not_one_is_a_usage_error(corpus, tmp_path, damage):
+@pytest.mark.parametrize(("damage", "says"), [("truncated", "not a parquet table"), ("csv", "not a parquet table"),
+                                              ("empty", "not a parquet table"), ("middle", "a damaged Parquet file")])
+def test_a_parquet_that_is_not_one_is_a_usage_error(corpus, tmp_path, damage, says):
     _parquet(tmp_path / "trace.parquet", damage)
     run = hostile.run_measured(hostile.edge_monitor("replay", str(tmp_path / "trace.parquet"), "--mapping",
                                                     str(corpus / "trace.toml")), timeout=60)
-    _check(run, 2, "not a parquet table")
+    _check(run, 2, says)
+    assert str(tmp_path / "trace.parquet") in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+
+
+@pytest.mark.parametrize("damage", ["middle", "page_header"])
+def test_a_parquet_damaged_inside_is_refused_as_damaged_and_a_whole_one_reads(tmp_path, damage):
+    """Bytes overwritten inside a Parquet file were "cannot read …" (exit 1, an I/O failure) and a page header
+    that does not deserialize gave a message of two lines; now one line naming the file as damaged (exit 2),
+    like a "Parquet" cut short."""
+    mapping = _trace_mapping(tmp_path)
+    _parquet(tmp_path / "whole.parquet", "none")
+    assert sum(d.joints[0].time.size for d in decoded_batches(tmp_path / "whole.parquet", mapping)) == len(ROWS)
+    _parquet(tmp_path / "damaged.parquet", damage)
+    with pytest.raises(TraceError) as raised:
+        for _ in decoded_batches(tmp_path / "damaged.parquet", mapping):
+            pass
+    message = str(raised.value)
+    assert message.startswith(f"{tmp_path / 'damaged.parquet'}: a damaged Parquet file (")
+    assert message.endswith("export or copy it again") and "\n" not in message and message.isprintable()
 
 
 UTF16 = ("\n".join(line.decode() for line in [HEADER.rstrip(b"\n")] + [r.rstrip(b"\n") for r in ROWS]) + "\n").encode("utf-16")
