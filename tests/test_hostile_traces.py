@@ -80,6 +80,10 @@ TABLES: dict[str, bytes] = {
     "long_line.csv": HEADER + b"".join(ROWS[:1000]) + b"\0" * (5 << 20) + b"\n" + b"".join(ROWS[1000:]),
     "long_row.csv": HEADER + b"".join(ROWS[:1000]) + b"2.001;" + b"9" * (5 << 20) + b";0.1;0;1\n"
                     + b"".join(ROWS[1000:]),
+    # one stray byte that is not UTF-8 in row 1200 (line 1202): that row is skipped and counted (the table was
+    # refused as "not utf-8 text"); a table of Latin-1 rows under a plain header is still refused
+    "stray_byte.csv": HEADER + b"".join(ROWS[:1200]) + ROWS[1200].replace(b";", b";\xff", 1) + b"".join(ROWS[1201:]),
+    "latin1_rows.csv": HEADER + b"".join(r.replace(b";", b"\xb0;", 1) for r in ROWS),
 }
 # name: (exit code, what stderr says / the counted drop in the summary)
 EXPECTED = {
@@ -98,6 +102,11 @@ EXPECTED = {
     "time_in_ms.csv": (2, 'time_unit = "ms"'),
     "long_line.csv": (2, "line 1002 is longer than 4 MiB, the longest line a trace table may have"),
     "long_row.csv": (2, "line 1002 is longer than 4 MiB, the longest line a trace table may have"),
+    "stray_byte.csv": (0, lambda s: s["log"]["skipped_records"] == 1 and s["log"]["frames"] == len(ROWS) - 1
+                       and s["log"]["skip_examples"] == ["line 1202: not UTF-8 text (byte 0xff at column 7): "
+                                                         "'2.402;\\xff26.10;0.1200;0;3'"]),
+    "latin1_rows.csv": (2, "not UTF-8 text (11 of its first 12 lines are not, the first: byte 0xb0 at column 6 in "
+                           "line 2)"),
 }
 
 
@@ -321,6 +330,46 @@ def test_a_line_longer_than_the_limit_is_refused_naming_it(tmp_path, monkeypatch
             trace_table.check_lines(path, "utf-8")
 
 
+@pytest.mark.parametrize("block", [4 << 20, 64], ids=["one_block", "blocks_of_64_bytes"])
+def test_rows_that_are_not_utf8_are_skipped_and_counted_and_the_rest_is_read(tmp_path, monkeypatch, block):
+    """A stray byte that is not UTF-8 refused the whole table ("not utf-8 text"); now its row is skipped and
+    counted with its line, the byte and its column, like a row of the wrong length, wherever a block ends."""
+    monkeypatch.setattr(trace_table, "BLOCK_BYTES", block)
+    mapping = _trace_mapping(tmp_path)
+    rows = ROWS[:600]
+    damaged = list(rows)
+    damaged[10] = damaged[10].replace(b";", b";\xff", 1)            # line 12, in a mapped cell
+    damaged[300] = b"\xfe\xfe;1\r\n"                               # line 302: also of the wrong length
+    damaged[-1] = damaged[-1].rstrip(b"\n") + b"\xc3"             # the last line, cut in a character
+    for name, table, read, examples in [
+        ("whole.csv", rows, 600, []),
+        ("damaged.csv", damaged, 597, ["line 12: not UTF-8 text (byte 0xff at column 7): '0.022;\\xff8.70;0.1000;0;1'",
+                                       "line 302: not UTF-8 text (byte 0xfe at column 1): '\\xfe\\xfe;1'",
+                                       "line 601: not UTF-8 text (byte 0xc3 at column 23): '1.200;17.40;0.1100;0;2\\xc3'"]),
+    ]:
+        (tmp_path / name).write_bytes(HEADER + b"".join(table))
+        report = LogReport()
+        assert sum(d.joints[0].time.size for d in decoded_batches(tmp_path / name, mapping, report)) == read
+        assert (report.skipped, report.examples) == (len(examples), examples)
+
+
+def test_a_table_of_many_lines_not_utf8_is_refused_naming_the_first(tmp_path):
+    """More than 1 % of the lines so far (at least 10) not UTF-8 is a table in another encoding, not stray
+    bytes: 14 lines of 2000 are skipped, 11 in a row are refused."""
+    mapping = _trace_mapping(tmp_path)
+    rows = ROWS[:2000]
+    spread = [r.replace(b";", b"\xb0;", 1) if i % 150 == 5 else r for i, r in enumerate(rows)]
+    (tmp_path / "spread.csv").write_bytes(HEADER + b"".join(spread))
+    report = LogReport()
+    assert sum(d.joints[0].time.size for d in decoded_batches(tmp_path / "spread.csv", mapping, report)) == 1986
+    assert report.skipped == 14
+    (tmp_path / "latin1.csv").write_bytes(HEADER + b"".join(r.replace(b";", b"\xb0;", 1) for r in rows[:11])
+                                          + b"".join(rows[11:]))
+    with pytest.raises(TraceError, match=r"latin1.csv: not UTF-8 text \(11 of its first 12 lines are not, the first: "
+                                         r"byte 0xb0 at column 6 in line 2\); .* else export it again as UTF-8"):
+        list(decoded_batches(tmp_path / "latin1.csv", mapping))
+
+
 def test_a_5_mib_line_refuses_the_table_and_short_rows_stay_counted_drops(tmp_path, caplog):
     mapping = _trace_mapping(tmp_path)
     path = tmp_path / "table.csv"
@@ -332,7 +381,7 @@ def test_a_5_mib_line_refuses_the_table_and_short_rows_stay_counted_drops(tmp_pa
     samples = sum(c.time.size for d in decoded_batches(path, mapping, report) for c in d.joints.values())
     assert (samples, report.skipped) == (len(ROWS) - 60, 60)
     assert report.examples[1] == "line 52: a row with 2 cells, 5 expected: '0.5;1'"
-    assert "60 row(s) with the wrong number of cells skipped (first: line 2:" in caplog.text
+    assert "60 row(s) skipped: the wrong number of cells, or not UTF-8 text (first: line 2:" in caplog.text
 
 
 def test_samples_whose_time_does_not_advance_are_bounded_and_counted():

@@ -223,8 +223,8 @@ def decoded_batches(path: str | Path, mapping: SignalMapping, report: LogReport 
         yield out
     skipped.report_to(report)
     if report is not None and report.skipped:
-        log.warning("%s: %d row(s) with the wrong number of cells skipped (first: %s)", path, report.skipped,
-                    report.examples[0])
+        log.warning("%s: %d row(s) skipped: the wrong number of cells, or not UTF-8 text (first: %s)", path,
+                    report.skipped, report.examples[0])
     if read == 0 and not (report is not None and report.skipped):
         raise TraceError(f"{path} is empty (a header, no rows): was its recording stopped before it wrote anything?")
 

@@ -4,9 +4,11 @@ memory (docs/CONNECTING.md).
 CSV: the header is read here (Python's ``csv``, so quoted names work) and checked before pyarrow sees the
 file: at most :data:`MAX_COLUMNS` columns, a header line of at most :data:`BLOCK_BYTES`; one pass over the
 file then refuses a line longer than :data:`BLOCK_BYTES`, naming it (no trace table has one: it is damage,
-e.g. a run of NUL bytes a crash left), and checks the text of another encoding than UTF-8. pyarrow then
+e.g. a run of NUL bytes a crash left), checks the text of another encoding than UTF-8 and counts the lines of
+a UTF-8 table that are not UTF-8 (more than :func:`most_undecodable` is no UTF-8 table). pyarrow then
 reads the rows without quoting (a stray ``"`` damages its one cell, not the rest of the file) and converts
-only the mapped columns; a row with the wrong number of cells is skipped and counted (:class:`SkippedRows`).
+only the mapped columns; a row with the wrong number of cells, or not UTF-8 text, is skipped and counted
+(:class:`SkippedRows`, :mod:`undecodable_lines`).
 Parquet: only the mapped columns are read, text columns as dictionaries (a column of one long string
 repeated a million times stays one string), and a row group whose mapped columns would unpack to more
 than :data:`MAX_ROW_GROUP_BYTES` is refused, as is a mapped column of no number per row (:func:`not_a_number`).
@@ -17,7 +19,9 @@ Either: a mapped column the header has twice is refused (which is meant is unkno
 from __future__ import annotations
 
 import codecs
+import contextlib
 import csv
+import io
 import logging
 import os
 import re
@@ -28,6 +32,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from edge_monitor.sources.log_source import LogReport
+from edge_monitor.sources.undecodable_lines import MARKER, MarkedLines, undecodable
 from protocol.files import NotARegularFile, open_regular
 from protocol.signal_mapping import TraceFormat
 
@@ -86,6 +91,8 @@ def csv_header(path: Path, head: bytes, fmt: TraceFormat) -> list[str]:
     :data:`BLOCK_BYTES`, more than :data:`MAX_COLUMNS` columns, not ``fmt.encoding`` text, or empty)."""
     if not head:
         raise TraceError(f"{path}: Empty CSV file: not a trace table")
+    if _codec(fmt.encoding) == "utf8" and (end := head.find(b"\n")) >= 0:
+        head = head[:end + 1]         # the rows' text is checked line by line (check_lines)
     try:
         text = codecs.getincrementaldecoder(fmt.encoding)().decode(head)
     except UnicodeError as exc:
@@ -149,16 +156,26 @@ def _quiet_undecodable_rows() -> Iterator[None]:
 
 
 class SkippedRows:
-    """pyarrow's ``invalid_row_handler``: a row with too few or too many cells is skipped and counted."""
+    """pyarrow's ``invalid_row_handler``: a row with too few or too many cells, or a line that is not UTF-8
+    (:data:`MARKER`: its description from :meth:`undecodable`), is skipped and counted."""
 
     def __init__(self) -> None:
         self.count = 0
         self.examples: list[str] = []
+        self._undecodable: dict[int, str] = {}
+
+    def undecodable(self, line: int, description: str) -> None:
+        """Line ``line`` is not UTF-8: it comes as a :data:`MARKER` row (its description kept for the first few)."""
+        if len(self._undecodable) < 5:
+            self._undecodable[line] = description
 
     def __call__(self, row: Any) -> str:
         self.count += 1
         if len(self.examples) < 5:
             text = (row.text or "")[:80]
+            if text == MARKER.decode():
+                self.examples.append(self._undecodable.get(row.number, f"line {row.number}: not UTF-8 text"))
+                return "skip"
             where = f"line {row.number}: " if row.number is not None else ""
             self.examples.append(f"{where}a row with {row.actual_columns} cells, {row.expected_columns} expected: "
                                  f"{text!r}")
@@ -176,41 +193,67 @@ def _size(n: int) -> str:
     return f"{n >> 20} MiB" if n % (1 << 20) == 0 else f"{n} bytes"
 
 
-def check_lines(path: Path, encoding: str) -> None:
+def most_undecodable(lines: int) -> int:
+    """Most lines of ``lines`` that may be other than UTF-8 in a UTF-8 table (1 %, at least 10): stray bytes
+    are skipped with their rows; more is a table in another encoding."""
+    return max(10, lines // 100)
+
+
+def check_lines(path: Path, encoding: str) -> int:
     """One pass over the file in blocks: TraceError for the first line longer than :data:`BLOCK_BYTES`
     (naming it and the limit), UnicodeError where it is not ``encoding`` text. Other encodings than UTF-8
-    (which pyarrow checks itself) are decoded here before pyarrow transcodes them: a decode error inside
-    pyarrow's transcoder leaves one of its threads running, and the process may then abort at exit
-    ("terminate called without an active exception")."""
+    are decoded here before pyarrow transcodes them: a decode error inside pyarrow's transcoder leaves one of
+    its threads running, and the process may then abort at exit ("terminate called without an active
+    exception"). In UTF-8, the number of lines that are not UTF-8 (TraceError beyond :func:`most_undecodable`)."""
     decoder = None if _codec(encoding) == "utf8" else codecs.getincrementaldecoder(encoding)()
     ended = 0            # lines ended before the current one
     length = 0           # bytes of the current line so far
+    tail, bad, first_bad = b"", 0, ""      # UTF-8: the current line's bytes so far, lines not UTF-8, the first
     with open(path, "rb") as f:
-        while block := f.read(BLOCK_BYTES):
+        while True:
+            block = f.read(BLOCK_BYTES)
             first = block.find(b"\n")
             if length + (len(block) if first < 0 else first) > BLOCK_BYTES:
                 raise TraceError(f"{path}: line {ended + 1} is longer than {_size(BLOCK_BYTES)}, the longest "
                                  "line a trace table may have: not a row of a table (damage, e.g. bytes a crash "
                                  f"left); remove line {ended + 1} or export the table again")
+            if decoder is None:
+                data = tail + block
+                cut = data.rfind(b"\n") + 1 if block else len(data)
+                for number, _, _, what in undecodable(memoryview(data)[:cut], ended + 1):
+                    bad, first_bad = bad + 1, first_bad or f"{what} in line {number}"
+                    if bad > most_undecodable(number):
+                        raise TraceError(f"{path}: not UTF-8 text ({bad} of its first {number} lines are not, "
+                                         f"the first: {first_bad}); a table from a Windows tool: [trace] encoding = "
+                                         "\"cp1252\" (or \"utf-16\"), else export it again as UTF-8")
+                tail = data[cut:]
+            elif block:
+                decoder.decode(block)
+            if not block:
+                break
             if first < 0:
                 length += len(block)
             else:
                 ended += block.count(b"\n")
                 length = len(block) - block.rfind(b"\n") - 1
-            if decoder is not None:
-                decoder.decode(block)
     if decoder is not None:
         decoder.decode(b"", final=True)
+    return bad
 
 
 def _csv_batches(path: Path, head: bytes, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:
     import pyarrow.csv as pcsv
     names = csv_header(path, head, fmt)
     _check_names(path, names, columns)
-    check_lines(path, fmt.encoding)
-    with _quiet_undecodable_rows():
+    undecodable_lines = check_lines(path, fmt.encoding)
+    source: Any = str(path)            # read natively; a table with lines not UTF-8 has them replaced
+    if undecodable_lines:
+        log.warning("%s: %d line(s) are not UTF-8 text: their rows are skipped (export the table again as "
+                    "UTF-8 to keep them)", path, undecodable_lines)
+        source = io.BufferedReader(MarkedLines(path, BLOCK_BYTES, skipped.undecodable), BLOCK_BYTES)
+    with _quiet_undecodable_rows(), contextlib.closing(source) if undecodable_lines else contextlib.nullcontext():
         reader = pcsv.open_csv(
-            str(path), parse_options=pcsv.ParseOptions(delimiter=fmt.separator, quote_char=False,
+            source, parse_options=pcsv.ParseOptions(delimiter=fmt.separator, quote_char=False,
                                                        invalid_row_handler=skipped),
             convert_options=pcsv.ConvertOptions(decimal_point=fmt.decimal, include_columns=columns),
             read_options=pcsv.ReadOptions(block_size=BLOCK_BYTES, encoding=_codec(fmt.encoding), use_threads=False,
