@@ -16,6 +16,7 @@ Objects (CiA 402): 6041h statusword, 6064h position actual value [inc], 606Ch ve
 from __future__ import annotations
 
 import io
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -85,7 +86,9 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     text = read_eds(node_id, eds)
     network = canopen.Network()                      # never connected: nothing is ever sent from here
     try:
-        node = (canopen.LocalNode if local else canopen.RemoteNode)(node_id, canopen.import_od(text, node_id))
+        od = canopen.import_od(text, node_id)
+        _check_numbers(node_id, eds, od)
+        node = (canopen.LocalNode if local else canopen.RemoteNode)(node_id, od)
         network.add_node(node)
         for number, pdo in (node.tpdo.map or {}).items():
             _read_tpdo(node_id, number, pdo)
@@ -95,6 +98,32 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
         first = (str(exc).strip().splitlines() or [""])[0][:300]
         raise Cia402Error(f"node {node_id}: cannot read EDS {eds}: {type(exc).__name__}: {first}") from None
     return node
+
+
+def _read_here(index: int) -> bool:
+    """Whether the value of object ``index`` is read from the EDS: a TPDO's communication or mapping parameter,
+    6076h, 608Fh."""
+    return 0x1800 <= index <= 0x1BFF or index in (RATED_TORQUE, ENCODER)
+
+
+#: An EDS key, canopen's attribute of its text and of its value.
+_VALUE_KEYS = (("DefaultValue", "default_raw", "default"), ("ParameterValue", "value_raw", "value"))
+
+
+def _check_numbers(node_id: int, eds: Path, od: Any) -> None:
+    """Cia402Error naming the section and the value of an integer object read from the EDS (:func:`_read_here`)
+    whose DefaultValue or ParameterValue is no number: canopen leaves it unset (the TPDO cannot be placed)."""
+    for index in filter(_read_here, od):
+        obj = od[index]
+        subs = getattr(obj, "subindices", None)           # a record or an array: its [XXXXsubN] sections
+        entries = [(f"{index:04X}", obj)] if subs is None else [(f"{index:04X}sub{k:X}", v) for k, v in subs.items()]
+        for section, var in entries:
+            if getattr(var, "data_type", None) not in INTEGER_BITS:
+                continue
+            for key, raw, value in _VALUE_KEYS:
+                if getattr(var, raw, None) is not None and getattr(var, value, None) is None:
+                    raise Cia402Error(f"node {node_id}: EDS file {eds}: [{section}] {key}={getattr(var, raw)!r} is "
+                                      "not a number: write an integer (e.g. 0x60410010, 3 or $NODEID+0x180)")
 
 
 def _raw(entry: Any) -> Any:
@@ -163,12 +192,19 @@ def _problem(od: Any, size: int) -> str | None:
 def read_eds(node_id: int, eds: Path) -> io.StringIO:
     """The EDS/DCF as text for canopen (named like the file, which tells canopen its format): a regular
     file of at most :data:`MAX_EDS_BYTES`, UTF-8 or else Latin-1 (CiA 306 files are ASCII; vendors'
-    comments are often Latin-1). Cia402Error if it is not such a file, UnreadableFile on an I/O error."""
+    comments are often Latin-1). Cia402Error if it is not such a file, is empty or has no object's section,
+    UnreadableFile on an I/O error."""
     raw = read_regular_or(eds, MAX_EDS_BYTES, f"node {node_id}: EDS file", Cia402Error, UnreadableFile)
     try:
         text = io.StringIO(raw.decode("utf-8"))
     except UnicodeDecodeError:
         text = io.StringIO(raw.decode("latin-1"))
+    if not any(line.strip() and line.lstrip()[0] not in ";#" for line in text.getvalue().splitlines()):
+        what = "empty (0 bytes)" if not raw else "empty (no line but blanks and comments)"
+        raise Cia402Error(f"node {node_id}: EDS file {eds} is {what}: give the drive's EDS/DCF")
+    if not re.search(r"(?m)^\s*\[[0-9A-Fa-f]{4}(sub[0-9A-Fa-f]+)?\]", text.getvalue()):
+        raise Cia402Error(f"node {node_id}: EDS file {eds} describes no object (no section such as [1000] or "
+                          "[1A00sub1]): not an EDS/DCF; give the drive's EDS")
     text.name = str(eds)
     return text
 

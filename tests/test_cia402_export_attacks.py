@@ -67,6 +67,17 @@ def _decoder(tmp_path: Path, eds: str) -> Cia402Decoder:
     # before: "the EDS has no 608Fh" (it had, with 0 revolutions); a negative resolution flipped every speed's sign
     (lambda t: _set(t, "608Fsub2", "DefaultValue", "0"), "608Fh of node 1 is 65536 increments per 0 revolutions"),
     (lambda t: _set(t, "608Fsub1", "DefaultValue", "-65536"), "is -65536 increments per 1 revolutions"),
+    # before: "cannot read EDS …: TypeError: unsupported operand type(s) for >>: 'NoneType' and 'int'" (canopen
+    # leaves a value that is no number unset), naming neither the section nor the value
+    (lambda t: _set(t, "1A00sub1", "DefaultValue", "abc"), "drive.eds: [1A00sub1] DefaultValue='abc' is not a number"),
+    (lambda t: _set(t, "1A00sub0", "DefaultValue", "three"), "[1A00sub0] DefaultValue='three' is not a number"),
+    (lambda t: _set(t, "1800sub1", "DefaultValue", "$NODEID+x"), "[1800sub1] DefaultValue='$NODEID+x' is not a number"),
+    # before: "velocity_factor: … the EDS has no 608Fh encoder resolution" (it had one, not a number)
+    (lambda t: _set(t, "608Fsub1", "DefaultValue", "lots"), "[608Fsub1] DefaultValue='lots' is not a number"),
+    # before: canopen's "eds file does not have a DeviceInfo section" and "velocity_factor: … is needed"
+    (lambda t: "", "drive.eds is empty (0 bytes): give the drive's EDS/DCF"),
+    (lambda t: "\n; nothing\n\n", "drive.eds is empty (no line but blanks and comments)"),
+    (lambda t: "[Foo]\nbar=1\n", "drive.eds describes no object (no section such as [1000] or [1A00sub1])"),
 ])
 def test_an_eds_whose_tpdos_cannot_be_decoded_is_refused_naming_why(tmp_path, edit, says):
     with pytest.raises(MappingError) as raised:

@@ -251,10 +251,15 @@ MAPPINGS = {
                   {"x.dbc": DBC + b'\nCM_ "' + b"y" * (3 << 20) + b'";\n'}, "more than the 2097152"),
     "dbc_fifo": (re.sub(r'(?m)^dbc = .*$', 'dbc = "x.dbc"', FOREIGN), {"x.dbc": None}, "it is a FIFO"),
     "eds_garbage": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"), {"x.eds": bytes(range(256)) * 40},
-                    "cannot read EDS"),
+                    "describes no object (no section such as [1000] or [1A00sub1]): not an EDS/DCF"),
     "eds_5_mib": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"),
                   {"x.eds": EDS + b"\n; " + b"z" * (5 << 20) + b"\n"}, "more than the 4194304"),
     "eds_fifo": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"), {"x.eds": None}, "it is a FIFO"),
+    "eds_default_not_a_number": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"),
+                                 {"x.eds": EDS.replace(b"DefaultValue=0x60410010", b"DefaultValue=abc")},
+                                 "x.eds: [1A00sub1] DefaultValue='abc' is not a number: write an integer"),
+    "eds_empty": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"), {"x.eds": b""},
+                  "x.eds is empty (0 bytes): give the drive's EDS/DCF"),
     "eds_without_6077": (CIA.replace(f"{ROOT}/protocol/eds/cia402_drive.eds", "x.eds"),
                          {"x.eds": EDS.replace(b"0x60770010", b"0x60410010")}, "object 6077sub0 of node 1 is in no TPDO"),
 }
@@ -272,6 +277,8 @@ def test_a_hostile_mapping_dbc_or_eds_is_a_usage_error_naming_it(tmp_path, name)
     run = hostile.run_measured(hostile.edge_monitor("check-mapping", str(capture), "--mapping",
                                                     str(tmp_path / "m.toml")), timeout=60)
     _check(run, 2, says)
+    if name.startswith("eds_"):
+        assert len(run.stderr.strip().splitlines()) == 1, run.stderr
 
 
 @pytest.mark.slow
