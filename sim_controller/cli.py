@@ -219,6 +219,22 @@ def _run_option_error(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _truth_error(truth: str | None) -> str | None:
+    """What is wrong with ``--truth PATH`` as a file to write (a directory, a folder that does not exist or is a
+    file), or None: found before anything is simulated or written."""
+    if not truth:
+        return None
+    path = Path(truth)
+    if path.is_dir():
+        return f"--truth {truth}: is a directory; give a file name (e.g. {path / 'truth.jsonl'})"
+    if path.parent.exists() and not path.parent.is_dir():
+        return f"--truth {truth}: {path.parent} is a file, not a folder: fix the path"
+    if not path.parent.is_dir():
+        return (f"--truth {truth}: its folder {path.parent} does not exist: create it (mkdir -p {path.parent}) "
+                "or fix the path")
+    return None
+
+
 def _encoder(args: argparse.Namespace, config: SimConfig) -> Any:
     """The frame encoder of ``--profile`` (None: our frames)."""
     if args.profile == "native":
@@ -244,6 +260,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         usage_error(str(exc))
     log.info("%s: %d joints, %d cycles at %g Hz, seed %d -> %s", args.command, config.joints, config.cycles,
              config.rate, config.seed, getattr(args, "out", None) or args.link or "python-can configuration")
+    if (problem := _truth_error(args.truth)) is not None:
+        usage_error(problem)
     try:
         encoder = _encoder(args, config)
     except ValueError as exc:     # ProfileError, MappingError, BitFieldError, Cia402Error

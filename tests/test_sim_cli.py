@@ -134,6 +134,28 @@ def test_unwritable_output_says_which_and_why(tmp_path, capsys):
     assert exited.value.code == 2 and "not a CAN log file" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("truth", ["folder", "nodir/truth.jsonl", "file/truth.jsonl"])
+@pytest.mark.parametrize("command", ["record", "run"])
+def test_a_truth_path_that_cannot_be_a_file_is_a_usage_error_before_anything_runs(tmp_path, capsys, command, truth):
+    """--truth naming a folder, or a path in a missing folder, printed "[Errno 21] Is a directory: …" / "[Errno 2]
+    No such file or directory: …" (exit 1) after the log --out was created; now the subcommand's usage and one
+    line saying what is wrong with --truth, exit 2, before anything is simulated or written."""
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "file").write_text("")
+    out = tmp_path / "x.blf"
+    where = ["--out", str(out)] if command == "record" else ["--link", "virtual:truth-check"]
+    with pytest.raises(SystemExit) as exited:
+        main([command, *where, "--truth", str(tmp_path / truth), *FAST])
+    err = capsys.readouterr().err
+    says = {"folder": f"--truth {tmp_path / 'folder'}: is a directory; give a file name",
+            "nodir/truth.jsonl": f"its folder {tmp_path / 'nodir'} does not exist: create it",
+            "file/truth.jsonl": f"{tmp_path / 'file'} is a file, not a folder"}[truth]
+    assert exited.value.code == 2 and f"sim-controller {command}: error: " in err and says in err, err
+    assert "Errno" not in err and not out.exists()
+    assert main(["record", "--out", str(out), "--truth", str(tmp_path / "folder" / "t.jsonl"), *FAST]) == 0
+    assert (tmp_path / "folder" / "t.jsonl").stat().st_size > 0 and out.exists()
+
+
 @contextmanager
 def _sim_run_over_pty(*args: str) -> Iterator[tuple[PtyPair, can.BusABC, subprocess.Popen]]:
     """`sim-controller run` of one joint at 20 rad/s (plus ``args``) into one end of a pty pair, a
