@@ -377,6 +377,28 @@ def test_a_table_of_many_lines_not_utf8_is_refused_naming_the_first(tmp_path):
         list(decoded_batches(tmp_path / "latin1.csv", mapping))
 
 
+@pytest.mark.parametrize("name", ["table.csv", "table.parquet", "stray_byte.csv"])
+def test_the_replay_summary_of_a_table_counts_its_samples(tmp_path, monkeypatch, capsys, name):
+    """The summary line of a table's replay said "frames 0 (ok 0, crc errors 0, lost 0) … 0 frames/s" (a
+    table has no CAN frames) although every row was read; now "samples N" as `--json` `log.frames`."""
+    from edge_monitor.cli import main as edge_monitor
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "m.toml").write_text(MAPPING)
+    if name == "table.parquet":
+        _parquet(tmp_path / name, "none")
+    else:
+        (tmp_path / name).write_bytes(TABLES.get(name, HEADER + b"".join(ROWS)))
+    read = len(ROWS) - (name == "stray_byte.csv")
+    capsys.readouterr()
+    assert edge_monitor(["replay", name, "--mapping", "m.toml", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["log"]["frames"] == read
+    assert edge_monitor(["replay", name, "--mapping", "m.toml"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    counts = [line for line in lines if line.startswith(("samples ", "frames "))]
+    assert len(counts) == 1 and re.fullmatch(rf"samples {read}, cycles 2, symptoms \d+, \d+ samples/s", counts[0]), lines
+    assert ("log: 1 unreadable row(s) skipped" in lines) == (name == "stray_byte.csv"), lines
+
+
 def test_a_5_mib_line_refuses_the_table_and_short_rows_stay_counted_drops(tmp_path, caplog):
     mapping = _trace_mapping(tmp_path)
     path = tmp_path / "table.csv"

@@ -244,12 +244,14 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
         print_json({**stats, "prognosis": prognosis_summary(result.last)})
     elif verbosity(args) >= 0:              # -q: no summary
         print(summary_table(result.last, stats, cfg.decision, raised))
-        print(f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
+        table = is_trace_file(args.file)
+        print(_counts(stats, report) if table else
+              f"frames {stats['frames_total']} (ok {stats['frames_ok']}, crc errors {stats['crc_errors']}, "
               f"lost {stats['counter_lost']}{_out_of_sequence(stats)}), cycles {stats['cycles']}, "
               f"symptoms {stats['symptoms']}, "
               f"{stats['frames_per_second']:.0f} frames/s")
         if report.skipped or report.truncated:
-            print(f"log: {report.skipped} unreadable record(s) skipped"
+            print(f"log: {report.skipped} unreadable {'row' if table else 'record'}(s) skipped"
                   + (f"; truncated ({report.truncated}): its last cycle was not published" if report.truncated
                      else ""))
     notes, nothing = input_notes(args.file, stats, report, getattr(args, "mapping", None))
@@ -258,6 +260,15 @@ def _report(args: argparse.Namespace, cfg: Any, stats: dict[str, Any], report: L
     for problem in result.failures + ([nothing] if nothing else []):
         print(f"edge-monitor replay: {problem}", file=sys.stderr)
     return EXIT_FAILURE if result.failures or nothing else 0
+
+
+def _counts(stats: dict[str, Any], report: LogReport) -> str:
+    """The counts line of a trace table's replay: the samples read (``log.frames``: one per joint and row; a
+    table has no CAN frames to count), cycles, symptoms, samples per second."""
+    wall = float(stats.get("wall_s") or 0.0)
+    rate = report.frames / wall if wall > 0 else 0.0
+    return (f"samples {report.frames}, cycles {stats['cycles']}, symptoms {stats['symptoms']}, "
+            f"{rate:.0f} samples/s")
 
 
 def input_notes(file: str, stats: dict[str, Any], report: Any,
