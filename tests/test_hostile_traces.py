@@ -399,6 +399,36 @@ def test_the_replay_summary_of_a_table_counts_its_samples(tmp_path, monkeypatch,
     assert ("log: 1 unreadable row(s) skipped" in lines) == (name == "stray_byte.csv"), lines
 
 
+def test_signalling_nan_times_and_values_of_a_damaged_parquet_are_counted_without_a_numpy_warning(tmp_path):
+    """A bit flip can turn a float into a signalling NaN: multiplying it by the time unit or a signal's factor
+    printed numpy's "RuntimeWarning: invalid value encountered in multiply" with a source line. Now such a
+    sample is dropped and counted like any other bad time, and a table without one drops nothing."""
+    import warnings
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    mapping = _trace_mapping(tmp_path)
+    snan = np.array([0x7FF0000000000001], dtype=np.uint64).view(np.float64)[0]
+    n = 40_000
+    columns = {"t": np.arange(1, n + 1) / 500.0, "v0": np.full(n, 8.7), "tau0": np.full(n, 0.1),
+               "cycle": (np.arange(n) // 20_000).astype(float), "segment": np.ones(n)}
+    for damaged in (False, True):
+        table = {k: v.copy() for k, v in columns.items()}
+        if damaged:
+            table["t"][100:103] = snan
+            table["tau0"][500] = snan
+        path = tmp_path / f"damaged{damaged}.parquet"
+        pq.write_table(pa.table(table), path)
+        source = open_source(mapping, load_config(None))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")          # a numpy RuntimeWarning fails the test
+            for decoded in decoded_batches(path, mapping):
+                source.update_samples(decoded)
+            source.flush()
+        dropped = sum(source.counters()["samples_dropped"].values())
+        assert (dropped >= 3) if damaged else (dropped == 0), source.counters()["samples_dropped"]
+
+
 def test_a_5_mib_line_refuses_the_table_and_short_rows_stay_counted_drops(tmp_path, caplog):
     mapping = _trace_mapping(tmp_path)
     path = tmp_path / "table.csv"

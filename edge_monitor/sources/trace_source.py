@@ -122,11 +122,13 @@ def _time(batch: Any, fmt: TraceFormat, where: str) -> NDArray[np.float64]:
     seconds = _seconds(batch, fmt.time_column)
     if seconds is not None:
         return seconds
-    return _column(batch, fmt.time_column, where, fmt.decimal) * (1e-3 if fmt.time_unit == "ms" else 1.0)
+    with np.errstate(invalid="ignore", over="ignore"):     # a damaged value: not finite, dropped and counted later
+        return _column(batch, fmt.time_column, where, fmt.decimal) * (1e-3 if fmt.time_unit == "ms" else 1.0)
 
 
 def _values(batch: Any, ref: SignalRef, where: str, decimal: str = ".") -> NDArray[np.float64]:
-    return _column(batch, str(ref.column), where, decimal) * ref.factor + ref.offset
+    with np.errstate(invalid="ignore", over="ignore"):     # as in _time
+        return _column(batch, str(ref.column), where, decimal) * ref.factor + ref.offset
 
 
 def _check_time_step(time: NDArray[np.float64], fmt: TraceFormat, where: str, rate_hz: float | None = None) -> None:
