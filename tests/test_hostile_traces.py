@@ -103,9 +103,9 @@ EXPECTED = {
     "long_line.csv": (2, "line 1002 is longer than 4 MiB, the longest line a trace table may have"),
     "long_row.csv": (2, "line 1002 is longer than 4 MiB, the longest line a trace table may have"),
     "stray_byte.csv": (0, lambda s: s["log"]["skipped_records"] == 1 and s["log"]["frames"] == len(ROWS) - 1
-                       and s["log"]["skip_examples"] == ["line 1202: not UTF-8 text (byte 0xff at column 7): "
+                       and s["log"]["skip_examples"] == ["line 1202: not UTF-8 text (byte 0xff at byte 7): "
                                                          "'2.402;\\xff26.10;0.1200;0;3'"]),
-    "latin1_rows.csv": (2, "not UTF-8 text (11 of its first 12 lines are not, the first: byte 0xb0 at column 6 in "
+    "latin1_rows.csv": (2, "not UTF-8 text (1001 of its first 1002 lines are not, the first: byte 0xb0 at byte 6 in "
                            "line 2)"),
 }
 
@@ -340,7 +340,8 @@ def test_a_line_longer_than_the_limit_is_refused_naming_it(tmp_path, monkeypatch
 @pytest.mark.parametrize("block", [4 << 20, 64], ids=["one_block", "blocks_of_64_bytes"])
 def test_rows_that_are_not_utf8_are_skipped_and_counted_and_the_rest_is_read(tmp_path, monkeypatch, block):
     """A stray byte that is not UTF-8 refused the whole table ("not utf-8 text"); now its row is skipped and
-    counted with its line, the byte and its column, like a row of the wrong length, wherever a block ends."""
+    counted with its line, the byte and where in the line, like a row of the wrong length, wherever a block ends,
+    and with the file's line numbers where blank lines (which pyarrow's row numbers leave out) come before."""
     monkeypatch.setattr(trace_table, "BLOCK_BYTES", block)
     mapping = _trace_mapping(tmp_path)
     rows = ROWS[:600]
@@ -350,9 +351,13 @@ def test_rows_that_are_not_utf8_are_skipped_and_counted_and_the_rest_is_read(tmp
     damaged[-1] = damaged[-1].rstrip(b"\n") + b"\xc3"             # the last line, cut in a character
     for name, table, read, examples in [
         ("whole.csv", rows, 600, []),
-        ("damaged.csv", damaged, 597, ["line 12: not UTF-8 text (byte 0xff at column 7): '0.022;\\xff8.70;0.1000;0;1'",
-                                       "line 302: not UTF-8 text (byte 0xfe at column 1): '\\xfe\\xfe;1'",
-                                       "line 601: not UTF-8 text (byte 0xc3 at column 23): '1.200;17.40;0.1100;0;2\\xc3'"]),
+        ("damaged.csv", damaged, 597, ["line 12: not UTF-8 text (byte 0xff at byte 7): '0.022;\\xff8.70;0.1000;0;1'",
+                                       "line 302: not UTF-8 text (byte 0xfe at byte 1): '\\xfe\\xfe;1'",
+                                       "line 601: not UTF-8 text (byte 0xc3 at byte 23): '1.200;17.40;0.1100;0;2\\xc3'"]),
+        ("blank_line.csv", damaged[:5] + [b"\n"] + damaged[5:], 597,
+         ["line 13: not UTF-8 text (byte 0xff at byte 7): '0.022;\\xff8.70;0.1000;0;1'",
+          "line 303: not UTF-8 text (byte 0xfe at byte 1): '\\xfe\\xfe;1'",
+          "line 602: not UTF-8 text (byte 0xc3 at byte 23): '1.200;17.40;0.1100;0;2\\xc3'"]),
     ]:
         (tmp_path / name).write_bytes(HEADER + b"".join(table))
         report = LogReport()
@@ -361,19 +366,22 @@ def test_rows_that_are_not_utf8_are_skipped_and_counted_and_the_rest_is_read(tmp
 
 
 def test_a_table_of_many_lines_not_utf8_is_refused_naming_the_first(tmp_path):
-    """More than 1 % of the lines so far (at least 10) not UTF-8 is a table in another encoding, not stray
-    bytes: 14 lines of 2000 are skipped, 11 in a row are refused."""
+    """More than 1 % of the file's lines (at least 10) not UTF-8 is a table in another encoding, not stray
+    bytes: 14 lines spread over 2000 and a burst of 11 at the start (a bad sector) are skipped, 25 are refused."""
     mapping = _trace_mapping(tmp_path)
     rows = ROWS[:2000]
-    spread = [r.replace(b";", b"\xb0;", 1) if i % 150 == 5 else r for i, r in enumerate(rows)]
-    (tmp_path / "spread.csv").write_bytes(HEADER + b"".join(spread))
-    report = LogReport()
-    assert sum(d.joints[0].time.size for d in decoded_batches(tmp_path / "spread.csv", mapping, report)) == 1986
-    assert report.skipped == 14
-    (tmp_path / "latin1.csv").write_bytes(HEADER + b"".join(r.replace(b";", b"\xb0;", 1) for r in rows[:11])
-                                          + b"".join(rows[11:]))
-    with pytest.raises(TraceError, match=r"latin1.csv: not UTF-8 text \(11 of its first 12 lines are not, the first: "
-                                         r"byte 0xb0 at column 6 in line 2\); .* else export it again as UTF-8"):
+
+    def latin1(row: bytes) -> bytes:
+        return row.replace(b";", b"\xb0;", 1)
+    for name, table, read in [("spread.csv", [latin1(r) if i % 150 == 5 else r for i, r in enumerate(rows)], 1986),
+                              ("burst.csv", [latin1(r) for r in rows[:11]] + rows[11:], 1989)]:
+        (tmp_path / name).write_bytes(HEADER + b"".join(table))
+        report = LogReport()
+        assert sum(d.joints[0].time.size for d in decoded_batches(tmp_path / name, mapping, report)) == read, name
+        assert report.skipped == 2000 - read
+    (tmp_path / "latin1.csv").write_bytes(HEADER + b"".join(latin1(r) for r in rows[:25]) + b"".join(rows[25:]))
+    with pytest.raises(TraceError, match=r"latin1.csv: not UTF-8 text \(25 of its 2001 lines are not, the first: "
+                                         r"byte 0xb0 at byte 6 in line 2\); .* else export it again as UTF-8"):
         list(decoded_batches(tmp_path / "latin1.csv", mapping))
 
 

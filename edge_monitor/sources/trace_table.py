@@ -26,7 +26,7 @@ import logging
 import os
 import re
 import sys
-from collections import Counter
+from collections import Counter, deque
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -162,23 +162,26 @@ class SkippedRows:
     def __init__(self) -> None:
         self.count = 0
         self.examples: list[str] = []
-        self._undecodable: dict[int, str] = {}
+        self._undecodable: deque[str] = deque()
 
     def undecodable(self, line: int, description: str) -> None:
-        """Line ``line`` is not UTF-8: it comes as a :data:`MARKER` row (its description kept for the first few)."""
+        """Line ``line`` is not UTF-8: it comes as a :data:`MARKER` row, in file order (the first few kept: pyarrow's
+        row numbers skip blank lines, so the description, which has the file's line number, is what is shown)."""
         if len(self._undecodable) < 5:
-            self._undecodable[line] = description
+            self._undecodable.append(description)
 
     def __call__(self, row: Any) -> str:
         self.count += 1
+        text = (row.text or "")[:80]
+        if text == MARKER.decode():
+            described = self._undecodable.popleft() if self._undecodable else "a line not UTF-8 text"
+            if len(self.examples) < 5:
+                self.examples.append(described)
+            return "skip"
         if len(self.examples) < 5:
-            text = (row.text or "")[:80]
-            if text == MARKER.decode():
-                self.examples.append(self._undecodable.get(row.number, f"line {row.number}: not UTF-8 text"))
-                return "skip"
             where = f"line {row.number}: " if row.number is not None else ""
             self.examples.append(f"{where}a row with {row.actual_columns} cells, {row.expected_columns} expected: "
-                                 f"{text!r}")
+                                     f"{text!r}")
         return "skip"
 
     def report_to(self, report: LogReport | None) -> None:
@@ -193,9 +196,14 @@ def _size(n: int) -> str:
     return f"{n >> 20} MiB" if n % (1 << 20) == 0 else f"{n} bytes"
 
 
+#: Lines not UTF-8 beyond which, at more than a tenth of the lines read, the table is refused at once.
+SURELY_ENCODED = 1000
+
+
 def most_undecodable(lines: int) -> int:
-    """Most lines of ``lines`` that may be other than UTF-8 in a UTF-8 table (1 %, at least 10): stray bytes
-    are skipped with their rows; more is a table in another encoding."""
+    """Most lines of a UTF-8 table of ``lines`` lines that may be other than UTF-8 (1 %, at least 10): stray bytes
+    are skipped with their rows; more is a table in another encoding. Judged on the whole file: a burst of
+    damage near its start is no other encoding."""
     return max(10, lines // 100)
 
 
@@ -204,7 +212,8 @@ def check_lines(path: Path, encoding: str) -> int:
     (naming it and the limit), UnicodeError where it is not ``encoding`` text. Other encodings than UTF-8
     are decoded here before pyarrow transcodes them: a decode error inside pyarrow's transcoder leaves one of
     its threads running, and the process may then abort at exit ("terminate called without an active
-    exception"). In UTF-8, the number of lines that are not UTF-8 (TraceError beyond :func:`most_undecodable`)."""
+    exception"). In UTF-8, the number of lines that are not UTF-8 (TraceError beyond :func:`most_undecodable`
+    of the file's lines)."""
     decoder = None if _codec(encoding) == "utf8" else codecs.getincrementaldecoder(encoding)()
     ended = 0            # lines ended before the current one
     length = 0           # bytes of the current line so far
@@ -220,12 +229,10 @@ def check_lines(path: Path, encoding: str) -> int:
             if decoder is None:
                 data = tail + block
                 cut = data.rfind(b"\n") + 1 if block else len(data)
-                for number, _, _, what in undecodable(memoryview(data)[:cut], ended + 1):
+                for number, _, _, what in undecodable(data[:cut], ended + 1):
                     bad, first_bad = bad + 1, first_bad or f"{what} in line {number}"
-                    if bad > most_undecodable(number):
-                        raise TraceError(f"{path}: not UTF-8 text ({bad} of its first {number} lines are not, "
-                                         f"the first: {first_bad}); a table from a Windows tool: [trace] encoding = "
-                                         "\"cp1252\" (or \"utf-16\"), else export it again as UTF-8")
+                    if bad > SURELY_ENCODED and 10 * bad > number:       # no stray bytes: stop reading
+                        raise _other_encoding(path, bad, f"first {number}", first_bad)
                 tail = data[cut:]
             elif block:
                 decoder.decode(block)
@@ -238,7 +245,17 @@ def check_lines(path: Path, encoding: str) -> int:
                 length = len(block) - block.rfind(b"\n") - 1
     if decoder is not None:
         decoder.decode(b"", final=True)
+    lines = ended + (length > 0)
+    if bad > most_undecodable(lines):
+        raise _other_encoding(path, bad, str(lines), first_bad)
     return bad
+
+
+def _other_encoding(path: Path, bad: int, lines: str, first_bad: str) -> TraceError:
+    """The error for a table in another encoding than UTF-8 (``lines``: "2001" or "first 1002")."""
+    return TraceError(f"{path}: not UTF-8 text ({bad} of its {lines} lines are not, the first: {first_bad}); a "
+                      "table from a Windows tool: [trace] encoding = \"cp1252\" (or \"utf-16\"), else export it "
+                      "again as UTF-8")
 
 
 def _csv_batches(path: Path, head: bytes, fmt: TraceFormat, columns: list[str], skipped: SkippedRows) -> Iterator[Any]:

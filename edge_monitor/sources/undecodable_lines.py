@@ -18,24 +18,25 @@ from typing import Callable, Iterator
 MARKER = b"NotUtfEightText"
 
 
-def undecodable(data: bytes | memoryview, first_line: int) -> Iterator[tuple[int, int, int, str]]:
+def undecodable(data: bytes, first_line: int) -> Iterator[tuple[int, int, int, str]]:
     """``(line number, start, end, what)`` of each line of ``data`` (whole lines, the first numbered
     ``first_line``) that is not UTF-8; ``start``/``end`` span the line without its line end, ``what`` names
-    the byte and its column ("byte 0xff at column 7")."""
-    view = memoryview(data)
-    pos, line = 0, first_line
-    while pos < len(view):
+    the byte and where it is in the line ("byte 0xff at byte 7", counted in bytes). The whole of ``data`` is decoded
+    once; from its first bad line on, line by line (linear in ``data``, however many lines are bad)."""
+    try:
+        codecs.utf_8_decode(data, "strict", True)
+        return
+    except UnicodeDecodeError as exc:
+        pos = data.rfind(b"\n", 0, exc.start) + 1
+    line = first_line + data.count(b"\n", 0, pos)
+    while pos < len(data):
+        end = data.find(b"\n", pos)
+        end = len(data) if end < 0 else end
         try:
-            codecs.utf_8_decode(view[pos:], "strict", True)
-            return
+            codecs.utf_8_decode(data[pos:end], "strict", True)
         except UnicodeDecodeError as exc:
-            bad = pos + exc.start
-            start = bytes(view[pos:bad]).rfind(b"\n") + 1 + pos
-            line += bytes(view[pos:start]).count(b"\n")
-            end = bytes(view[bad:]).find(b"\n")
-            end = len(view) if end < 0 else bad + end
-            yield line, start, end, f"byte 0x{view[bad]:02x} at column {bad - start + 1}"
-            pos, line = end + 1, line + 1
+            yield line, pos, end, f"byte 0x{data[pos + exc.start]:02x} at byte {exc.start + 1}"
+        pos, line = end + 1, line + 1
 
 
 def shown(line: bytes) -> str:
