@@ -225,13 +225,16 @@ def _truth_error(truth: str | None) -> str | None:
     if not truth:
         return None
     path = Path(truth)
-    if path.is_dir():
-        return f"--truth {truth}: is a directory; give a file name (e.g. {path / 'truth.jsonl'})"
-    if path.parent.exists() and not path.parent.is_dir():
-        return f"--truth {truth}: {path.parent} is a file, not a folder: fix the path"
-    if not path.parent.is_dir():
-        return (f"--truth {truth}: its folder {path.parent} does not exist: create it (mkdir -p {path.parent}) "
-                "or fix the path")
+    try:
+        if path.is_dir():
+            return f"--truth {truth}: is a directory; give a file name (e.g. {path / 'truth.jsonl'})"
+        if path.parent.exists() and not path.parent.is_dir():
+            return f"--truth {truth}: {path.parent} is a file, not a folder: fix the path"
+        if not path.parent.is_dir():
+            return (f"--truth {truth}: its folder {path.parent} does not exist: create it (mkdir -p {path.parent}) "
+                    "or fix the path")
+    except OSError as exc:          # a name too long, a folder not readable: stat itself fails
+        return f"--truth {truth}: cannot be checked ({exc.strerror or exc}): fix the path"
     return None
 
 
