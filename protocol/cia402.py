@@ -100,10 +100,25 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     return node
 
 
-def _read_here(index: int) -> bool:
-    """Whether the value of object ``index`` is read from the EDS: a TPDO's communication or mapping parameter,
-    6076h, 608Fh."""
-    return 0x1800 <= index <= 0x1BFF or index in (RATED_TORQUE, ENCODER)
+#: Sub-indices of a TPDO's communication parameter (1800h-19FFh) read here: the COB-ID and the transmission type.
+_COMMUNICATION_READ = (1, 2)
+
+
+def _read_here(od: Any, index: int) -> list[tuple[str, Any]]:
+    """The entries of object ``index`` whose values are read from the EDS, with their section names: a TPDO's
+    COB-ID and transmission type, its mapping's count and the entries it counts, 6076h, 608Fh."""
+    obj = od[index]
+    subs = getattr(obj, "subindices", None)
+    if index in (RATED_TORQUE, ENCODER):
+        return [(f"{index:04X}", obj)] if subs is None else [(f"{index:04X}sub{k:X}", v) for k, v in subs.items()]
+    if subs is None or not 0x1800 <= index <= 0x1BFF:
+        return []
+    if index < 0x1A00:
+        wanted = [k for k in _COMMUNICATION_READ if k in subs]
+    else:
+        count = _raw(subs[0]) if 0 in subs else None
+        wanted = [0, *range(1, count + 1)] if isinstance(count, int) else list(subs)
+    return [(f"{index:04X}sub{k:X}", subs[k]) for k in wanted if k in subs]
 
 
 #: An EDS key, canopen's attribute of its text and of its value.
@@ -111,19 +126,21 @@ _VALUE_KEYS = (("DefaultValue", "default_raw", "default"), ("ParameterValue", "v
 
 
 def _check_numbers(node_id: int, eds: Path, od: Any) -> None:
-    """Cia402Error naming the section and the value of an integer object read from the EDS (:func:`_read_here`)
-    whose DefaultValue or ParameterValue is no number: canopen leaves it unset (the TPDO cannot be placed)."""
-    for index in filter(_read_here, od):
-        obj = od[index]
-        subs = getattr(obj, "subindices", None)           # a record or an array: its [XXXXsubN] sections
-        entries = [(f"{index:04X}", obj)] if subs is None else [(f"{index:04X}sub{k:X}", v) for k, v in subs.items()]
-        for section, var in entries:
+    """Cia402Error naming the section and the value of an integer entry read from the EDS (:func:`_read_here`)
+    whose DefaultValue or ParameterValue is given but no number: canopen leaves it unset (the TPDO cannot be
+    placed). A value left empty counts as not given, as canopen reads it, but a mapping entry needs one."""
+    for index in od:
+        for section, var in _read_here(od, index):
             if getattr(var, "data_type", None) not in INTEGER_BITS:
                 continue
             for key, raw, value in _VALUE_KEYS:
-                if getattr(var, raw, None) is not None and getattr(var, value, None) is None:
-                    raise Cia402Error(f"node {node_id}: EDS file {eds}: [{section}] {key}={getattr(var, raw)!r} is "
+                text = getattr(var, raw, None)
+                if text is not None and str(text).strip() and getattr(var, value, None) is None:
+                    raise Cia402Error(f"node {node_id}: EDS file {eds}: [{section}] {key}={text!r} is "
                                       "not a number: write an integer (e.g. 0x60410010, 3 or $NODEID+0x180)")
+            if 0x1A00 <= index <= 0x1BFF and _raw(var) is None:      # a mapping entry it counts: needed
+                raise Cia402Error(f"node {node_id}: EDS file {eds}: [{section}] has no value (DefaultValue empty): "
+                                  "write the object it maps (e.g. 0x60410010) or lower the count in sub0")
 
 
 def _raw(entry: Any) -> Any:

@@ -74,6 +74,7 @@ def _decoder(tmp_path: Path, eds: str) -> Cia402Decoder:
     (lambda t: _set(t, "1800sub1", "DefaultValue", "$NODEID+x"), "[1800sub1] DefaultValue='$NODEID+x' is not a number"),
     # before: "velocity_factor: … the EDS has no 608Fh encoder resolution" (it had one, not a number)
     (lambda t: _set(t, "608Fsub1", "DefaultValue", "lots"), "[608Fsub1] DefaultValue='lots' is not a number"),
+    (lambda t: _set(t, "1A00sub1", "DefaultValue", ""), "[1A00sub1] has no value (DefaultValue empty)"),
     # before: canopen's "eds file does not have a DeviceInfo section" and "velocity_factor: … is needed"
     (lambda t: "", "drive.eds is empty (0 bytes): give the drive's EDS/DCF"),
     (lambda t: "\n; nothing\n\n", "drive.eds is empty (no line but blanks and comments)"),
@@ -88,6 +89,18 @@ def test_an_eds_whose_tpdos_cannot_be_decoded_is_refused_naming_why(tmp_path, ed
 def test_the_shipped_eds_still_decodes(tmp_path):
     decoder = _decoder(tmp_path, EDS)
     assert decoder.describe()[0]["gate"] == "statusword operation enabled"
+
+
+@pytest.mark.parametrize("edit", [
+    lambda t: _set(t, "1800sub4", "DefaultValue", ""),        # reserved: vendors leave it empty
+    lambda t: _set(t, "1800sub3", "DefaultValue", "-"),       # inhibit time: not read here
+    lambda t: _set(t, "1800sub5", "DefaultValue", "abc"),     # event timer: not read here
+])
+def test_values_the_agent_does_not_read_or_left_empty_do_not_refuse_an_eds(tmp_path, edit):
+    """The check of an EDS's numbers refused a vendor file for a value nothing reads (an empty reserved entry, the
+    event timer); only the values read (COB-ID, transmission type, the mapping, 6076h, 608Fh) are checked, and
+    one left empty is not given."""
+    assert _decoder(tmp_path, edit(EDS)).describe()[0]["gate"] == "statusword operation enabled"
 
 
 def test_samples_of_a_drive_not_enabled_are_said(tmp_path):
