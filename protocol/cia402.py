@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.bitfields import BitField
+from protocol.console import library_message
 from protocol.files import read_regular_or
 from protocol.signal_mapping import UnreadableFile
 
@@ -95,8 +96,8 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     except Cia402Error:
         raise
     except Exception as exc:  # noqa: BLE001 — canopen's EDS parser raises configparser/KeyError/ValueError
-        first = (str(exc).strip().splitlines() or [""])[0][:300]
-        raise Cia402Error(f"node {node_id}: cannot read EDS {eds}: {type(exc).__name__}: {first}") from None
+        raise Cia402Error(f"node {node_id}: cannot read EDS {eds}: {type(exc).__name__}: "
+                          f"{library_message(exc)}") from None
     return node
 
 

@@ -83,6 +83,14 @@ def user_text(text: str | None) -> str | None:
     return _ROLE.sub(lambda m: m.group(1).rsplit(".", 1)[-1], text).replace("``", "")
 
 
+def library_message(exc: BaseException, limit: int = 300) -> str:
+    """The first line of a library's exception text, at most ``limit`` characters, without a closing full
+    stop, control characters shown as ``?``: one line of a file's diagnosis (pyarrow, cantools and canopen
+    quote file contents and add lines of context)."""
+    first = (str(exc).strip().splitlines() or [""])[0][:limit].rstrip(".")
+    return "".join(c if c.isprintable() else "?" for c in first)
+
+
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     """The subcommand parsers of ``parser`` by name (empty without subcommands)."""
     for action in parser._actions:

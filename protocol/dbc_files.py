@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from protocol.console import library_message
 from protocol.files import NotARegularFile, read_regular
 from protocol.signal_mapping import MappingError, SignalMapping, UnreadableFile
 
@@ -35,5 +36,4 @@ def load_dbc(mapping: SignalMapping) -> Any:
     try:
         return cantools.database.load_string(text, database_format=_FORMATS.get(suffix), strict=False)
     except Exception as exc:  # noqa: BLE001 — cantools raises its own ParseError, UnsupportedDatabaseFormatError …
-        first = (str(exc).strip().splitlines() or [""])[0][:300]
-        raise MappingError(f"{where}: cannot load {path}: {type(exc).__name__}: {first}") from None
+        raise MappingError(f"{where}: cannot load {path}: {type(exc).__name__}: {library_message(exc)}") from None

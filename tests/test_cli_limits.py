@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from edge_monitor.commands import fit_weights, glr, run
 from edge_monitor.offline.experiment_design import DesignError, DesignPoint, _validate
-from protocol.console import UsageError
+from protocol.console import UsageError, library_message
 
 
 @pytest.fixture(scope="module")
@@ -139,3 +139,16 @@ def test_fit_weights_simulation_values(cycles, low, high, load, wear, seed):
         return
     samples = fit_weights.CycleModel().speed_profile()[0].size
     assert cycles * samples <= fit_weights.MAX_CELLS and -40 <= low < high <= 150 and 0 <= wear <= 100
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(), st.integers(1, 400))
+def test_a_library_message_becomes_one_printable_line_of_bounded_length(text, limit):
+    """pyarrow, cantools and canopen put file contents (control bytes, many lines) into their messages; the
+    user gets the first line only, printable, at most ``limit`` characters, and nothing of it is lost but
+    the closing full stop."""
+    out = library_message(ValueError(text), limit)
+    assert out.isprintable() and len(out) <= limit
+    first = (text.strip().splitlines() or [""])[0][:limit].rstrip(".")
+    assert len(out) == len(first)
+    assert all(o == c or (o == "?" and not c.isprintable()) for o, c in zip(out, first))

@@ -33,6 +33,7 @@ from typing import Any, Iterator
 
 from edge_monitor.sources.log_source import LogReport
 from edge_monitor.sources.undecodable_lines import MARKER, MarkedLines, undecodable
+from protocol.console import library_message
 from protocol.files import NotARegularFile, open_regular
 from protocol.signal_mapping import TraceFormat
 
@@ -343,19 +344,14 @@ def table_batches(path: Path, fmt: TraceFormat, columns: list[str], skipped: Ski
             yield from _parquet_batches(path, columns, fmt.time_column)
     except OSError as exc:                   # pyarrow's I/O errors are OSErrors
         if exc.errno is None and path.suffix.lower() != ".csv":      # not the system's: a page that does not decode
-            raise TraceError(f"{path}: a damaged Parquet file ({_first_line(exc)}): it cannot be read to its "
+            raise TraceError(f"{path}: a damaged Parquet file ({library_message(exc)}): it cannot be read to its "
                              "end; export or copy it again") from None
-        raise TraceUnreadable(f"cannot read {path}: {_first_line(exc)}") from None
+        raise TraceUnreadable(f"cannot read {path}: {library_message(exc)}") from None
     except UnicodeError as exc:              # a decode error, or UTF-16 without its byte-order mark
         raise _not_text(path, fmt, exc) from None
     except pa.ArrowException as exc:
-        first = _first_line(exc)
+        first = library_message(exc)
         hint = (f" (a line longer than {BLOCK_BYTES >> 20} MiB)" if "straddl" in first
                 else "; damaged or cut short? export or copy it again" if path.suffix.lower() != ".csv" else "")
         raise TraceError(f"{path}: not a {path.suffix.lower()[1:]} table its mapping can read: {first}{hint}") from None
 
-
-def _first_line(exc: BaseException) -> str:
-    """The first line of pyarrow's message, at most 300 characters, control characters shown as ``?``."""
-    first = (str(exc).strip().splitlines() or [""])[0][:300].rstrip(".")
-    return "".join(c if c.isprintable() else "?" for c in first)
