@@ -88,11 +88,10 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     network = canopen.Network()                      # never connected: nothing is ever sent from here
     try:
         od = canopen.import_od(text, node_id)
-        _check_numbers(node_id, eds, od)
         node = (canopen.LocalNode if local else canopen.RemoteNode)(node_id, od)
         network.add_node(node)
         for number, pdo in (node.tpdo.map or {}).items():
-            _read_tpdo(node_id, number, pdo)
+            _read_tpdo(f"node {node_id}: EDS file {eds}", node_id, number, pdo)
     except Cia402Error:
         raise
     except Exception as exc:  # noqa: BLE001 — canopen's EDS parser raises configparser/KeyError/ValueError
@@ -101,63 +100,51 @@ def open_node(node_id: int, eds: Path, local: bool = False) -> Any:
     return node
 
 
-#: Sub-indices of a TPDO's communication parameter (1800h-19FFh) read here: the COB-ID and the transmission type.
-_COMMUNICATION_READ = (1, 2)
-
-
-def _read_here(od: Any, index: int) -> list[tuple[str, Any]]:
-    """The entries of object ``index`` whose values are read from the EDS, with their section names: a TPDO's
-    COB-ID and transmission type, its mapping's count and the entries it counts, 6076h, 608Fh."""
-    obj = od[index]
-    subs = getattr(obj, "subindices", None)
-    if index in (RATED_TORQUE, ENCODER):
-        return [(f"{index:04X}", obj)] if subs is None else [(f"{index:04X}sub{k:X}", v) for k, v in subs.items()]
-    if subs is None or not 0x1800 <= index <= 0x1BFF:
-        return []
-    if index < 0x1A00:
-        wanted = [k for k in _COMMUNICATION_READ if k in subs]
-    else:
-        count = _raw(subs[0]) if 0 in subs else None
-        wanted = [0, *range(1, count + 1)] if isinstance(count, int) else list(subs)
-    return [(f"{index:04X}sub{k:X}", subs[k]) for k in wanted if k in subs]
-
-
 #: An EDS key, canopen's attribute of its text and of its value.
 _VALUE_KEYS = (("DefaultValue", "default_raw", "default"), ("ParameterValue", "value_raw", "value"))
 
 
-def _check_numbers(node_id: int, eds: Path, od: Any) -> None:
-    """Cia402Error naming the section and the value of an integer entry read from the EDS (:func:`_read_here`)
-    whose DefaultValue or ParameterValue is given but no number: canopen leaves it unset (the TPDO cannot be
-    placed). A value left empty counts as not given, as canopen reads it, but a mapping entry needs one."""
-    for index in od:
-        for section, var in _read_here(od, index):
-            if getattr(var, "data_type", None) not in INTEGER_BITS:
-                continue
-            for key, raw, value in _VALUE_KEYS:
-                text = getattr(var, raw, None)
-                if text is not None and str(text).strip() and getattr(var, value, None) is None:
-                    raise Cia402Error(f"node {node_id}: EDS file {eds}: [{section}] {key}={text!r} is "
-                                      "not a number: write an integer (e.g. 0x60410010, 3 or $NODEID+0x180)")
-            if 0x1A00 <= index <= 0x1BFF and _raw(var) is None:      # a mapping entry it counts: needed
-                raise Cia402Error(f"node {node_id}: EDS file {eds}: [{section}] has no value (DefaultValue empty): "
-                                  "write the object it maps (e.g. 0x60410010) or lower the count in sub0")
+def _section(var: Any) -> str:
+    """The EDS section of an object dictionary entry: ``6076`` or ``1A00sub1``."""
+    return f"{var.index:04X}" if getattr(var, "parent", None) is None or not hasattr(var.parent, "subindices") \
+        else f"{var.index:04X}sub{var.subindex:X}"
+
+
+def _number(where: str, var: Any, needed: bool = False) -> Any:
+    """The value canopen read for the integer entry ``var`` (its ParameterValue, else its DefaultValue, else
+    None), called where the value is used. Cia402Error naming the section if a value is given but is no number
+    (canopen leaves it unset: a TPDO could not be placed, a scale would be missing), or, ``needed``, if none is
+    given. An empty value counts as not given, as canopen reads it. ``where`` begins the message."""
+    if getattr(var, "data_type", None) in INTEGER_BITS:
+        for key, raw, value in _VALUE_KEYS:
+            text = getattr(var, raw, None)
+            if text is not None and str(text).strip() and getattr(var, value, None) is None:
+                raise Cia402Error(f"{where}: [{_section(var)}] {key}={text!r} is not a number: write an integer "
+                                  "(e.g. 0x60410010, 3 or $NODEID+0x180)")
+    found = _raw(var)
+    if needed and found is None:
+        raise Cia402Error(f"{where}: [{_section(var)}] has no value (DefaultValue empty): write the object it maps "
+                          "(e.g. 0x60410010) or lower the count in sub0")
+    return found
 
 
 def _raw(entry: Any) -> Any:
     return entry.value if getattr(entry, "value", None) is not None else getattr(entry, "default", None)
 
 
-def _read_tpdo(node_id: int, number: int, pdo: Any) -> None:
+def _read_tpdo(eds_where: str, node_id: int, number: int, pdo: Any) -> None:
     """``pdo.read(from_od=True)`` where the EDS describes a TPDO canopen can place, else Cia402Error naming the
     entry: canopen only logs a mapped object the EDS lacks and places the objects after it too early
     (values read from the wrong bits), and only logs a mapping of more than 64 bits. A TPDO not valid
-    (COB-ID bit 31) is not read: it is never sent."""
+    (COB-ID bit 31) is not read: it is never sent. ``eds_where`` begins a message on a value of the EDS."""
     where = f"node {node_id}: TPDO{number} (mapping {0x1A00 + number - 1:04X}h)"
-    if isinstance(cob := _raw(pdo.com_record.od[1]), int) and cob & PDO_NOT_VALID:
+    communication = pdo.com_record.od
+    if isinstance(cob := _number(eds_where, communication[1]), int) and cob & PDO_NOT_VALID:
         return
+    if 2 in communication.subindices:
+        _number(eds_where, communication[2])              # the transmission type, read by pdo.read below
     array = pdo.map_array.od
-    count = _raw(array[0])
+    count = _number(eds_where, array[0])
     bits = 0
     for sub in range(1, (count if isinstance(count, int) else 0) + 1):
         try:
@@ -165,7 +152,7 @@ def _read_tpdo(node_id: int, number: int, pdo: Any) -> None:
         except KeyError:
             raise Cia402Error(f"{where}: sub-index 0 says {count} mapped objects, entry {sub} is not in the EDS: "
                               f"fix {0x1A00 + number - 1:04X}sub0 or add the entries") from None
-        value = int(_raw(array[sub]) or 0)
+        value = int(_number(eds_where, array[sub], needed=True))
         index, subindex, size = value >> 16, (value >> 8) & 0xFF, value & 0xFF
         if not (index and size):
             continue
@@ -245,21 +232,22 @@ def drive_layout(node_id: int, eds: Path | None = None,
             bits = BitField(v.name, int(v.offset), int(v.length), signed=signed)
             fields[(v.index, v.subindex)] = PdoField(int(pdo.cob_id), length, int(pdo.trans_type or 0),
                                                      v.index, v.subindex, bits, _problem(v.od, int(v.length)))
-    od = node.object_dictionary
-    rated = _default(od, RATED_TORQUE, None)
-    increments = _default(od, ENCODER, 1)
-    revolutions = _default(od, ENCODER, 2)
+    od, where = node.object_dictionary, f"node {node_id}: EDS file {eds}"
+    rated = _default(where, od, RATED_TORQUE, None)
+    increments = _default(where, od, ENCODER, 1)
+    revolutions = _default(where, od, ENCODER, 2)
     per_rev = increments / revolutions if increments and revolutions and increments > 0 < revolutions else None
     return DriveLayout(node_id, fields, None if rated is None else rated / 1000.0, per_rev,
                        (increments, revolutions), tuple(unused))
 
 
-def _default(od: Any, index: int, subindex: int | None) -> float | None:
+def _default(where: str, od: Any, index: int, subindex: int | None) -> float | None:
+    """The value of object ``index`` (sub ``subindex``) in the EDS, None where it has none."""
     try:
         entry = od[index] if subindex is None else od[index][subindex]
     except KeyError:
         return None
-    value = entry.value if getattr(entry, "value", None) is not None else getattr(entry, "default", None)
+    value = _number(where, entry)
     try:
         return None if value is None else float(value)
     except (TypeError, ValueError):

@@ -75,6 +75,7 @@ def _decoder(tmp_path: Path, eds: str) -> Cia402Decoder:
     # before: "velocity_factor: … the EDS has no 608Fh encoder resolution" (it had one, not a number)
     (lambda t: _set(t, "608Fsub1", "DefaultValue", "lots"), "[608Fsub1] DefaultValue='lots' is not a number"),
     (lambda t: _set(t, "1A00sub1", "DefaultValue", ""), "[1A00sub1] has no value (DefaultValue empty)"),
+    (lambda t: _set(t, "1800sub2", "DefaultValue", "sync"), "[1800sub2] DefaultValue='sync' is not a number"),
     # before: canopen's "eds file does not have a DeviceInfo section" and "velocity_factor: … is needed"
     (lambda t: "", "drive.eds is empty (0 bytes): give the drive's EDS/DCF"),
     (lambda t: "\n; nothing\n\n", "drive.eds is empty (no line but blanks and comments)"),
@@ -101,6 +102,28 @@ def test_values_the_agent_does_not_read_or_left_empty_do_not_refuse_an_eds(tmp_p
     event timer); only the values read (COB-ID, transmission type, the mapping, 6076h, 608Fh) are checked, and
     one left empty is not given."""
     assert _decoder(tmp_path, edit(EDS)).describe()[0]["gate"] == "statusword operation enabled"
+
+
+def _third_tpdo(cob_id: str, entry: str) -> str:
+    """The shipped EDS with a TPDO3 (1802h, 1A02h) of COB-ID ``cob_id`` mapping one object, ``entry``."""
+    def var(section: str, name: str, data_type: str, value: str) -> str:
+        return (f"[{section}]\nParameterName={name}\nObjectType=0x7\nDataType={data_type}\nAccessType=rw\n"
+                f"PDOMapping=0\nDefaultValue={value}\n\n")
+    text = ("[1802]\nParameterName=TPDO3 communication parameter\nObjectType=0x9\nSubNumber=3\n\n"
+            + var("1802sub0", "Highest sub-index", "0x0005", "2") + var("1802sub1", "COB-ID", "0x0007", cob_id)
+            + var("1802sub2", "Transmission type", "0x0005", "1")
+            + "[1A02]\nParameterName=TPDO3 mapping parameter\nObjectType=0x9\nSubNumber=2\n\n"
+            + var("1A02sub0", "Number of mapped objects", "0x0005", "1") + var("1A02sub1", "Mapped object 1", "0x0007", entry))
+    return EDS.replace("[2010]\n", text + "[2010]\n", 1)
+
+
+def test_the_mapping_of_a_tpdo_not_valid_is_not_read(tmp_path):
+    """A TPDO whose COB-ID has bit 31 set is never sent: its mapping is not read, so a value there that is no
+    number does not refuse the EDS; the same mapping in a valid TPDO does."""
+    decoder = _decoder(tmp_path, _third_tpdo("$NODEID+0x80000380", "abc"))
+    assert decoder.describe()[0]["gate"] == "statusword operation enabled"
+    with pytest.raises(MappingError, match=r"\[1A02sub1\] DefaultValue='abc' is not a number"):
+        _decoder(tmp_path, _third_tpdo("$NODEID+0x380", "abc"))
 
 
 def test_samples_of_a_drive_not_enabled_are_said(tmp_path):
