@@ -14,7 +14,7 @@ from pathlib import Path
 import hostile_files as hostile
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from edge_monitor.config import load_config
@@ -303,6 +303,7 @@ def _trace_mapping(tmp_path: Path):
 @given(st.binary(max_size=3000) | st.lists(st.sampled_from(ROWS[:20] + [b"nan;;\n", b"\xff;1\n", b'"\n', b";;;;;;\n",
                                                                          b"1e400;1;1;1;1\n", b"-0;-inf;x;1;1\n"]),
                                                max_size=40).map(lambda rows: HEADER + b"".join(rows)))
+@example(b"\r\x00")           # a lone CR in the header line was a csv.Error traceback (2026-12-01)
 def test_any_bytes_as_a_csv_trace_decode_to_samples_or_a_clear_error(tmp_path, data):
     """Whatever the bytes, the decoder yields samples (which the sample stream takes without an
     exception) or raises TraceError / TraceUnreadable, nothing else."""
@@ -316,6 +317,22 @@ def test_any_bytes_as_a_csv_trace_decode_to_samples_or_a_clear_error(tmp_path, d
         source.flush()
     except (TraceError, TraceUnreadable):
         pass
+
+
+def test_a_table_whose_lines_end_in_a_lone_cr_is_read_like_pyarrow_reads_it(tmp_path):
+    """Old Mac line ends: the header ends at the first CR, as pyarrow's rows do."""
+    path = tmp_path / "cr.csv"
+    path.write_bytes(HEADER.replace(b"\n", b"\r") + b"".join(r.replace(b"\n", b"\r") for r in ROWS[:5]))
+    mapping = _trace_mapping(tmp_path)
+    assert sum(len(d.joints[0].time) for d in decoded_batches(path, mapping) if 0 in d.joints) == 5
+
+
+def test_a_header_name_longer_than_the_csv_field_limit_is_refused_clearly(tmp_path):
+    """Python's csv module refuses a field over 131 072 characters; the header's reader says so in one line."""
+    path = tmp_path / "long.csv"
+    path.write_bytes(b"t;" + b"v" * 200_000 + b"\n0;1\n")
+    with pytest.raises(TraceError, match="its header line cannot be read as CSV .*field larger than field limit"):
+        list(decoded_batches(path, _trace_mapping(tmp_path)))
 
 
 @pytest.mark.parametrize(("lines", "refused"), [

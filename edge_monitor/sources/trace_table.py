@@ -102,12 +102,15 @@ def csv_header(path: Path, head: bytes, fmt: TraceFormat) -> list[str]:
     if end < 0 and len(head) == BLOCK_BYTES:
         raise TraceError(f"{path}: its first line (the header) is longer than {BLOCK_BYTES >> 20} MiB: "
                          "not a trace table")
-    line = (text if end < 0 else text[:end]).lstrip("\ufeff").rstrip("\r")
+    line = re.split("[\r\n]", text, maxsplit=1)[0].lstrip("\ufeff")    # a lone CR ends a line too, as for pyarrow
     if line.count(fmt.separator) >= MAX_COLUMNS:
         raise TraceError(f"{path}: its header has more than {MAX_COLUMNS} columns "
                          f"({line.count(fmt.separator) + 1} {fmt.separator!r}-separated): not a trace table; "
                          "export the signals the mapping names")
-    names = next(csv.reader([line], delimiter=fmt.separator, quotechar='"'), [])
+    try:
+        names = next(csv.reader([line], delimiter=fmt.separator, quotechar='"'), [])
+    except csv.Error as exc:
+        raise TraceError(f"{path}: its header line cannot be read as CSV ({exc}): not a trace table") from None
     if not names or names == [""]:
         raise TraceError(f"{path}: its first line is empty: a trace table starts with a header row")
     return [n.strip() for n in names]
